@@ -1,1 +1,0 @@
-//! Planar serial chains.

@@ -1,0 +1,32 @@
+//! Planar serial chains: human and robot legs, payload, friction, interaction straps, RK4.
+//!
+//! Paper §2, eqs. 1-4; spec (`MODEL.md`) §1-4. Everything here is generic over the scalar type
+//! ([`Real`]) so that the very same code yields exact derivatives with forward-mode dual numbers
+//! (`num-dual`).
+
+mod chain;
+mod human;
+mod rk4;
+mod robot;
+mod straps;
+
+pub use chain::{Chain, Link};
+pub use human::{HumanSegment, WinterFractions};
+pub use rk4::{rk4_step, JointState, RkState};
+pub use robot::{Friction, RobotModel};
+pub use straps::Straps;
+
+use num_dual::DualNum;
+
+/// Standard gravity (m/s²), spec §1.
+pub const GRAVITY: f64 = 9.81;
+
+/// A real scalar: `f64` or a forward-mode dual number over `f64`.
+pub trait Real: DualNum<Primitive = f64> + Copy {}
+impl<T: DualNum<Primitive = f64> + Copy> Real for T {}
+
+/// Lift an `f64` constant into the scalar type.
+#[inline(always)]
+pub fn c<T: Real>(x: f64) -> T {
+    T::from(x)
+}

@@ -1,0 +1,72 @@
+//! The exoskeleton robot: a chain with joint friction (paper eq. 1, spec §3).
+
+use super::{c, Chain, Real};
+use nalgebra::SVector;
+
+/// Coulomb friction law.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Friction {
+    /// `kf2 sign(qd)` — the plant (spec §3).
+    Sign,
+    /// `kf2 tanh(qd / width)` — the smooth law of prediction models (spec §3), `width` in rad/s.
+    Tanh {
+        /// Velocity scale of the smoothing (rad/s).
+        width: f64,
+    },
+}
+
+/// Robot dynamics of paper eq. 1 without the interaction and disturbance inputs:
+/// `M qdd + C qd + G + kf1 qd + kf2 sign(qd) = tau`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RobotModel<const N: usize> {
+    /// Rigid-body chain (payload and mass perturbation already merged into the links).
+    pub chain: Chain<N>,
+    /// Viscous friction `kf1` (N·m·s) per joint.
+    pub viscous: f64,
+    /// Coulomb friction `kf2` (N·m) per joint.
+    pub coulomb: f64,
+    /// Coulomb law.
+    pub friction: Friction,
+}
+
+impl<const N: usize> RobotModel<N> {
+    /// Friction torque `kf1 qd + kf2 sign(qd)` (or its smooth `tanh` version).
+    #[inline]
+    pub fn friction_torque<T: Real>(&self, qd: &SVector<T, N>) -> SVector<T, N> {
+        let mut f = *qd;
+        for i in 0..N {
+            let coul = match self.friction {
+                Friction::Sign => {
+                    let r = qd[i].re();
+                    c::<T>(if r > 0.0 {
+                        self.coulomb
+                    } else if r < 0.0 {
+                        -self.coulomb
+                    } else {
+                        0.0
+                    })
+                }
+                Friction::Tanh { width } => (qd[i] * (1.0 / width)).tanh() * self.coulomb,
+            };
+            f[i] = qd[i] * self.viscous + coul;
+        }
+        f
+    }
+
+    /// Joint accelerations for the net external joint torque `tau` (applied torque plus
+    /// interaction torque plus disturbance), friction included: paper eq. 1 solved for `qdd`.
+    #[inline]
+    pub fn acceleration<T: Real>(
+        &self,
+        q: &SVector<T, N>,
+        qd: &SVector<T, N>,
+        tau: &SVector<T, N>,
+    ) -> SVector<T, N> {
+        let fr = self.friction_torque(qd);
+        let mut net = *tau;
+        for i in 0..N {
+            net[i] = tau[i] - fr[i];
+        }
+        self.chain.forward_dynamics(q, qd, &net)
+    }
+}
