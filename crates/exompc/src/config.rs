@@ -448,7 +448,7 @@ pub struct Trajectory {
     pub knee_amplitude_swing: f64,
     /// Period of the knee amplitude variation (s), > 0. Default 7.
     pub knee_amplitude_period_s: f64,
-    /// Knee phase lag relative to the hip (rad), finite. Default pi/3.
+    /// Knee phase lag relative to the hip (rad), finite. Default pi/3 = 1.0471975511965976.
     pub knee_phase: f64,
     /// 1-DOF knee amplitude (rad), >= 0. Default 0.6.
     pub one_dof_amplitude: f64,
@@ -469,7 +469,7 @@ impl Default for Trajectory {
             knee_amplitude: 1.00,
             knee_amplitude_swing: 0.15,
             knee_amplitude_period_s: 7.0,
-            knee_phase: std::f64::consts::FRAC_PI_3,
+            knee_phase: std::f64::consts::PI / 3.0, // 1.0471975511965976, as in spec §6
             one_dof_amplitude: 0.6,
             one_dof_frequency_hz: 0.5,
         }
