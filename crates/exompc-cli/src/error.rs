@@ -41,7 +41,9 @@ impl CliError {
 impl fmt::Display for CliError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            CliError::Config(m) | CliError::Usage(m) | CliError::Io(m) | CliError::Runtime(m) => f.write_str(m),
+            CliError::Config(m) | CliError::Usage(m) | CliError::Io(m) | CliError::Runtime(m) => {
+                f.write_str(m)
+            }
             CliError::NotImplemented(cmd) => write!(f, "`exompc {cmd}` is not yet implemented"),
         }
     }

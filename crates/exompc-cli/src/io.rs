@@ -32,7 +32,8 @@ pub fn default_config_toml() -> Result<String, CliError> {
 pub fn load_scenario(path: Option<&Path>) -> Result<Scenario, CliError> {
     let Some(path) = path else {
         let s = Scenario::default();
-        s.validate().map_err(|e| CliError::Config(format!("default scenario: {e}")))?;
+        s.validate()
+            .map_err(|e| CliError::Config(format!("default scenario: {e}")))?;
         return Ok(s);
     };
     let shown = path.display();
@@ -43,9 +44,11 @@ pub fn load_scenario(path: Option<&Path>) -> Result<Scenario, CliError> {
 
 /// Parses and validates a scenario from TOML text; the error is a one-line message.
 pub fn parse_scenario(text: &str) -> Result<Scenario, String> {
-    let table: toml::Table = toml::from_str(text).map_err(|e| describe_toml_error(text, &e, "TOML syntax error"))?;
+    let table: toml::Table =
+        toml::from_str(text).map_err(|e| describe_toml_error(text, &e, "TOML syntax error"))?;
     check_keys(&table, &schema(), "")?;
-    let scenario: Scenario = toml::from_str(text).map_err(|e| describe_toml_error(text, &e, "invalid scenario"))?;
+    let scenario: Scenario =
+        toml::from_str(text).map_err(|e| describe_toml_error(text, &e, "invalid scenario"))?;
     scenario.validate().map_err(|e| e.to_string())?;
     Ok(scenario)
 }
@@ -101,8 +104,13 @@ fn check_keys(user: &toml::Table, schema: &toml::Table, prefix: &str) -> Result<
             } else {
                 format!("in table [{prefix}]")
             };
-            let hint = closest(key, &names).map(|c| format!("; did you mean `{c}`?")).unwrap_or_default();
-            return Err(format!("unknown key `{key}` {place}{hint} (valid keys: {})", names.join(", ")));
+            let hint = closest(key, &names)
+                .map(|c| format!("; did you mean `{c}`?"))
+                .unwrap_or_default();
+            return Err(format!(
+                "unknown key `{key}` {place}{hint} (valid keys: {})",
+                names.join(", ")
+            ));
         };
         check_value(value, expected, &path)?;
     }
@@ -111,18 +119,26 @@ fn check_keys(user: &toml::Table, schema: &toml::Table, prefix: &str) -> Result<
 
 fn check_value(value: &toml::Value, expected: &toml::Value, path: &str) -> Result<(), String> {
     use toml::Value as V;
-    let mismatch = |what: &str| format!("invalid type for {path}: expected {what}, found {} `{value}`", kind_name(value));
+    let mismatch = |what: &str| {
+        format!(
+            "invalid type for {path}: expected {what}, found {} `{value}`",
+            kind_name(value)
+        )
+    };
     match (expected, value) {
         (V::Table(s), V::Table(u)) => check_keys(u, s, path),
         (V::Float(_), V::Float(_) | V::Integer(_)) => Ok(()),
         (V::Float(_), _) => Err(mismatch("a number")),
-        (V::Integer(_), V::Integer(i)) if *i < 0 => {
-            Err(format!("invalid value for {path}: {i} (allowed: a non-negative integer)"))
-        }
+        (V::Integer(_), V::Integer(i)) if *i < 0 => Err(format!(
+            "invalid value for {path}: {i} (allowed: a non-negative integer)"
+        )),
         (V::Integer(_), V::Integer(_)) => Ok(()),
         (V::Integer(_), _) => Err(mismatch("an integer")),
         (V::Array(s), V::Array(u)) => match s.first() {
-            Some(elem) => u.iter().enumerate().try_for_each(|(i, v)| check_value(v, elem, &format!("{path}[{i}]"))),
+            Some(elem) => u
+                .iter()
+                .enumerate()
+                .try_for_each(|(i, v)| check_value(v, elem, &format!("{path}[{i}]"))),
             None => Ok(()),
         },
         (a, b) if std::mem::discriminant(a) == std::mem::discriminant(b) => Ok(()),
@@ -148,7 +164,10 @@ pub fn levenshtein(a: &str, b: &str) -> usize {
 
 /// The candidate closest to `name` by Levenshtein distance (first one on ties).
 pub fn closest<'a>(name: &str, candidates: &[&'a str]) -> Option<&'a str> {
-    candidates.iter().copied().min_by_key(|c| levenshtein(name, c))
+    candidates
+        .iter()
+        .copied()
+        .min_by_key(|c| levenshtein(name, c))
 }
 
 /// Turns a toml error into one line: `<what> at line L, column C (<dotted key>): <message>`.
@@ -160,7 +179,9 @@ fn describe_toml_error(text: &str, err: &toml::de::Error, what: &str) -> String 
             let before = &text[..start];
             let line = before.matches('\n').count() + 1;
             let col = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
-            let at = key_path_at(text, start).map(|p| format!(" ({p})")).unwrap_or_default();
+            let at = key_path_at(text, start)
+                .map(|p| format!(" ({p})"))
+                .unwrap_or_default();
             format!("{what} at line {line}, column {col}{at}: {msg}")
         }
         None => format!("{what}: {msg}"),
@@ -174,12 +195,17 @@ fn key_path_at(text: &str, offset: usize) -> Option<String> {
     let line = text[line_start..].lines().next().unwrap_or("");
     let header = |l: &str| {
         let l = l.trim();
-        l.starts_with('[').then(|| l.trim_matches(|c| c == '[' || c == ']').trim().to_string())
+        l.starts_with('[')
+            .then(|| l.trim_matches(|c| c == '[' || c == ']').trim().to_string())
     };
     if let Some(h) = header(line) {
         return Some(h);
     }
-    let table = text[..line_start].lines().rev().find_map(header).unwrap_or_default();
+    let table = text[..line_start]
+        .lines()
+        .rev()
+        .find_map(header)
+        .unwrap_or_default();
     let key = line.split_once('=')?.0.trim().trim_matches('"');
     (!key.is_empty()).then(|| join(&table, key))
 }
@@ -188,7 +214,10 @@ static TEMP_COUNTER: AtomicU64 = AtomicU64::new(0);
 
 /// A unique temporary path next to `dest` (same folder, so that `rename` is atomic).
 fn temp_path_for(dest: &Path) -> PathBuf {
-    let name = dest.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "out".into());
+    let name = dest
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "out".into());
     let n = TEMP_COUNTER.fetch_add(1, Ordering::Relaxed);
     dest.with_file_name(format!(".{name}.tmp.{}.{n}", std::process::id()))
 }
@@ -197,7 +226,11 @@ fn temp_path_for(dest: &Path) -> PathBuf {
 fn sync_parent(path: &Path) {
     #[cfg(unix)]
     if let Some(dir) = path.parent() {
-        let dir = if dir.as_os_str().is_empty() { Path::new(".") } else { dir };
+        let dir = if dir.as_os_str().is_empty() {
+            Path::new(".")
+        } else {
+            dir
+        };
         if let Ok(d) = File::open(dir) {
             let _ = d.sync_all();
         }
@@ -210,7 +243,8 @@ fn sync_parent(path: &Path) {
 /// fsynced and renamed over `path`. Readers see either the old or the complete new file.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), CliError> {
     let mut w = AtomicWriter::create(path)?;
-    w.write_all(bytes).map_err(|e| CliError::io(format!("writing {}", path.display()), e))?;
+    w.write_all(bytes)
+        .map_err(|e| CliError::io(format!("writing {}", path.display()), e))?;
     w.finish()
 }
 
@@ -226,8 +260,13 @@ impl AtomicWriter {
     /// Creates the temporary file next to `dest`.
     pub fn create(dest: &Path) -> Result<Self, CliError> {
         let temp = temp_path_for(dest);
-        let file = File::create(&temp).map_err(|e| CliError::io(format!("cannot create {}", temp.display()), e))?;
-        Ok(Self { inner: Some(BufWriter::new(file)), temp, dest: dest.to_path_buf() })
+        let file = File::create(&temp)
+            .map_err(|e| CliError::io(format!("cannot create {}", temp.display()), e))?;
+        Ok(Self {
+            inner: Some(BufWriter::new(file)),
+            temp,
+            dest: dest.to_path_buf(),
+        })
     }
 
     /// The final destination path.
@@ -239,7 +278,9 @@ impl AtomicWriter {
     pub fn finish(mut self) -> Result<(), CliError> {
         let what = || format!("writing {}", self.dest.display());
         let buf = self.inner.take().expect("AtomicWriter used after finish");
-        let file = buf.into_inner().map_err(|e| CliError::io(what(), e.into_error()))?;
+        let file = buf
+            .into_inner()
+            .map_err(|e| CliError::io(what(), e.into_error()))?;
         file.sync_all().map_err(|e| CliError::io(what(), e))?;
         drop(file);
         fs::rename(&self.temp, &self.dest).map_err(|e| CliError::io(what(), e))?;
@@ -248,7 +289,9 @@ impl AtomicWriter {
     }
 
     fn writer(&mut self) -> io::Result<&mut BufWriter<File>> {
-        self.inner.as_mut().ok_or_else(|| io::Error::other("AtomicWriter already finished"))
+        self.inner
+            .as_mut()
+            .ok_or_else(|| io::Error::other("AtomicWriter already finished"))
     }
 }
 
@@ -275,9 +318,12 @@ impl Drop for AtomicWriter {
 pub fn ensure_out_dir(dir: &Path) -> Result<(), CliError> {
     let shown = dir.display();
     if dir.exists() && !dir.is_dir() {
-        return Err(CliError::Usage(format!("output path {shown} exists and is not a folder")));
+        return Err(CliError::Usage(format!(
+            "output path {shown} exists and is not a folder"
+        )));
     }
-    fs::create_dir_all(dir).map_err(|e| CliError::Usage(format!("cannot create output folder {shown}: {e}")))?;
+    fs::create_dir_all(dir)
+        .map_err(|e| CliError::Usage(format!("cannot create output folder {shown}: {e}")))?;
     let probe = dir.join(format!(".exompc-write-test.{}", std::process::id()));
     File::create(&probe)
         .and_then(|_| fs::remove_file(&probe))

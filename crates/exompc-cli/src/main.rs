@@ -5,9 +5,9 @@
 //! line on stderr.
 
 use clap::{Args, Parser, Subcommand};
+use exompc::config::{ControllerKind, Scenario};
 use exompc_cli::error::CliError;
 use exompc_cli::io;
-use exompc::config::{ControllerKind, Scenario};
 use std::io::Write as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -156,7 +156,9 @@ fn run(cli: Cli) -> Result<(), CliError> {
             }
             if let Some(p) = a.payload {
                 scenario.uncertainty.payload_kg = p;
-                scenario.validate().map_err(|e| CliError::Usage(format!("--payload: {e}")))?;
+                scenario
+                    .validate()
+                    .map_err(|e| CliError::Usage(format!("--payload: {e}")))?;
             }
             if let Some(out) = &a.out {
                 io::ensure_out_dir(out)?;

@@ -4,7 +4,10 @@ use std::path::PathBuf;
 use std::process::{Command, Output};
 
 fn exompc(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_exompc")).args(args).output().expect("run exompc")
+    Command::new(env!("CARGO_BIN_EXE_exompc"))
+        .args(args)
+        .output()
+        .expect("run exompc")
 }
 
 fn scratch(name: &str) -> PathBuf {
@@ -22,8 +25,17 @@ fn config_prints_default_that_loads_back_identically() {
     let out = exompc(&["config"]);
     assert!(out.status.success(), "{}", stderr(&out));
     let text = String::from_utf8(out.stdout).unwrap();
-    assert!(text.starts_with("# exompc scenario"), "comment header missing");
-    for table in ["[human.thigh]", "[robot.shank]", "[controller.sqp]", "[multistage]", "[monitors]"] {
+    assert!(
+        text.starts_with("# exompc scenario"),
+        "comment header missing"
+    );
+    for table in [
+        "[human.thigh]",
+        "[robot.shank]",
+        "[controller.sqp]",
+        "[multistage]",
+        "[monitors]",
+    ] {
         assert!(text.contains(table), "missing {table}");
     }
     let parsed = exompc_cli::io::parse_scenario(&text).expect("printed config must load");
@@ -82,11 +94,18 @@ fn bad_configs_exit_2_naming_the_field() {
         let err = stderr(&out);
         assert_eq!(out.status.code(), Some(2), "{name}: {err}");
         assert!(err.starts_with("error: "), "{name}: {err}");
-        assert_eq!(err.trim_end().lines().count(), 1, "{name}: one line expected: {err}");
+        assert_eq!(
+            err.trim_end().lines().count(),
+            1,
+            "{name}: one line expected: {err}"
+        );
         for n in *needles {
             assert!(err.contains(n), "{name}: `{n}` not in: {err}");
         }
-        assert!(!err.contains("not yet implemented"), "{name}: config must be rejected first: {err}");
+        assert!(
+            !err.contains("not yet implemented"),
+            "{name}: config must be rejected first: {err}"
+        );
     }
 }
 
@@ -97,7 +116,11 @@ fn bad_config_is_rejected_by_every_scenario_command() {
     for cmd in ["simulate", "sweep", "soak", "bench"] {
         let out = exompc(&[cmd, "--config", path.to_str().unwrap()]);
         assert_eq!(out.status.code(), Some(2), "{cmd}");
-        assert!(stderr(&out).contains("robot.shank.mass_kg"), "{cmd}: {}", stderr(&out));
+        assert!(
+            stderr(&out).contains("robot.shank.mass_kg"),
+            "{cmd}: {}",
+            stderr(&out)
+        );
     }
 }
 
@@ -105,12 +128,19 @@ fn bad_config_is_rejected_by_every_scenario_command() {
 fn missing_config_file_names_the_path() {
     let out = exompc(&["simulate", "--config", "/nonexistent/dir/my.toml"]);
     assert_eq!(out.status.code(), Some(2));
-    assert!(stderr(&out).contains("/nonexistent/dir/my.toml"), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("/nonexistent/dir/my.toml"),
+        "{}",
+        stderr(&out)
+    );
 }
 
 #[test]
 fn partial_config_is_accepted() {
-    let out = simulate_with("partial.toml", "[uncertainty]\npayload_kg = 2\n[human.thigh]\nmass_fraction = 0.11\n");
+    let out = simulate_with(
+        "partial.toml",
+        "[uncertainty]\npayload_kg = 2\n[human.thigh]\nmass_fraction = 0.11\n",
+    );
     // Valid config: reaches the (not yet implemented) simulation or runs it; never a config error.
     let err = stderr(&out);
     assert!(!err.contains("config file"), "{err}");
@@ -120,7 +150,11 @@ fn partial_config_is_accepted() {
 fn bad_flags_exit_2() {
     let out = exompc(&["simulate", "--payload", "25"]);
     assert_eq!(out.status.code(), Some(2));
-    assert!(stderr(&out).contains("uncertainty.payload_kg"), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("uncertainty.payload_kg"),
+        "{}",
+        stderr(&out)
+    );
     let out = exompc(&["simulate", "--dof", "3"]);
     assert_eq!(out.status.code(), Some(2));
     let out = exompc(&["no-such-command"]);
@@ -132,6 +166,10 @@ fn stubs_exit_2_with_message() {
     for cmd in ["model", "solve", "plot"] {
         let out = exompc(&[cmd]);
         assert_eq!(out.status.code(), Some(2), "{cmd}");
-        assert!(stderr(&out).contains("not yet implemented"), "{cmd}: {}", stderr(&out));
+        assert!(
+            stderr(&out).contains("not yet implemented"),
+            "{cmd}: {}",
+            stderr(&out)
+        );
     }
 }

@@ -1,20 +1,26 @@
 //! Tests of the CLI's I/O helpers (`exompc_cli::io`).
 
 use exompc::config::{Channel, FaultKind, HumanSegment, RobotLink, Scenario};
-use exompc_cli::io::{closest, ensure_out_dir, levenshtein, parse_scenario, write_atomic, AtomicWriter};
+use exompc_cli::io::{
+    closest, ensure_out_dir, levenshtein, parse_scenario, write_atomic, AtomicWriter,
+};
 use std::io::Write;
 use std::path::PathBuf;
 
 fn scratch_dir(name: &str) -> PathBuf {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("exompc-io-tests").join(name);
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+        .join("exompc-io-tests")
+        .join(name);
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     dir
 }
 
 fn entries(dir: &std::path::Path) -> Vec<String> {
-    let mut v: Vec<String> =
-        std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
     v.sort();
     v
 }
@@ -31,8 +37,14 @@ fn partial_override_changes_only_named_fields() {
     )
     .unwrap();
     let mut expected = Scenario::default();
-    expected.human.thigh = HumanSegment { mass_fraction: 0.11, ..HumanSegment::WINTER_THIGH };
-    expected.robot.shank = RobotLink { mass_kg: 1.5, ..RobotLink::SHANK };
+    expected.human.thigh = HumanSegment {
+        mass_fraction: 0.11,
+        ..HumanSegment::WINTER_THIGH
+    };
+    expected.robot.shank = RobotLink {
+        mass_kg: 1.5,
+        ..RobotLink::SHANK
+    };
     expected.controller.kind = exompc::config::ControllerKind::Nmpc;
     expected.controller.np = 10;
     expected.timing.dt = 1.0;
@@ -47,7 +59,10 @@ fn fault_events_and_optional_keys_parse() {
     .unwrap();
     assert_eq!(s.controller.sqp.max_time_us, Some(5000));
     assert_eq!(s.faults.events.len(), 2);
-    assert_eq!((s.faults.events[0].kind, s.faults.events[0].channel), (FaultKind::Spike, Channel::F2));
+    assert_eq!(
+        (s.faults.events[0].kind, s.faults.events[0].channel),
+        (FaultKind::Spike, Channel::F2)
+    );
     assert_eq!(s.faults.events[1].magnitude, 0.0);
     // A scenario with events and options round-trips through TOML.
     let text = toml::to_string_pretty(&s).unwrap();
@@ -59,7 +74,10 @@ fn levenshtein_and_closest() {
     assert_eq!(levenshtein("", "abc"), 3);
     assert_eq!(levenshtein("kitten", "sitting"), 3);
     assert_eq!(levenshtein("mass_kg", "mass_kg"), 0);
-    assert_eq!(closest("masss_kg", &["length_m", "mass_kg", "com_m"]), Some("mass_kg"));
+    assert_eq!(
+        closest("masss_kg", &["length_m", "mass_kg", "com_m"]),
+        Some("mass_kg")
+    );
     assert_eq!(closest("x", &[]), None);
 }
 
@@ -96,7 +114,11 @@ fn atomic_writer_renames_on_finish_and_cleans_up_on_drop() {
     let csv_path = dir.join("table.csv");
     let mut c = csv::Writer::from_writer(AtomicWriter::create(&csv_path).unwrap());
     c.write_record(["a", "b"]).unwrap();
-    c.into_inner().map_err(|e| e.into_error()).unwrap().finish().unwrap();
+    c.into_inner()
+        .map_err(|e| e.into_error())
+        .unwrap()
+        .finish()
+        .unwrap();
     assert_eq!(std::fs::read_to_string(&csv_path).unwrap(), "a,b\n");
 }
 

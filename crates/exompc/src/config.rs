@@ -35,8 +35,16 @@ pub struct ConfigError {
 
 impl ConfigError {
     /// Builds an error for `field` holding `value`, which should have satisfied `allowed`.
-    pub fn new(field: impl Into<String>, value: impl fmt::Display, allowed: impl Into<String>) -> Self {
-        Self { field: field.into(), value: value.to_string(), allowed: allowed.into() }
+    pub fn new(
+        field: impl Into<String>,
+        value: impl fmt::Display,
+        allowed: impl Into<String>,
+    ) -> Self {
+        Self {
+            field: field.into(),
+            value: value.to_string(),
+            allowed: allowed.into(),
+        }
     }
 }
 
@@ -106,7 +114,9 @@ fn int(path: &str, v: usize, lo: usize, hi: usize) -> Result<(), ConfigError> {
 
 /// Checks a list of `(name, value, range)` triples under the table path `prefix`.
 fn reals(prefix: &str, items: &[(&str, f64, R)]) -> Result<(), ConfigError> {
-    items.iter().try_for_each(|&(name, v, r)| real(&format!("{prefix}.{name}"), v, r))
+    items
+        .iter()
+        .try_for_each(|&(name, v, r)| real(&format!("{prefix}.{name}"), v, r))
 }
 
 /// Generates a private "patch" struct (all fields optional) and a deserialiser function that
@@ -179,11 +189,19 @@ pub struct HumanSegment {
 
 impl HumanSegment {
     /// Winter's thigh: mass 0.100 m_b, length 0.245 H, COM 0.433 l, gyration 0.323 l (spec §2).
-    pub const WINTER_THIGH: Self =
-        Self { mass_fraction: 0.100, length_fraction: 0.245, com_fraction: 0.433, gyration_fraction: 0.323 };
+    pub const WINTER_THIGH: Self = Self {
+        mass_fraction: 0.100,
+        length_fraction: 0.245,
+        com_fraction: 0.433,
+        gyration_fraction: 0.323,
+    };
     /// Winter's shank + foot: mass 0.061 m_b, length 0.246 H, COM 0.606 l, gyration 0.416 l (spec §2).
-    pub const WINTER_SHANK: Self =
-        Self { mass_fraction: 0.061, length_fraction: 0.246, com_fraction: 0.606, gyration_fraction: 0.416 };
+    pub const WINTER_SHANK: Self = Self {
+        mass_fraction: 0.061,
+        length_fraction: 0.246,
+        com_fraction: 0.606,
+        gyration_fraction: 0.416,
+    };
 
     /// Segment mass (kg) for body mass `body_mass_kg`.
     pub fn mass_kg(&self, body_mass_kg: f64) -> f64 {
@@ -298,12 +316,28 @@ pub struct RobotLink {
 
 impl RobotLink {
     /// Default robot thigh: l 0.43 m, m 2.0 kg, c 0.20 m, I 0.035 kg·m² (spec §3).
-    pub const THIGH: Self = Self { length_m: 0.43, mass_kg: 2.0, com_m: 0.20, inertia_kgm2: 0.035 };
+    pub const THIGH: Self = Self {
+        length_m: 0.43,
+        mass_kg: 2.0,
+        com_m: 0.20,
+        inertia_kgm2: 0.035,
+    };
     /// Default robot shank: l 0.43 m, m 1.2 kg, c 0.18 m, I 0.018 kg·m² (spec §3).
-    pub const SHANK: Self = Self { length_m: 0.43, mass_kg: 1.2, com_m: 0.18, inertia_kgm2: 0.018 };
+    pub const SHANK: Self = Self {
+        length_m: 0.43,
+        mass_kg: 1.2,
+        com_m: 0.18,
+        inertia_kgm2: 0.018,
+    };
 
     fn validate(&self, p: &str) -> Result<(), ConfigError> {
-        reals(p, &[("length_m", self.length_m, R::Pos), ("mass_kg", self.mass_kg, R::Pos)])?;
+        reals(
+            p,
+            &[
+                ("length_m", self.length_m, R::Pos),
+                ("mass_kg", self.mass_kg, R::Pos),
+            ],
+        )?;
         reals(
             p,
             &[
@@ -343,7 +377,11 @@ impl Robot {
                 ("viscous_friction", self.viscous_friction, R::NonNeg),
                 ("coulomb_friction", self.coulomb_friction, R::NonNeg),
                 ("coulomb_smoothing", self.coulomb_smoothing, R::Pos),
-                ("payload_position_m", self.payload_position_m, R::Closed(0.0, self.shank.length_m)),
+                (
+                    "payload_position_m",
+                    self.payload_position_m,
+                    R::Closed(0.0, self.shank.length_m),
+                ),
             ],
         )
     }
@@ -369,7 +407,12 @@ pub struct Straps {
 
 impl Default for Straps {
     fn default() -> Self {
-        Self { ls1_m: 0.28, ls2_m: 0.16, stiffness: 937.5, damping: 93.7 }
+        Self {
+            ls1_m: 0.28,
+            ls2_m: 0.16,
+            stiffness: 937.5,
+            damping: 93.7,
+        }
     }
 }
 
@@ -498,7 +541,13 @@ pub struct Timing {
 
 impl Default for Timing {
     fn default() -> Self {
-        Self { dt: 0.01, plant_substeps: 10, prediction_substeps: 1, duration_2dof_s: 20.0, duration_1dof_s: 30.0 }
+        Self {
+            dt: 0.01,
+            plant_substeps: 10,
+            prediction_substeps: 1,
+            duration_2dof_s: 20.0,
+            duration_1dof_s: 30.0,
+        }
     }
 }
 
@@ -593,7 +642,11 @@ pub struct Sqp {
 
 impl Default for Sqp {
     fn default() -> Self {
-        Self { max_iterations: 20, kkt_tolerance: 1e-8, max_time_us: None }
+        Self {
+            max_iterations: 20,
+            kkt_tolerance: 1e-8,
+            max_time_us: None,
+        }
     }
 }
 
@@ -609,7 +662,10 @@ pub struct PdGains {
 
 impl Default for PdGains {
     fn default() -> Self {
-        Self { kp: 300.0, kd: 20.0 }
+        Self {
+            kp: 300.0,
+            kd: 20.0,
+        }
     }
 }
 
@@ -730,7 +786,10 @@ impl Ekf {
 }
 
 fn per_joint(n: usize, values: &[f64]) -> Vec<f64> {
-    values.iter().flat_map(|&v| std::iter::repeat_n(v, n)).collect()
+    values
+        .iter()
+        .flat_map(|&v| std::iter::repeat_n(v, n))
+        .collect()
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -819,7 +878,10 @@ pub struct Faults {
 
 impl Default for Faults {
     fn default() -> Self {
-        Self { events: Vec::new(), saturation_n: 70.0 }
+        Self {
+            events: Vec::new(),
+            saturation_n: 70.0,
+        }
     }
 }
 
@@ -914,8 +976,16 @@ impl Scenario {
         reals(
             "straps",
             &[
-                ("ls1_m", s.ls1_m, R::OpenClosed(0.0, self.robot.thigh.length_m)),
-                ("ls2_m", s.ls2_m, R::OpenClosed(0.0, self.robot.shank.length_m)),
+                (
+                    "ls1_m",
+                    s.ls1_m,
+                    R::OpenClosed(0.0, self.robot.thigh.length_m),
+                ),
+                (
+                    "ls2_m",
+                    s.ls2_m,
+                    R::OpenClosed(0.0, self.robot.shank.length_m),
+                ),
                 ("stiffness", s.stiffness, R::Pos),
                 ("damping", s.damping, R::NonNeg),
             ],
@@ -934,11 +1004,18 @@ impl Scenario {
         int("uncertainty.filter_window", u.filter_window, 1, 100)?;
 
         let t = &self.trajectory;
-        reals("trajectory", &[("base_frequency_hz", t.base_frequency_hz, R::Pos)])?;
+        reals(
+            "trajectory",
+            &[("base_frequency_hz", t.base_frequency_hz, R::Pos)],
+        )?;
         reals(
             "trajectory",
             &[
-                ("frequency_swing_hz", t.frequency_swing_hz, R::ClosedOpen(0.0, t.base_frequency_hz)),
+                (
+                    "frequency_swing_hz",
+                    t.frequency_swing_hz,
+                    R::ClosedOpen(0.0, t.base_frequency_hz),
+                ),
                 ("frequency_period_s", t.frequency_period_s, R::Pos),
                 ("hip_offset", t.hip_offset, R::Any),
                 ("hip_amplitude", t.hip_amplitude, R::NonNeg),
@@ -956,7 +1033,12 @@ impl Scenario {
         let tm = &self.timing;
         real("timing.dt", tm.dt, R::OpenClosed(0.0, 1.0))?;
         int("timing.plant_substeps", tm.plant_substeps, 1, 1000)?;
-        int("timing.prediction_substeps", tm.prediction_substeps, 1, 1000)?;
+        int(
+            "timing.prediction_substeps",
+            tm.prediction_substeps,
+            1,
+            1000,
+        )?;
         reals(
             "timing",
             &[
@@ -979,14 +1061,30 @@ impl Scenario {
                 ("torque_rate_max", c.torque_rate_max, R::Pos),
             ],
         )?;
-        int("controller.sqp.max_iterations", c.sqp.max_iterations, 1, 1000)?;
-        real("controller.sqp.kkt_tolerance", c.sqp.kkt_tolerance, R::OpenClosed(0.0, 1.0))?;
+        int(
+            "controller.sqp.max_iterations",
+            c.sqp.max_iterations,
+            1,
+            1000,
+        )?;
+        real(
+            "controller.sqp.kkt_tolerance",
+            c.sqp.kkt_tolerance,
+            R::OpenClosed(0.0, 1.0),
+        )?;
         if let Some(us) = c.sqp.max_time_us {
             if !(1..=10_000_000).contains(&us) {
-                return Err(ConfigError::new("controller.sqp.max_time_us", us, "integer in 1..=10000000, or absent"));
+                return Err(ConfigError::new(
+                    "controller.sqp.max_time_us",
+                    us,
+                    "integer in 1..=10000000, or absent",
+                ));
             }
         }
-        reals("controller.pd", &[("kp", c.pd.kp, R::Pos), ("kd", c.pd.kd, R::Pos)])?;
+        reals(
+            "controller.pd",
+            &[("kp", c.pd.kp, R::Pos), ("kd", c.pd.kd, R::Pos)],
+        )?;
 
         let m = &self.multistage;
         let n = m.payloads_kg.len();
@@ -998,11 +1096,22 @@ impl Scenario {
             ));
         }
         for (i, &p) in m.payloads_kg.iter().enumerate() {
-            real(&format!("multistage.payloads_kg[{i}]"), p, R::Closed(0.0, MAX_PAYLOAD_KG))?;
+            real(
+                &format!("multistage.payloads_kg[{i}]"),
+                p,
+                R::Closed(0.0, MAX_PAYLOAD_KG),
+            )?;
         }
         reals(
             "multistage",
-            &[("c1", m.c1, R::Pos), ("probability_floor", m.probability_floor, R::Open(0.0, 1.0 / n as f64))],
+            &[
+                ("c1", m.c1, R::Pos),
+                (
+                    "probability_floor",
+                    m.probability_floor,
+                    R::Open(0.0, 1.0 / n as f64),
+                ),
+            ],
         )?;
         int("multistage.robust_horizon", m.robust_horizon, 1, c.nc)?;
 
