@@ -1,1 +1,0 @@
-//! estimate (under construction).
