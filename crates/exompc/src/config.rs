@@ -567,15 +567,7 @@ pub enum ControllerKind {
     Msnmpc,
 }
 
-/// How the strap torque is modelled over the prediction horizon (spec §8).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Interaction {
-    /// Predict the strap torque inside every RK4 stage from the intent estimate (spec §8 default).
-    Predict,
-    /// Hold the measured `J^T F` constant over the horizon (the paper's reading).
-    Hold,
-}
+pub use crate::control::Interaction;
 
 /// `[controller]`: intent estimation and NMPC (spec §8, paper eqs. 5-9, Table 1).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -654,18 +646,16 @@ impl Default for Sqp {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PdGains {
-    /// Proportional gain (N·m/rad), > 0. Default 300.
+    /// Proportional gain (N·m/rad), > 0. Default 30 (60 with kd 6 already limit-cycles on
+    /// the default scenario; 30/3 keeps RMS strap forces near 7 N thigh, 3 N shank at 0 kg).
     pub kp: f64,
-    /// Derivative gain (N·m·s/rad), > 0. Default 20.
+    /// Derivative gain (N·m·s/rad), > 0. Default 3.
     pub kd: f64,
 }
 
 impl Default for PdGains {
     fn default() -> Self {
-        Self {
-            kp: 300.0,
-            kd: 20.0,
-        }
+        Self { kp: 30.0, kd: 3.0 }
     }
 }
 
@@ -683,15 +673,7 @@ pub enum Formulation {
     Coupled,
 }
 
-/// EKF innovation used for the scenario probabilities.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Innovation {
-    /// Standard EKF innovation `y - h(x̂(k|k-1))` (spec §8).
-    Standard,
-    /// Paper §3.2: each scenario's predicted output also adds its previous estimation error.
-    Paper,
-}
+pub use crate::estimate::Innovation;
 
 /// `[multistage]`: scenario tree and probabilities (spec §8, paper §3.2, eqs. 10-13).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

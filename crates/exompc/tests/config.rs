@@ -114,7 +114,7 @@ fn default_matches_spec_values() {
         (c.sqp.max_iterations, c.sqp.kkt_tolerance, c.sqp.max_time_us),
         (20, 1e-8, None)
     );
-    assert_eq!((c.pd.kp, c.pd.kd), (300.0, 20.0));
+    assert_eq!((c.pd.kp, c.pd.kd), (30.0, 3.0));
     let m = &s.multistage;
     assert_eq!(m.payloads_kg, vec![0.0, 1.0, 2.0]);
     assert_eq!((m.c1, m.probability_floor), (100.0, 1e-4));

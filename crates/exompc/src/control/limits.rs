@@ -24,7 +24,11 @@ impl TorqueLimits {
         let mut out = *prev;
         for i in 0..N {
             let p = prev[i].clamp(-self.max, self.max);
-            let d = if desired[i].is_finite() { desired[i] } else { p };
+            let d = if desired[i].is_finite() {
+                desired[i]
+            } else {
+                p
+            };
             let lo = (p - self.rate).max(-self.max);
             let hi = (p + self.rate).min(self.max);
             out[i] = d.clamp(lo, hi);

@@ -5,11 +5,15 @@
 //! measurements in, a torque out that always satisfies the torque and torque-rate limits.
 
 mod limits;
+mod multistage;
 mod nmpc;
 mod pd;
 mod prediction;
 
 pub use limits::TorqueLimits;
+pub use multistage::{
+    build_multistage, CoupledProblem, Formulation, MultiStage, MultiStageError, MultiStageOptions,
+};
 pub use nmpc::{classify, horizon_inputs, Nmpc, NmpcCore, NmpcProblem, NmpcSettings};
 pub use pd::PdController;
 pub use prediction::{HorizonInputs, Interaction, PredictionModel, StepJacobian};

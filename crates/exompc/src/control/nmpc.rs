@@ -128,7 +128,9 @@ impl<const N: usize> NmpcProblem<N> {
         let mut us = Vec::with_capacity(self.np);
         for j in 0..self.np {
             self.torque(z, j, &mut u);
-            x = self.model.step(&x, &u, j as f64 * self.model.dt, &self.inputs);
+            x = self
+                .model
+                .step(&x, &u, j as f64 * self.model.dt, &self.inputs);
             xs.push(x);
             us.push(u);
         }
@@ -174,7 +176,9 @@ impl<const N: usize> LeastSquares for NmpcProblem<N> {
         let mut u = self.t_prev;
         for j in 0..self.np {
             self.torque(z, j, &mut u);
-            x = self.model.step(&x, &u, j as f64 * self.model.dt, &self.inputs);
+            x = self
+                .model
+                .step(&x, &u, j as f64 * self.model.dt, &self.inputs);
             self.write_step_residuals(j + 1, &x, r);
         }
         self.write_increment_residuals(z, r);
@@ -271,7 +275,8 @@ impl<const N: usize> NmpcCore<N> {
         self.problem.x0 = x0;
         self.problem.t_prev = t_prev;
         self.problem.inputs = inputs;
-        self.problem.write_constraints(limits, &mut self.constraints);
+        self.problem
+            .write_constraints(limits, &mut self.constraints);
         // Warm start: shift the previous increments by one step, last one zero.
         let n = self.z.len();
         for k in 0..n {
@@ -280,7 +285,9 @@ impl<const N: usize> NmpcCore<N> {
         if !self.z.iter().all(|v| v.is_finite()) {
             self.z.fill(0.0);
         }
-        self.info = self.sqp.solve(&mut self.problem, &self.constraints, &mut self.z);
+        self.info = self
+            .sqp
+            .solve(&mut self.problem, &self.constraints, &mut self.z);
         if !matches!(
             self.info.status,
             SqpStatus::Converged | SqpStatus::MaxIterations | SqpStatus::MaxTime

@@ -153,9 +153,33 @@ impl<const N: usize> PredictionModel<N> {
             }
             (a, b)
         };
-        let sq = self.step(&JointState { q: seed(&x.q), qd: lift(&x.qd) }, &lift(u), tau0, inp);
-        let sv = self.step(&JointState { q: lift(&x.q), qd: seed(&x.qd) }, &lift(u), tau0, inp);
-        let su = self.step(&JointState { q: lift(&x.q), qd: lift(&x.qd) }, &seed(u), tau0, inp);
+        let sq = self.step(
+            &JointState {
+                q: seed(&x.q),
+                qd: lift(&x.qd),
+            },
+            &lift(u),
+            tau0,
+            inp,
+        );
+        let sv = self.step(
+            &JointState {
+                q: lift(&x.q),
+                qd: seed(&x.qd),
+            },
+            &lift(u),
+            tau0,
+            inp,
+        );
+        let su = self.step(
+            &JointState {
+                q: lift(&x.q),
+                qd: lift(&x.qd),
+            },
+            &seed(u),
+            tau0,
+            inp,
+        );
         let (qq, vq) = unpack(&sq);
         let (qv, vv) = unpack(&sv);
         let (qu, vu) = unpack(&su);
@@ -163,6 +187,16 @@ impl<const N: usize> PredictionModel<N> {
             q: sq.q.map(|v| v.re()),
             qd: sq.qd.map(|v| v.re()),
         };
-        (next, StepJacobian { qq, qv, vq, vv, qu, vu })
+        (
+            next,
+            StepJacobian {
+                qq,
+                qv,
+                vq,
+                vv,
+                qu,
+                vu,
+            },
+        )
     }
 }

@@ -115,7 +115,8 @@ pub fn run_closed_loop<const N: usize, Tr: Trajectory<N>, C: Controller<N> + ?Si
     steps: usize,
     recorders: &mut [&mut dyn Recorder<N>],
 ) -> std::io::Result<()> {
-    let mut dist = vec![SVector::<f64, N>::zeros(); controller.probabilities().map_or(0, |p| p.len())];
+    let mut dist =
+        vec![SVector::<f64, N>::zeros(); controller.probabilities().map_or(0, |p| p.len())];
     for k in 0..steps {
         let t = plant.time();
         let s = *plant.state();

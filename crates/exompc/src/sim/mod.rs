@@ -5,6 +5,7 @@
 //! controller, hand every part's values to the recorders, advance the plant.
 
 mod closed_loop;
+mod experiment;
 mod human;
 mod metrics;
 mod plant;
@@ -13,6 +14,10 @@ mod trajectory;
 mod uncertainty;
 
 pub use closed_loop::{run_closed_loop, Recorder, StepRecord, TraceLog, TraceRow};
+pub use experiment::{
+    build_controller, initial_torque, intent, limits, nmpc_settings, plant_params,
+    prediction_model, run_experiment, scenario_robot, uncertainty, Dof, OneDof, RunError, TwoDof,
+};
 pub use human::{HumanBrain, HumanLeg};
 pub use metrics::{Metrics, StepTimeStats, Summary};
 pub use plant::{robot_model, Plant, PlantParams, PlantState};

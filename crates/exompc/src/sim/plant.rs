@@ -159,10 +159,9 @@ impl<const N: usize, Tr: Trajectory<N>> Plant<N, Tr> {
     /// True strap forces `F` (N) in the current state (paper eqs. 3-4).
     pub fn strap_force(&self) -> SVector<f64, N> {
         let s = &self.state;
-        self.params.straps.force(
-            &(s.human.q - s.robot.q),
-            &(s.human.qd - s.robot.qd),
-        )
+        self.params
+            .straps
+            .force(&(s.human.q - s.robot.q), &(s.human.qd - s.robot.qd))
     }
 
     /// Human joint torque `T_H` at the current state and time.
@@ -210,7 +209,12 @@ impl<const N: usize, Tr: Trajectory<N>> Plant<N, Tr> {
         let mut x = self.state;
         for i in 0..n {
             let ti = t0 + i as f64 * h;
-            x = rk4_step(|t, s: &PlantState<N>| self.derivative(t, s, tau_r), ti, &x, h);
+            x = rk4_step(
+                |t, s: &PlantState<N>| self.derivative(t, s, tau_r),
+                ti,
+                &x,
+                h,
+            );
         }
         self.state = x;
         self.k += 1;

@@ -110,6 +110,8 @@ impl Default for KneeTrajectory {
 
 impl Trajectory<1> for KneeTrajectory {
     fn position<T: Real>(&self, t: T) -> SVector<T, 1> {
-        SVector::<T, 1>::new(-(T::one() - (t * (2.0 * PI * self.frequency_hz)).cos()) * self.amplitude)
+        SVector::<T, 1>::new(
+            -(T::one() - (t * (2.0 * PI * self.frequency_hz)).cos()) * self.amplitude,
+        )
     }
 }
