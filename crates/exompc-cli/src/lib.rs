@@ -1,6 +1,9 @@
-//! Library part of the `exompc` command-line tool: error type and file I/O helpers shared by
-//! the subcommands (and usable from the CLI's integration tests).
+//! Library part of the `exompc` command-line tool: error type, file I/O helpers, the streamed
+//! trace format and the single-run driver shared by the subcommands (and usable from the CLI's
+//! integration tests).
 #![warn(missing_docs)]
 
 pub mod error;
 pub mod io;
+pub mod run;
+pub mod trace;

@@ -4,13 +4,28 @@
 //! bad flag, or a subcommand that is not implemented yet). Every error is one `error: ...`
 //! line on stderr.
 
+mod bench;
+mod model_cmd;
+mod plot;
+mod simulate;
+mod soak;
+mod solve;
+mod sweep;
+
+use bench::BenchArgs;
 use clap::{Args, Parser, Subcommand};
 use exompc::config::{ControllerKind, Scenario};
 use exompc_cli::error::CliError;
 use exompc_cli::io;
+use model_cmd::ModelArgs;
+use plot::PlotArgs;
+use simulate::SimulateArgs;
+use soak::SoakArgs;
+use solve::SolveArgs;
 use std::io::Write as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
+use sweep::SweepArgs;
 
 /// Multi-stage robust nonlinear MPC of a lower-limb exoskeleton: simulation and tools.
 #[derive(Debug, Parser)]
@@ -42,96 +57,16 @@ enum Command {
 
 /// `--config FILE`, shared by the subcommands that run a scenario.
 #[derive(Debug, Args)]
-struct ConfigOpt {
+pub(crate) struct ConfigOpt {
     /// Scenario TOML file applied on top of the default scenario (see `exompc config`).
     #[arg(long, value_name = "FILE")]
-    config: Option<PathBuf>,
+    pub(crate) config: Option<PathBuf>,
 }
 
 impl ConfigOpt {
     /// Loads and validates the scenario named by `--config` (the default when absent).
-    fn load(&self) -> Result<Scenario, CliError> {
+    pub(crate) fn load(&self) -> Result<Scenario, CliError> {
         io::load_scenario(self.config.as_deref())
-    }
-}
-
-#[derive(Debug, Args)]
-struct SimulateArgs {
-    #[command(flatten)]
-    config: ConfigOpt,
-    /// Experiment: 1 (knee only, hip locked) or 2 (hip and knee).
-    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=2))]
-    dof: u8,
-    /// Override `controller.kind`.
-    #[arg(long, value_enum)]
-    controller: Option<ControllerArg>,
-    /// Override `uncertainty.payload_kg` (kg).
-    #[arg(long, value_name = "KG")]
-    payload: Option<f64>,
-    /// Output folder for traces and metrics.
-    #[arg(long, value_name = "DIR")]
-    out: Option<PathBuf>,
-}
-
-#[derive(Debug, Args)]
-struct SweepArgs {
-    #[command(flatten)]
-    config: ConfigOpt,
-    /// Output folder for the metrics table.
-    #[arg(long, value_name = "DIR")]
-    out: Option<PathBuf>,
-}
-
-#[derive(Debug, Args)]
-struct ModelArgs {}
-
-#[derive(Debug, Args)]
-struct SolveArgs {}
-
-#[derive(Debug, Args)]
-struct ConfigArgs {
-    /// Instead of printing the default, load and validate FILE and report the first problem.
-    #[arg(long, value_name = "FILE")]
-    check: Option<PathBuf>,
-}
-
-#[derive(Debug, Args)]
-struct BenchArgs {
-    #[command(flatten)]
-    config: ConfigOpt,
-}
-
-#[derive(Debug, Args)]
-struct PlotArgs {
-    /// Folder written by `simulate`.
-    #[arg(value_name = "DIR")]
-    input: Option<PathBuf>,
-}
-
-#[derive(Debug, Args)]
-struct SoakArgs {
-    #[command(flatten)]
-    config: ConfigOpt,
-    /// Output folder for the soak report.
-    #[arg(long, value_name = "DIR")]
-    out: Option<PathBuf>,
-}
-
-/// Controller choice on the command line (mirrors [`ControllerKind`]).
-#[derive(Debug, Clone, Copy, clap::ValueEnum)]
-enum ControllerArg {
-    Pd,
-    Nmpc,
-    Msnmpc,
-}
-
-impl From<ControllerArg> for ControllerKind {
-    fn from(c: ControllerArg) -> Self {
-        match c {
-            ControllerArg::Pd => ControllerKind::Pd,
-            ControllerArg::Nmpc => ControllerKind::Nmpc,
-            ControllerArg::Msnmpc => ControllerKind::Msnmpc,
-        }
     }
 }
 
@@ -149,52 +84,44 @@ fn main() -> ExitCode {
 fn run(cli: Cli) -> Result<(), CliError> {
     match cli.command {
         Command::Config(a) => cmd_config(&a),
-        Command::Simulate(a) => {
-            let mut scenario = a.config.load()?;
-            if let Some(k) = a.controller {
-                scenario.controller.kind = k.into();
-            }
-            if let Some(p) = a.payload {
-                scenario.uncertainty.payload_kg = p;
-                scenario
-                    .validate()
-                    .map_err(|e| CliError::Usage(format!("--payload: {e}")))?;
-            }
-            if let Some(out) = &a.out {
-                io::ensure_out_dir(out)?;
-            }
-            let _ = (scenario, a.dof);
-            not_implemented("simulate")
-        }
-        Command::Sweep(a) => {
-            let _scenario = a.config.load()?;
-            if let Some(out) = &a.out {
-                io::ensure_out_dir(out)?;
-            }
-            not_implemented("sweep")
-        }
-        Command::Soak(a) => {
-            let _scenario = a.config.load()?;
-            if let Some(out) = &a.out {
-                io::ensure_out_dir(out)?;
-            }
-            not_implemented("soak")
-        }
-        Command::Bench(a) => {
-            let _scenario = a.config.load()?;
-            not_implemented("bench")
-        }
-        Command::Model(ModelArgs {}) => not_implemented("model"),
-        Command::Solve(SolveArgs {}) => not_implemented("solve"),
-        Command::Plot(a) => {
-            let _ = a.input;
-            not_implemented("plot")
+        Command::Simulate(a) => simulate::run(a),
+        Command::Sweep(a) => sweep::run(a),
+        Command::Soak(a) => soak::run(a),
+        Command::Bench(a) => bench::run(a),
+        Command::Model(a) => model_cmd::run(a),
+        Command::Solve(a) => solve::run(a),
+        Command::Plot(a) => plot::run(a),
+    }
+}
+
+/// Controller choice on the command line (mirrors [`ControllerKind`]).
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub(crate) enum ControllerArg {
+    Pd,
+    Nmpc,
+    Msnmpc,
+}
+
+impl From<ControllerArg> for ControllerKind {
+    fn from(c: ControllerArg) -> Self {
+        match c {
+            ControllerArg::Pd => ControllerKind::Pd,
+            ControllerArg::Nmpc => ControllerKind::Nmpc,
+            ControllerArg::Msnmpc => ControllerKind::Msnmpc,
         }
     }
 }
 
-/// Stub for subcommands the integrator has not wired yet: reported as an error, exit 2.
-fn not_implemented(cmd: &'static str) -> Result<(), CliError> {
+#[derive(Debug, Args)]
+struct ConfigArgs {
+    /// Instead of printing the default, load and validate FILE and report the first problem.
+    #[arg(long, value_name = "FILE")]
+    check: Option<PathBuf>,
+}
+
+/// Stub for subcommands not wired yet: reported as an error, exit 2.
+#[allow(dead_code)]
+pub(crate) fn not_implemented(cmd: &'static str) -> Result<(), CliError> {
     Err(CliError::NotImplemented(cmd))
 }
 

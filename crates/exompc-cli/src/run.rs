@@ -1,0 +1,98 @@
+//! Running one experiment of a scenario into an output folder (`trace.csv`, `summary.json`).
+
+use crate::error::CliError;
+use crate::io::write_atomic;
+use crate::trace::CsvTrace;
+use exompc::config::{ControllerKind, Scenario};
+use exompc::sim::{run_experiment, OneDof, Recorder, RunError, Summary, TwoDof};
+use std::path::Path;
+
+/// Number of scenarios the controller of `s` reports.
+pub fn scenario_count(s: &Scenario) -> usize {
+    match s.controller.kind {
+        ControllerKind::Msnmpc => s.multistage.payloads_kg.len(),
+        _ => 0,
+    }
+}
+
+fn run_error(e: RunError) -> CliError {
+    match e {
+        RunError::Config(c) => CliError::Config(c.to_string()),
+        RunError::Io(e) => CliError::io("writing trace", e),
+        other => CliError::Runtime(other.to_string()),
+    }
+}
+
+/// Run scenario `s` in the `dof` layout; with `out`, stream `out/trace.csv` and write
+/// `out/summary.json` (both through temporary files renamed at the end).
+pub fn run_to_dir(s: &Scenario, dof: u8, out: Option<&Path>) -> Result<Summary, CliError> {
+    let n = usize::from(dof);
+    let mut trace = match out {
+        Some(dir) => Some(CsvTrace::create(
+            &dir.join("trace.csv"),
+            n,
+            scenario_count(s),
+        )?),
+        None => None,
+    };
+    let summary = match dof {
+        1 => {
+            let mut recs: Vec<&mut dyn Recorder<1>> = Vec::new();
+            if let Some(t) = trace.as_mut() {
+                recs.push(t);
+            }
+            run_experiment::<OneDof, 1>(s, &mut recs)
+        }
+        _ => {
+            let mut recs: Vec<&mut dyn Recorder<2>> = Vec::new();
+            if let Some(t) = trace.as_mut() {
+                recs.push(t);
+            }
+            run_experiment::<TwoDof, 2>(s, &mut recs)
+        }
+    }
+    .map_err(run_error)?;
+    if let (Some(t), Some(dir)) = (trace, out) {
+        t.finish()?;
+        let json = serde_json::to_string_pretty(&summary)
+            .map_err(|e| CliError::Runtime(format!("serialising summary: {e}")))?;
+        write_atomic(&dir.join("summary.json"), json.as_bytes())?;
+    }
+    Ok(summary)
+}
+
+/// A short human-readable rendering of a summary.
+pub fn describe(s: &Summary) -> String {
+    let f = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.2}"));
+    let mut out = format!(
+        "{} | {}-DOF | payload {:.2} kg | {:.1} s, {} steps\n",
+        s.controller, s.dof, s.payload_kg, s.duration_s, s.steps
+    );
+    out += &format!(
+        "  RMS strap force   thigh {} N   shank {} N\n",
+        f(s.rms_force_n.thigh),
+        f(s.rms_force_n.shank)
+    );
+    out += &format!(
+        "  max angle error   hip {} deg   knee {} deg\n",
+        f(s.delta_max_deg.hip),
+        f(s.delta_max_deg.knee)
+    );
+    if let Some(p) = &s.mean_probability {
+        let ps: Vec<String> = p
+            .iter()
+            .enumerate()
+            .map(|(i, v)| format!("mu{} {:.2}%", i + 1, 100.0 * v))
+            .collect();
+        out += &format!("  mean probability  {}\n", ps.join("   "));
+    }
+    out += &format!(
+        "  step time         mean {:.1} us   p50 {:.1} us   p99 {:.1} us   max {:.1} us\n",
+        s.step_time_us.mean, s.step_time_us.p50, s.step_time_us.p99, s.step_time_us.max
+    );
+    out += &format!(
+        "  limit violations {}   solver failures {}",
+        s.limit_violations, s.solver_failures
+    );
+    out
+}

@@ -1,0 +1,214 @@
+//! The trace CSV written by `simulate`, `sweep` and `soak`, streamed row by row (nothing held in
+//! memory) through an [`AtomicWriter`], and read back by `plot`.
+//!
+//! Columns: `t`; per joint J (`hip`, `knee`; 1-DOF: `knee`) `q_robot_J, qd_robot_J, q_human_J,
+//! qd_human_J, q_desired_J, torque_robot_J, torque_human_J`; per strap S (`thigh`, `shank`;
+//! 1-DOF: `shank`) `force_true_S, force_measured_S`; per scenario i `mu_i` and per scenario and
+//! joint `dist_i_J`; then `status, iterations, step_us`. Units SI (rad, rad/s, N·m, N), time in s.
+
+use crate::error::CliError;
+use crate::io::AtomicWriter;
+use exompc::sim::{Recorder, StepRecord};
+use std::io::Write;
+use std::path::Path;
+
+/// Joint names for `n` joints.
+pub fn joint_names(n: usize) -> &'static [&'static str] {
+    if n == 1 {
+        &["knee"]
+    } else {
+        &["hip", "knee"]
+    }
+}
+
+/// Strap names for `n` joints.
+pub fn strap_names(n: usize) -> &'static [&'static str] {
+    if n == 1 {
+        &["shank"]
+    } else {
+        &["thigh", "shank"]
+    }
+}
+
+/// Column names of a trace with `n` joints and `scenarios` scenarios.
+pub fn header(n: usize, scenarios: usize) -> Vec<String> {
+    let mut h = vec!["t".to_string()];
+    for j in joint_names(n) {
+        for c in [
+            "q_robot",
+            "qd_robot",
+            "q_human",
+            "qd_human",
+            "q_desired",
+            "torque_robot",
+            "torque_human",
+        ] {
+            h.push(format!("{c}_{j}"));
+        }
+    }
+    for s in strap_names(n) {
+        h.push(format!("force_true_{s}"));
+        h.push(format!("force_measured_{s}"));
+    }
+    for i in 1..=scenarios {
+        h.push(format!("mu_{i}"));
+    }
+    for i in 1..=scenarios {
+        for j in joint_names(n) {
+            h.push(format!("dist_{i}_{j}"));
+        }
+    }
+    h.extend(["status", "iterations", "step_us"].map(String::from));
+    h
+}
+
+/// A streaming CSV trace recorder.
+pub struct CsvTrace {
+    out: std::io::BufWriter<AtomicWriter>,
+    scenarios: usize,
+    n: usize,
+    line: String,
+}
+
+impl CsvTrace {
+    /// Create `path` (through a temporary file renamed by [`CsvTrace::finish`]) and write the
+    /// header for `n` joints and `scenarios` scenarios.
+    pub fn create(path: &Path, n: usize, scenarios: usize) -> Result<Self, CliError> {
+        let w = AtomicWriter::create(path)?;
+        let mut out = std::io::BufWriter::with_capacity(1 << 16, w);
+        writeln!(out, "{}", header(n, scenarios).join(","))
+            .map_err(|e| CliError::io(format!("writing {}", path.display()), e))?;
+        Ok(CsvTrace {
+            out,
+            scenarios,
+            n,
+            line: String::with_capacity(512),
+        })
+    }
+
+    /// Flush and move the finished file into place.
+    pub fn finish(self) -> Result<(), CliError> {
+        let w = self
+            .out
+            .into_inner()
+            .map_err(|e| CliError::io("flushing trace", e.into_error()))?;
+        w.finish()
+    }
+}
+
+fn push(line: &mut String, v: f64) {
+    use std::fmt::Write as _;
+    let _ = write!(line, "{v},");
+}
+
+impl<const N: usize> Recorder<N> for CsvTrace {
+    fn record(&mut self, r: &StepRecord<'_, N>) -> std::io::Result<()> {
+        debug_assert_eq!(N, self.n);
+        let l = &mut self.line;
+        l.clear();
+        push(l, r.t);
+        for j in 0..N {
+            for v in [
+                r.robot.q[j],
+                r.robot.qd[j],
+                r.human.q[j],
+                r.human.qd[j],
+                r.desired[j],
+                r.torque_robot[j],
+                r.torque_human[j],
+            ] {
+                push(l, v);
+            }
+        }
+        for s in 0..N {
+            push(l, r.force_true[s]);
+            push(l, r.force_measured[s]);
+        }
+        for i in 0..self.scenarios {
+            push(l, r.probabilities.and_then(|p| p.get(i).copied()).unwrap_or(f64::NAN));
+        }
+        for i in 0..self.scenarios {
+            for j in 0..N {
+                push(
+                    l,
+                    r.disturbances.and_then(|d| d.get(i)).map_or(f64::NAN, |d| d[j]),
+                );
+            }
+        }
+        let status = serde_json::to_value(r.status)
+            .ok()
+            .and_then(|v| v.as_str().map(str::to_string))
+            .unwrap_or_default();
+        use std::fmt::Write as _;
+        let _ = writeln!(l, "{status},{},{}", r.iterations, r.step_time_us);
+        self.out.write_all(l.as_bytes())
+    }
+}
+
+/// A trace read back from CSV: numeric columns (the `status` column as NaN) and the statuses.
+#[derive(Clone, Debug, Default)]
+pub struct TraceTable {
+    /// Column names.
+    pub columns: Vec<String>,
+    /// Rows of values, one per column.
+    pub rows: Vec<Vec<f64>>,
+    /// The `status` column.
+    pub status: Vec<String>,
+}
+
+impl TraceTable {
+    /// Index of column `name`.
+    pub fn index(&self, name: &str) -> Option<usize> {
+        self.columns.iter().position(|c| c == name)
+    }
+
+    /// The values of column `name`.
+    pub fn column(&self, name: &str) -> Option<Vec<f64>> {
+        let i = self.index(name)?;
+        Some(self.rows.iter().map(|r| r[i]).collect())
+    }
+
+    /// Number of joints (1 or 2) of the trace.
+    pub fn joints(&self) -> usize {
+        if self.index("q_robot_hip").is_some() {
+            2
+        } else {
+            1
+        }
+    }
+
+    /// Number of scenarios (probability columns).
+    pub fn scenarios(&self) -> usize {
+        self.columns.iter().filter(|c| c.starts_with("mu_")).count()
+    }
+}
+
+/// Read a trace CSV written by [`CsvTrace`].
+pub fn read_trace(path: &Path) -> Result<TraceTable, CliError> {
+    let mut rdr = csv::Reader::from_path(path)
+        .map_err(|e| CliError::Io(format!("cannot read trace {}: {e}", path.display())))?;
+    let columns: Vec<String> = rdr
+        .headers()
+        .map_err(|e| CliError::Io(format!("bad trace header in {}: {e}", path.display())))?
+        .iter()
+        .map(str::to_string)
+        .collect();
+    let st = columns.iter().position(|c| c == "status");
+    let mut t = TraceTable {
+        columns,
+        ..Default::default()
+    };
+    for rec in rdr.records() {
+        let rec =
+            rec.map_err(|e| CliError::Io(format!("bad trace row in {}: {e}", path.display())))?;
+        let row: Vec<f64> = rec
+            .iter()
+            .map(|v| v.parse::<f64>().unwrap_or(f64::NAN))
+            .collect();
+        if let Some(i) = st {
+            t.status.push(rec.get(i).unwrap_or("").to_string());
+        }
+        t.rows.push(row);
+    }
+    Ok(t)
+}
