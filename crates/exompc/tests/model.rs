@@ -296,3 +296,21 @@ fn dual_numbers_give_the_exact_derivative_of_forward_dynamics() {
         }
     }
 }
+
+#[test]
+fn safe_tanh_matches_std_and_has_finite_exact_derivative_everywhere() {
+    use num_dual::Dual64;
+    for &x in &[
+        -1e6, -800.0, -355.0, -3.0, -1e-9, 0.0, 1e-9, 0.5, 3.0, 400.0, 800.0, 1e300,
+    ] {
+        let v: f64 = exompc::model::tanh(x);
+        assert!((v - x.tanh()).abs() < 1e-15, "tanh({x})");
+        let d = exompc::model::tanh(Dual64::new(x, 1.0));
+        let exact = 1.0 - x.tanh().powi(2);
+        assert!(
+            d.eps.is_finite() && (d.eps - exact).abs() < 1e-15,
+            "d tanh({x}) = {}",
+            d.eps
+        );
+    }
+}

@@ -53,7 +53,10 @@ use nalgebra::{SMatrix, SVector};
 ///
 /// The state correction of every [`ScenarioEkf`] always uses the standard innovation; the mode
 /// only selects the `vᵢ(k)` entering eq. 10.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
 pub enum Innovation {
     /// The usual EKF innovation `vᵢ(k) = y(k) − h(x̂ᵢ(k|k−1))` (spec §8 default).
     #[default]

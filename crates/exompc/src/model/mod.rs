@@ -13,7 +13,7 @@ mod straps;
 pub use chain::{Chain, Link};
 pub use human::{HumanSegment, WinterFractions};
 pub use rk4::{rk4_step, JointState, RkState};
-pub use robot::{Friction, RobotModel};
+pub use robot::{tanh, Friction, RobotModel};
 pub use straps::Straps;
 
 use num_dual::DualNum;

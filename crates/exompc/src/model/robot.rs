@@ -46,7 +46,7 @@ impl<const N: usize> RobotModel<N> {
                         0.0
                     })
                 }
-                Friction::Tanh { width } => (qd[i] * (1.0 / width)).tanh() * self.coulomb,
+                Friction::Tanh { width } => tanh(qd[i] * (1.0 / width)) * self.coulomb,
             };
             f[i] = qd[i] * self.viscous + coul;
         }
@@ -68,5 +68,20 @@ impl<const N: usize> RobotModel<N> {
             net[i] = tau[i] - fr[i];
         }
         self.chain.forward_dynamics(q, qd, &net)
+    }
+}
+
+/// Overflow-safe `tanh` for any scalar: `sign(x) (1 − e)/(1 + e)` with `e = exp(−2|x|)`.
+///
+/// `num-dual`'s own `tanh` is `sinh/cosh`, which becomes `inf/inf = NaN` for `|x| > ~355`
+/// (e.g. a joint speed above 3.5 rad/s with the 0.01 rad/s friction smoothing).
+#[inline]
+pub fn tanh<T: Real>(x: T) -> T {
+    if x.re() >= 0.0 {
+        let e = (x * -2.0).exp();
+        (T::one() - e) / (T::one() + e)
+    } else {
+        let e = (x * 2.0).exp();
+        (e - T::one()) / (T::one() + e)
     }
 }

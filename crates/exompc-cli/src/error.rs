@@ -1,0 +1,58 @@
+//! The CLI's error type and its mapping to process exit codes.
+
+use std::fmt;
+
+/// Exit code for bad input: an invalid config value, an unknown key, a bad flag, or a
+/// subcommand that is not implemented yet (clap's own usage errors also exit 2).
+pub const EXIT_USAGE: u8 = 2;
+/// Exit code for a runtime failure (I/O error while writing results, solver failure, ...).
+pub const EXIT_FAILURE: u8 = 1;
+
+/// An error reported by the CLI as one `error: ...` line on stderr.
+#[derive(Debug)]
+pub enum CliError {
+    /// Invalid configuration file or value (exit 2).
+    Config(String),
+    /// Invalid command-line flag or combination (exit 2).
+    Usage(String),
+    /// Subcommand not implemented yet (exit 2).
+    NotImplemented(&'static str),
+    /// File-system problem (exit 1).
+    Io(String),
+    /// Any other runtime failure (exit 1).
+    Runtime(String),
+}
+
+impl CliError {
+    /// Process exit code for this error.
+    pub fn exit_code(&self) -> u8 {
+        match self {
+            CliError::Config(_) | CliError::Usage(_) | CliError::NotImplemented(_) => EXIT_USAGE,
+            CliError::Io(_) | CliError::Runtime(_) => EXIT_FAILURE,
+        }
+    }
+
+    /// Builds an [`CliError::Io`] from an I/O error and what was being done (`"writing out.csv"`).
+    pub fn io(what: impl fmt::Display, err: std::io::Error) -> Self {
+        CliError::Io(format!("{what}: {err}"))
+    }
+}
+
+impl fmt::Display for CliError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            CliError::Config(m) | CliError::Usage(m) | CliError::Io(m) | CliError::Runtime(m) => {
+                f.write_str(m)
+            }
+            CliError::NotImplemented(cmd) => write!(f, "`exompc {cmd}` is not yet implemented"),
+        }
+    }
+}
+
+impl std::error::Error for CliError {}
+
+impl From<anyhow::Error> for CliError {
+    fn from(e: anyhow::Error) -> Self {
+        CliError::Runtime(format!("{e:#}"))
+    }
+}

@@ -1,0 +1,331 @@
+//! File input/output for the CLI: scenario loading, atomic writes and output folders.
+
+use crate::error::CliError;
+use exompc::config::{Channel, FaultEvent, FaultKind, Scenario};
+use std::fs::{self, File};
+use std::io::{self, BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Comment header printed above the default scenario by `exompc config`.
+pub const CONFIG_HEADER: &str = "\
+# exompc scenario: the embedded default, as fixed by spec/MODEL.md.
+# Units are SI (m, kg, s, rad, N, N·m). Every key is optional: a file that names only a
+# few keys overrides just those and keeps the defaults for the rest.
+# Optional keys not shown: [controller.sqp] max_time_us = <µs per solve>;
+# fault events as [[faults.events]] tables with kind, channel, start_s, duration_s, magnitude.
+# Load with: exompc simulate --config FILE
+";
+
+/// The default scenario as TOML with [`CONFIG_HEADER`] on top (the output of `exompc config`).
+pub fn default_config_toml() -> Result<String, CliError> {
+    let body = toml::to_string_pretty(&Scenario::default())
+        .map_err(|e| CliError::Runtime(format!("cannot serialise the default scenario: {e}")))?;
+    Ok(format!("{CONFIG_HEADER}\n{body}"))
+}
+
+/// Loads a scenario: the validated default when `path` is `None`, otherwise the TOML file at
+/// `path` applied on top of the default (partial override), then validated.
+///
+/// Unknown keys are rejected with their table path and the closest valid name; `nan`/`inf`
+/// parse as floats so that validation rejects them by field name.
+pub fn load_scenario(path: Option<&Path>) -> Result<Scenario, CliError> {
+    let Some(path) = path else {
+        let s = Scenario::default();
+        s.validate()
+            .map_err(|e| CliError::Config(format!("default scenario: {e}")))?;
+        return Ok(s);
+    };
+    let shown = path.display();
+    let text = fs::read_to_string(path)
+        .map_err(|e| CliError::Config(format!("cannot read config file {shown}: {e}")))?;
+    parse_scenario(&text).map_err(|m| CliError::Config(format!("config file {shown}: {m}")))
+}
+
+/// Parses and validates a scenario from TOML text; the error is a one-line message.
+pub fn parse_scenario(text: &str) -> Result<Scenario, String> {
+    let table: toml::Table =
+        toml::from_str(text).map_err(|e| describe_toml_error(text, &e, "TOML syntax error"))?;
+    check_keys(&table, &schema(), "")?;
+    let scenario: Scenario =
+        toml::from_str(text).map_err(|e| describe_toml_error(text, &e, "invalid scenario"))?;
+    scenario.validate().map_err(|e| e.to_string())?;
+    Ok(scenario)
+}
+
+/// A TOML tree holding every key a scenario file may contain (optional keys and one fault
+/// event filled in), used to check user files key by key.
+fn schema() -> toml::Table {
+    let mut s = Scenario::default();
+    s.controller.sqp.max_time_us = Some(1);
+    s.faults.events.push(FaultEvent {
+        kind: FaultKind::Spike,
+        channel: Channel::F1,
+        start_s: 0.0,
+        duration_s: 0.0,
+        magnitude: 0.0,
+    });
+    match toml::Value::try_from(&s) {
+        Ok(toml::Value::Table(t)) => t,
+        _ => unreachable!("a Scenario always serialises to a TOML table"),
+    }
+}
+
+fn kind_name(v: &toml::Value) -> &'static str {
+    match v {
+        toml::Value::String(_) => "a string",
+        toml::Value::Integer(_) => "an integer",
+        toml::Value::Float(_) => "a float",
+        toml::Value::Boolean(_) => "a boolean",
+        toml::Value::Datetime(_) => "a datetime",
+        toml::Value::Array(_) => "an array",
+        toml::Value::Table(_) => "a table",
+    }
+}
+
+fn join(prefix: &str, key: &str) -> String {
+    if prefix.is_empty() {
+        key.to_string()
+    } else {
+        format!("{prefix}.{key}")
+    }
+}
+
+/// Recursively checks that every key of `user` exists in `schema` with a compatible type.
+fn check_keys(user: &toml::Table, schema: &toml::Table, prefix: &str) -> Result<(), String> {
+    for (key, value) in user {
+        let path = join(prefix, key);
+        let Some(expected) = schema.get(key) else {
+            let names: Vec<&str> = schema.keys().map(String::as_str).collect();
+            let place = if prefix.is_empty() {
+                "at the top level".to_string()
+            } else if prefix.ends_with(']') {
+                format!("in {prefix}")
+            } else {
+                format!("in table [{prefix}]")
+            };
+            let hint = closest(key, &names)
+                .map(|c| format!("; did you mean `{c}`?"))
+                .unwrap_or_default();
+            return Err(format!(
+                "unknown key `{key}` {place}{hint} (valid keys: {})",
+                names.join(", ")
+            ));
+        };
+        check_value(value, expected, &path)?;
+    }
+    Ok(())
+}
+
+fn check_value(value: &toml::Value, expected: &toml::Value, path: &str) -> Result<(), String> {
+    use toml::Value as V;
+    let mismatch = |what: &str| {
+        format!(
+            "invalid type for {path}: expected {what}, found {} `{value}`",
+            kind_name(value)
+        )
+    };
+    match (expected, value) {
+        (V::Table(s), V::Table(u)) => check_keys(u, s, path),
+        (V::Float(_), V::Float(_) | V::Integer(_)) => Ok(()),
+        (V::Float(_), _) => Err(mismatch("a number")),
+        (V::Integer(_), V::Integer(i)) if *i < 0 => Err(format!(
+            "invalid value for {path}: {i} (allowed: a non-negative integer)"
+        )),
+        (V::Integer(_), V::Integer(_)) => Ok(()),
+        (V::Integer(_), _) => Err(mismatch("an integer")),
+        (V::Array(s), V::Array(u)) => match s.first() {
+            Some(elem) => u
+                .iter()
+                .enumerate()
+                .try_for_each(|(i, v)| check_value(v, elem, &format!("{path}[{i}]"))),
+            None => Ok(()),
+        },
+        (a, b) if std::mem::discriminant(a) == std::mem::discriminant(b) => Ok(()),
+        (a, _) => Err(mismatch(kind_name(a))),
+    }
+}
+
+/// Levenshtein edit distance between two strings (by characters).
+pub fn levenshtein(a: &str, b: &str) -> usize {
+    let b: Vec<char> = b.chars().collect();
+    let mut row: Vec<usize> = (0..=b.len()).collect();
+    for (i, ca) in a.chars().enumerate() {
+        let mut prev = row[0];
+        row[0] = i + 1;
+        for (j, &cb) in b.iter().enumerate() {
+            let cur = row[j + 1];
+            row[j + 1] = (prev + usize::from(ca != cb)).min(row[j] + 1).min(cur + 1);
+            prev = cur;
+        }
+    }
+    row[b.len()]
+}
+
+/// The candidate closest to `name` by Levenshtein distance (first one on ties).
+pub fn closest<'a>(name: &str, candidates: &[&'a str]) -> Option<&'a str> {
+    candidates
+        .iter()
+        .copied()
+        .min_by_key(|c| levenshtein(name, c))
+}
+
+/// Turns a toml error into one line: `<what> at line L, column C (<dotted key>): <message>`.
+fn describe_toml_error(text: &str, err: &toml::de::Error, what: &str) -> String {
+    let msg = err.message().trim().replace('\n', " ");
+    match err.span() {
+        Some(span) => {
+            let start = span.start.min(text.len());
+            let before = &text[..start];
+            let line = before.matches('\n').count() + 1;
+            let col = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
+            let at = key_path_at(text, start)
+                .map(|p| format!(" ({p})"))
+                .unwrap_or_default();
+            format!("{what} at line {line}, column {col}{at}: {msg}")
+        }
+        None => format!("{what}: {msg}"),
+    }
+}
+
+/// Best-effort dotted path of the key on the line containing byte `offset` (the enclosing
+/// `[table]` header plus the key before `=`), for error messages.
+fn key_path_at(text: &str, offset: usize) -> Option<String> {
+    let line_start = text[..offset].rfind('\n').map_or(0, |i| i + 1);
+    let line = text[line_start..].lines().next().unwrap_or("");
+    let header = |l: &str| {
+        let l = l.trim();
+        l.starts_with('[')
+            .then(|| l.trim_matches(|c| c == '[' || c == ']').trim().to_string())
+    };
+    if let Some(h) = header(line) {
+        return Some(h);
+    }
+    let table = text[..line_start]
+        .lines()
+        .rev()
+        .find_map(header)
+        .unwrap_or_default();
+    let key = line.split_once('=')?.0.trim().trim_matches('"');
+    (!key.is_empty()).then(|| join(&table, key))
+}
+
+static TEMP_COUNTER: AtomicU64 = AtomicU64::new(0);
+
+/// A unique temporary path next to `dest` (same folder, so that `rename` is atomic).
+fn temp_path_for(dest: &Path) -> PathBuf {
+    let name = dest
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "out".into());
+    let n = TEMP_COUNTER.fetch_add(1, Ordering::Relaxed);
+    dest.with_file_name(format!(".{name}.tmp.{}.{n}", std::process::id()))
+}
+
+/// Best-effort fsync of the folder holding `path`, so that a rename survives a crash.
+fn sync_parent(path: &Path) {
+    #[cfg(unix)]
+    if let Some(dir) = path.parent() {
+        let dir = if dir.as_os_str().is_empty() {
+            Path::new(".")
+        } else {
+            dir
+        };
+        if let Ok(d) = File::open(dir) {
+            let _ = d.sync_all();
+        }
+    }
+    #[cfg(not(unix))]
+    let _ = path;
+}
+
+/// Writes `bytes` to `path` atomically: a temporary file in the same folder is written,
+/// fsynced and renamed over `path`. Readers see either the old or the complete new file.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), CliError> {
+    let mut w = AtomicWriter::create(path)?;
+    w.write_all(bytes)
+        .map_err(|e| CliError::io(format!("writing {}", path.display()), e))?;
+    w.finish()
+}
+
+/// A buffered writer on a temporary file that becomes `dest` only on [`AtomicWriter::finish`]
+/// (flush, fsync, rename). Dropped without `finish`, it removes the temporary file.
+pub struct AtomicWriter {
+    inner: Option<BufWriter<File>>,
+    temp: PathBuf,
+    dest: PathBuf,
+}
+
+impl AtomicWriter {
+    /// Creates the temporary file next to `dest`.
+    pub fn create(dest: &Path) -> Result<Self, CliError> {
+        let temp = temp_path_for(dest);
+        let file = File::create(&temp)
+            .map_err(|e| CliError::io(format!("cannot create {}", temp.display()), e))?;
+        Ok(Self {
+            inner: Some(BufWriter::new(file)),
+            temp,
+            dest: dest.to_path_buf(),
+        })
+    }
+
+    /// The final destination path.
+    pub fn dest(&self) -> &Path {
+        &self.dest
+    }
+
+    /// Flushes, fsyncs and renames the temporary file to the destination.
+    pub fn finish(mut self) -> Result<(), CliError> {
+        let what = || format!("writing {}", self.dest.display());
+        let buf = self.inner.take().expect("AtomicWriter used after finish");
+        let file = buf
+            .into_inner()
+            .map_err(|e| CliError::io(what(), e.into_error()))?;
+        file.sync_all().map_err(|e| CliError::io(what(), e))?;
+        drop(file);
+        fs::rename(&self.temp, &self.dest).map_err(|e| CliError::io(what(), e))?;
+        sync_parent(&self.dest);
+        Ok(())
+    }
+
+    fn writer(&mut self) -> io::Result<&mut BufWriter<File>> {
+        self.inner
+            .as_mut()
+            .ok_or_else(|| io::Error::other("AtomicWriter already finished"))
+    }
+}
+
+impl Write for AtomicWriter {
+    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+        self.writer()?.write(buf)
+    }
+    fn flush(&mut self) -> io::Result<()> {
+        self.writer()?.flush()
+    }
+}
+
+impl Drop for AtomicWriter {
+    fn drop(&mut self) {
+        if self.inner.take().is_some() {
+            let _ = fs::remove_file(&self.temp);
+        }
+    }
+}
+
+/// Creates `dir` (and parents) if needed and checks that it is a writable folder.
+///
+/// Failures are [`CliError::Usage`] (exit 2): the folder comes from a command-line flag.
+pub fn ensure_out_dir(dir: &Path) -> Result<(), CliError> {
+    let shown = dir.display();
+    if dir.exists() && !dir.is_dir() {
+        return Err(CliError::Usage(format!(
+            "output path {shown} exists and is not a folder"
+        )));
+    }
+    fs::create_dir_all(dir)
+        .map_err(|e| CliError::Usage(format!("cannot create output folder {shown}: {e}")))?;
+    let probe = dir.join(format!(".exompc-write-test.{}", std::process::id()));
+    File::create(&probe)
+        .and_then(|_| fs::remove_file(&probe))
+        .map_err(|e| CliError::Usage(format!("output folder {shown} is not writable: {e}")))
+}

@@ -1,0 +1,48 @@
+//! Hard torque and torque-rate limits (paper eqs. 8-9).
+
+use nalgebra::SVector;
+
+/// `|T| ≤ max` and `|T − T_prev| ≤ rate` on every joint (paper eqs. 8-9, spec §8).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TorqueLimits {
+    /// Torque magnitude limit `T_max` (N·m), spec 30.
+    pub max: f64,
+    /// Torque change limit per control period `ΔT_max` (N·m), spec 1000 N·m/s × 0.01 s = 10.
+    pub rate: f64,
+}
+
+impl TorqueLimits {
+    /// The admissible torque closest to `desired`, given the previous torque `prev`
+    /// (itself within `±max`). A non-finite `desired` entry holds `prev` on that joint.
+    /// The result satisfies both limits exactly whenever `|prev| ≤ max`.
+    #[inline]
+    pub fn clamp<const N: usize>(
+        &self,
+        prev: &SVector<f64, N>,
+        desired: &SVector<f64, N>,
+    ) -> SVector<f64, N> {
+        let mut out = *prev;
+        for i in 0..N {
+            let p = prev[i].clamp(-self.max, self.max);
+            let d = if desired[i].is_finite() {
+                desired[i]
+            } else {
+                p
+            };
+            let lo = (p - self.rate).max(-self.max);
+            let hi = (p + self.rate).min(self.max);
+            out[i] = d.clamp(lo, hi);
+        }
+        out
+    }
+
+    /// True when `t` satisfies both limits relative to `prev` (with a tiny tolerance).
+    pub fn admits<const N: usize>(&self, prev: &SVector<f64, N>, t: &SVector<f64, N>) -> bool {
+        const TOL: f64 = 1e-9;
+        (0..N).all(|i| {
+            t[i].is_finite()
+                && t[i].abs() <= self.max + TOL
+                && (t[i] - prev[i]).abs() <= self.rate + TOL
+        })
+    }
+}

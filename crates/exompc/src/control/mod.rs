@@ -1,0 +1,129 @@
+//! Controllers: the human-intent estimate (paper eqs. 5-6), torque limits (eqs. 8-9), the
+//! baseline PD, the non-robust NMPC (eq. 7) and the multi-stage NMPC (eqs. 12-13).
+//!
+//! Every controller implements [`Controller`]: one call per control period, filtered
+//! measurements in, a torque out that always satisfies the torque and torque-rate limits.
+
+mod limits;
+mod multistage;
+mod nmpc;
+mod pd;
+mod prediction;
+
+pub use limits::TorqueLimits;
+pub use multistage::{
+    build_multistage, CoupledProblem, Formulation, MultiStage, MultiStageError, MultiStageOptions,
+};
+pub use nmpc::{classify, horizon_inputs, Nmpc, NmpcCore, NmpcProblem, NmpcSettings};
+pub use pd::PdController;
+pub use prediction::{HorizonInputs, Interaction, PredictionModel, StepJacobian};
+
+use nalgebra::SVector;
+use serde::Serialize;
+
+/// What the controller receives each period: encoder angles and the filtered velocities and
+/// strap forces (spec §5, §8).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Measurement<const N: usize> {
+    /// Time of the sample (s).
+    pub t: f64,
+    /// Robot joint angles (rad), exact encoders.
+    pub q: SVector<f64, N>,
+    /// Filtered robot joint velocities (rad/s).
+    pub qd: SVector<f64, N>,
+    /// Filtered strap forces (N), thigh then shank (1-DOF: shank only).
+    pub force: SVector<f64, N>,
+}
+
+impl<const N: usize> Measurement<N> {
+    /// True when every value is finite.
+    pub fn is_finite(&self) -> bool {
+        self.t.is_finite()
+            && self.q.iter().all(|v| v.is_finite())
+            && self.qd.iter().all(|v| v.is_finite())
+            && self.force.iter().all(|v| v.is_finite())
+    }
+}
+
+/// The outcome of one control step, reported beside the torque.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StepStatus {
+    /// The optimisation converged (or the controller needs none).
+    Ok,
+    /// The solver hit its iteration cap; its best feasible iterate was used.
+    MaxIterations,
+    /// The solver hit its time budget; its best feasible iterate was used.
+    MaxTime,
+    /// The solver failed (QP failure, line search failure, non-finite model values); the
+    /// previous torque was held.
+    SolverFailed,
+    /// A measurement was not finite or implausible; the previous torque was held.
+    BadMeasurement,
+    /// A safety monitor fired; its configured response set the torque.
+    MonitorTripped,
+}
+
+impl StepStatus {
+    /// True for outcomes that count as solver failures in the summary.
+    pub fn is_solver_failure(self) -> bool {
+        matches!(
+            self,
+            StepStatus::MaxIterations | StepStatus::MaxTime | StepStatus::SolverFailed
+        )
+    }
+}
+
+/// A torque command and how it was obtained.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ControlOutput<const N: usize> {
+    /// Robot joint torque `T_R(k)` (N·m), within the limits.
+    pub torque: SVector<f64, N>,
+    /// Outcome of the step.
+    pub status: StepStatus,
+    /// SQP iterations used this step (summed over scenarios).
+    pub iterations: u32,
+}
+
+/// A feedback controller called once per control period.
+pub trait Controller<const N: usize> {
+    /// Compute the torque for this period from the filtered measurement. Never panics, never
+    /// allocates on the hot path, and always returns a torque within the limits.
+    fn step(&mut self, m: &Measurement<N>) -> ControlOutput<N>;
+
+    /// Short name (`pd`, `nmpc`, `msnmpc`).
+    fn name(&self) -> &'static str;
+
+    /// Scenario probabilities `μ_i(k)` (paper eqs. 10-11), if the controller has scenarios.
+    fn probabilities(&self) -> Option<&[f64]> {
+        None
+    }
+
+    /// Scenario `i`'s disturbance estimate (N·m), if the controller has scenarios.
+    fn disturbance(&self, _i: usize) -> Option<SVector<f64, N>> {
+        None
+    }
+
+    /// The torque applied in the previous period, `T_R(k−1)`.
+    fn previous_torque(&self) -> SVector<f64, N>;
+}
+
+/// Human-intent estimate of paper eqs. 5-6: `q̂_H = q_R + K1 F`, `q̂d_H = qd_R + K2 F`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IntentEstimator {
+    /// `K1` (rad/N), diagonal, spec 0.005.
+    pub k1: f64,
+    /// `K2` (rad/(N·s)), diagonal, spec 0.05.
+    pub k2: f64,
+}
+
+impl IntentEstimator {
+    /// `(q̂_H, q̂d_H)` from a filtered measurement.
+    #[inline]
+    pub fn estimate<const N: usize>(
+        &self,
+        m: &Measurement<N>,
+    ) -> (SVector<f64, N>, SVector<f64, N>) {
+        (m.q + m.force * self.k1, m.qd + m.force * self.k2)
+    }
+}

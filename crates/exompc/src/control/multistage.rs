@@ -1,0 +1,513 @@
+//! Multi-stage robust NMPC (paper §3.2, eqs. 10-13): one scenario per candidate payload, each
+//! with its own robot model and EKF disturbance estimate, weighted by the EKF-bank probabilities.
+//!
+//! Two formulations:
+//! - [`Formulation::Decoupled`] (the paper): each scenario's NMPC of eq. 7 is solved on its own
+//!   and the increments are blended by eq. 13, `T(k) = T(k−1) + Σ μ_i dT_i(k)`.
+//! - [`Formulation::Coupled`] (Lucia et al. 2013, as in do-mpc; beyond the paper): one NLP over
+//!   the scenario tree with the probability-weighted cost of eq. 12 and non-anticipativity: the
+//!   first `robust_horizon` increments are shared by all scenarios.
+
+use super::nmpc::{classify, horizon_inputs, NmpcCore, NmpcProblem, NmpcSettings};
+use super::prediction::{HorizonInputs, PredictionModel};
+use super::{ControlOutput, Controller, IntentEstimator, Measurement, StepStatus, TorqueLimits};
+use crate::estimate::{EkfBank, EkfSettings, EstimatorOptions};
+use crate::model::JointState;
+use crate::solver::{Constraints, LeastSquares, SolverError, Sqp, SqpInfo};
+use nalgebra::{DMatrix, DVector, SVector};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+pub use crate::config::Formulation;
+
+/// The scenario tree solved as one NLP (eq. 12 with non-anticipativity): decision vector
+/// `[shared increments (N·Nr), scenario 1's remaining (N·(Nc−Nr)), ..., scenario S's]`;
+/// residuals are each scenario's eq.-7 residuals scaled by `√μ_i`.
+#[derive(Clone, Debug)]
+pub struct CoupledProblem<const N: usize> {
+    scenarios: Vec<NmpcProblem<N>>,
+    weights: Vec<f64>,
+    nr: usize,
+    nc: usize,
+    zi: Vec<f64>,
+    ri: Vec<f64>,
+    jaci: DMatrix<f64>,
+}
+
+impl<const N: usize> CoupledProblem<N> {
+    fn new(models: &[PredictionModel<N>], s: &NmpcSettings, robust_horizon: usize) -> Self {
+        let scenarios: Vec<NmpcProblem<N>> =
+            models.iter().map(|m| NmpcProblem::new(*m, s)).collect();
+        let (m1, n1) = (scenarios[0].num_residuals(), scenarios[0].num_vars());
+        CoupledProblem {
+            weights: vec![1.0; scenarios.len()],
+            nr: robust_horizon.clamp(1, s.nc),
+            nc: s.nc,
+            zi: vec![0.0; n1],
+            ri: vec![0.0; m1],
+            jaci: DMatrix::zeros(m1, n1),
+            scenarios,
+        }
+    }
+
+    /// Number of shared decision variables `N·Nr`.
+    fn shared(&self) -> usize {
+        N * self.nr
+    }
+
+    /// Scenario-private decision variables per scenario `N·(Nc − Nr)`.
+    fn private(&self) -> usize {
+        N * (self.nc - self.nr)
+    }
+
+    /// Scenario `i`'s decision vector from the coupled one.
+    fn gather(&self, z: &[f64], i: usize, out: &mut [f64]) {
+        let (sh, pr) = (self.shared(), self.private());
+        out[..sh].copy_from_slice(&z[..sh]);
+        out[sh..].copy_from_slice(&z[sh + i * pr..sh + (i + 1) * pr]);
+    }
+
+    fn write_constraints(
+        &self,
+        limits: &TorqueLimits,
+        c: &mut Constraints,
+        scratch: &mut Constraints,
+    ) {
+        let (sh, pr) = (self.shared(), self.private());
+        let p1 = N * self.nc;
+        c.zl.fill(-limits.rate);
+        c.zu.fill(limits.rate);
+        c.a.fill(0.0);
+        for (i, sc) in self.scenarios.iter().enumerate() {
+            sc.write_constraints(limits, scratch);
+            for r in 0..p1 {
+                let row = i * p1 + r;
+                c.bl[row] = scratch.bl[r];
+                c.bu[row] = scratch.bu[r];
+                for col in 0..p1 {
+                    let v = scratch.a[(r, col)];
+                    let cc = if col < sh {
+                        col
+                    } else {
+                        sh + i * pr + (col - sh)
+                    };
+                    c.a[(row, cc)] = v;
+                }
+            }
+        }
+    }
+}
+
+impl<const N: usize> LeastSquares for CoupledProblem<N> {
+    fn num_vars(&self) -> usize {
+        self.shared() + self.scenarios.len() * self.private()
+    }
+
+    fn num_residuals(&self) -> usize {
+        self.scenarios.len() * self.ri.len()
+    }
+
+    fn residuals(&mut self, z: &[f64], r: &mut [f64]) -> bool {
+        let m1 = self.ri.len();
+        let mut zi = std::mem::take(&mut self.zi);
+        let mut ok = true;
+        for i in 0..self.scenarios.len() {
+            self.gather(z, i, &mut zi);
+            let w = self.weights[i].sqrt();
+            let ri = &mut r[i * m1..(i + 1) * m1];
+            ok &= self.scenarios[i].residuals(&zi, ri);
+            ri.iter_mut().for_each(|v| *v *= w);
+        }
+        self.zi = zi;
+        ok
+    }
+
+    fn residuals_jacobian(&mut self, z: &[f64], r: &mut [f64], jac: &mut DMatrix<f64>) -> bool {
+        let (sh, pr, m1) = (self.shared(), self.private(), self.ri.len());
+        let mut zi = std::mem::take(&mut self.zi);
+        let mut jaci = std::mem::replace(&mut self.jaci, DMatrix::zeros(0, 0));
+        jac.fill(0.0);
+        let mut ok = true;
+        for i in 0..self.scenarios.len() {
+            self.gather(z, i, &mut zi);
+            let w = self.weights[i].sqrt();
+            let ri = &mut r[i * m1..(i + 1) * m1];
+            ok &= self.scenarios[i].residuals_jacobian(&zi, ri, &mut jaci);
+            ri.iter_mut().for_each(|v| *v *= w);
+            for col in 0..jaci.ncols() {
+                let cc = if col < sh {
+                    col
+                } else {
+                    sh + i * pr + (col - sh)
+                };
+                for row in 0..m1 {
+                    jac[(i * m1 + row, cc)] = w * jaci[(row, col)];
+                }
+            }
+        }
+        self.zi = zi;
+        self.jaci = jaci;
+        ok
+    }
+}
+
+/// Solver state of the coupled formulation.
+#[derive(Clone, Debug)]
+struct CoupledCore<const N: usize> {
+    problem: CoupledProblem<N>,
+    sqp: Sqp,
+    constraints: Constraints,
+    scratch: Constraints,
+    z: DVector<f64>,
+    zi: Vec<f64>,
+}
+
+impl<const N: usize> CoupledCore<N> {
+    fn new(
+        models: &[PredictionModel<N>],
+        s: &NmpcSettings,
+        robust_horizon: usize,
+    ) -> Result<Self, SolverError> {
+        let problem = CoupledProblem::new(models, s, robust_horizon);
+        let n = problem.num_vars();
+        let p = models.len() * N * s.nc;
+        let sqp = Sqp::new(n, problem.num_residuals(), p, s.sqp)?;
+        Ok(CoupledCore {
+            sqp,
+            constraints: Constraints::unbounded(n, p),
+            scratch: Constraints::unbounded(N * s.nc, N * s.nc),
+            z: DVector::zeros(n),
+            zi: vec![0.0; N * s.nc],
+            problem,
+        })
+    }
+
+    fn solve(
+        &mut self,
+        x0: JointState<f64, N>,
+        t_prev: SVector<f64, N>,
+        inputs: &[HorizonInputs<N>],
+        weights: &[f64],
+        limits: &TorqueLimits,
+    ) -> SqpInfo {
+        let (sh, pr) = (self.problem.shared(), self.problem.private());
+        // Warm start: shift each scenario's plan one step; shared part is the weighted mean.
+        let mut shared_new = [0.0f64; 64];
+        let sh_buf = &mut shared_new[..sh.min(64)];
+        for i in 0..self.problem.scenarios.len() {
+            self.problem.gather(self.z.as_slice(), i, &mut self.zi);
+            let n1 = self.zi.len();
+            for k in 0..n1 {
+                self.zi[k] = if k + N < n1 { self.zi[k + N] } else { 0.0 };
+            }
+            for (k, v) in sh_buf.iter_mut().enumerate() {
+                *v += weights[i] * self.zi[k];
+            }
+            for k in 0..pr {
+                self.z[sh + i * pr + k] = self.zi[sh + k];
+            }
+        }
+        for (k, v) in sh_buf.iter().enumerate() {
+            self.z[k] = *v;
+        }
+        if !self.z.iter().all(|v| v.is_finite()) {
+            self.z.fill(0.0);
+        }
+        for (i, sc) in self.problem.scenarios.iter_mut().enumerate() {
+            sc.x0 = x0;
+            sc.t_prev = t_prev;
+            sc.inputs = inputs[i];
+        }
+        self.problem.weights.copy_from_slice(weights);
+        self.problem
+            .write_constraints(limits, &mut self.constraints, &mut self.scratch);
+        let info = self
+            .sqp
+            .solve(&mut self.problem, &self.constraints, &mut self.z);
+        if !classify(info.status).1 {
+            self.z.fill(0.0);
+        }
+        info
+    }
+}
+
+/// Options of the multi-stage controller (spec §8).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MultiStageOptions {
+    /// Decoupled (paper) or coupled (scenario-tree NLP).
+    pub formulation: Formulation,
+    /// Shared increments in the coupled formulation (1 = only the applied one).
+    pub robust_horizon: usize,
+    /// Solve the decoupled scenarios in parallel with rayon.
+    pub parallel: bool,
+}
+
+/// The multi-stage robust NMPC controller of paper §3.2.
+///
+/// Each step: the EKF bank is advanced with `y = [q, qd]`, `T(k−1)` and the filtered strap
+/// torque of step `k−1` (spec §8), giving the probabilities `μ_i(k)` of eqs. 10-11 and each
+/// scenario's disturbance estimate `d̂_i`; every scenario's NMPC starts from `[q, filtered qd]`
+/// with its own model and `d̂_i`; the torque follows eq. 13 (decoupled) or the shared first
+/// increment (coupled), then the hard limits of eqs. 8-9.
+pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
+    bank: EkfBank<N, NA, NY>,
+    cores: Vec<NmpcCore<N>>,
+    coupled: Option<CoupledCore<N>>,
+    models: Vec<PredictionModel<N>>,
+    inputs: Vec<HorizonInputs<N>>,
+    weights: Vec<f64>,
+    dist: Vec<SVector<f64, N>>,
+    options: MultiStageOptions,
+    intent: IntentEstimator,
+    limits: TorqueLimits,
+    prev: SVector<f64, N>,
+    prev_t_int: SVector<f64, N>,
+    started: bool,
+}
+
+impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
+    /// A controller with one scenario per prediction model (each model's robot carries its
+    /// payload), EKF settings, and the initial previous torque `t0`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        models: Vec<PredictionModel<N>>,
+        settings: &NmpcSettings,
+        ekf: &EkfSettings,
+        estimator: &EstimatorOptions,
+        options: MultiStageOptions,
+        intent: IntentEstimator,
+        limits: TorqueLimits,
+        t0: SVector<f64, N>,
+    ) -> Result<Self, MultiStageError> {
+        if models.is_empty() {
+            return Err(MultiStageError::NoScenario);
+        }
+        let robots: Vec<_> = models.iter().map(|m| m.robot).collect();
+        let zero = SVector::zeros();
+        let bank = EkfBank::new(&robots, ekf, estimator, &zero, &zero)
+            .map_err(|e| MultiStageError::Estimator(e.to_string()))?;
+        let (cores, coupled) = match options.formulation {
+            Formulation::Decoupled => (
+                models
+                    .iter()
+                    .map(|m| NmpcCore::new(*m, settings))
+                    .collect::<Result<Vec<_>, _>>()?,
+                None,
+            ),
+            Formulation::Coupled => (
+                Vec::new(),
+                Some(CoupledCore::new(&models, settings, options.robust_horizon)?),
+            ),
+        };
+        let s = models.len();
+        let empty = HorizonInputs {
+            q_h: zero,
+            qd_h: zero,
+            t_int_measured: zero,
+            disturbance: zero,
+        };
+        Ok(MultiStage {
+            bank,
+            cores,
+            coupled,
+            inputs: vec![empty; s],
+            weights: vec![1.0 / s as f64; s],
+            dist: vec![zero; s],
+            models,
+            options,
+            intent,
+            limits,
+            prev: t0.map(|v| v.clamp(-limits.max, limits.max)),
+            prev_t_int: zero,
+            started: false,
+        })
+    }
+
+    /// The EKF bank.
+    pub fn bank(&self) -> &EkfBank<N, NA, NY> {
+        &self.bank
+    }
+
+    /// The decoupled scenario cores (empty for the coupled formulation).
+    pub fn cores(&self) -> &[NmpcCore<N>] {
+        &self.cores
+    }
+
+    /// The current coupled decision vector (coupled formulation only).
+    pub fn coupled_solution(&self) -> Option<&DVector<f64>> {
+        self.coupled.as_ref().map(|c| &c.z)
+    }
+
+    fn hold(&self, status: StepStatus) -> ControlOutput<N> {
+        ControlOutput {
+            torque: self.prev,
+            status,
+            iterations: 0,
+        }
+    }
+}
+
+/// Why a multi-stage controller could not be built.
+#[derive(Debug, thiserror::Error)]
+pub enum MultiStageError {
+    /// No scenario was given.
+    #[error("the multi-stage controller needs at least one scenario")]
+    NoScenario,
+    /// Invalid estimator settings.
+    #[error("estimator settings: {0}")]
+    Estimator(String),
+    /// Invalid solver settings.
+    #[error(transparent)]
+    Solver(#[from] SolverError),
+}
+
+impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiStage<N, NA, NY> {
+    fn step(&mut self, m: &Measurement<N>) -> ControlOutput<N> {
+        if !m.is_finite() {
+            return self.hold(StepStatus::BadMeasurement);
+        }
+        let mut y = SVector::<f64, NY>::zeros();
+        for a in 0..N {
+            y[a] = m.q[a];
+            y[N + a] = m.qd[a];
+        }
+        if self.started {
+            // A failed filter keeps its state and the probabilities; the controller goes on.
+            let _ = self.bank.step(&y, &self.prev, &self.prev_t_int);
+        } else {
+            self.bank.reset_to(&m.q, &m.qd);
+            self.started = true;
+        }
+        let x0 = JointState { q: m.q, qd: m.qd };
+        for i in 0..self.models.len() {
+            self.dist[i] = self.bank.disturbance(i);
+            self.inputs[i] = horizon_inputs(&self.intent, &self.models[i], m, self.dist[i]);
+        }
+        self.weights.copy_from_slice(self.bank.probabilities());
+        let prev = self.prev;
+        let (desired, status, iterations) = if let Some(c) = self.coupled.as_mut() {
+            let info = c.solve(x0, prev, &self.inputs, &self.weights, &self.limits);
+            let (status, usable) = classify(info.status);
+            let dt0 = SVector::<f64, N>::from_fn(|a, _| c.z[a]);
+            (
+                if usable { prev + dt0 } else { prev },
+                status,
+                info.iterations as u32,
+            )
+        } else {
+            let limits = self.limits;
+            let inputs = &self.inputs;
+            let solve = |(i, core): (usize, &mut NmpcCore<N>)| {
+                core.solve(x0, prev, inputs[i], &limits).status
+            };
+            if self.options.parallel {
+                self.cores.par_iter_mut().enumerate().for_each(|p| {
+                    solve(p);
+                });
+            } else {
+                self.cores.iter_mut().enumerate().for_each(|p| {
+                    solve(p);
+                });
+            }
+            // Eq. 13 over the scenarios whose solve is usable, renormalised.
+            let mut sum = SVector::<f64, N>::zeros();
+            let (mut wsum, mut iters) = (0.0, 0u32);
+            let mut worst = StepStatus::Ok;
+            for (i, core) in self.cores.iter().enumerate() {
+                let (st, usable) = classify(core.info.status);
+                iters += core.info.iterations as u32;
+                if st != StepStatus::Ok && worst != StepStatus::SolverFailed {
+                    worst = st;
+                }
+                if usable {
+                    sum += core.first_increment() * self.weights[i];
+                    wsum += self.weights[i];
+                }
+            }
+            if wsum > 0.0 {
+                (prev + sum / wsum, worst, iters)
+            } else {
+                (prev, StepStatus::SolverFailed, iters)
+            }
+        };
+        let torque = self.limits.clamp(&prev, &desired);
+        self.prev = torque;
+        self.prev_t_int = self.models[0].straps.torque(&m.force);
+        ControlOutput {
+            torque,
+            status,
+            iterations,
+        }
+    }
+
+    fn name(&self) -> &'static str {
+        "msnmpc"
+    }
+
+    fn probabilities(&self) -> Option<&[f64]> {
+        Some(self.bank.probabilities())
+    }
+
+    fn disturbance(&self, i: usize) -> Option<SVector<f64, N>> {
+        self.dist.get(i).copied()
+    }
+
+    fn previous_torque(&self) -> SVector<f64, N> {
+        self.prev
+    }
+}
+
+/// Build the multi-stage controller of scenario `s` for layout `D`.
+pub fn build_multistage<D, const N: usize, const NA: usize, const NY: usize>(
+    s: &crate::config::Scenario,
+    t0: SVector<f64, N>,
+) -> Result<Box<dyn Controller<N>>, crate::sim::RunError>
+where
+    D: crate::sim::Dof<N>,
+{
+    use crate::sim::{intent, limits, nmpc_settings, prediction_model};
+    let models: Vec<_> = s
+        .multistage
+        .payloads_kg
+        .iter()
+        .map(|&p| prediction_model::<D, N>(s, p))
+        .collect();
+    let e = &s.ekf;
+    let ekf = EkfSettings {
+        q_angle: e.q_angle,
+        q_velocity: e.q_velocity,
+        q_disturbance: e.q_disturbance,
+        r_angle: e.r_angle,
+        r_velocity: e.r_velocity,
+        p0_angle: e.p0_angle,
+        p0_velocity: e.p0_velocity,
+        p0_disturbance: e.p0_disturbance,
+    };
+    let est = EstimatorOptions {
+        dt: s.timing.dt,
+        substeps: s.timing.prediction_substeps,
+        innovation: s.multistage.innovation,
+        c1: s.multistage.c1,
+        floor: s.multistage.probability_floor,
+    };
+    let options = MultiStageOptions {
+        formulation: s.multistage.formulation,
+        robust_horizon: s.multistage.robust_horizon,
+        parallel: s.multistage.parallel,
+    };
+    let ms = MultiStage::<N, NA, NY>::new(
+        models,
+        &nmpc_settings(s),
+        &ekf,
+        &est,
+        options,
+        intent(s),
+        limits(s),
+        t0,
+    )
+    .map_err(|e| match e {
+        MultiStageError::Solver(e) => crate::sim::RunError::Solver(e),
+        other => crate::sim::RunError::Build(other.to_string()),
+    })?;
+    Ok(Box::new(ms))
+}

@@ -1,0 +1,411 @@
+//! Non-robust NMPC (paper §3.1, eq. 7 with constraints 8-9) on the SQP of [`crate::solver`].
+
+use super::prediction::{HorizonInputs, PredictionModel, StepJacobian};
+use super::{ControlOutput, Controller, IntentEstimator, Measurement, StepStatus, TorqueLimits};
+use crate::model::JointState;
+use crate::solver::{Constraints, LeastSquares, SolverError, Sqp, SqpInfo, SqpSettings, SqpStatus};
+use nalgebra::{DMatrix, DVector, SMatrix, SVector};
+
+/// Horizon and weights of eq. 7 (spec §8).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NmpcSettings {
+    /// Prediction horizon `Np` (steps), spec 3.
+    pub np: usize,
+    /// Control horizon `Nc ≤ Np` (steps), spec 3; the torque is held after `Nc`.
+    pub nc: usize,
+    /// Velocity-tracking weight `r_d`, spec 0.1.
+    pub r_d: f64,
+    /// Torque-increment weight `r_t`, spec 1e-5.
+    pub r_t: f64,
+    /// SQP settings.
+    pub sqp: SqpSettings,
+}
+
+impl Default for NmpcSettings {
+    fn default() -> Self {
+        NmpcSettings {
+            np: 3,
+            nc: 3,
+            r_d: 0.1,
+            r_t: 1e-5,
+            sqp: SqpSettings::default(),
+        }
+    }
+}
+
+/// The least-squares form of eq. 7 for one scenario: decision variables the torque increments
+/// `dT(k..k+Nc−1)`, residuals `q(k+j) − q_ref(k+j)`, `√r_d (qd(k+j) − qd_ref)` for `j = 1..Np`
+/// and `√r_t dT(k+j)` for `j = 0..Nc−1`, with `q_ref(k+j) = q̂_H + j dt q̂d_H`, `qd_ref = q̂d_H`
+/// (spec §8). The Jacobian is condensed by forward sensitivity propagation through the exact
+/// RK4 step Jacobians, at cost O(Np·Nc).
+#[derive(Clone, Debug)]
+pub struct NmpcProblem<const N: usize> {
+    /// Prediction model.
+    pub model: PredictionModel<N>,
+    np: usize,
+    nc: usize,
+    sqrt_rd: f64,
+    sqrt_rt: f64,
+    /// Initial state `[q, filtered qd]`.
+    pub x0: JointState<f64, N>,
+    /// Previous torque `T(k−1)`.
+    pub t_prev: SVector<f64, N>,
+    /// Inputs constant over the horizon.
+    pub inputs: HorizonInputs<N>,
+    // Sensitivities of the current state w.r.t. each increment block.
+    sq: Vec<SMatrix<f64, N, N>>,
+    sv: Vec<SMatrix<f64, N, N>>,
+}
+
+impl<const N: usize> NmpcProblem<N> {
+    /// A problem for `model` with the horizon and weights of `s`.
+    pub fn new(model: PredictionModel<N>, s: &NmpcSettings) -> Self {
+        NmpcProblem {
+            model,
+            np: s.np,
+            nc: s.nc,
+            sqrt_rd: s.r_d.sqrt(),
+            sqrt_rt: s.r_t.sqrt(),
+            x0: JointState {
+                q: SVector::zeros(),
+                qd: SVector::zeros(),
+            },
+            t_prev: SVector::zeros(),
+            inputs: HorizonInputs {
+                q_h: SVector::zeros(),
+                qd_h: SVector::zeros(),
+                t_int_measured: SVector::zeros(),
+                disturbance: SVector::zeros(),
+            },
+            sq: vec![SMatrix::zeros(); s.nc],
+            sv: vec![SMatrix::zeros(); s.nc],
+        }
+    }
+
+    /// Prediction horizon.
+    pub fn np(&self) -> usize {
+        self.np
+    }
+
+    /// Control horizon.
+    pub fn nc(&self) -> usize {
+        self.nc
+    }
+
+    /// Torque applied over step `j` of the horizon: `T(k−1) + Σ_{i ≤ min(j, Nc−1)} dT(k+i)`.
+    #[inline]
+    fn torque(&self, z: &[f64], j: usize, acc: &mut SVector<f64, N>) {
+        if j < self.nc {
+            for a in 0..N {
+                acc[a] += z[j * N + a];
+            }
+        }
+    }
+
+    #[inline]
+    fn write_step_residuals(&self, j: usize, x: &JointState<f64, N>, r: &mut [f64]) {
+        let inp = &self.inputs;
+        let base = (j - 1) * 2 * N;
+        let tj = j as f64 * self.model.dt;
+        for a in 0..N {
+            r[base + a] = x.q[a] - (inp.q_h[a] + tj * inp.qd_h[a]);
+            r[base + N + a] = self.sqrt_rd * (x.qd[a] - inp.qd_h[a]);
+        }
+    }
+
+    fn write_increment_residuals(&self, z: &[f64], r: &mut [f64]) {
+        let base = self.np * 2 * N;
+        for (ri, zi) in r[base..base + self.nc * N].iter_mut().zip(z) {
+            *ri = self.sqrt_rt * zi;
+        }
+    }
+
+    /// The predicted trajectory `(q, qd)` for `j = 1..Np` and the torques for `j = 0..Np−1`.
+    pub fn predict(&self, z: &[f64]) -> (Vec<JointState<f64, N>>, Vec<SVector<f64, N>>) {
+        let mut x = self.x0;
+        let mut u = self.t_prev;
+        let mut xs = Vec::with_capacity(self.np);
+        let mut us = Vec::with_capacity(self.np);
+        for j in 0..self.np {
+            self.torque(z, j, &mut u);
+            x = self
+                .model
+                .step(&x, &u, j as f64 * self.model.dt, &self.inputs);
+            xs.push(x);
+            us.push(u);
+        }
+        (xs, us)
+    }
+
+    /// Constraints of eqs. 8-9 for previous torque `t_prev`: `|dT| ≤ ΔT_max` (box) and
+    /// `−T_max − T(k−1) ≤ Σ_{i≤j} dT(k+i) ≤ T_max − T(k−1)` (cumulative rows), written into `c`.
+    pub fn write_constraints(&self, limits: &TorqueLimits, c: &mut Constraints) {
+        let nc = self.nc;
+        c.zl.fill(-limits.rate);
+        c.zu.fill(limits.rate);
+        c.a.fill(0.0);
+        for j in 0..nc {
+            for a in 0..N {
+                let row = j * N + a;
+                for i in 0..=j {
+                    c.a[(row, i * N + a)] = 1.0;
+                }
+                c.bl[row] = -limits.max - self.t_prev[a];
+                c.bu[row] = limits.max - self.t_prev[a];
+            }
+        }
+    }
+
+    /// Number of decision variables `N·Nc`.
+    pub fn num_decisions(&self) -> usize {
+        N * self.nc
+    }
+}
+
+impl<const N: usize> LeastSquares for NmpcProblem<N> {
+    fn num_vars(&self) -> usize {
+        N * self.nc
+    }
+
+    fn num_residuals(&self) -> usize {
+        2 * N * self.np + N * self.nc
+    }
+
+    fn residuals(&mut self, z: &[f64], r: &mut [f64]) -> bool {
+        let mut x = self.x0;
+        let mut u = self.t_prev;
+        for j in 0..self.np {
+            self.torque(z, j, &mut u);
+            x = self
+                .model
+                .step(&x, &u, j as f64 * self.model.dt, &self.inputs);
+            self.write_step_residuals(j + 1, &x, r);
+        }
+        self.write_increment_residuals(z, r);
+        r.iter().all(|v| v.is_finite())
+    }
+
+    fn residuals_jacobian(&mut self, z: &[f64], r: &mut [f64], jac: &mut DMatrix<f64>) -> bool {
+        let (np, nc) = (self.np, self.nc);
+        jac.fill(0.0);
+        for s in self.sq.iter_mut().chain(self.sv.iter_mut()) {
+            *s = SMatrix::zeros();
+        }
+        let mut x = self.x0;
+        let mut u = self.t_prev;
+        for j in 0..np {
+            self.torque(z, j, &mut u);
+            let (xn, g): (JointState<f64, N>, StepJacobian<N>) =
+                self.model
+                    .step_with_jacobian(&x, &u, j as f64 * self.model.dt, &self.inputs);
+            // S_{j+1}[i] = Φ S_j[i] + Γ for every block i ≤ min(j, Nc−1).
+            let active = j.min(nc - 1);
+            for i in 0..=active {
+                let (sq, sv) = (self.sq[i], self.sv[i]);
+                self.sq[i] = g.qq * sq + g.qv * sv + g.qu;
+                self.sv[i] = g.vq * sq + g.vv * sv + g.vu;
+            }
+            x = xn;
+            self.write_step_residuals(j + 1, &x, r);
+            let row = j * 2 * N;
+            for i in 0..=active {
+                for a in 0..N {
+                    for b in 0..N {
+                        jac[(row + a, i * N + b)] = self.sq[i][(a, b)];
+                        jac[(row + N + a, i * N + b)] = self.sqrt_rd * self.sv[i][(a, b)];
+                    }
+                }
+            }
+        }
+        self.write_increment_residuals(z, r);
+        let base = np * 2 * N;
+        for k in 0..nc * N {
+            jac[(base + k, k)] = self.sqrt_rt;
+        }
+        r.iter().all(|v| v.is_finite()) && jac.iter().all(|v| v.is_finite())
+    }
+}
+
+/// Solver state of one scenario's NMPC: problem, SQP workspace, constraints and warm start.
+/// Allocates only in [`NmpcCore::new`].
+#[derive(Clone, Debug)]
+pub struct NmpcCore<const N: usize> {
+    /// The problem (model and per-step data).
+    pub problem: NmpcProblem<N>,
+    sqp: Sqp,
+    constraints: Constraints,
+    z: DVector<f64>,
+    /// Info of the last solve.
+    pub info: SqpInfo,
+}
+
+impl<const N: usize> NmpcCore<N> {
+    /// Build the problem and allocate the SQP workspace.
+    pub fn new(model: PredictionModel<N>, settings: &NmpcSettings) -> Result<Self, SolverError> {
+        let problem = NmpcProblem::new(model, settings);
+        let n = problem.num_vars();
+        let m = problem.num_residuals();
+        let sqp = Sqp::new(n, m, n, settings.sqp)?;
+        Ok(NmpcCore {
+            problem,
+            sqp,
+            constraints: Constraints::unbounded(n, n),
+            z: DVector::zeros(n),
+            info: SqpInfo {
+                status: SqpStatus::Converged,
+                iterations: 0,
+                qp_iterations: 0,
+                cost: 0.0,
+                kkt_residual: 0.0,
+                solve_time: std::time::Duration::ZERO,
+            },
+        })
+    }
+
+    /// Solve eq. 7 from state `x0` with previous torque `t_prev` and horizon inputs; the
+    /// previous solution, shifted by one step, is the warm start. Returns the solver info; the
+    /// solution is [`Self::solution`].
+    pub fn solve(
+        &mut self,
+        x0: JointState<f64, N>,
+        t_prev: SVector<f64, N>,
+        inputs: HorizonInputs<N>,
+        limits: &TorqueLimits,
+    ) -> SqpInfo {
+        self.problem.x0 = x0;
+        self.problem.t_prev = t_prev;
+        self.problem.inputs = inputs;
+        self.problem
+            .write_constraints(limits, &mut self.constraints);
+        // Warm start: shift the previous increments by one step, last one zero.
+        let n = self.z.len();
+        for k in 0..n {
+            self.z[k] = if k + N < n { self.z[k + N] } else { 0.0 };
+        }
+        if !self.z.iter().all(|v| v.is_finite()) {
+            self.z.fill(0.0);
+        }
+        self.info = self
+            .sqp
+            .solve(&mut self.problem, &self.constraints, &mut self.z);
+        if !matches!(
+            self.info.status,
+            SqpStatus::Converged | SqpStatus::MaxIterations | SqpStatus::MaxTime
+        ) {
+            // Forget a failed plan so the next warm start is clean.
+            self.z.fill(0.0);
+        }
+        self.info
+    }
+
+    /// The current decision vector (torque increments, `N·Nc`).
+    pub fn solution(&self) -> &DVector<f64> {
+        &self.z
+    }
+
+    /// The first increment `dT(k)` of the current solution.
+    pub fn first_increment(&self) -> SVector<f64, N> {
+        SVector::from_fn(|a, _| self.z[a])
+    }
+
+    /// Reset the warm start.
+    pub fn reset(&mut self) {
+        self.z.fill(0.0);
+    }
+}
+
+/// Map a solver status to the step status and whether its iterate may be applied.
+pub fn classify(status: SqpStatus) -> (StepStatus, bool) {
+    match status {
+        SqpStatus::Converged => (StepStatus::Ok, true),
+        SqpStatus::MaxIterations => (StepStatus::MaxIterations, true),
+        SqpStatus::MaxTime => (StepStatus::MaxTime, true),
+        _ => (StepStatus::SolverFailed, false),
+    }
+}
+
+/// The non-robust NMPC controller of paper §3.1: one scenario (the nominal model, no
+/// disturbance estimate), torque `T(k) = T(k−1) + dT(k)`.
+#[derive(Clone, Debug)]
+pub struct Nmpc<const N: usize> {
+    core: NmpcCore<N>,
+    intent: IntentEstimator,
+    limits: TorqueLimits,
+    prev: SVector<f64, N>,
+}
+
+impl<const N: usize> Nmpc<N> {
+    /// A controller for `model` with initial previous torque `t0` (spec §7: the nominal gravity
+    /// torque at the initial state).
+    pub fn new(
+        model: PredictionModel<N>,
+        settings: &NmpcSettings,
+        intent: IntentEstimator,
+        limits: TorqueLimits,
+        t0: SVector<f64, N>,
+    ) -> Result<Self, SolverError> {
+        Ok(Nmpc {
+            core: NmpcCore::new(model, settings)?,
+            intent,
+            limits,
+            prev: t0.map(|v| v.clamp(-limits.max, limits.max)),
+        })
+    }
+
+    /// The solver core (problem, last info, solution).
+    pub fn core(&self) -> &NmpcCore<N> {
+        &self.core
+    }
+}
+
+/// Horizon inputs from a filtered measurement (spec §8).
+pub fn horizon_inputs<const N: usize>(
+    intent: &IntentEstimator,
+    model: &PredictionModel<N>,
+    m: &Measurement<N>,
+    disturbance: SVector<f64, N>,
+) -> HorizonInputs<N> {
+    let (q_h, qd_h) = intent.estimate(m);
+    HorizonInputs {
+        q_h,
+        qd_h,
+        t_int_measured: model.straps.torque(&m.force),
+        disturbance,
+    }
+}
+
+impl<const N: usize> Controller<N> for Nmpc<N> {
+    fn step(&mut self, m: &Measurement<N>) -> ControlOutput<N> {
+        if !m.is_finite() {
+            return ControlOutput {
+                torque: self.prev,
+                status: StepStatus::BadMeasurement,
+                iterations: 0,
+            };
+        }
+        let inputs = horizon_inputs(&self.intent, &self.core.problem.model, m, SVector::zeros());
+        let x0 = JointState { q: m.q, qd: m.qd };
+        let info = self.core.solve(x0, self.prev, inputs, &self.limits);
+        let (status, usable) = classify(info.status);
+        let desired = if usable {
+            self.prev + self.core.first_increment()
+        } else {
+            self.prev
+        };
+        let torque = self.limits.clamp(&self.prev, &desired);
+        self.prev = torque;
+        ControlOutput {
+            torque,
+            status,
+            iterations: info.iterations as u32,
+        }
+    }
+
+    fn name(&self) -> &'static str {
+        "nmpc"
+    }
+
+    fn previous_torque(&self) -> SVector<f64, N> {
+        self.prev
+    }
+}

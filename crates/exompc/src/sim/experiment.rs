@@ -1,0 +1,311 @@
+//! Building and running one experiment of the paper's simulation study from a
+//! [`Scenario`](crate::config::Scenario): the 2-DOF swing ([`TwoDof`]) or the 1-DOF knee
+//! ([`OneDof`], hip locked) variant.
+
+use super::closed_loop::{run_closed_loop, Recorder};
+use super::human::HumanLeg;
+use super::metrics::{Metrics, Summary};
+use super::plant::{robot_model, Plant, PlantParams};
+use super::trajectory::{KneeTrajectory, SwingTrajectory, Trajectory};
+use super::uncertainty::Uncertainty;
+use super::Sensors;
+use crate::config::{self, ConfigError, ControllerKind, Scenario};
+use crate::control::{
+    Controller, IntentEstimator, Nmpc, NmpcSettings, PdController, PredictionModel, TorqueLimits,
+};
+use crate::model::{Friction, Link, RobotModel, Straps, WinterFractions};
+use crate::solver::{SolverError, SqpSettings};
+use nalgebra::SVector;
+use std::time::Duration;
+
+/// Why an experiment could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// The scenario is invalid.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// The solver settings are invalid.
+    #[error("solver settings: {0}")]
+    Solver(#[from] SolverError),
+    /// A controller could not be built.
+    #[error("controller: {0}")]
+    Build(String),
+    /// A recorder failed (e.g. a trace file could not be written).
+    #[error("recording failed: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+fn link(l: &config::RobotLink) -> Link {
+    Link {
+        length: l.length_m,
+        mass: l.mass_kg,
+        com: l.com_m,
+        inertia: l.inertia_kgm2,
+    }
+}
+
+fn winter(h: &config::HumanSegment) -> WinterFractions {
+    WinterFractions {
+        mass: h.mass_fraction,
+        length: h.length_fraction,
+        com: h.com_fraction,
+        gyration: h.gyration_fraction,
+    }
+}
+
+/// One of the paper's two experiment layouts, with `N` joints.
+pub trait Dof<const N: usize> {
+    /// The desired trajectory type.
+    type Traj: Trajectory<N> + Clone;
+    /// Number of joints, as reported in summaries.
+    const DOF: usize = N;
+    /// Bare robot links (hip outwards).
+    fn robot_links(s: &Scenario) -> [Link; N];
+    /// Human Winter segments.
+    fn human_segments(s: &Scenario) -> [WinterFractions; N];
+    /// Strap model.
+    fn straps(s: &Scenario) -> Straps<N>;
+    /// The human's desired trajectory.
+    fn trajectory(s: &Scenario) -> Self::Traj;
+    /// Builds the multi-stage controller (needs the EKF's augmented dimensions).
+    fn multistage(s: &Scenario, t0: SVector<f64, N>) -> Result<Box<dyn Controller<N>>, RunError>;
+}
+
+/// The 2-DOF hip-knee experiment (paper §4.1, spec §6).
+#[derive(Clone, Copy, Debug)]
+pub struct TwoDof;
+
+/// The 1-DOF knee experiment with the hip locked at 0 (paper §4.1 end, spec §6).
+#[derive(Clone, Copy, Debug)]
+pub struct OneDof;
+
+impl Dof<2> for TwoDof {
+    type Traj = SwingTrajectory;
+    fn robot_links(s: &Scenario) -> [Link; 2] {
+        [link(&s.robot.thigh), link(&s.robot.shank)]
+    }
+    fn human_segments(s: &Scenario) -> [WinterFractions; 2] {
+        [winter(&s.human.thigh), winter(&s.human.shank)]
+    }
+    fn straps(s: &Scenario) -> Straps<2> {
+        Straps::two_dof(
+            s.straps.ls1_m,
+            s.straps.ls2_m,
+            s.straps.stiffness,
+            s.straps.damping,
+        )
+    }
+    fn trajectory(s: &Scenario) -> SwingTrajectory {
+        let t = &s.trajectory;
+        SwingTrajectory {
+            base_frequency_hz: t.base_frequency_hz,
+            frequency_swing_hz: t.frequency_swing_hz,
+            frequency_period_s: t.frequency_period_s,
+            hip_offset: t.hip_offset,
+            hip_amplitude: t.hip_amplitude,
+            hip_amplitude_swing: t.hip_amplitude_swing,
+            hip_amplitude_period_s: t.hip_amplitude_period_s,
+            knee_amplitude: t.knee_amplitude,
+            knee_amplitude_swing: t.knee_amplitude_swing,
+            knee_amplitude_period_s: t.knee_amplitude_period_s,
+            knee_phase: t.knee_phase,
+        }
+    }
+    fn multistage(s: &Scenario, t0: SVector<f64, 2>) -> Result<Box<dyn Controller<2>>, RunError> {
+        crate::control::build_multistage::<Self, 2, 6, 4>(s, t0)
+    }
+}
+
+impl Dof<1> for OneDof {
+    type Traj = KneeTrajectory;
+    fn robot_links(s: &Scenario) -> [Link; 1] {
+        [link(&s.robot.shank)]
+    }
+    fn human_segments(s: &Scenario) -> [WinterFractions; 1] {
+        [winter(&s.human.shank)]
+    }
+    fn straps(s: &Scenario) -> Straps<1> {
+        Straps::one_dof(s.straps.ls2_m, s.straps.stiffness, s.straps.damping)
+    }
+    fn trajectory(s: &Scenario) -> KneeTrajectory {
+        KneeTrajectory {
+            amplitude: s.trajectory.one_dof_amplitude,
+            frequency_hz: s.trajectory.one_dof_frequency_hz,
+        }
+    }
+    fn multistage(s: &Scenario, t0: SVector<f64, 1>) -> Result<Box<dyn Controller<1>>, RunError> {
+        crate::control::build_multistage::<Self, 1, 3, 2>(s, t0)
+    }
+}
+
+/// The plant's uncertainty settings of a scenario.
+pub fn uncertainty(s: &Scenario) -> Uncertainty {
+    let u = &s.uncertainty;
+    Uncertainty {
+        mass_perturbation: u.mass_perturbation,
+        disturbance: u.disturbance,
+        velocity_noise: u.velocity_noise,
+        force_noise: u.force_noise,
+        noise_frequency: u.noise_frequency,
+    }
+}
+
+/// Plant parameters of a scenario for layout `D` (spec §2-7).
+pub fn plant_params<D: Dof<N>, const N: usize>(s: &Scenario) -> PlantParams<N> {
+    let duration = s.duration_s(D::DOF);
+    let ramp = D::DOF == 2 && s.uncertainty.human_mass_ramp;
+    PlantParams {
+        robot_links: D::robot_links(s),
+        viscous: s.robot.viscous_friction,
+        coulomb: s.robot.coulomb_friction,
+        payload_kg: s.uncertainty.payload_kg,
+        payload_position: s.robot.payload_position_m,
+        human: HumanLeg {
+            segments: D::human_segments(s),
+            height: s.human.height_m,
+        },
+        body_mass_start: s.human.body_mass_kg,
+        body_mass_end: if ramp {
+            s.human.final_body_mass_kg
+        } else {
+            s.human.body_mass_kg
+        },
+        ramp_duration: duration,
+        nominal_body_mass: s.human.body_mass_kg,
+        brain_gains: (s.human.kp, s.human.kd),
+        straps: D::straps(s),
+        uncertainty: uncertainty(s),
+        dt: s.timing.dt,
+        substeps: s.timing.plant_substeps,
+    }
+}
+
+/// The controller's robot model for a payload scenario `payload_kg` (smooth friction).
+pub fn scenario_robot<D: Dof<N>, const N: usize>(s: &Scenario, payload_kg: f64) -> RobotModel<N> {
+    robot_model(
+        &D::robot_links(s),
+        s.robot.viscous_friction,
+        s.robot.coulomb_friction,
+        Friction::Tanh {
+            width: s.robot.coulomb_smoothing,
+        },
+        payload_kg,
+        s.robot.payload_position_m,
+        0.0,
+    )
+}
+
+/// The NMPC prediction model of a payload scenario (spec §8).
+pub fn prediction_model<D: Dof<N>, const N: usize>(
+    s: &Scenario,
+    payload_kg: f64,
+) -> PredictionModel<N> {
+    PredictionModel {
+        robot: scenario_robot::<D, N>(s, payload_kg),
+        straps: D::straps(s),
+        interaction: s.controller.interaction,
+        dt: s.timing.dt,
+        substeps: s.timing.prediction_substeps,
+    }
+}
+
+/// NMPC settings of a scenario.
+pub fn nmpc_settings(s: &Scenario) -> NmpcSettings {
+    let c = &s.controller;
+    NmpcSettings {
+        np: c.np,
+        nc: c.nc,
+        r_d: c.r_d,
+        r_t: c.r_t,
+        sqp: SqpSettings {
+            max_iterations: c.sqp.max_iterations,
+            kkt_tolerance: c.sqp.kkt_tolerance,
+            max_time: c.sqp.max_time_us.map(Duration::from_micros),
+            ..SqpSettings::default()
+        },
+    }
+}
+
+/// Torque limits of a scenario (paper eqs. 8-9).
+pub fn limits(s: &Scenario) -> TorqueLimits {
+    TorqueLimits {
+        max: s.controller.torque_max,
+        rate: s.rate_limit_per_step(),
+    }
+}
+
+/// Intent-estimate gains of a scenario (paper eqs. 5-6).
+pub fn intent(s: &Scenario) -> IntentEstimator {
+    IntentEstimator {
+        k1: s.controller.k1,
+        k2: s.controller.k2,
+    }
+}
+
+/// Initial previous torque `T_R(−1) = G_R(q(0))` of the nominal robot (spec §7).
+pub fn initial_torque<D: Dof<N>, const N: usize>(s: &Scenario) -> SVector<f64, N> {
+    let q0 = D::trajectory(s).eval(0.0).0;
+    scenario_robot::<D, N>(s, 0.0).chain.gravity_torque(&q0)
+}
+
+/// The controller `kind` for scenario `s`.
+pub fn build_controller<D: Dof<N>, const N: usize>(
+    s: &Scenario,
+    kind: ControllerKind,
+) -> Result<Box<dyn Controller<N>>, RunError> {
+    let t0 = initial_torque::<D, N>(s);
+    Ok(match kind {
+        ControllerKind::Pd => Box::new(PdController::new(
+            scenario_robot::<D, N>(s, 0.0),
+            intent(s),
+            limits(s),
+            s.controller.pd.kp,
+            s.controller.pd.kd,
+            t0,
+        )),
+        ControllerKind::Nmpc => Box::new(Nmpc::new(
+            prediction_model::<D, N>(s, 0.0),
+            &nmpc_settings(s),
+            intent(s),
+            limits(s),
+            t0,
+        )?),
+        ControllerKind::Msnmpc => D::multistage(s, t0)?,
+    })
+}
+
+/// Run the closed loop of scenario `s` with controller `s.controller.kind` in layout `D` for
+/// `s.duration_s(D::DOF)`, feeding every step to `recorders`; returns the summary (paper
+/// Table 2 metrics).
+pub fn run_experiment<D: Dof<N>, const N: usize>(
+    s: &Scenario,
+    recorders: &mut [&mut dyn Recorder<N>],
+) -> Result<Summary, RunError> {
+    s.validate()?;
+    let mut controller = build_controller::<D, N>(s, s.controller.kind)?;
+    let mut plant = Plant::new(plant_params::<D, N>(s), D::trajectory(s));
+    let mut sensors = Sensors::new(uncertainty(s), s.uncertainty.filter_window);
+    let steps = s.control_steps(D::DOF);
+    let mut metrics = Metrics::with_capacity(steps);
+    {
+        let mut all: Vec<&mut dyn Recorder<N>> = Vec::with_capacity(recorders.len() + 1);
+        all.push(&mut metrics);
+        for r in recorders.iter_mut() {
+            all.push(&mut **r);
+        }
+        run_closed_loop(
+            &mut plant,
+            &mut sensors,
+            controller.as_mut(),
+            &limits(s),
+            steps,
+            &mut all,
+        )?;
+    }
+    Ok(metrics.summary(
+        controller.name(),
+        D::DOF,
+        s.uncertainty.payload_kg,
+        s.timing.dt,
+    ))
+}

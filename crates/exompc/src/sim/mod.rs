@@ -1,0 +1,73 @@
+//! Simulation: the human "brain", desired trajectories, plant uncertainties, sensors and
+//! filters, the coupled human-robot plant, the closed loop and its metrics (paper §4.1).
+//!
+//! The closed loop is deliberately short (see [`run_closed_loop`]): sample the sensors, call the
+//! controller, hand every part's values to the recorders, advance the plant.
+
+mod closed_loop;
+mod experiment;
+mod human;
+mod metrics;
+mod plant;
+mod sensors;
+mod trajectory;
+mod uncertainty;
+
+pub use closed_loop::{run_closed_loop, Recorder, StepRecord, TraceLog, TraceRow};
+pub use experiment::{
+    build_controller, initial_torque, intent, limits, nmpc_settings, plant_params,
+    prediction_model, run_experiment, scenario_robot, uncertainty, Dof, OneDof, RunError, TwoDof,
+};
+pub use human::{HumanBrain, HumanLeg};
+pub use metrics::{Metrics, StepTimeStats, Summary};
+pub use plant::{robot_model, Plant, PlantParams, PlantState};
+pub use sensors::MovingAverage;
+pub use trajectory::{KneeTrajectory, SwingTrajectory, Trajectory};
+pub use uncertainty::Uncertainty;
+
+use crate::control::Measurement;
+use nalgebra::SVector;
+
+/// The sensor chain of spec §5: exact encoders, noisy velocity and force sensors sampled at the
+/// control instants, and the moving-average filter the controller reads.
+#[derive(Clone, Debug)]
+pub struct Sensors<const N: usize> {
+    uncertainty: Uncertainty,
+    velocity: MovingAverage<N>,
+    force: MovingAverage<N>,
+}
+
+impl<const N: usize> Sensors<N> {
+    /// Sensors with the noise of `uncertainty` and a `window`-sample moving average.
+    pub fn new(uncertainty: Uncertainty, window: usize) -> Self {
+        Sensors {
+            uncertainty,
+            velocity: MovingAverage::new(window),
+            force: MovingAverage::new(window),
+        }
+    }
+
+    /// Sample at time `t` the true robot angles, velocities and strap forces; returns the raw
+    /// (noisy) sample and the filtered measurement the controller receives.
+    pub fn read(
+        &mut self,
+        t: f64,
+        q: &SVector<f64, N>,
+        qd: &SVector<f64, N>,
+        force: &SVector<f64, N>,
+    ) -> (Measurement<N>, Measurement<N>) {
+        let raw = Measurement {
+            t,
+            q: *q,
+            qd: qd.add_scalar(self.uncertainty.velocity_noise(t)),
+            force: force.add_scalar(self.uncertainty.force_noise(t)),
+        };
+        let filtered = Measurement {
+            t,
+            q: raw.q,
+            qd: self.velocity.push(raw.qd),
+            force: self.force.push(raw.force),
+        };
+        (raw, filtered)
+    }
+}

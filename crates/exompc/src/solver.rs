@@ -1,1 +1,0 @@
-//! solver (under construction).
