@@ -3,7 +3,7 @@
 use super::{
     Ekf, EkfError, EkfSettings, EstimateError, EstimatorOptions, Innovation, InnovationStats,
 };
-use crate::model::{rk4_step, Friction, JointState, Real, RobotModel};
+use crate::model::{rk4_step, JointState, Real, RobotModel};
 use nalgebra::{Const, SMatrix, SVector, U1};
 use num_dual::DualSVec64;
 
@@ -25,8 +25,8 @@ pub type ScenarioUpdate<const NY: usize> = Result<InnovationStats<NY>, EkfError>
 ///
 /// **Jacobian.** `F = ∂x(k|k−1)/∂x(k−1|k−1)` is exact: the RK4 prediction runs once on
 /// forward-mode dual numbers `DualSVec64<NA>` seeded on every component of `q`, `qd` and `d`.
-/// (The `tanh` friction is evaluated in an overflow-safe form, since `num-dual`'s
-/// `sinh / cosh` yields `NaN` derivatives above `|qd| ≈ 355·width`.)
+/// (The model's `tanh` friction is the overflow-safe [`crate::model::tanh`], so the
+/// Jacobian stays finite at any joint speed.)
 ///
 /// **Step** ([`ScenarioEkf::step`]): `x̂(k|k−1) = f(x̂(k−1|k−1))`, `P = F P Fᵀ + Q`, then the
 /// standard EKF update with `v = y(k) − H x̂(k|k−1)` (see [`Ekf`]).
@@ -42,44 +42,6 @@ pub struct ScenarioEkf<const N: usize, const NA: usize, const NY: usize> {
     p0: SMatrix<f64, NA, NA>,
     residual: SVector<f64, NY>,
     last: Option<InnovationStats<NY>>,
-}
-
-/// `tanh` that stays finite on dual numbers for any argument.
-///
-/// `num-dual` evaluates `tanh` as `sinh / cosh`, whose derivative overflows to `NaN` once
-/// `cosh²` does (`|x| > ~355`, i.e. `|qd| > 3.55 rad/s` at the spec's 0.01 rad/s width). Here
-/// `tanh x = (1 − e^{−2|x|}) / (1 + e^{−2|x|}) · sign x`, which only underflows.
-#[inline]
-fn safe_tanh<T: Real>(x: T) -> T {
-    if x.re() >= 0.0 {
-        let e = (x * -2.0).exp();
-        (T::one() - e) / (T::one() + e)
-    } else {
-        let e = (x * 2.0).exp();
-        (e - T::one()) / (T::one() + e)
-    }
-}
-
-/// [`RobotModel::acceleration`] with the overflow-safe [`safe_tanh`] Coulomb law (identical
-/// values; finite derivatives at any velocity).
-#[inline]
-fn acceleration<T: Real, const N: usize>(
-    model: &RobotModel<N>,
-    q: &SVector<T, N>,
-    qd: &SVector<T, N>,
-    tau: &SVector<T, N>,
-) -> SVector<T, N> {
-    match model.friction {
-        Friction::Sign => model.acceleration(q, qd, tau),
-        Friction::Tanh { width } => {
-            let mut net = *tau;
-            for i in 0..N {
-                let coulomb = safe_tanh(qd[i] * (1.0 / width)) * model.coulomb;
-                net[i] = tau[i] - (qd[i] * model.viscous + coulomb);
-            }
-            model.chain.forward_dynamics(q, qd, &net)
-        }
-    }
 }
 
 /// `substeps` RK4 steps of the robot model over `dt` with the net external torque
@@ -98,7 +60,7 @@ fn propagate<T: Real, const N: usize>(
         s = rk4_step(
             |_, s: &JointState<T, N>| JointState {
                 q: s.qd,
-                qd: acceleration(model, &s.q, &s.qd, tau),
+                qd: model.acceleration(&s.q, &s.qd, tau),
             },
             i as f64 * h,
             &s,
