@@ -90,7 +90,14 @@ pub(crate) fn apply_overrides(
 
 pub(crate) fn run(a: SimulateArgs) -> Result<(), CliError> {
     let mut s = a.config.load()?;
-    apply_overrides(&mut s, a.dof, a.controller, a.formulation, a.payload, a.duration)?;
+    apply_overrides(
+        &mut s,
+        a.dof,
+        a.controller,
+        a.formulation,
+        a.payload,
+        a.duration,
+    )?;
     io::ensure_out_dir(&a.out)?;
     let summary = run_to_dir(&s, a.dof, Some(&a.out))?;
     if a.plot {

@@ -125,13 +125,20 @@ impl<const N: usize> Recorder<N> for CsvTrace {
             push(l, r.force_measured[s]);
         }
         for i in 0..self.scenarios {
-            push(l, r.probabilities.and_then(|p| p.get(i).copied()).unwrap_or(f64::NAN));
+            push(
+                l,
+                r.probabilities
+                    .and_then(|p| p.get(i).copied())
+                    .unwrap_or(f64::NAN),
+            );
         }
         for i in 0..self.scenarios {
             for j in 0..N {
                 push(
                     l,
-                    r.disturbances.and_then(|d| d.get(i)).map_or(f64::NAN, |d| d[j]),
+                    r.disturbances
+                        .and_then(|d| d.get(i))
+                        .map_or(f64::NAN, |d| d[j]),
                 );
             }
         }

@@ -194,14 +194,14 @@ impl<const N: usize> CoupledCore<N> {
         // Warm start: shift each scenario's plan one step; shared part is the weighted mean.
         let mut shared_new = [0.0f64; 64];
         let sh_buf = &mut shared_new[..sh.min(64)];
-        for i in 0..self.problem.scenarios.len() {
+        for (i, w) in weights.iter().enumerate() {
             self.problem.gather(self.z.as_slice(), i, &mut self.zi);
             let n1 = self.zi.len();
             for k in 0..n1 {
                 self.zi[k] = if k + N < n1 { self.zi[k + N] } else { 0.0 };
             }
             for (k, v) in sh_buf.iter_mut().enumerate() {
-                *v += weights[i] * self.zi[k];
+                *v += w * self.zi[k];
             }
             for k in 0..pr {
                 self.z[sh + i * pr + k] = self.zi[sh + k];

@@ -1,4 +1,5 @@
 //! A planar serial chain of `N` revolute links hanging from a fixed base (spec §1).
+#![allow(clippy::needless_range_loop)] // index-heavy formulas read closest to the math
 
 use super::{c, Real, GRAVITY};
 use nalgebra::{SMatrix, SVector};
@@ -325,7 +326,7 @@ pub fn solve_spd<T: Real, const N: usize>(
         }
     }
     for i in 0..N {
-        y[i] = y[i] / d[i];
+        y[i] /= d[i];
     }
     for i in (0..N).rev() {
         for k in (i + 1)..N {
