@@ -175,17 +175,9 @@ fn rk4(
     )
 }
 
-fn check_2dof(
-    link: &str,
-    extra: &str,
-    a: L,
-    b: L,
-    friction: bool,
-    q: [f64; 2],
-    qd: [f64; 2],
-    tau: [f64; 2],
-    dt: f64,
-) {
+/// `x = [q, qd, tau]`.
+fn check_2dof(link: &str, extra: &str, (a, b): (L, L), friction: bool, x: [[f64; 2]; 3], dt: f64) {
+    let [q, qd, tau] = x;
     let input = format!(
         r#"{{"link":"{link}"{extra},"q":[{},{}],"qd":[{},{}],"tau":[{},{}],"dt":{dt}}}"#,
         q[0], q[1], qd[0], qd[1], tau[0], tau[1]
@@ -246,32 +238,12 @@ fn model_robot_matches_closed_form_with_payload_and_friction() {
         (1.5, [0.05, -2.0], [3.0, 2.5], [20.0, -12.0]),
     ];
     for (mp, q, qd, tau) in cases {
-        let (a, b) = robot_links(mp);
-        check_2dof(
-            "robot",
-            &format!(r#","payload_kg":{mp}"#),
-            a,
-            b,
-            true,
-            q,
-            qd,
-            tau,
-            0.01,
-        );
+        let extra = format!(r#","payload_kg":{mp}"#);
+        check_2dof("robot", &extra, robot_links(mp), true, [q, qd, tau], 0.01);
     }
     // Payload defaults to 0 kg.
-    let (a, b) = robot_links(0.0);
-    check_2dof(
-        "robot",
-        "",
-        a,
-        b,
-        true,
-        [0.3, -0.2],
-        [0.1, 0.2],
-        [1.0, 0.5],
-        0.005,
-    );
+    let x = [[0.3, -0.2], [0.1, 0.2], [1.0, 0.5]];
+    check_2dof("robot", "", robot_links(0.0), true, x, 0.005);
 }
 
 #[test]
@@ -280,29 +252,11 @@ fn model_human_matches_closed_form() {
     let (a, b) = human_links(60.0);
     assert!(close(a.c, 0.18565, 1e-4) && close(a.i, 0.11507, 1e-4));
     assert!(close(b.c, 0.26088, 1e-4) && close(b.i, 0.11739, 1e-4));
-    check_2dof(
-        "human",
-        "",
-        a,
-        b,
-        false,
-        [0.2, -0.5],
-        [0.5, -1.0],
-        [3.0, 1.0],
-        0.01,
-    );
-    let (a, b) = human_links(85.0);
-    check_2dof(
-        "human",
-        r#","body_mass_kg":85"#,
-        a,
-        b,
-        false,
-        [-0.3, -1.1],
-        [1.5, -2.0],
-        [-10.0, 4.0],
-        0.01,
-    );
+    let x = [[0.2, -0.5], [0.5, -1.0], [3.0, 1.0]];
+    check_2dof("human", "", (a, b), false, x, 0.01);
+    let x = [[-0.3, -1.1], [1.5, -2.0], [-10.0, 4.0]];
+    let extra = r#","body_mass_kg":85"#;
+    check_2dof("human", extra, human_links(85.0), false, x, 0.01);
 }
 
 #[test]
