@@ -590,7 +590,7 @@ impl DenseQp {
         for j in (q + 1..n).rev() {
             let mut cc = self.d[j - 1];
             let mut ss = self.d[j];
-            let h = cc.hypot(ss);
+            let h = (cc * cc + ss * ss).sqrt();
             if h == 0.0 {
                 continue;
             }
@@ -638,7 +638,7 @@ impl DenseQp {
         for j in l..q {
             let mut cc = self.rm[(j, j)];
             let mut ss = self.rm[(j + 1, j)];
-            let h = cc.hypot(ss);
+            let h = (cc * cc + ss * ss).sqrt();
             if h == 0.0 {
                 continue;
             }
