@@ -448,14 +448,19 @@ impl Sqp {
             }
             // Gauss–Newton Hessian JᵀJ + δI (lower triangle via column dots, then mirrored).
             let mut maxdiag: f64 = 0.0;
-            for j in 0..n {
-                let cj = self.jac.column(j);
-                for i in j..n {
-                    let v = self.jac.column(i).dot(&cj);
-                    self.hess[(i, j)] = v;
-                    self.hess[(j, i)] = v;
+            {
+                let jac = self.jac.as_slice();
+                let hs = self.hess.as_mut_slice();
+                for j in 0..n {
+                    let cj = &jac[j * m..(j + 1) * m];
+                    for i in j..n {
+                        let ci = &jac[i * m..(i + 1) * m];
+                        let v: f64 = ci.iter().zip(cj).map(|(a, b)| a * b).sum();
+                        hs[i + j * n] = v;
+                        hs[j + i * n] = v;
+                    }
+                    maxdiag = maxdiag.max(hs[j + j * n]);
                 }
-                maxdiag = maxdiag.max(self.hess[(j, j)]);
             }
             let delta = s.hessian_regularization * (1.0 + maxdiag);
             for j in 0..n {
@@ -490,7 +495,7 @@ impl Sqp {
             // (predicted decrease below the noise level) are not rejected.
             let slack = 1e3 * f64::EPSILON * cost;
             let slope = self.grad.dot(&self.dz);
-            if slope.partial_cmp(&slack) != Some(std::cmp::Ordering::Less) {
+            if slope.is_nan() || slope >= slack {
                 return SqpStatus::LineSearchFailed;
             }
             let slope = slope.min(0.0);
