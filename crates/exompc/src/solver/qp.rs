@@ -337,7 +337,7 @@ impl DenseQp {
                 }
             }
             let djj = jm[(j, j)];
-            if !(djj > 0.0) || !djj.is_finite() {
+            if djj.is_nan() || djj <= 0.0 || !djj.is_finite() {
                 return false;
             }
             let ljj = djj.sqrt();

@@ -490,7 +490,7 @@ impl Sqp {
             // (predicted decrease below the noise level) are not rejected.
             let slack = 1e3 * f64::EPSILON * cost;
             let slope = self.grad.dot(&self.dz);
-            if !(slope < slack) {
+            if slope.is_nan() || slope >= slack {
                 return SqpStatus::LineSearchFailed;
             }
             let slope = slope.min(0.0);
