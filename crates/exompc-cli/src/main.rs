@@ -4,6 +4,8 @@
 //! bad flag, or a subcommand that is not implemented yet). Every error is one `error: ...`
 //! line on stderr.
 
+mod bench;
+
 use clap::{Args, Parser, Subcommand};
 use exompc::config::{ControllerKind, Scenario};
 use exompc_cli::error::CliError;
@@ -99,6 +101,12 @@ struct ConfigArgs {
 struct BenchArgs {
     #[command(flatten)]
     config: ConfigOpt,
+    /// Print one JSON object instead of tables.
+    #[arg(long)]
+    json: bool,
+    /// Closed-loop steps per controller (default: the scenario's 2-DOF run).
+    #[arg(long, value_name = "N")]
+    steps: Option<usize>,
 }
 
 #[derive(Debug, Args)]
@@ -180,10 +188,7 @@ fn run(cli: Cli) -> Result<(), CliError> {
             }
             not_implemented("soak")
         }
-        Command::Bench(a) => {
-            let _scenario = a.config.load()?;
-            not_implemented("bench")
-        }
+        Command::Bench(a) => bench::run(&a.config.load()?, a.json, a.steps),
         Command::Model(ModelArgs {}) => not_implemented("model"),
         Command::Solve(SolveArgs {}) => not_implemented("solve"),
         Command::Plot(a) => {
