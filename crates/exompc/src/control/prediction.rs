@@ -296,11 +296,18 @@ impl<const N: usize> PredictionModel<N> {
             acc += q[a];
             th[a] = acc;
         }
+        // sin/cos of the absolute angles; of the differences by the subtraction formulas.
+        let mut sin_th = [0.0; N];
+        let mut cos_th = [0.0; N];
+        for a in 0..N {
+            (sin_th[a], cos_th[a]) = th[a].sin_cos();
+        }
         let mut cs = [[1.0; N]; N];
         let mut sn = [[0.0; N]; N];
         for a in 0..N {
             for b in (a + 1)..N {
-                let (s, co) = (th[a] - th[b]).sin_cos();
+                let s = sin_th[a] * cos_th[b] - cos_th[a] * sin_th[b];
+                let co = cos_th[a] * cos_th[b] + sin_th[a] * sin_th[b];
                 cs[a][b] = co;
                 cs[b][a] = co;
                 sn[a][b] = s;
@@ -380,10 +387,9 @@ impl<const N: usize> PredictionModel<N> {
         let mut wcos = [0.0; N];
         let mut accs = 0.0;
         for a in (0..N).rev() {
-            let (s, co) = th[a].sin_cos();
-            accs += k.w[a] * s;
+            accs += k.w[a] * sin_th[a];
             g[a] = accs;
-            wcos[a] = k.w[a] * co;
+            wcos[a] = k.w[a] * cos_th[a];
         }
         let mut dg = SMatrix::<f64, N, N>::zeros();
         for r in 0..N {
