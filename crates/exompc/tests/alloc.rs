@@ -101,3 +101,14 @@ fn control_steps_do_not_allocate() {
     // The counter works.
     assert!(allocations_in(|| drop(std::hint::black_box(vec![1u8; 16]))) > 0);
 }
+
+/// Reports the controllers' inline sizes (`cargo test --test alloc -- --nocapture`); the heap
+/// buffers are listed in `docs/PERFORMANCE.md`.
+#[test]
+fn controller_sizes() {
+    use exompc::control::{MultiStage, Nmpc};
+    let nmpc = std::mem::size_of::<Nmpc<2>>();
+    let ms = std::mem::size_of::<MultiStage<2, 6, 4>>();
+    eprintln!("size_of Nmpc<2> = {nmpc} B, MultiStage<2, 6, 4> = {ms} B");
+    assert!(nmpc > 0 && ms > 0);
+}
