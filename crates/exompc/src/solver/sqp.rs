@@ -226,6 +226,8 @@ pub struct Sqp {
     /// `A z` at the current iterate.
     az: DVector<f64>,
     work: DVector<f64>,
+    /// Per Jacobian column: the row range `[first, last)` holding its nonzeros.
+    nz: Vec<(usize, usize)>,
     kkt_stationarity: f64,
     kkt_violation: f64,
     kkt_complementarity: f64,
@@ -262,6 +264,7 @@ impl Sqp {
             dbu: DVector::zeros(p),
             az: DVector::zeros(p),
             work: DVector::zeros(n),
+            nz: vec![(0, 0); n],
             kkt_stationarity: f64::INFINITY,
             kkt_violation: f64::INFINITY,
             kkt_complementarity: f64::INFINITY,
@@ -446,21 +449,32 @@ impl Sqp {
                     }
                 }
             }
-            // Gauss–Newton Hessian JᵀJ + δI (lower triangle via column dots, then mirrored).
+            // Gauss–Newton Hessian JᵀJ + δI (lower triangle via column dots, then mirrored),
+            // each dot restricted to the rows where both columns can be nonzero (condensed
+            // NMPC Jacobians are block lower triangular, scenario trees block sparse).
+            for j in 0..n {
+                let col = &self.jac.as_slice()[j * m..(j + 1) * m];
+                let first = col.iter().position(|v| *v != 0.0).unwrap_or(m);
+                let last = col.iter().rposition(|v| *v != 0.0).map_or(0, |l| l + 1);
+                self.nz[j] = (first, last.max(first));
+            }
             let mut maxdiag: f64 = 0.0;
-            {
-                let jac = self.jac.as_slice();
-                let hs = self.hess.as_mut_slice();
-                for j in 0..n {
-                    let cj = &jac[j * m..(j + 1) * m];
-                    for i in j..n {
-                        let ci = &jac[i * m..(i + 1) * m];
-                        let v: f64 = ci.iter().zip(cj).map(|(a, b)| a * b).sum();
-                        hs[i + j * n] = v;
-                        hs[j + i * n] = v;
-                    }
-                    maxdiag = maxdiag.max(hs[j + j * n]);
+            let js = self.jac.as_slice();
+            for j in 0..n {
+                let (fj, lj) = self.nz[j];
+                let cj = &js[j * m..(j + 1) * m];
+                for i in j..n {
+                    let (fi, li) = self.nz[i];
+                    let (lo, hi) = (fi.max(fj), li.min(lj));
+                    let v = if lo < hi {
+                        dot(&js[i * m + lo..i * m + hi], &cj[lo..hi])
+                    } else {
+                        0.0
+                    };
+                    self.hess[(i, j)] = v;
+                    self.hess[(j, i)] = v;
                 }
+                maxdiag = maxdiag.max(self.hess[(j, j)]);
             }
             let delta = s.hessian_regularization * (1.0 + maxdiag);
             for j in 0..n {
@@ -623,6 +637,24 @@ impl Sqp {
             k
         }
     }
+}
+
+/// `aᵀb` of two equally long slices, four partial sums.
+#[inline]
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    let mut acc = [0.0f64; 4];
+    for (x, y) in ca.zip(cb) {
+        for k in 0..4 {
+            acc[k] += x[k] * y[k];
+        }
+    }
+    let mut s = (acc[0] + acc[1]) + (acc[2] + acc[3]);
+    for (x, y) in ra.iter().zip(rb) {
+        s += x * y;
+    }
+    s
 }
 
 /// Largest violation of `bl ≤ v ≤ bu`.
