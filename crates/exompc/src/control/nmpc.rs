@@ -360,7 +360,7 @@ impl<const N: usize> Nmpc<N> {
             core: NmpcCore::new(model, settings)?,
             intent,
             limits,
-            prev: t0.map(|v| v.clamp(-limits.max, limits.max)),
+            prev: limits.admissible(&t0),
         })
     }
 
