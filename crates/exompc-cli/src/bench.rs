@@ -13,6 +13,8 @@ use std::time::{Duration, Instant};
 
 /// Horizons `Np = Nc` of the scaling table.
 const HORIZONS: [usize; 5] = [3, 5, 10, 20, 50];
+/// Prediction horizons of the fixed-`Nc = 3` rows of the scaling table.
+const FIXED_NC_HORIZONS: [usize; 4] = [10, 20, 50, 100];
 /// Scenario counts of the scaling table (payloads spread evenly over 0..2 kg).
 const SCENARIOS: [usize; 4] = [1, 3, 5, 9];
 /// Wall-clock budget per scaling case (the case stops after it, with at least 3 steps).
@@ -86,6 +88,7 @@ fn variant(base: &Scenario, kind: ControllerKind, formulation: Formulation) -> S
 /// One row of the scaling table.
 struct ScalingRow {
     np: usize,
+    nc: usize,
     scenarios: usize,
     formulation: &'static str,
     stats: LoopStats,
@@ -139,15 +142,26 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
     )?;
 
     let mut rows = Vec::new();
+    // Np = Nc over HORIZONS × SCENARIOS, then Np alone (Nc = 3, 3 scenarios) to show the cost
+    // per step against the prediction horizon for a fixed control horizon.
+    let mut cases: Vec<(usize, usize, usize)> = Vec::new();
+    for &np in &HORIZONS {
+        for &ns in &SCENARIOS {
+            cases.push((np, np, ns));
+        }
+    }
+    for &np in &FIXED_NC_HORIZONS {
+        cases.push((np, 3, 3));
+    }
     for (formulation, name) in [
         (Formulation::Decoupled, "decoupled"),
         (Formulation::Coupled, "coupled"),
     ] {
-        for &np in &HORIZONS {
-            for &ns in &SCENARIOS {
+        for &(np, nc, ns) in &cases {
+            {
                 let mut s = variant(&base, ControllerKind::Msnmpc, formulation);
                 s.controller.np = np;
-                s.controller.nc = np;
+                s.controller.nc = nc;
                 s.multistage.payloads_kg = (0..ns)
                     .map(|i| {
                         if ns == 1 {
@@ -157,7 +171,7 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
                         }
                     })
                     .collect();
-                s.multistage.robust_horizon = s.multistage.robust_horizon.clamp(1, np);
+                s.multistage.robust_horizon = s.multistage.robust_horizon.clamp(1, nc);
                 let floor = s.multistage.probability_floor;
                 s.multistage.probability_floor = floor.min(0.5 / ns as f64);
                 let stats = closed_loop(
@@ -168,6 +182,7 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
                 )?;
                 rows.push(ScalingRow {
                     np,
+                    nc,
                     scenarios: ns,
                     formulation: name,
                     stats,
@@ -193,7 +208,7 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
             .map(|r| {
                 json!({
                     "np": r.np,
-                    "nc": r.np,
+                    "nc": r.nc,
                     "scenarios": r.scenarios,
                     "formulation": r.formulation,
                     "p50_us": r.stats.step.p50,
@@ -238,19 +253,20 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
     }
     println!();
     println!(
-        "scaling (Np = Nc, payloads spread over 0..2 kg; at most {} steps / {:.1} s per case)",
+        "scaling (payloads spread over 0..2 kg; at most {} steps / {:.1} s per case)",
         steps.min(CASE_STEPS),
         CASE_BUDGET.as_secs_f64()
     );
     println!(
-        "{:<10} {:>4} {:>9} {:>11} {:>11} {:>8} {:>6}",
-        "form", "Np", "scenarios", "p50 µs", "p99 µs", "iters", "steps"
+        "{:<10} {:>4} {:>4} {:>9} {:>11} {:>11} {:>8} {:>6}",
+        "form", "Np", "Nc", "scenarios", "p50 µs", "p99 µs", "iters", "steps"
     );
     for r in &rows {
         println!(
-            "{:<10} {:>4} {:>9} {:>11.1} {:>11.1} {:>8.2} {:>6}",
+            "{:<10} {:>4} {:>4} {:>9} {:>11.1} {:>11.1} {:>8.2} {:>6}",
             r.formulation,
             r.np,
+            r.nc,
             r.scenarios,
             r.stats.step.p50,
             r.stats.step.p99,
