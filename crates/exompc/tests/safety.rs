@@ -193,13 +193,15 @@ fn fault_event() -> impl Strategy<Value = FaultEvent> {
         0.0..0.5f64,
         -1e4..1e4f64,
     )
-        .prop_map(|(kind, channel, start_s, duration_s, magnitude)| FaultEvent {
-            kind,
-            channel,
-            start_s,
-            duration_s,
-            magnitude,
-        })
+        .prop_map(
+            |(kind, channel, start_s, duration_s, magnitude)| FaultEvent {
+                kind,
+                channel,
+                start_s,
+                duration_s,
+                magnitude,
+            },
+        )
 }
 
 proptest! {
@@ -345,7 +347,10 @@ fn check_soak(seconds: f64) {
     assert_eq!(st.limit_violations, 0);
     assert!(st.max_abs_force_n.is_finite());
     // Every minute: at least the NaN, inf, dropout and stuck faults trip the timeout monitor.
-    assert!(r.monitor_trips >= 4 * (seconds / 60.0).floor() as u64, "{r:?}");
+    assert!(
+        r.monitor_trips >= 4 * (seconds / 60.0).floor() as u64,
+        "{r:?}"
+    );
     println!("{}", serde_json_like(&r));
 }
 
