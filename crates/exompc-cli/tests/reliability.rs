@@ -286,6 +286,9 @@ fn soak_writes_its_report() {
     let bad = exompc(&["soak", "--hours", "0"]);
     assert_eq!(bad.status.code(), Some(2));
     assert!(stderr(&bad).contains("--hours"));
+    let bad = exompc(&["soak", "--hours", "1000"]);
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(stderr(&bad).contains("--hours"), "{}", stderr(&bad));
     let bad = exompc(&["soak", "--payload", "30"]);
     assert_eq!(bad.status.code(), Some(2));
     assert!(stderr(&bad).contains("payload"));

@@ -298,6 +298,10 @@ pub fn run_experiment<D: Dof<N>, const N: usize>(
     run_experiment_report::<D, N>(s, recorders).map(|(summary, _)| summary)
 }
 
+/// Step-time samples preallocated at most (longer runs grow the buffer as they go, instead
+/// of aborting on a huge up-front allocation).
+const MAX_PREALLOCATED_STEPS: usize = 1 << 22;
+
 /// [`run_experiment`], also returning the safety supervisor's counters and monitor events.
 pub fn run_experiment_report<D: Dof<N>, const N: usize>(
     s: &Scenario,
@@ -309,7 +313,7 @@ pub fn run_experiment_report<D: Dof<N>, const N: usize>(
     let mut sensors =
         Sensors::new(uncertainty(s), s.uncertainty.filter_window).with_faults(&s.faults);
     let steps = s.control_steps(D::DOF);
-    let mut metrics = Metrics::with_capacity(steps);
+    let mut metrics = Metrics::with_capacity(steps.min(MAX_PREALLOCATED_STEPS));
     {
         let mut all: Vec<&mut dyn Recorder<N>> = Vec::with_capacity(recorders.len() + 1);
         all.push(&mut metrics);
