@@ -3,9 +3,10 @@
 //! that the output stays within the limits; prints the counters and writes `soak.json`.
 use crate::ConfigOpt;
 use clap::Args;
-use exompc::sim::{run_soak, soak_scenario, RunError};
+use exompc::sim::{run_soak, soak_scenario, Recorder, RunError, StepRecord};
 use exompc_cli::error::CliError;
 use exompc_cli::io;
+use exompc_cli::trace::CsvTrace;
 use std::path::PathBuf;
 
 /// Longest soak (h): the summary keeps 8 bytes of step time per step (2.9 MB per hour).
@@ -24,6 +25,24 @@ pub(crate) struct SoakArgs {
     /// Output folder for `soak.json` (default: current folder).
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
+    /// Also write every N-th step to `soak_trace.csv` (0: no trace).
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    trace_every: usize,
+}
+
+/// Forwards every `every`-th step to the trace.
+struct Decimated {
+    trace: CsvTrace,
+    every: usize,
+}
+
+impl Recorder<2> for Decimated {
+    fn record(&mut self, r: &StepRecord<'_, 2>) -> std::io::Result<()> {
+        if r.k.is_multiple_of(self.every) {
+            self.trace.record(r)?;
+        }
+        Ok(())
+    }
 }
 
 pub(crate) fn run(a: SoakArgs) -> Result<(), CliError> {
@@ -44,7 +63,22 @@ pub(crate) fn run(a: SoakArgs) -> Result<(), CliError> {
         .map_err(|e| CliError::Usage(format!("--hours: {e}")))?;
     let out = a.out.unwrap_or_else(|| PathBuf::from("."));
     io::ensure_out_dir(&out)?;
-    let report = run_soak(&base, a.hours * 3600.0, a.payload, &mut []).map_err(|e| match e {
+    let mut trace = match a.trace_every {
+        0 => None,
+        every => Some(Decimated {
+            trace: CsvTrace::create(
+                &out.join("soak_trace.csv"),
+                2,
+                base.multistage.payloads_kg.len(),
+            )?,
+            every,
+        }),
+    };
+    let mut recs: Vec<&mut dyn Recorder<2>> = Vec::new();
+    if let Some(t) = trace.as_mut() {
+        recs.push(t);
+    }
+    let report = run_soak(&base, a.hours * 3600.0, a.payload, &mut recs).map_err(|e| match e {
         RunError::Config(c) => CliError::Config(c.to_string()),
         other => CliError::Runtime(other.to_string()),
     })?;
@@ -66,6 +100,11 @@ pub(crate) fn run(a: SoakArgs) -> Result<(), CliError> {
         "  solver failures {}   bad measurements {}   monitor trips {} ({} steps)",
         s.solver_failures, s.bad_measurement_steps, report.monitor_trips, s.monitor_steps
     );
+    drop(recs);
+    if let Some(t) = trace {
+        t.trace.finish()?;
+        println!("  wrote {}", out.join("soak_trace.csv").display());
+    }
     let json = serde_json::to_string_pretty(&report)
         .map_err(|e| CliError::Runtime(format!("serialising soak report: {e}")))?;
     let path = out.join("soak.json");

@@ -264,6 +264,8 @@ fn soak_writes_its_report() {
         "soak",
         "--hours",
         "0.005",
+        "--trace-every",
+        "100",
         "--out",
         out_dir.to_str().unwrap(),
     ]);
@@ -283,6 +285,12 @@ fn soak_writes_its_report() {
         assert!(r.get(key).is_some(), "{key} missing: {text}");
     }
     assert!(String::from_utf8_lossy(&out.stdout).contains("limit violations 0"));
+    let trace = std::fs::read_to_string(out_dir.join("soak_trace.csv")).unwrap();
+    assert_eq!(
+        trace.lines().count(),
+        1 + 18,
+        "header + every 100th of 1800 steps"
+    );
     let bad = exompc(&["soak", "--hours", "0"]);
     assert_eq!(bad.status.code(), Some(2));
     assert!(stderr(&bad).contains("--hours"));
