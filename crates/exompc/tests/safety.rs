@@ -16,6 +16,14 @@ use exompc::sim::{
 use nalgebra::SVector;
 use proptest::prelude::*;
 
+/// `PROPTEST_CASES` if set (for long local hunts), else `default`.
+fn cases(default: u32) -> u32 {
+    std::env::var("PROPTEST_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
 /// Finite everyday values, huge values, and the non-finite ones.
 fn value() -> impl Strategy<Value = f64> {
     prop_oneof![
@@ -120,7 +128,7 @@ fn kinds() -> impl Strategy<Value = Kind> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 96, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: cases(96), ..ProptestConfig::default() })]
 
     #[test]
     fn two_dof_outputs_within_limits(
@@ -205,7 +213,7 @@ fn fault_event() -> impl Strategy<Value = FaultEvent> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 32, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: cases(32), ..ProptestConfig::default() })]
 
     /// Closed loops with arbitrary fault schedules: no limit violation, nothing non-finite.
     #[test]
