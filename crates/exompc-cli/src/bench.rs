@@ -1,15 +1,262 @@
-//! `exompc bench`.
+//! `exompc bench`: time the controllers' step alone in closed loops of the 2-DOF scenario, and
+//! a scaling table over the horizon and the number of scenarios (see `docs/PERFORMANCE.md`).
+
 use crate::ConfigOpt;
 use clap::Args;
+use exompc::config::{ControllerKind, Formulation, Scenario};
+use exompc::sim::{
+    build_controller, plant_params, uncertainty, Dof, Plant, Sensors, StepTimeStats, TwoDof,
+};
 use exompc_cli::error::CliError;
+use serde_json::json;
+use std::time::{Duration, Instant};
 
+/// Horizons `Np = Nc` of the scaling table.
+const HORIZONS: [usize; 5] = [3, 5, 10, 20, 50];
+/// Scenario counts of the scaling table (payloads spread evenly over 0..2 kg).
+const SCENARIOS: [usize; 4] = [1, 3, 5, 9];
+/// Wall-clock budget per scaling case (the case stops after it, with at least 3 steps).
+const CASE_BUDGET: Duration = Duration::from_millis(700);
+/// Steps per scaling case at most.
+const CASE_STEPS: usize = 300;
+
+/// Timing of one closed loop.
+struct LoopStats {
+    steps: usize,
+    step: StepTimeStats,
+    iterations_mean: f64,
+    /// Simulated seconds per wall-clock second of the whole loop (plant, sensors, controller).
+    sim_speed: f64,
+    wall_s: f64,
+}
+
+/// Run `steps` closed-loop steps of `s` with controller `kind` (stopping early once `budget`
+/// is spent and at least `min_steps` ran); time the controller's `step` alone.
+fn closed_loop(
+    s: &Scenario,
+    kind: ControllerKind,
+    steps: usize,
+    budget: Option<Duration>,
+) -> Result<LoopStats, CliError> {
+    s.validate().map_err(|e| CliError::Config(e.to_string()))?;
+    let mut controller =
+        build_controller::<TwoDof, 2>(s, kind).map_err(|e| CliError::Runtime(e.to_string()))?;
+    let mut plant = Plant::new(plant_params::<TwoDof, 2>(s), TwoDof::trajectory(s));
+    let mut sensors = Sensors::new(uncertainty(s), s.uncertainty.filter_window);
+    let mut times = Vec::with_capacity(steps);
+    let mut iterations = 0u64;
+    let start = Instant::now();
+    for k in 0..steps {
+        if let Some(b) = budget {
+            let spent = start.elapsed();
+            if (k >= 3 && spent > b) || (k >= 1 && spent > 4 * b) {
+                break;
+            }
+        }
+        let t = plant.time();
+        let st = *plant.state();
+        let force = plant.strap_force();
+        let (_raw, meas) = sensors.read(t, &st.robot.q, &st.robot.qd, &force);
+        let t0 = Instant::now();
+        let out = controller.step(&meas);
+        times.push(t0.elapsed().as_secs_f64() * 1e6);
+        iterations += u64::from(out.iterations);
+        plant.step(&out.torque);
+    }
+    let wall = start.elapsed().as_secs_f64();
+    let n = times.len();
+    Ok(LoopStats {
+        steps: n,
+        step: StepTimeStats::from_samples(&mut times),
+        iterations_mean: iterations as f64 / n.max(1) as f64,
+        sim_speed: n as f64 * s.timing.dt / wall,
+        wall_s: wall,
+    })
+}
+
+/// The scenario with the controller kind and multi-stage formulation set.
+fn variant(base: &Scenario, kind: ControllerKind, formulation: Formulation) -> Scenario {
+    let mut s = base.clone();
+    s.controller.kind = kind;
+    s.multistage.formulation = formulation;
+    s.multistage.parallel = false;
+    s
+}
+
+/// One row of the scaling table.
+struct ScalingRow {
+    np: usize,
+    scenarios: usize,
+    formulation: &'static str,
+    stats: LoopStats,
+}
+
+/// Runs the benchmark and prints the report (`--json`: one JSON object on stdout).
 #[derive(Debug, Args)]
 pub(crate) struct BenchArgs {
     #[command(flatten)]
     config: ConfigOpt,
+    /// Print one JSON object instead of tables.
+    #[arg(long)]
+    json: bool,
+    /// Closed-loop steps per controller (default: the scenario's 2-DOF run).
+    #[arg(long, value_name = "N")]
+    steps: Option<usize>,
 }
 
+/// `exompc bench`.
 pub(crate) fn run(a: BenchArgs) -> Result<(), CliError> {
-    let _scenario = a.config.load()?;
-    crate::not_implemented("bench")
+    bench(&a.config.load()?, a.json, a.steps)
+}
+
+/// Run the benchmark on scenario `base`.
+pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(), CliError> {
+    let steps = steps.unwrap_or_else(|| base.control_steps(2)).max(1);
+    let mut base = base.clone();
+    // A loop of `steps` periods.
+    base.timing.duration_2dof_s = base
+        .timing
+        .duration_2dof_s
+        .max(steps as f64 * base.timing.dt);
+
+    let nmpc = closed_loop(
+        &variant(&base, ControllerKind::Nmpc, Formulation::Decoupled),
+        ControllerKind::Nmpc,
+        steps,
+        None,
+    )?;
+    let ms = closed_loop(
+        &variant(&base, ControllerKind::Msnmpc, Formulation::Decoupled),
+        ControllerKind::Msnmpc,
+        steps,
+        None,
+    )?;
+    let msc = closed_loop(
+        &variant(&base, ControllerKind::Msnmpc, Formulation::Coupled),
+        ControllerKind::Msnmpc,
+        steps,
+        None,
+    )?;
+
+    let mut rows = Vec::new();
+    for (formulation, name) in [
+        (Formulation::Decoupled, "decoupled"),
+        (Formulation::Coupled, "coupled"),
+    ] {
+        for &np in &HORIZONS {
+            for &ns in &SCENARIOS {
+                let mut s = variant(&base, ControllerKind::Msnmpc, formulation);
+                s.controller.np = np;
+                s.controller.nc = np;
+                s.multistage.payloads_kg = (0..ns)
+                    .map(|i| {
+                        if ns == 1 {
+                            0.0
+                        } else {
+                            2.0 * i as f64 / (ns - 1) as f64
+                        }
+                    })
+                    .collect();
+                s.multistage.robust_horizon = s.multistage.robust_horizon.clamp(1, np);
+                let floor = s.multistage.probability_floor;
+                s.multistage.probability_floor = floor.min(0.5 / ns as f64);
+                let stats = closed_loop(
+                    &s,
+                    ControllerKind::Msnmpc,
+                    steps.min(CASE_STEPS),
+                    Some(CASE_BUDGET),
+                )?;
+                rows.push(ScalingRow {
+                    np,
+                    scenarios: ns,
+                    formulation: name,
+                    stats,
+                });
+            }
+        }
+    }
+
+    if as_json {
+        let stat = |l: &LoopStats| {
+            json!({
+                "p50_us": l.step.p50,
+                "p99_us": l.step.p99,
+                "mean_us": l.step.mean,
+                "max_us": l.step.max,
+                "iterations_mean": l.iterations_mean,
+                "steps": l.steps,
+                "wall_s": l.wall_s,
+            })
+        };
+        let scaling: Vec<_> = rows
+            .iter()
+            .map(|r| {
+                json!({
+                    "np": r.np,
+                    "nc": r.np,
+                    "scenarios": r.scenarios,
+                    "formulation": r.formulation,
+                    "p50_us": r.stats.step.p50,
+                    "p99_us": r.stats.step.p99,
+                    "mean_us": r.stats.step.mean,
+                    "iterations_mean": r.stats.iterations_mean,
+                    "steps": r.stats.steps,
+                })
+            })
+            .collect();
+        let out = json!({
+            "nmpc": stat(&nmpc),
+            "msnmpc": stat(&ms),
+            "msnmpc_coupled": stat(&msc),
+            "sim_speed": ms.sim_speed,
+            "scaling": scaling,
+        });
+        println!("{out}");
+        return Ok(());
+    }
+
+    println!(
+        "control step alone, 2-DOF default scenario, {steps} closed-loop steps (dt = {} s)",
+        base.timing.dt
+    );
+    println!(
+        "{:<16} {:>9} {:>9} {:>9} {:>9} {:>8} {:>10} {:>8}",
+        "controller", "mean µs", "p50 µs", "p99 µs", "max µs", "iters", "sim s/s", "wall s"
+    );
+    for (name, l) in [("nmpc", &nmpc), ("msnmpc", &ms), ("msnmpc_coupled", &msc)] {
+        println!(
+            "{:<16} {:>9.2} {:>9.2} {:>9.2} {:>9.2} {:>8.2} {:>10.1} {:>8.3}",
+            name,
+            l.step.mean,
+            l.step.p50,
+            l.step.p99,
+            l.step.max,
+            l.iterations_mean,
+            l.sim_speed,
+            l.wall_s
+        );
+    }
+    println!();
+    println!(
+        "scaling (Np = Nc, payloads spread over 0..2 kg; at most {} steps / {:.1} s per case)",
+        steps.min(CASE_STEPS),
+        CASE_BUDGET.as_secs_f64()
+    );
+    println!(
+        "{:<10} {:>4} {:>9} {:>11} {:>11} {:>8} {:>6}",
+        "form", "Np", "scenarios", "p50 µs", "p99 µs", "iters", "steps"
+    );
+    for r in &rows {
+        println!(
+            "{:<10} {:>4} {:>9} {:>11.1} {:>11.1} {:>8.2} {:>6}",
+            r.formulation,
+            r.np,
+            r.scenarios,
+            r.stats.step.p50,
+            r.stats.step.p99,
+            r.stats.iterations_mean,
+            r.stats.steps
+        );
+    }
+    Ok(())
 }

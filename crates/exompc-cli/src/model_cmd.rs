@@ -1,10 +1,316 @@
-//! `exompc model`.
+//! `exompc model`: evaluate the robot or human leg model at one state.
+//!
+//! Reads one JSON object on stdin, for example
+//! `{"link":"robot","payload_kg":1.0,"q":[0.2,-0.5],"qd":[0.5,-1.0],"tau":[3.0,1.0],"dt":0.01}`,
+//! and prints `{"M":..,"Cqd":..,"G":..,"qdd":..,"next":{"q":..,"qd":..}}`:
+//!
+//! * `link`: `"robot"` (the scenario's exoskeleton with the payload merged into its shank, plant
+//!   friction `kf1 qd + kf2 sign(qd)`) or `"human"` (Winter's leg for `body_mass_kg`, default the
+//!   scenario's body mass, no friction);
+//! * `q`, `qd`, `tau`: joint angles (rad), velocities (rad/s) and the applied joint torque (N·m),
+//!   two entries for the hip-knee chain, one for the knee-only (shank) chain;
+//! * `qdd = M⁻¹(tau − C qd − G − friction)`; `next` is one RK4 step of `dt` with `tau` held.
+//!
+//! No interaction and no disturbance are included.
+
+use crate::ConfigOpt;
 use clap::Args;
+use exompc::config::Scenario;
+use exompc::model::{rk4_step, Chain, Friction, JointState, RobotModel};
+use exompc::sim::{robot_model, Dof, HumanLeg, OneDof, TwoDof};
 use exompc_cli::error::CliError;
+use nalgebra::{SMatrix, SVector};
+use serde::Deserialize;
+use serde_json::{json, Value};
+use std::io::Read as _;
 
 #[derive(Debug, Args)]
-pub(crate) struct ModelArgs {}
+pub(crate) struct ModelArgs {
+    #[command(flatten)]
+    pub(crate) config: ConfigOpt,
+}
 
-pub(crate) fn run(_a: ModelArgs) -> Result<(), CliError> {
-    crate::not_implemented("model")
+/// Which chain to evaluate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+enum LinkKind {
+    Robot,
+    Human,
+}
+
+/// The request read on stdin.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ModelInput {
+    link: LinkKind,
+    #[serde(default)]
+    payload_kg: Option<f64>,
+    #[serde(default)]
+    body_mass_kg: Option<f64>,
+    q: Vec<f64>,
+    qd: Vec<f64>,
+    tau: Vec<f64>,
+    dt: f64,
+}
+
+/// Reads all of stdin as text.
+pub(crate) fn read_stdin() -> Result<String, CliError> {
+    let mut text = String::new();
+    std::io::stdin()
+        .read_to_string(&mut text)
+        .map_err(|e| CliError::Usage(format!("cannot read the JSON input on stdin: {e}")))?;
+    Ok(text)
+}
+
+/// Parses `text` as one JSON object of type `T`; every error is a usage error that names the
+/// offending field where there is one. `probe` checks a single field's value against its type
+/// (it returns `None` for a field name it does not know), so that type errors, which serde
+/// reports without the field name, can be attributed.
+pub(crate) fn parse_input<T: for<'de> Deserialize<'de>>(
+    text: &str,
+    probe: impl Fn(&str, &Value) -> Option<Result<(), serde_json::Error>>,
+) -> Result<T, CliError> {
+    let value: Value = serde_json::from_str(text).map_err(|e| {
+        let field = key_before(text, e.line(), e.column())
+            .map(|k| format!(" (in field `{k}`)"))
+            .unwrap_or_default();
+        CliError::Usage(format!("malformed JSON input{field}: {e}"))
+    })?;
+    let Value::Object(obj) = &value else {
+        return Err(CliError::Usage(
+            "the JSON input must be one object, e.g. {\"q\": [...], ...}".into(),
+        ));
+    };
+    serde_json::from_value::<T>(value.clone()).map_err(|e| {
+        let msg = e.to_string();
+        if msg.contains("field") {
+            // serde names missing and unknown fields itself.
+            return CliError::Usage(format!("invalid input: {msg}"));
+        }
+        for (k, v) in obj {
+            if let Some(Err(fe)) = probe(k, v) {
+                return CliError::Usage(format!("invalid input: field `{k}`: {fe}"));
+            }
+        }
+        CliError::Usage(format!("invalid input: {msg}"))
+    })
+}
+
+/// The last object key (`"name":`) before 1-based `line`/`column` of `text`, for locating a
+/// syntax error (for example an out-of-range number) in a field.
+fn key_before(text: &str, line: usize, column: usize) -> Option<String> {
+    let mut offset = 0;
+    for (i, l) in text.split_inclusive('\n').enumerate() {
+        if i + 1 == line {
+            offset += column.min(l.len());
+            break;
+        }
+        offset += l.len();
+    }
+    let head = text.get(..offset.min(text.len()))?;
+    let bytes = head.as_bytes();
+    let mut i = head.len();
+    while i > 0 {
+        i -= 1;
+        if bytes[i] != b':' {
+            continue;
+        }
+        let before = head[..i].trim_end();
+        let Some(inner) = before.strip_suffix('"') else {
+            continue;
+        };
+        let start = inner.rfind('"')?;
+        return Some(inner[start + 1..].to_string());
+    }
+    None
+}
+
+/// Probe helper: does `v` deserialise as `T`?
+pub(crate) fn probe_as<T: for<'de> Deserialize<'de>>(v: &Value) -> Result<(), serde_json::Error> {
+    T::deserialize(v).map(|_| ())
+}
+
+/// Checks that `v` has `n` finite entries, naming the field.
+pub(crate) fn check_vec(name: &str, v: &[f64], n: usize) -> Result<(), CliError> {
+    if v.len() != n {
+        return Err(CliError::Usage(format!(
+            "field `{name}` must have {n} entr{} (like `q`), found {}",
+            if n == 1 { "y" } else { "ies" },
+            v.len()
+        )));
+    }
+    if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+        return Err(CliError::Usage(format!(
+            "field `{name}[{i}]` must be a finite number, found {}",
+            v[i]
+        )));
+    }
+    Ok(())
+}
+
+/// Number of joints given by `q` (1 or 2), naming the field otherwise.
+pub(crate) fn joint_count(q: &[f64]) -> Result<usize, CliError> {
+    match q.len() {
+        1 | 2 => Ok(q.len()),
+        n => Err(CliError::Usage(format!(
+            "field `q` must have 1 (knee only) or 2 (hip, knee) entries, found {n}"
+        ))),
+    }
+}
+
+fn probe(k: &str, v: &Value) -> Option<Result<(), serde_json::Error>> {
+    Some(match k {
+        "link" => probe_as::<LinkKind>(v),
+        "payload_kg" | "body_mass_kg" => probe_as::<Option<f64>>(v),
+        "dt" => probe_as::<f64>(v),
+        "q" | "qd" | "tau" => probe_as::<Vec<f64>>(v),
+        _ => return None,
+    })
+}
+
+pub(crate) fn run(a: ModelArgs) -> Result<(), CliError> {
+    let s = a.config.load()?;
+    let input: ModelInput = parse_input(&read_stdin()?, probe)?;
+    let out = evaluate(&s, &input)?;
+    println!("{out}");
+    Ok(())
+}
+
+fn evaluate(s: &Scenario, inp: &ModelInput) -> Result<Value, CliError> {
+    let n = joint_count(&inp.q)?;
+    for (name, v) in [("q", &inp.q), ("qd", &inp.qd), ("tau", &inp.tau)] {
+        check_vec(name, v, n)?;
+    }
+    if !(inp.dt.is_finite() && inp.dt > 0.0) {
+        return Err(CliError::Usage(format!(
+            "field `dt` must be a finite time step > 0 (s), found {}",
+            inp.dt
+        )));
+    }
+    match inp.link {
+        LinkKind::Robot => {
+            if inp.body_mass_kg.is_some() {
+                return Err(CliError::Usage(
+                    "field `body_mass_kg` applies to `\"link\": \"human\"` only".into(),
+                ));
+            }
+            let payload = inp.payload_kg.unwrap_or(0.0);
+            if !(payload.is_finite() && payload >= 0.0) {
+                return Err(CliError::Usage(format!(
+                    "field `payload_kg` must be a finite mass >= 0 (kg), found {payload}"
+                )));
+            }
+            if n == 2 {
+                robot::<TwoDof, 2>(s, payload, inp)
+            } else {
+                robot::<OneDof, 1>(s, payload, inp)
+            }
+        }
+        LinkKind::Human => {
+            if inp.payload_kg.is_some() {
+                return Err(CliError::Usage(
+                    "field `payload_kg` applies to `\"link\": \"robot\"` only".into(),
+                ));
+            }
+            let mb = inp.body_mass_kg.unwrap_or(s.human.body_mass_kg);
+            if !(mb.is_finite() && mb > 0.0) {
+                return Err(CliError::Usage(format!(
+                    "field `body_mass_kg` must be a finite mass > 0 (kg), found {mb}"
+                )));
+            }
+            if n == 2 {
+                human::<TwoDof, 2>(s, mb, inp)
+            } else {
+                human::<OneDof, 1>(s, mb, inp)
+            }
+        }
+    }
+}
+
+fn robot<D: Dof<N>, const N: usize>(
+    s: &Scenario,
+    payload: f64,
+    inp: &ModelInput,
+) -> Result<Value, CliError> {
+    let model: RobotModel<N> = robot_model(
+        &D::robot_links(s),
+        s.robot.viscous_friction,
+        s.robot.coulomb_friction,
+        Friction::Sign,
+        payload,
+        s.robot.payload_position_m,
+        0.0,
+    );
+    let (q, qd, tau) = state::<N>(inp);
+    let accel = |x: &JointState<f64, N>| model.acceleration(&x.q, &x.qd, &tau);
+    report(&model.chain, q, qd, inp.dt, accel)
+}
+
+fn human<D: Dof<N>, const N: usize>(
+    s: &Scenario,
+    body_mass: f64,
+    inp: &ModelInput,
+) -> Result<Value, CliError> {
+    let chain = HumanLeg {
+        segments: D::human_segments(s),
+        height: s.human.height_m,
+    }
+    .chain(body_mass);
+    let (q, qd, tau) = state::<N>(inp);
+    let accel = |x: &JointState<f64, N>| chain.forward_dynamics(&x.q, &x.qd, &tau);
+    report(&chain, q, qd, inp.dt, accel)
+}
+
+type Vn<const N: usize> = SVector<f64, N>;
+
+fn state<const N: usize>(inp: &ModelInput) -> (Vn<N>, Vn<N>, Vn<N>) {
+    (
+        Vn::<N>::from_column_slice(&inp.q),
+        Vn::<N>::from_column_slice(&inp.qd),
+        Vn::<N>::from_column_slice(&inp.tau),
+    )
+}
+
+fn report<const N: usize>(
+    chain: &Chain<N>,
+    q: Vn<N>,
+    qd: Vn<N>,
+    dt: f64,
+    accel: impl Fn(&JointState<f64, N>) -> Vn<N>,
+) -> Result<Value, CliError> {
+    let (m, cqd, g): (SMatrix<f64, N, N>, Vn<N>, Vn<N>) = chain.terms(&q, &qd);
+    let x0 = JointState { q, qd };
+    let qdd = accel(&x0);
+    let next = rk4_step(
+        |_t, x: &JointState<f64, N>| JointState {
+            q: x.qd,
+            qd: accel(x),
+        },
+        0.0,
+        &x0,
+        dt,
+    );
+    let finite = |x: &Vn<N>| x.iter().all(|v| v.is_finite());
+    if !(m.iter().all(|v| v.is_finite())
+        && finite(&cqd)
+        && finite(&g)
+        && finite(&qdd)
+        && finite(&next.q)
+        && finite(&next.qd))
+    {
+        return Err(CliError::Usage(
+            "the model is not finite at this input (values too large?)".into(),
+        ));
+    }
+    let rows: Vec<Vec<f64>> = (0..N)
+        .map(|i| (0..N).map(|j| m[(i, j)]).collect())
+        .collect();
+    let v = |x: &Vn<N>| x.iter().copied().collect::<Vec<f64>>();
+    Ok(json!({
+        "M": rows,
+        "Cqd": v(&cqd),
+        "G": v(&g),
+        "qdd": v(&qdd),
+        "next": {"q": v(&next.q), "qd": v(&next.qd)},
+    }))
 }

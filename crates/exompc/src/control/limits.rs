@@ -12,8 +12,20 @@ pub struct TorqueLimits {
 }
 
 impl TorqueLimits {
-    /// The admissible torque closest to `desired`, given the previous torque `prev`
-    /// (itself within `±max`). A non-finite `desired` entry holds `prev` on that joint.
+    /// `t` brought within `±max`, a NaN entry replaced by 0 (a safe starting torque).
+    #[inline]
+    pub fn admissible<const N: usize>(&self, t: &SVector<f64, N>) -> SVector<f64, N> {
+        t.map(|v| {
+            if v.is_nan() {
+                0.0
+            } else {
+                v.clamp(-self.max, self.max)
+            }
+        })
+    }
+
+    /// The admissible torque closest to `desired`, given the previous torque `prev`.
+    /// A non-finite `desired` entry holds `prev` on that joint; a NaN `prev` entry counts as 0.
     /// The result satisfies both limits exactly whenever `|prev| ≤ max`.
     #[inline]
     pub fn clamp<const N: usize>(
@@ -23,7 +35,11 @@ impl TorqueLimits {
     ) -> SVector<f64, N> {
         let mut out = *prev;
         for i in 0..N {
-            let p = prev[i].clamp(-self.max, self.max);
+            let p = if prev[i].is_nan() {
+                0.0
+            } else {
+                prev[i].clamp(-self.max, self.max)
+            };
             let d = if desired[i].is_finite() {
                 desired[i]
             } else {

@@ -317,7 +317,7 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             options,
             intent,
             limits,
-            prev: t0.map(|v| v.clamp(-limits.max, limits.max)),
+            prev: limits.admissible(&t0),
             prev_t_int: zero,
             started: false,
         })

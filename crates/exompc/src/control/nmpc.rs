@@ -187,42 +187,54 @@ impl<const N: usize> LeastSquares for NmpcProblem<N> {
 
     fn residuals_jacobian(&mut self, z: &[f64], r: &mut [f64], jac: &mut DMatrix<f64>) -> bool {
         let (np, nc) = (self.np, self.nc);
-        jac.fill(0.0);
-        for s in self.sq.iter_mut().chain(self.sv.iter_mut()) {
-            *s = SMatrix::zeros();
-        }
+        let m = jac.nrows();
+        // Column-major storage: entry (row, col) at col * m + row. Every entry is written below
+        // (the zero blocks above the block diagonal explicitly), so no fill is needed.
+        let js = jac.as_mut_slice();
         let mut x = self.x0;
         let mut u = self.t_prev;
+        // Finiteness of everything written, checked once at the end.
+        let mut finite = SMatrix::<f64, N, N>::zeros();
         for j in 0..np {
             self.torque(z, j, &mut u);
             let (xn, g): (JointState<f64, N>, StepJacobian<N>) =
                 self.model
                     .step_with_jacobian(&x, &u, j as f64 * self.model.dt, &self.inputs);
-            // S_{j+1}[i] = Φ S_j[i] + Γ for every block i ≤ min(j, Nc−1).
+            // S_{j+1}[i] = Φ S_j[i] + Γ for every block i ≤ min(j, Nc−1); S_j[j] = 0 on entry.
             let active = j.min(nc - 1);
-            for i in 0..=active {
-                let (sq, sv) = (self.sq[i], self.sv[i]);
-                self.sq[i] = g.qq * sq + g.qv * sv + g.qu;
-                self.sv[i] = g.vq * sq + g.vv * sv + g.vu;
-            }
-            x = xn;
-            self.write_step_residuals(j + 1, &x, r);
             let row = j * 2 * N;
             for i in 0..=active {
-                for a in 0..N {
-                    for b in 0..N {
-                        jac[(row + a, i * N + b)] = self.sq[i][(a, b)];
-                        jac[(row + N + a, i * N + b)] = self.sqrt_rd * self.sv[i][(a, b)];
+                let (sq, sv) = if i == j {
+                    (g.qu, g.vu)
+                } else {
+                    let (sq, sv) = (self.sq[i], self.sv[i]);
+                    (g.qq * sq + g.qv * sv + g.qu, g.vq * sq + g.vv * sv + g.vu)
+                };
+                self.sq[i] = sq;
+                self.sv[i] = sv;
+                finite += sq + sv;
+                for b in 0..N {
+                    let col = &mut js[(i * N + b) * m + row..(i * N + b) * m + row + 2 * N];
+                    for a in 0..N {
+                        col[a] = sq[(a, b)];
+                        col[N + a] = self.sqrt_rd * sv[(a, b)];
                     }
                 }
             }
+            for c in (active + 1) * N..nc * N {
+                js[c * m + row..c * m + row + 2 * N].fill(0.0);
+            }
+            x = xn;
+            self.write_step_residuals(j + 1, &x, r);
         }
         self.write_increment_residuals(z, r);
         let base = np * 2 * N;
         for k in 0..nc * N {
-            jac[(base + k, k)] = self.sqrt_rt;
+            let col = &mut js[k * m + base..(k + 1) * m];
+            col.fill(0.0);
+            col[k] = self.sqrt_rt;
         }
-        r.iter().all(|v| v.is_finite()) && jac.iter().all(|v| v.is_finite())
+        r.iter().all(|v| v.is_finite()) && finite.iter().all(|v| v.is_finite())
     }
 }
 
@@ -348,7 +360,7 @@ impl<const N: usize> Nmpc<N> {
             core: NmpcCore::new(model, settings)?,
             intent,
             limits,
-            prev: t0.map(|v| v.clamp(-limits.max, limits.max)),
+            prev: limits.admissible(&t0),
         })
     }
 

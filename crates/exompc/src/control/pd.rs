@@ -33,7 +33,7 @@ impl<const N: usize> PdController<N> {
             limits,
             kp,
             kd,
-            prev: t0.map(|v| v.clamp(-limits.max, limits.max)),
+            prev: limits.admissible(&t0),
         }
     }
 }

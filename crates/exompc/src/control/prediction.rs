@@ -1,7 +1,7 @@
 //! The NMPC prediction model (spec §8): the scenario's robot model, the disturbance estimate,
 //! and the strap torque predicted from the human-intent estimate inside every RK4 stage.
 
-use crate::model::{c, rk4_step, JointState, Real, RobotModel, Straps};
+use crate::model::{c, rk4_step, tanh, Friction, JointState, Real, RkState, RobotModel, Straps};
 use nalgebra::{SMatrix, SVector};
 use num_dual::{DualSVec64, DualStruct};
 use serde::{Deserialize, Serialize};
@@ -119,8 +119,9 @@ impl<const N: usize> PredictionModel<N> {
     }
 
     /// [`Self::step`] with its exact Jacobian, by forward-mode dual numbers seeded on `q`, `qd`
-    /// and `u` in three passes.
-    pub fn step_with_jacobian(
+    /// and `u` in three passes. The reference for [`Self::step_with_jacobian`] (same values to
+    /// rounding), about ten times slower.
+    pub fn step_with_jacobian_dual(
         &self,
         x: &JointState<f64, N>,
         u: &SVector<f64, N>,
@@ -198,5 +199,501 @@ impl<const N: usize> PredictionModel<N> {
                 vu,
             },
         )
+    }
+
+    /// [`Self::step`] with its exact Jacobian, hand-derived: per RK4 stage the analytic partial
+    /// derivatives of `qdd = M⁻¹(u + T_int + d − C qd − G − friction)` with respect to `q`, `qd`
+    /// and `u` (first and second derivatives of `M` from the chain's closed form), chained
+    /// through the stages. Equals [`Self::step_with_jacobian_dual`] to rounding.
+    pub fn step_with_jacobian(
+        &self,
+        x: &JointState<f64, N>,
+        u: &SVector<f64, N>,
+        tau0: f64,
+        inp: &HorizonInputs<N>,
+    ) -> (JointState<f64, N>, StepJacobian<N>) {
+        let consts = StageConstants::new(self);
+        let n = self.substeps.max(1);
+        let h = self.dt / n as f64;
+        let eye = SMatrix::<f64, N, N>::identity();
+        let zero = SMatrix::<f64, N, N>::zeros();
+        let mut s = *x;
+        let mut sens = StepJacobian {
+            qq: eye,
+            qv: zero,
+            vq: zero,
+            vv: eye,
+            qu: zero,
+            vu: zero,
+        };
+        for i in 0..n {
+            let t = tau0 + i as f64 * h;
+            let (k1, d1) = self.stage_sens(&consts, t, &s, u, inp, &sens);
+            let x2 = s.add_scaled(0.5 * h, &k1);
+            let s2 = sens.add_scaled(0.5 * h, &d1);
+            let (k2, d2) = self.stage_sens(&consts, t + 0.5 * h, &x2, u, inp, &s2);
+            let x3 = s.add_scaled(0.5 * h, &k2);
+            let s3 = sens.add_scaled(0.5 * h, &d2);
+            let (k3, d3) = self.stage_sens(&consts, t + 0.5 * h, &x3, u, inp, &s3);
+            let x4 = s.add_scaled(h, &k3);
+            let s4 = sens.add_scaled(h, &d3);
+            let (k4, d4) = self.stage_sens(&consts, t + h, &x4, u, inp, &s4);
+            s = s
+                .add_scaled(h / 6.0, &k1)
+                .add_scaled(h / 3.0, &k2)
+                .add_scaled(h / 3.0, &k3)
+                .add_scaled(h / 6.0, &k4);
+            sens = sens
+                .add_scaled(h / 6.0, &d1)
+                .add_scaled(h / 3.0, &d2)
+                .add_scaled(h / 3.0, &d3)
+                .add_scaled(h / 6.0, &d4);
+        }
+        (s, sens)
+    }
+
+    /// One RK4 stage `k = f(τ, X, u)` and its sensitivity `∂k/∂(x₀, u)` given the stage state's
+    /// sensitivity `sx = ∂X/∂(x₀, u)`.
+    #[inline(always)]
+    fn stage_sens(
+        &self,
+        consts: &StageConstants<N>,
+        tau: f64,
+        x: &JointState<f64, N>,
+        u: &SVector<f64, N>,
+        inp: &HorizonInputs<N>,
+        sx: &StepJacobian<N>,
+    ) -> (JointState<f64, N>, StepJacobian<N>) {
+        let d = self.derivative_jacobian(consts, tau, x, u, inp);
+        let k = JointState { q: x.qd, qd: d.qdd };
+        let dk = StepJacobian {
+            qq: sx.vq,
+            qv: sx.vv,
+            qu: sx.vu,
+            vq: d.a_q * sx.qq + d.a_v * sx.vq,
+            vv: d.a_q * sx.qv + d.a_v * sx.vv,
+            vu: d.a_q * sx.qu + d.a_v * sx.vu + d.minv,
+        };
+        (k, dk)
+    }
+
+    /// `qdd` of [`Self::derivative`] with its partial derivatives `∂qdd/∂q`, `∂qdd/∂qd` and
+    /// `∂qdd/∂u = M⁻¹`, in `f64`.
+    #[allow(clippy::needless_range_loop)] // index algebra of the closed-form derivatives
+    fn derivative_jacobian(
+        &self,
+        k: &StageConstants<N>,
+        tau: f64,
+        x: &JointState<f64, N>,
+        u: &SVector<f64, N>,
+        inp: &HorizonInputs<N>,
+    ) -> AccelJacobian<N> {
+        let (q, v) = (&x.q, &x.qd);
+        // Absolute angles and their trigonometry.
+        let mut th = [0.0; N];
+        let mut acc = 0.0;
+        for a in 0..N {
+            acc += q[a];
+            th[a] = acc;
+        }
+        // sin/cos of the absolute angles; of the differences by the subtraction formulas.
+        let mut sin_th = [0.0; N];
+        let mut cos_th = [0.0; N];
+        for a in 0..N {
+            (sin_th[a], cos_th[a]) = th[a].sin_cos();
+        }
+        let mut cs = [[1.0; N]; N];
+        let mut sn = [[0.0; N]; N];
+        for a in 0..N {
+            for b in (a + 1)..N {
+                let s = sin_th[a] * cos_th[b] - cos_th[a] * sin_th[b];
+                let co = cos_th[a] * cos_th[b] + sin_th[a] * sin_th[b];
+                cs[a][b] = co;
+                cs[b][a] = co;
+                sn[a][b] = s;
+                sn[b][a] = -s;
+            }
+        }
+        // M, D1[k][i][j] = ∂M_ij/∂q_k and D2[r][k][i][j] = ∂²M_ij/∂q_k∂q_r from
+        // M_ij = Σ_{k ≥ max(i,j)} I_k + Σ_{a ≥ i, b ≥ j} P_ab cos(θ_a − θ_b).
+        let mut m = SMatrix::<f64, N, N>::zeros();
+        let mut d1 = [[[0.0; N]; N]; N];
+        let mut d2 = [[[[0.0; N]; N]; N]; N];
+        for i in 0..N {
+            for j in 0..N {
+                let mut s = k.inertia_tail[i.max(j)];
+                for a in i..N {
+                    for b in j..N {
+                        s += k.p[a][b] * cs[a][b];
+                    }
+                }
+                m[(i, j)] = s;
+            }
+        }
+        for a in 0..N {
+            for b in 0..N {
+                if a == b {
+                    continue;
+                }
+                let ps = -k.p[a][b] * sn[a][b];
+                let pc = -k.p[a][b] * cs[a][b];
+                // w_r = [r ≤ a] − [r ≤ b]: nonzero for min(a,b) < r ≤ max(a,b).
+                let (lo, hi) = (a.min(b) + 1, a.max(b));
+                let sign = if a > b { 1.0 } else { -1.0 };
+                for r in lo..=hi {
+                    for i in 0..=a {
+                        for j in 0..=b {
+                            d1[r][i][j] += ps * sign;
+                        }
+                    }
+                    for s in lo..=hi {
+                        for i in 0..=a {
+                            for j in 0..=b {
+                                d2[s][r][i][j] += pc;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        // h = C qd with h_i = Σ_jk (∂M_ij/∂q_k − ½ ∂M_jk/∂q_i) v_j v_k, and its derivatives.
+        let mut hv = SVector::<f64, N>::zeros();
+        let mut dh_q = SMatrix::<f64, N, N>::zeros();
+        let mut dh_v = SMatrix::<f64, N, N>::zeros();
+        for i in 0..N {
+            let mut s = 0.0;
+            for j in 0..N {
+                for kk in 0..N {
+                    let g = d1[kk][i][j] - 0.5 * d1[i][j][kk];
+                    s += g * v[j] * v[kk];
+                    // ∂/∂v_j and ∂/∂v_k of the bilinear term.
+                    dh_v[(i, j)] += g * v[kk];
+                    dh_v[(i, kk)] += g * v[j];
+                }
+            }
+            hv[i] = s;
+            for r in 0..N {
+                let mut s = 0.0;
+                for j in 0..N {
+                    for kk in 0..N {
+                        s += (d2[r][kk][i][j] - 0.5 * d2[r][i][j][kk]) * v[j] * v[kk];
+                    }
+                }
+                dh_q[(i, r)] = s;
+            }
+        }
+        // Gravity G_r = Σ_{a ≥ r} W_a sin θ_a, ∂G_r/∂q_s = Σ_{a ≥ max(r,s)} W_a cos θ_a.
+        let mut g = SVector::<f64, N>::zeros();
+        let mut wcos = [0.0; N];
+        let mut accs = 0.0;
+        for a in (0..N).rev() {
+            accs += k.w[a] * sin_th[a];
+            g[a] = accs;
+            wcos[a] = k.w[a] * cos_th[a];
+        }
+        let mut dg = SMatrix::<f64, N, N>::zeros();
+        for r in 0..N {
+            for s in 0..N {
+                dg[(r, s)] = wcos[r.max(s)..].iter().sum();
+            }
+        }
+        // Friction and its (diagonal) derivative.
+        let rb = &self.robot;
+        let mut fr = SVector::<f64, N>::zeros();
+        let mut dfr = [0.0; N];
+        for i in 0..N {
+            let (coul, dcoul) = match rb.friction {
+                Friction::Sign => (
+                    if v[i] > 0.0 {
+                        rb.coulomb
+                    } else if v[i] < 0.0 {
+                        -rb.coulomb
+                    } else {
+                        0.0
+                    },
+                    0.0,
+                ),
+                Friction::Tanh { width } => {
+                    let t: f64 = tanh(v[i] * (1.0 / width));
+                    (t * rb.coulomb, rb.coulomb * (1.0 - t * t) * (1.0 / width))
+                }
+            };
+            fr[i] = v[i] * rb.viscous + coul;
+            dfr[i] = rb.viscous + dcoul;
+        }
+        // Interaction torque and its derivatives (−ks JᵀJ, −cs JᵀJ when predicted).
+        let (t_int, ti_q, ti_v) = match self.interaction {
+            Interaction::Hold => (inp.t_int_measured, zero_mat(), zero_mat()),
+            Interaction::Predict => {
+                let mut dq = SVector::<f64, N>::zeros();
+                let mut dqd = SVector::<f64, N>::zeros();
+                for i in 0..N {
+                    dq[i] = -q[i] + (inp.q_h[i] + tau * inp.qd_h[i]);
+                    dqd[i] = -v[i] + inp.qd_h[i];
+                }
+                let t = self.straps.torque(&self.straps.force(&dq, &dqd));
+                (t, k.ks_jtj, k.cs_jtj)
+            }
+        };
+        let mut rhs = SVector::<f64, N>::zeros();
+        for i in 0..N {
+            rhs[i] = u[i] + t_int[i] + inp.disturbance[i] - hv[i] - g[i] - fr[i];
+        }
+        let minv = spd_inverse(&m);
+        let qdd = minv * rhs;
+        // ∂(M qdd)/∂q_r = ∂rhs/∂q_r ⇒ ∂qdd/∂q_r = M⁻¹(∂rhs/∂q_r − ∂M/∂q_r qdd).
+        let mut bq = SMatrix::<f64, N, N>::zeros();
+        for r in 0..N {
+            for i in 0..N {
+                let mut dmq = 0.0;
+                for j in 0..N {
+                    dmq += d1[r][i][j] * qdd[j];
+                }
+                bq[(i, r)] = -ti_q[(i, r)] - dh_q[(i, r)] - dg[(i, r)] - dmq;
+            }
+        }
+        let mut bv = -dh_v;
+        for i in 0..N {
+            for j in 0..N {
+                bv[(i, j)] -= ti_v[(i, j)];
+            }
+            bv[(i, i)] -= dfr[i];
+        }
+        AccelJacobian {
+            qdd,
+            a_q: minv * bq,
+            a_v: minv * bv,
+            minv,
+        }
+    }
+}
+
+#[inline(always)]
+fn zero_mat<const N: usize>() -> SMatrix<f64, N, N> {
+    SMatrix::zeros()
+}
+
+/// Inverse of a small symmetric positive-definite matrix (closed form for `N ≤ 2`).
+#[inline(always)]
+fn spd_inverse<const N: usize>(m: &SMatrix<f64, N, N>) -> SMatrix<f64, N, N> {
+    match N {
+        1 => SMatrix::from_element(1.0 / m[(0, 0)]),
+        2 => {
+            let det = m[(0, 0)] * m[(1, 1)] - m[(0, 1)] * m[(1, 0)];
+            let id = 1.0 / det;
+            let mut out = *m;
+            out[(0, 0)] = m[(1, 1)] * id;
+            out[(1, 1)] = m[(0, 0)] * id;
+            out[(0, 1)] = -m[(0, 1)] * id;
+            out[(1, 0)] = -m[(1, 0)] * id;
+            out
+        }
+        _ => m
+            .cholesky()
+            .map(|ch| ch.inverse())
+            .unwrap_or_else(|| SMatrix::from_element(f64::NAN)),
+    }
+}
+
+/// `qdd` and its partial derivatives at one stage.
+struct AccelJacobian<const N: usize> {
+    qdd: SVector<f64, N>,
+    a_q: SMatrix<f64, N, N>,
+    a_v: SMatrix<f64, N, N>,
+    minv: SMatrix<f64, N, N>,
+}
+
+/// Model constants of the tailored Jacobian, computed once per step.
+struct StageConstants<const N: usize> {
+    /// `P_ab = Σ_{k ≥ max(a,b)} m_k d_ka d_kb`.
+    p: [[f64; N]; N],
+    /// `Σ_{k ≥ i} I_k`.
+    inertia_tail: [f64; N],
+    /// Gravity weights `W_a = g (m_a c_a + Σ_{k>a} m_k l_a)`.
+    w: [f64; N],
+    /// `ks JᵀJ`.
+    ks_jtj: SMatrix<f64, N, N>,
+    /// `cs JᵀJ`.
+    cs_jtj: SMatrix<f64, N, N>,
+}
+
+impl<const N: usize> StageConstants<N> {
+    #[inline(always)]
+    fn new(model: &PredictionModel<N>) -> Self {
+        let l = &model.robot.chain.links;
+        let lever = |k: usize, a: usize| if a == k { l[k].com } else { l[a].length };
+        let mut p = [[0.0; N]; N];
+        for (a, pa) in p.iter_mut().enumerate() {
+            for (b, pab) in pa.iter_mut().enumerate() {
+                let mut s = 0.0;
+                for (k, lk) in l.iter().enumerate().skip(a.max(b)) {
+                    s += lk.mass * lever(k, a) * lever(k, b);
+                }
+                *pab = s;
+            }
+        }
+        let mut inertia_tail = [0.0; N];
+        let mut acc = 0.0;
+        for i in (0..N).rev() {
+            acc += l[i].inertia;
+            inertia_tail[i] = acc;
+        }
+        let g = model.robot.chain.gravity;
+        let mut w = [0.0; N];
+        for a in 0..N {
+            let mut s = l[a].mass * l[a].com;
+            for lk in l.iter().skip(a + 1) {
+                s += lk.mass * l[a].length;
+            }
+            w[a] = g * s;
+        }
+        let jtj = model.straps.j.transpose() * model.straps.j;
+        StageConstants {
+            p,
+            inertia_tail,
+            w,
+            ks_jtj: jtj * model.straps.stiffness,
+            cs_jtj: jtj * model.straps.damping,
+        }
+    }
+}
+
+impl<const N: usize> StepJacobian<N> {
+    /// `self + h · d`, block-wise.
+    #[inline(always)]
+    fn add_scaled(&self, h: f64, d: &Self) -> Self {
+        StepJacobian {
+            qq: self.qq + d.qq * h,
+            qv: self.qv + d.qv * h,
+            vq: self.vq + d.vq * h,
+            vv: self.vv + d.vv * h,
+            qu: self.qu + d.qu * h,
+            vu: self.vu + d.vu * h,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::{Chain, Link};
+
+    /// Deterministic pseudo-random numbers in `[-1, 1)`.
+    struct Lcg(u64);
+    impl Lcg {
+        fn next(&mut self) -> f64 {
+            self.0 = self
+                .0
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((self.0 >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+        }
+        fn vec<const N: usize>(&mut self, scale: f64) -> SVector<f64, N> {
+            SVector::from_fn(|_, _| scale * self.next())
+        }
+    }
+
+    fn model<const N: usize>(
+        rng: &mut Lcg,
+        interaction: Interaction,
+        friction: Friction,
+        substeps: usize,
+    ) -> PredictionModel<N> {
+        let links = core::array::from_fn(|_| {
+            let length = 0.3 + 0.2 * rng.next().abs();
+            Link {
+                length,
+                mass: 2.0 + 3.0 * rng.next().abs(),
+                com: length * (0.3 + 0.4 * rng.next().abs()),
+                inertia: 0.02 + 0.05 * rng.next().abs(),
+            }
+        });
+        let mut j = SMatrix::<f64, N, N>::zeros();
+        for r in 0..N {
+            for col in 0..=r {
+                j[(r, col)] = 0.1 + 0.2 * rng.next().abs();
+            }
+        }
+        PredictionModel {
+            robot: RobotModel {
+                chain: Chain::new(links),
+                viscous: 0.5 + rng.next().abs(),
+                coulomb: 0.3 + rng.next().abs(),
+                friction,
+            },
+            straps: Straps {
+                j,
+                stiffness: 500.0 + 1000.0 * rng.next().abs(),
+                damping: 10.0 + 20.0 * rng.next().abs(),
+            },
+            interaction,
+            dt: 0.01,
+            substeps,
+        }
+    }
+
+    fn check<const N: usize>(seed: u64) {
+        let mut rng = Lcg(seed);
+        for case in 0..200 {
+            let interaction = if case % 3 == 2 {
+                Interaction::Hold
+            } else {
+                Interaction::Predict
+            };
+            let friction = if case % 5 == 4 {
+                Friction::Sign
+            } else {
+                Friction::Tanh {
+                    width: [0.01, 0.1, 1.0][case % 3],
+                }
+            };
+            let substeps = 1 + case % 3;
+            let m = model::<N>(&mut rng, interaction, friction, substeps);
+            let x = JointState {
+                q: rng.vec(1.5),
+                qd: rng.vec(3.0),
+            };
+            let u = rng.vec(20.0);
+            let inp = HorizonInputs {
+                q_h: x.q + rng.vec(0.05),
+                qd_h: x.qd + rng.vec(0.5),
+                t_int_measured: rng.vec(5.0),
+                disturbance: rng.vec(2.0),
+            };
+            let tau0 = 0.01 * (case % 4) as f64;
+            let (xa, ja) = m.step_with_jacobian(&x, &u, tau0, &inp);
+            let (xb, jb) = m.step_with_jacobian_dual(&x, &u, tau0, &inp);
+            let close = |a: &SMatrix<f64, N, N>, b: &SMatrix<f64, N, N>, what: &str| {
+                let err = (a - b).amax();
+                let scale = 1.0 + b.amax();
+                assert!(
+                    err <= 1e-10 * scale,
+                    "N={N} case {case} {what}: tailored {a} dual {b} err {err:e}"
+                );
+            };
+            close(&ja.qq, &jb.qq, "qq");
+            close(&ja.qv, &jb.qv, "qv");
+            close(&ja.vq, &jb.vq, "vq");
+            close(&ja.vv, &jb.vv, "vv");
+            close(&ja.qu, &jb.qu, "qu");
+            close(&ja.vu, &jb.vu, "vu");
+            assert!((xa.q - xb.q).amax() <= 1e-12 * (1.0 + xb.q.amax()));
+            assert!((xa.qd - xb.qd).amax() <= 1e-12 * (1.0 + xb.qd.amax()));
+        }
+    }
+
+    #[test]
+    fn tailored_jacobian_matches_dual_n1() {
+        check::<1>(1);
+    }
+
+    #[test]
+    fn tailored_jacobian_matches_dual_n2() {
+        check::<2>(2);
+    }
+
+    #[test]
+    fn tailored_jacobian_matches_dual_n3() {
+        check::<3>(3);
     }
 }

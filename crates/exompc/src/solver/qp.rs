@@ -324,42 +324,49 @@ impl DenseQp {
     /// Cholesky `H = L Lᵀ` and `J = L⁻ᵀ` in place in `jm`. Returns false if not PD.
     fn factor(&mut self, h: &DMatrix<f64>) -> bool {
         let n = self.n;
-        let jm = &mut self.jm;
-        jm.copy_from(h);
-        // Left-looking column Cholesky on the lower triangle.
+        self.jm.copy_from(h);
+        let a = self.jm.as_mut_slice(); // column-major, a[i + j n] = (i, j)
+                                        // Left-looking column Cholesky on the lower triangle.
         for j in 0..n {
+            let (left, right) = a.split_at_mut(j * n);
+            let colj = &mut right[..n];
             for k in 0..j {
-                let ljk = jm[(j, k)];
+                let colk = &left[k * n..(k + 1) * n];
+                let ljk = colk[j];
                 if ljk != 0.0 {
-                    for i in j..n {
-                        jm[(i, j)] -= ljk * jm[(i, k)];
+                    for (c, l) in colj[j..].iter_mut().zip(&colk[j..]) {
+                        *c -= ljk * l;
                     }
                 }
             }
-            let djj = jm[(j, j)];
-            if djj.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) || !djj.is_finite() {
+            let djj = colj[j];
+            if djj.is_nan() || djj <= 0.0 || !djj.is_finite() {
                 return false;
             }
             let ljj = djj.sqrt();
-            jm[(j, j)] = ljj;
+            colj[j] = ljj;
             let inv = 1.0 / ljj;
-            for i in j + 1..n {
-                jm[(i, j)] *= inv;
+            for c in colj[j + 1..].iter_mut() {
+                *c *= inv;
             }
         }
-        // In-place inverse of the lower-triangular L, column by column.
+        // Invert the lower-triangular L in place, column j = L⁻¹ e_j (columns k > j of L are
+        // still intact while column j is computed).
         for j in 0..n {
-            let yj = 1.0 / jm[(j, j)];
-            jm[(j, j)] = yj;
-            for i in j + 1..n {
-                jm[(i, j)] = -jm[(i, j)] * yj;
+            let (left, right) = a.split_at_mut((j + 1) * n);
+            let colj = &mut left[j * n..];
+            let yj = 1.0 / colj[j];
+            colj[j] = yj;
+            for c in colj[j + 1..].iter_mut() {
+                *c = -*c * yj;
             }
             for k in j + 1..n {
-                let yk = jm[(k, j)] / jm[(k, k)];
-                jm[(k, j)] = yk;
+                let colk = &right[(k - j - 1) * n..(k - j) * n];
+                let yk = colj[k] / colk[k];
+                colj[k] = yk;
                 if yk != 0.0 {
-                    for i in k + 1..n {
-                        jm[(i, j)] -= jm[(i, k)] * yk;
+                    for (c, l) in colj[k + 1..].iter_mut().zip(&colk[k + 1..]) {
+                        *c -= l * yk;
                     }
                 }
             }
@@ -367,11 +374,11 @@ impl DenseQp {
         // J = (L⁻¹)ᵀ, upper triangular.
         for j in 0..n {
             for i in j + 1..n {
-                jm[(j, i)] = jm[(i, j)];
-                jm[(i, j)] = 0.0;
+                a[j + i * n] = a[i + j * n];
+                a[i + j * n] = 0.0;
             }
         }
-        jm.iter().all(|v| v.is_finite())
+        a.iter().all(|v| v.is_finite())
     }
 
     /// Slack `nᵀx − b` of constraint `id` (negative = violated). Uses `ax` for general rows.
@@ -440,14 +447,17 @@ impl DenseQp {
         let k = id >> 1;
         let sign = if id & 1 == 0 { 1.0 } else { -1.0 };
         let n = self.n;
+        let jm = self.jm.as_slice();
+        let d = self.d.as_mut_slice();
         if k < n {
-            for i in 0..n {
-                self.d[i] = sign * self.jm[(k, i)];
+            for (i, di) in d.iter_mut().enumerate() {
+                *di = sign * jm[k + i * n];
             }
         } else {
-            let col = self.at.column(k - n);
-            for i in 0..n {
-                self.d[i] = sign * self.jm.column(i).dot(&col);
+            let j = k - n;
+            let col = &self.at.as_slice()[j * n..(j + 1) * n];
+            for (di, jc) in d.iter_mut().zip(jm.chunks_exact(n)) {
+                *di = sign * dot(jc, col);
             }
         }
     }
@@ -493,11 +503,15 @@ impl DenseQp {
                 }
                 let dependent = d2sq <= dep2 * (d1sq + d2sq);
                 if !dependent {
-                    self.step.fill(0.0);
+                    let step = self.step.as_mut_slice();
+                    step.fill(0.0);
+                    let jm = self.jm.as_slice();
                     for i in q..n {
                         let di = self.d[i];
                         if di != 0.0 {
-                            self.step.axpy(di, &self.jm.column(i), 1.0);
+                            for (s, c) in step.iter_mut().zip(&jm[i * n..(i + 1) * n]) {
+                                *s += di * c;
+                            }
                         }
                     }
                 }
@@ -505,11 +519,16 @@ impl DenseQp {
                 for i in 0..q {
                     self.r[i] = self.d[i];
                 }
-                for k in (0..q).rev() {
-                    let rk = self.r[k] / self.rm[(k, k)];
-                    self.r[k] = rk;
-                    for i in 0..k {
-                        self.r[i] -= self.rm[(i, k)] * rk;
+                {
+                    let rm = self.rm.as_slice();
+                    let r = self.r.as_mut_slice();
+                    for k in (0..q).rev() {
+                        let colk = &rm[k * n..k * n + k + 1];
+                        let rk = r[k] / colk[k];
+                        r[k] = rk;
+                        for (ri, c) in r[..k].iter_mut().zip(&colk[..k]) {
+                            *ri -= c * rk;
+                        }
                     }
                 }
                 // Step 2b: partial (dual) step t1 and full step t2.
@@ -571,7 +590,7 @@ impl DenseQp {
         for j in (q + 1..n).rev() {
             let mut cc = self.d[j - 1];
             let mut ss = self.d[j];
-            let h = cc.hypot(ss);
+            let h = (cc * cc + ss * ss).sqrt();
             if h == 0.0 {
                 continue;
             }
@@ -585,14 +604,8 @@ impl DenseQp {
             } else {
                 self.d[j - 1] = h;
             }
-            let xny = ss / (1.0 + cc);
-            for k in 0..n {
-                let t1 = self.jm[(k, j - 1)];
-                let t2 = self.jm[(k, j)];
-                let nt1 = t1 * cc + t2 * ss;
-                self.jm[(k, j - 1)] = nt1;
-                self.jm[(k, j)] = xny * (t1 + nt1) - t2;
-            }
+            let (c0, c1) = adjacent_columns(self.jm.as_mut_slice(), n, j - 1);
+            rotate(c0, c1, cc, ss);
         }
         for i in 0..=q {
             self.rm[(i, q)] = self.d[i];
@@ -614,19 +627,18 @@ impl DenseQp {
         for i in l..q - 1 {
             self.active[i] = self.active[i + 1];
             self.u[i] = self.u[i + 1];
-            for k in 0..q {
-                self.rm[(k, i)] = self.rm[(k, i + 1)];
-            }
         }
-        for k in 0..q {
-            self.rm[(k, q - 1)] = 0.0;
+        let rm = self.rm.as_mut_slice();
+        if l + 1 < q {
+            rm.copy_within((l + 1) * n..q * n, l * n);
         }
+        rm[(q - 1) * n..q * n].fill(0.0);
         let q = q - 1;
         self.q = q;
         for j in l..q {
             let mut cc = self.rm[(j, j)];
             let mut ss = self.rm[(j + 1, j)];
-            let h = cc.hypot(ss);
+            let h = (cc * cc + ss * ss).sqrt();
             if h == 0.0 {
                 continue;
             }
@@ -641,20 +653,43 @@ impl DenseQp {
                 self.rm[(j, j)] = h;
             }
             let xny = ss / (1.0 + cc);
+            let rm = self.rm.as_mut_slice();
             for k in j + 1..q {
-                let t1 = self.rm[(j, k)];
-                let t2 = self.rm[(j + 1, k)];
+                let t1 = rm[j + k * n];
+                let t2 = rm[j + 1 + k * n];
                 let nt1 = t1 * cc + t2 * ss;
-                self.rm[(j, k)] = nt1;
-                self.rm[(j + 1, k)] = xny * (t1 + nt1) - t2;
+                rm[j + k * n] = nt1;
+                rm[j + 1 + k * n] = xny * (t1 + nt1) - t2;
             }
-            for k in 0..n {
-                let t1 = self.jm[(k, j)];
-                let t2 = self.jm[(k, j + 1)];
-                let nt1 = t1 * cc + t2 * ss;
-                self.jm[(k, j)] = nt1;
-                self.jm[(k, j + 1)] = xny * (nt1 + t1) - t2;
-            }
+            let (c0, c1) = adjacent_columns(self.jm.as_mut_slice(), n, j);
+            rotate(c0, c1, cc, ss);
         }
+    }
+}
+
+/// Dot product of two equal-length slices.
+#[inline]
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// Mutable views of columns `j` and `j + 1` of a column-major matrix with `n` rows.
+#[inline]
+fn adjacent_columns(a: &mut [f64], n: usize, j: usize) -> (&mut [f64], &mut [f64]) {
+    let (c0, rest) = a[j * n..(j + 2) * n].split_at_mut(n);
+    (c0, rest)
+}
+
+/// Applies the Givens rotation `(c s; s −c)` to the column pair (`c0`, `c1`) in the
+/// eiquadprog form (`cc ≥ 0`).
+#[inline]
+fn rotate(c0: &mut [f64], c1: &mut [f64], cc: f64, ss: f64) {
+    let xny = ss / (1.0 + cc);
+    for (a, b) in c0.iter_mut().zip(c1.iter_mut()) {
+        let t1 = *a;
+        let t2 = *b;
+        let nt1 = t1 * cc + t2 * ss;
+        *a = nt1;
+        *b = xny * (t1 + nt1) - t2;
     }
 }

@@ -226,6 +226,8 @@ pub struct Sqp {
     /// `A z` at the current iterate.
     az: DVector<f64>,
     work: DVector<f64>,
+    /// Per Jacobian column: the row range `[first, last)` holding its nonzeros.
+    nz: Vec<(usize, usize)>,
     kkt_stationarity: f64,
     kkt_violation: f64,
     kkt_complementarity: f64,
@@ -262,6 +264,7 @@ impl Sqp {
             dbu: DVector::zeros(p),
             az: DVector::zeros(p),
             work: DVector::zeros(n),
+            nz: vec![(0, 0); n],
             kkt_stationarity: f64::INFINITY,
             kkt_violation: f64::INFINITY,
             kkt_complementarity: f64::INFINITY,
@@ -446,12 +449,28 @@ impl Sqp {
                     }
                 }
             }
-            // Gauss–Newton Hessian JᵀJ + δI (lower triangle via column dots, then mirrored).
-            let mut maxdiag: f64 = 0.0;
+            // Gauss–Newton Hessian JᵀJ + δI (lower triangle via column dots, then mirrored),
+            // each dot restricted to the rows where both columns can be nonzero (condensed
+            // NMPC Jacobians are block lower triangular, scenario trees block sparse).
             for j in 0..n {
-                let cj = self.jac.column(j);
+                let col = &self.jac.as_slice()[j * m..(j + 1) * m];
+                let first = col.iter().position(|v| *v != 0.0).unwrap_or(m);
+                let last = col.iter().rposition(|v| *v != 0.0).map_or(0, |l| l + 1);
+                self.nz[j] = (first, last.max(first));
+            }
+            let mut maxdiag: f64 = 0.0;
+            let js = self.jac.as_slice();
+            for j in 0..n {
+                let (fj, lj) = self.nz[j];
+                let cj = &js[j * m..(j + 1) * m];
                 for i in j..n {
-                    let v = self.jac.column(i).dot(&cj);
+                    let (fi, li) = self.nz[i];
+                    let (lo, hi) = (fi.max(fj), li.min(lj));
+                    let v = if lo < hi {
+                        dot(&js[i * m + lo..i * m + hi], &cj[lo..hi])
+                    } else {
+                        0.0
+                    };
                     self.hess[(i, j)] = v;
                     self.hess[(j, i)] = v;
                 }
@@ -490,7 +509,7 @@ impl Sqp {
             // (predicted decrease below the noise level) are not rejected.
             let slack = 1e3 * f64::EPSILON * cost;
             let slope = self.grad.dot(&self.dz);
-            if slope.partial_cmp(&slack) != Some(std::cmp::Ordering::Less) {
+            if slope.is_nan() || slope >= slack {
                 return SqpStatus::LineSearchFailed;
             }
             let slope = slope.min(0.0);
@@ -618,6 +637,24 @@ impl Sqp {
             k
         }
     }
+}
+
+/// `aᵀb` of two equally long slices, four partial sums.
+#[inline]
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    let mut acc = [0.0f64; 4];
+    for (x, y) in ca.zip(cb) {
+        for k in 0..4 {
+            acc[k] += x[k] * y[k];
+        }
+    }
+    let mut s = (acc[0] + acc[1]) + (acc[2] + acc[3]);
+    for (x, y) in ra.iter().zip(rb) {
+        s += x * y;
+    }
+    s
 }
 
 /// Largest violation of `bl ≤ v ≤ bu`.

@@ -1,0 +1,173 @@
+//! The multi-stage NMPC (paper §3.2, eqs. 10-13): the coupled scenario tree against the plain
+//! NMPC and the decoupled blend, limits under arbitrary measurements, and the probabilities.
+
+use exompc::config::{ControllerKind, Formulation, Scenario};
+use exompc::control::{build_multistage, horizon_inputs, Controller, Measurement, NmpcCore};
+use exompc::model::JointState;
+use exompc::sim::{
+    initial_torque, intent, limits, nmpc_settings, plant_params, prediction_model, run_experiment,
+    uncertainty, Dof, Plant, Sensors, TraceLog, TwoDof,
+};
+use nalgebra::Vector2;
+use proptest::prelude::*;
+
+type V2 = Vector2<f64>;
+
+fn ms_scenario(payloads: &[f64], formulation: Formulation) -> Scenario {
+    let mut s = Scenario::default();
+    s.controller.kind = ControllerKind::Msnmpc;
+    s.multistage.payloads_kg = payloads.to_vec();
+    s.multistage.formulation = formulation;
+    s.validate().unwrap();
+    s
+}
+
+fn controller(s: &Scenario) -> Box<dyn Controller<2>> {
+    build_multistage::<TwoDof, 2, 6, 4>(s, initial_torque::<TwoDof, 2>(s)).unwrap()
+}
+
+/// Drive the plant of `s` with `driver` for `steps`; `each` sees the measurement, the previous
+/// torque and the driver's output at every step.
+fn closed_loop(
+    s: &Scenario,
+    driver: &mut dyn Controller<2>,
+    steps: usize,
+    mut each: impl FnMut(usize, &Measurement<2>, V2, V2, &dyn Controller<2>),
+) {
+    let mut plant = Plant::new(plant_params::<TwoDof, 2>(s), TwoDof::trajectory(s));
+    let mut sensors = Sensors::new(uncertainty(s), s.uncertainty.filter_window);
+    for k in 0..steps {
+        let st = *plant.state();
+        let f = plant.strap_force();
+        let (_, meas) = sensors.read(plant.time(), &st.robot.q, &st.robot.qd, &f);
+        let prev = driver.previous_torque();
+        let out = driver.step(&meas);
+        each(k, &meas, prev, out.torque, &*driver);
+        plant.step(&out.torque);
+    }
+}
+
+#[test]
+fn coupled_with_one_scenario_equals_plain_nmpc() {
+    let mut s = ms_scenario(&[0.0], Formulation::Coupled);
+    s.uncertainty.payload_kg = 1.0;
+    let mut ms = controller(&s);
+    let model = prediction_model::<TwoDof, 2>(&s, 0.0);
+    let mut core = NmpcCore::new(model, &nmpc_settings(&s)).unwrap();
+    let (lim, int) = (limits(&s), intent(&s));
+    let mut worst = 0.0f64;
+    closed_loop(&s, ms.as_mut(), 500, |k, m, prev, torque, c| {
+        assert_eq!(c.probabilities().unwrap(), &[1.0]);
+        // The plain NMPC of eq. 7 with the same disturbance estimate the scenario used.
+        let d = c.disturbance(0).unwrap();
+        let inputs = horizon_inputs(&int, &model, m, d);
+        core.solve(JointState { q: m.q, qd: m.qd }, prev, inputs, &lim);
+        let want = lim.clamp(&prev, &(prev + core.first_increment()));
+        let diff = (torque - want).amax();
+        worst = worst.max(diff);
+        assert!(
+            diff <= 1e-6,
+            "step {k}: coupled {torque:?} vs nmpc {want:?}"
+        );
+    });
+    eprintln!("worst |T_coupled - T_nmpc| = {worst:e}");
+}
+
+#[test]
+fn coupled_with_identical_scenarios_equals_decoupled() {
+    let sc = ms_scenario(&[1.0, 1.0, 1.0], Formulation::Coupled);
+    let sd = ms_scenario(&[1.0, 1.0, 1.0], Formulation::Decoupled);
+    let mut coupled = controller(&sc);
+    let mut decoupled = controller(&sd);
+    let mut worst = 0.0f64;
+    closed_loop(&sc, coupled.as_mut(), 500, |k, m, _prev, torque, c| {
+        let out = decoupled.step(m);
+        let diff = (torque - out.torque).amax();
+        worst = worst.max(diff);
+        assert!(
+            diff <= 1e-6,
+            "step {k}: coupled {torque:?} vs decoupled {:?}",
+            out.torque
+        );
+        let (pc, pd) = (
+            c.probabilities().unwrap(),
+            decoupled.probabilities().unwrap(),
+        );
+        for (a, b) in pc.iter().zip(pd) {
+            assert!((a - b).abs() <= 1e-9 && (a - 1.0 / 3.0).abs() <= 1e-9);
+        }
+    });
+    eprintln!("worst |T_coupled - T_decoupled| = {worst:e}");
+}
+
+#[test]
+fn probabilities_sum_to_one_and_respect_the_floor_in_closed_loop() {
+    for (payload, formulation) in [(2.0, Formulation::Decoupled), (1.0, Formulation::Coupled)] {
+        let mut s = ms_scenario(&[0.0, 1.0, 2.0], formulation);
+        s.uncertainty.payload_kg = payload;
+        s.timing.duration_2dof_s = 5.0;
+        let floor = s.multistage.probability_floor;
+        let mut log = TraceLog::<2>::default();
+        let sum = run_experiment::<TwoDof, 2>(&s, &mut [&mut log]).unwrap();
+        assert_eq!(sum.limit_violations, 0);
+        assert_eq!(log.rows.len(), 500);
+        for row in &log.rows {
+            let p = &row.probabilities;
+            assert_eq!(p.len(), 3);
+            let total: f64 = p.iter().sum();
+            assert!((total - 1.0).abs() <= 1e-12, "t {}: sum {total}", row.t);
+            assert!(
+                p.iter()
+                    .all(|v| v.is_finite() && *v >= floor * (1.0 - 1e-12)),
+                "t {}: {p:?}",
+                row.t
+            );
+        }
+    }
+}
+
+fn value() -> impl Strategy<Value = f64> {
+    prop_oneof![
+        8 => -5.0..5.0f64,
+        2 => -1e4..1e4f64,
+        1 => Just(f64::NAN),
+        1 => Just(f64::INFINITY),
+        1 => Just(f64::NEG_INFINITY),
+        1 => any::<f64>(),
+    ]
+}
+
+fn measurement() -> impl Strategy<Value = Measurement<2>> {
+    prop::array::uniform6(value()).prop_map(|v| Measurement {
+        t: 0.0,
+        q: V2::new(v[0], v[1]),
+        qd: V2::new(v[2], v[3]),
+        force: V2::new(v[4], v[5]),
+    })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    /// Whatever the measurements, the blended (or coupled) torque satisfies every limit and the
+    /// probabilities stay a distribution above the floor.
+    #[test]
+    fn multistage_torque_always_within_limits(
+        coupled in any::<bool>(),
+        ms in prop::collection::vec(measurement(), 1..5),
+    ) {
+        let f = if coupled { Formulation::Coupled } else { Formulation::Decoupled };
+        let s = ms_scenario(&[0.0, 1.0, 2.0], f);
+        let lim = limits(&s);
+        let mut c = controller(&s);
+        for m in &ms {
+            let prev = c.previous_torque();
+            let out = c.step(m);
+            prop_assert!(lim.admits(&prev, &out.torque), "{:?} -> {:?}", prev, out);
+            let p = c.probabilities().unwrap();
+            let total: f64 = p.iter().sum();
+            prop_assert!((total - 1.0).abs() <= 1e-9, "{:?}", p);
+            prop_assert!(p.iter().all(|v| *v >= s.multistage.probability_floor * (1.0 - 1e-12)));
+        }
+    }
+}
