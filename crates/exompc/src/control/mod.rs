@@ -113,24 +113,13 @@ pub trait Controller<const N: usize> {
 
     /// Overwrite `T_R(k−1)` with the torque actually applied (a supervisor that held or ramped
     /// the output keeps the controller in sync, so it resumes from the real torque). Values are
-    /// clamped to `±T_max`; non-finite entries become 0. Default: no-op (stateless).
+    /// made admissible with [`TorqueLimits::admissible`] (clamped to `±T_max`, NaN → 0). Default: no-op (stateless).
     fn set_previous_torque(&mut self, _t: SVector<f64, N>) {}
 
     /// The safety supervisor's counters and event log, if this controller is supervised.
     fn safety_report(&self) -> Option<&SafetyReport> {
         None
     }
-}
-
-/// `t` clamped to `±max`, non-finite entries 0 (for [`Controller::set_previous_torque`]).
-pub(crate) fn sanitize_torque<const N: usize>(t: SVector<f64, N>, max: f64) -> SVector<f64, N> {
-    t.map(|v| {
-        if v.is_finite() {
-            v.clamp(-max, max)
-        } else {
-            0.0
-        }
-    })
 }
 
 /// Human-intent estimate of paper eqs. 5-6: `q̂_H = q_R + K1 F`, `q̂d_H = qd_R + K2 F`.

@@ -457,7 +457,7 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
     }
 
     fn set_previous_torque(&mut self, t: SVector<f64, N>) {
-        self.prev = super::sanitize_torque(t, self.limits.max);
+        self.prev = self.limits.admissible(&t);
     }
 }
 

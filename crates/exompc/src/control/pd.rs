@@ -68,6 +68,6 @@ impl<const N: usize> Controller<N> for PdController<N> {
     }
 
     fn set_previous_torque(&mut self, t: SVector<f64, N>) {
-        self.prev = super::sanitize_torque(t, self.limits.max);
+        self.prev = self.limits.admissible(&t);
     }
 }

@@ -24,7 +24,7 @@
 //! The hot path does not allocate (the event list is preallocated; events beyond its capacity
 //! are counted, not stored).
 
-use super::{sanitize_torque, ControlOutput, Controller, Measurement, StepStatus, TorqueLimits};
+use super::{ControlOutput, Controller, Measurement, StepStatus, TorqueLimits};
 use crate::config::{MonitorResponse, Monitors, Scenario};
 use nalgebra::SVector;
 use serde::Serialize;
@@ -158,7 +158,7 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
     /// Wrap `inner`; the supervisor starts from the inner controller's previous torque.
     pub fn new(inner: C, settings: SafetySettings) -> Self {
         let cap = settings.max_events;
-        let prev = sanitize_torque(inner.previous_torque(), settings.limits.max);
+        let prev = settings.limits.admissible(&inner.previous_torque());
         let mut sup = Supervisor {
             inner,
             s: settings,
@@ -346,7 +346,7 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
     }
 
     fn set_previous_torque(&mut self, t: SVector<f64, N>) {
-        self.prev = sanitize_torque(t, self.s.limits.max);
+        self.prev = self.s.limits.admissible(&t);
         self.inner.set_previous_torque(self.prev);
     }
 
