@@ -383,7 +383,7 @@ fn soak_60_s_with_faults() {
 }
 
 #[test]
-#[ignore = "1 h simulated (about 1.5 min in release); run with --ignored"]
+#[ignore = "1 h simulated (15-90 s in release); run with --ignored"]
 fn soak_1_h_with_faults() {
     check_soak(3600.0);
 }
