@@ -9,6 +9,7 @@ mod multistage;
 mod nmpc;
 mod pd;
 mod prediction;
+mod safety;
 
 pub use limits::TorqueLimits;
 pub use multistage::{
@@ -17,6 +18,9 @@ pub use multistage::{
 pub use nmpc::{classify, horizon_inputs, Nmpc, NmpcCore, NmpcProblem, NmpcSettings};
 pub use pd::PdController;
 pub use prediction::{HorizonInputs, Interaction, PredictionModel, StepJacobian};
+pub use safety::{
+    MonitorAction, MonitorEvent, MonitorKind, SafetyReport, SafetySettings, Supervisor,
+};
 
 use nalgebra::SVector;
 use serde::Serialize;
@@ -106,6 +110,16 @@ pub trait Controller<const N: usize> {
 
     /// The torque applied in the previous period, `T_R(k−1)`.
     fn previous_torque(&self) -> SVector<f64, N>;
+
+    /// Overwrite `T_R(k−1)` with the torque actually applied (a supervisor that held or ramped
+    /// the output keeps the controller in sync, so it resumes from the real torque). Values are
+    /// made admissible with [`TorqueLimits::admissible`] (clamped to `±T_max`, NaN → 0). Default: no-op (stateless).
+    fn set_previous_torque(&mut self, _t: SVector<f64, N>) {}
+
+    /// The safety supervisor's counters and event log, if this controller is supervised.
+    fn safety_report(&self) -> Option<&SafetyReport> {
+        None
+    }
 }
 
 /// Human-intent estimate of paper eqs. 5-6: `q̂_H = q_R + K1 F`, `q̂d_H = qd_R + K2 F`.

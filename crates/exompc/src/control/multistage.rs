@@ -455,6 +455,10 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
     fn previous_torque(&self) -> SVector<f64, N> {
         self.prev
     }
+
+    fn set_previous_torque(&mut self, t: SVector<f64, N>) {
+        self.prev = self.limits.admissible(&t);
+    }
 }
 
 /// Build the multi-stage controller of scenario `s` for layout `D`.

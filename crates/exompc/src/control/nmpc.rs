@@ -420,4 +420,8 @@ impl<const N: usize> Controller<N> for Nmpc<N> {
     fn previous_torque(&self) -> SVector<f64, N> {
         self.prev
     }
+
+    fn set_previous_torque(&mut self, t: SVector<f64, N>) {
+        self.prev = self.limits.admissible(&t);
+    }
 }

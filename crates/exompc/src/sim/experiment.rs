@@ -11,7 +11,8 @@ use super::uncertainty::Uncertainty;
 use super::Sensors;
 use crate::config::{self, ConfigError, ControllerKind, Scenario};
 use crate::control::{
-    Controller, IntentEstimator, Nmpc, NmpcSettings, PdController, PredictionModel, TorqueLimits,
+    Controller, IntentEstimator, Nmpc, NmpcSettings, PdController, PredictionModel, SafetyReport,
+    SafetySettings, Supervisor, TorqueLimits,
 };
 use crate::model::{Friction, Link, RobotModel, Straps, WinterFractions};
 use crate::solver::{SolverError, SqpSettings};
@@ -274,19 +275,45 @@ pub fn build_controller<D: Dof<N>, const N: usize>(
     })
 }
 
+/// The controller `kind` of scenario `s` wrapped in the safety [`Supervisor`]
+/// (plausibility checks and the `[monitors]` of `s`).
+pub fn build_supervised<D: Dof<N>, const N: usize>(
+    s: &Scenario,
+    kind: ControllerKind,
+) -> Result<Supervisor<N, Box<dyn Controller<N>>>, RunError> {
+    Ok(Supervisor::new(
+        build_controller::<D, N>(s, kind)?,
+        SafetySettings::from_scenario(s),
+    ))
+}
+
 /// Run the closed loop of scenario `s` with controller `s.controller.kind` in layout `D` for
 /// `s.duration_s(D::DOF)`, feeding every step to `recorders`; returns the summary (paper
-/// Table 2 metrics).
+/// Table 2 metrics). The sensors inject the `[faults]` of `s`; the controller runs under the
+/// safety [`Supervisor`] (see [`run_experiment_report`] for its event log).
 pub fn run_experiment<D: Dof<N>, const N: usize>(
     s: &Scenario,
     recorders: &mut [&mut dyn Recorder<N>],
 ) -> Result<Summary, RunError> {
+    run_experiment_report::<D, N>(s, recorders).map(|(summary, _)| summary)
+}
+
+/// Step-time samples preallocated at most (longer runs grow the buffer as they go, instead
+/// of aborting on a huge up-front allocation).
+const MAX_PREALLOCATED_STEPS: usize = 1 << 22;
+
+/// [`run_experiment`], also returning the safety supervisor's counters and monitor events.
+pub fn run_experiment_report<D: Dof<N>, const N: usize>(
+    s: &Scenario,
+    recorders: &mut [&mut dyn Recorder<N>],
+) -> Result<(Summary, SafetyReport), RunError> {
     s.validate()?;
-    let mut controller = build_controller::<D, N>(s, s.controller.kind)?;
+    let mut controller = build_supervised::<D, N>(s, s.controller.kind)?;
     let mut plant = Plant::new(plant_params::<D, N>(s), D::trajectory(s));
-    let mut sensors = Sensors::new(uncertainty(s), s.uncertainty.filter_window);
+    let mut sensors =
+        Sensors::new(uncertainty(s), s.uncertainty.filter_window).with_faults(&s.faults);
     let steps = s.control_steps(D::DOF);
-    let mut metrics = Metrics::with_capacity(steps);
+    let mut metrics = Metrics::with_capacity(steps.min(MAX_PREALLOCATED_STEPS));
     {
         let mut all: Vec<&mut dyn Recorder<N>> = Vec::with_capacity(recorders.len() + 1);
         all.push(&mut metrics);
@@ -296,16 +323,17 @@ pub fn run_experiment<D: Dof<N>, const N: usize>(
         run_closed_loop(
             &mut plant,
             &mut sensors,
-            controller.as_mut(),
+            &mut controller,
             &limits(s),
             steps,
             &mut all,
         )?;
     }
-    Ok(metrics.summary(
+    let summary = metrics.summary(
         controller.name(),
         D::DOF,
         s.uncertainty.payload_kg,
         s.timing.dt,
-    ))
+    );
+    Ok((summary, controller.report().clone()))
 }

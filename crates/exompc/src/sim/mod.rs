@@ -6,6 +6,7 @@
 
 mod closed_loop;
 mod experiment;
+mod faults;
 mod human;
 mod metrics;
 mod plant;
@@ -15,8 +16,13 @@ mod uncertainty;
 
 pub use closed_loop::{run_closed_loop, Recorder, StepRecord, TraceLog, TraceRow};
 pub use experiment::{
-    build_controller, initial_torque, intent, limits, nmpc_settings, plant_params,
-    prediction_model, run_experiment, scenario_robot, uncertainty, Dof, OneDof, RunError, TwoDof,
+    build_controller, build_supervised, initial_torque, intent, limits, nmpc_settings,
+    plant_params, prediction_model, run_experiment, run_experiment_report, scenario_robot,
+    uncertainty, Dof, OneDof, RunError, TwoDof,
+};
+pub use faults::{
+    channel_index, default_schedule, repeat_schedule, run_soak, soak_scenario, FaultInjector,
+    SoakReport, SoakStats,
 };
 pub use human::{HumanBrain, HumanLeg};
 pub use metrics::{Metrics, StepTimeStats, Summary};
@@ -35,6 +41,7 @@ pub struct Sensors<const N: usize> {
     uncertainty: Uncertainty,
     velocity: MovingAverage<N>,
     force: MovingAverage<N>,
+    faults: FaultInjector<N>,
 }
 
 impl<const N: usize> Sensors<N> {
@@ -44,11 +51,21 @@ impl<const N: usize> Sensors<N> {
             uncertainty,
             velocity: MovingAverage::new(window),
             force: MovingAverage::new(window),
+            faults: FaultInjector::none(),
         }
     }
 
+    /// The same sensors with the fault schedule and force range of `[faults]` (see
+    /// [`FaultInjector`]; the default range ±70 N applies without it).
+    pub fn with_faults(mut self, faults: &crate::config::Faults) -> Self {
+        self.faults = FaultInjector::new(faults);
+        self
+    }
+
     /// Sample at time `t` the true robot angles, velocities and strap forces; returns the raw
-    /// (noisy) sample and the filtered measurement the controller receives.
+    /// (noisy, range-clipped, fault-injected) sample and the filtered measurement the
+    /// controller receives. Faults act on the raw sample, before the filter: a NaN stays in
+    /// the filter window (the filtered value is NaN) for `window` samples.
     pub fn read(
         &mut self,
         t: f64,
@@ -56,12 +73,13 @@ impl<const N: usize> Sensors<N> {
         qd: &SVector<f64, N>,
         force: &SVector<f64, N>,
     ) -> (Measurement<N>, Measurement<N>) {
-        let raw = Measurement {
+        let mut raw = Measurement {
             t,
             q: *q,
             qd: qd.add_scalar(self.uncertainty.velocity_noise(t)),
             force: force.add_scalar(self.uncertainty.force_noise(t)),
         };
+        self.faults.apply(&mut raw);
         let filtered = Measurement {
             t,
             q: raw.q,

@@ -1,0 +1,389 @@
+//! Safety properties: whatever the measurements (finite, huge, NaN, ±∞), previous torques,
+//! payloads and sensor-fault schedules, every controller (pd, nmpc, msnmpc decoupled and
+//! coupled), supervised or not, returns a torque within `|T| ≤ T_max` and
+//! `|T − T_prev| ≤ ΔT_max`, never NaN, never panics. Plus the fault-injection/monitor
+//! behaviour and a soak run with faults (60 s in CI, 1 h `#[ignore]`d).
+
+use exompc::config::{
+    Channel, ControllerKind, FaultEvent, FaultKind, Formulation, MonitorResponse, Scenario,
+};
+use exompc::control::{
+    Controller, Measurement, MonitorAction, MonitorKind, SafetySettings, StepStatus, Supervisor,
+};
+use exompc::sim::{
+    build_controller, build_supervised, limits, run_experiment_report, run_soak, OneDof, TwoDof,
+};
+use nalgebra::SVector;
+use proptest::prelude::*;
+
+/// `PROPTEST_CASES` if set (for long local hunts), else `default`.
+fn cases(default: u32) -> u32 {
+    std::env::var("PROPTEST_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+/// Finite everyday values, huge values, and the non-finite ones.
+fn value() -> impl Strategy<Value = f64> {
+    prop_oneof![
+        8 => -3.0..3.0f64,
+        2 => -100.0..100.0f64,
+        1 => -1e300..1e300f64,
+        1 => Just(f64::NAN),
+        1 => Just(f64::INFINITY),
+        1 => Just(f64::NEG_INFINITY),
+        1 => Just(0.0),
+    ]
+}
+
+fn torque() -> impl Strategy<Value = f64> {
+    prop_oneof![
+        6 => -40.0..40.0f64,
+        1 => Just(f64::NAN),
+        1 => Just(f64::INFINITY),
+        1 => -1e6..1e6f64,
+    ]
+}
+
+fn measurement<const N: usize>(t: f64, v: &[f64]) -> Measurement<N> {
+    Measurement {
+        t,
+        q: SVector::from_fn(|i, _| v[i]),
+        qd: SVector::from_fn(|i, _| v[N + i]),
+        force: SVector::from_fn(|i, _| v[2 * N + i]),
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Kind {
+    Pd,
+    Nmpc,
+    MsDecoupled,
+    MsCoupled,
+}
+
+fn scenario(kind: Kind, payloads: &[f64]) -> Scenario {
+    let mut s = Scenario::default();
+    s.multistage.payloads_kg = payloads.to_vec();
+    s.controller.kind = match kind {
+        Kind::Pd => ControllerKind::Pd,
+        Kind::Nmpc => ControllerKind::Nmpc,
+        Kind::MsDecoupled | Kind::MsCoupled => ControllerKind::Msnmpc,
+    };
+    s.multistage.formulation = match kind {
+        Kind::MsCoupled => Formulation::Coupled,
+        _ => Formulation::Decoupled,
+    };
+    // Keep each solve short; the properties do not depend on convergence.
+    s.controller.sqp.max_iterations = 5;
+    s
+}
+
+/// Drives `c` through `samples` after forcing its previous torque to `t0`; checks the limits
+/// on every step against the controller's own `previous_torque()`.
+fn drive<const N: usize>(
+    c: &mut dyn Controller<N>,
+    lim: &exompc::control::TorqueLimits,
+    t0: &[f64],
+    samples: &[Vec<f64>],
+) -> Result<(), TestCaseError> {
+    c.set_previous_torque(SVector::from_fn(|i, _| t0[i]));
+    let p0 = c.previous_torque();
+    prop_assert!(p0.iter().all(|v| v.is_finite() && v.abs() <= lim.max));
+    for (k, v) in samples.iter().enumerate() {
+        let t = if v[3 * N].is_finite() {
+            0.01 * k as f64
+        } else {
+            v[3 * N]
+        };
+        let m = measurement::<N>(t, v);
+        let prev = c.previous_torque();
+        let out = c.step(&m);
+        prop_assert!(
+            lim.admits(&prev, &out.torque),
+            "step {k}: {:?} -> {:?} ({:?})",
+            prev,
+            out.torque,
+            out.status
+        );
+        prop_assert_eq!(c.previous_torque(), out.torque);
+        if !m.is_finite() {
+            prop_assert!(matches!(
+                out.status,
+                StepStatus::BadMeasurement | StepStatus::MonitorTripped
+            ));
+        }
+    }
+    Ok(())
+}
+
+fn kinds() -> impl Strategy<Value = Kind> {
+    prop_oneof![
+        Just(Kind::Pd),
+        Just(Kind::Nmpc),
+        Just(Kind::MsDecoupled),
+        Just(Kind::MsCoupled)
+    ]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: cases(96), ..ProptestConfig::default() })]
+
+    #[test]
+    fn two_dof_outputs_within_limits(
+        kind in kinds(),
+        supervised in any::<bool>(),
+        payloads in prop::collection::vec(0.0..20.0f64, 1..4),
+        t0 in prop::collection::vec(torque(), 2),
+        samples in prop::collection::vec(prop::collection::vec(value(), 7), 1..12),
+    ) {
+        let s = scenario(kind, &payloads);
+        prop_assume!(s.validate().is_ok());
+        let lim = limits(&s);
+        if supervised {
+            let mut c = build_supervised::<TwoDof, 2>(&s, s.controller.kind).unwrap();
+            drive::<2>(&mut c, &lim, &t0, &samples)?;
+        } else {
+            let mut c = build_controller::<TwoDof, 2>(&s, s.controller.kind).unwrap();
+            drive::<2>(c.as_mut(), &lim, &t0, &samples)?;
+        }
+    }
+
+    #[test]
+    fn one_dof_outputs_within_limits(
+        kind in kinds(),
+        supervised in any::<bool>(),
+        payloads in prop::collection::vec(0.0..20.0f64, 1..4),
+        t0 in prop::collection::vec(torque(), 1),
+        samples in prop::collection::vec(prop::collection::vec(value(), 4), 1..12),
+    ) {
+        let s = scenario(kind, &payloads);
+        prop_assume!(s.validate().is_ok());
+        let lim = limits(&s);
+        if supervised {
+            let mut c = build_supervised::<OneDof, 1>(&s, s.controller.kind).unwrap();
+            drive::<1>(&mut c, &lim, &t0, &samples)?;
+        } else {
+            let mut c = build_controller::<OneDof, 1>(&s, s.controller.kind).unwrap();
+            drive::<1>(c.as_mut(), &lim, &t0, &samples)?;
+        }
+    }
+}
+
+fn fault_kind() -> impl Strategy<Value = FaultKind> {
+    prop_oneof![
+        Just(FaultKind::Nan),
+        Just(FaultKind::Inf),
+        Just(FaultKind::Dropout),
+        Just(FaultKind::Spike),
+        Just(FaultKind::Stuck),
+        Just(FaultKind::Saturation),
+    ]
+}
+
+fn channel() -> impl Strategy<Value = Channel> {
+    prop_oneof![
+        Just(Channel::Q1),
+        Just(Channel::Q2),
+        Just(Channel::Qd1),
+        Just(Channel::Qd2),
+        Just(Channel::F1),
+        Just(Channel::F2),
+    ]
+}
+
+fn fault_event() -> impl Strategy<Value = FaultEvent> {
+    (
+        fault_kind(),
+        channel(),
+        0.0..0.8f64,
+        0.0..0.5f64,
+        -1e4..1e4f64,
+    )
+        .prop_map(
+            |(kind, channel, start_s, duration_s, magnitude)| FaultEvent {
+                kind,
+                channel,
+                start_s,
+                duration_s,
+                magnitude,
+            },
+        )
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: cases(32), ..ProptestConfig::default() })]
+
+    /// Closed loops with arbitrary fault schedules: no limit violation, nothing non-finite.
+    #[test]
+    fn closed_loop_with_faults_stays_within_limits(
+        kind in kinds(),
+        one_dof in any::<bool>(),
+        hold in any::<bool>(),
+        payload in 0.0..5.0f64,
+        events in prop::collection::vec(fault_event(), 0..6),
+    ) {
+        let mut s = scenario(kind, &[0.0, 1.0, 2.0]);
+        s.uncertainty.payload_kg = payload;
+        s.timing.duration_1dof_s = 1.0;
+        s.timing.duration_2dof_s = 1.0;
+        s.faults.events = events;
+        if hold {
+            s.monitors.response = MonitorResponse::Hold;
+        }
+        let mut rows = exompc::sim::TraceLog::default();
+        if one_dof {
+            let (sum, _) = run_experiment_report::<OneDof, 1>(&s, &mut []).unwrap();
+            prop_assert_eq!(sum.limit_violations, 0);
+        } else {
+            let (sum, _) = run_experiment_report::<TwoDof, 2>(&s, &mut [&mut rows]).unwrap();
+            prop_assert_eq!(sum.limit_violations, 0);
+            for r in &rows.rows {
+                prop_assert!(r.torque_robot.iter().all(|v| v.is_finite()));
+                prop_assert!(r.robot.q.iter().all(|v| v.is_finite()));
+                prop_assert!(r.force_true.iter().all(|v| v.is_finite()));
+            }
+        }
+    }
+}
+
+#[test]
+fn nan_fault_poisons_the_filter_and_the_supervisor_holds_then_resumes() {
+    let mut s = scenario(Kind::Nmpc, &[0.0]);
+    s.timing.duration_2dof_s = 2.0;
+    s.monitors.sensor_timeout_s = 1.0; // isolate the plausibility fallback
+    s.faults.events = vec![FaultEvent {
+        kind: FaultKind::Nan,
+        channel: Channel::F2,
+        start_s: 0.5,
+        duration_s: 0.1,
+        magnitude: 0.0,
+    }];
+    let mut log = exompc::sim::TraceLog::default();
+    let (sum, rep) = run_experiment_report::<TwoDof, 2>(&s, &mut [&mut log]).unwrap();
+    assert_eq!(sum.limit_violations, 0);
+    let bad: Vec<usize> = log
+        .rows
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| r.status == StepStatus::BadMeasurement)
+        .map(|(k, _)| k)
+        .collect();
+    // 10 NaN samples, then 4 more while the NaN is still in the 5-sample window.
+    assert_eq!(bad.len(), 14, "{bad:?}");
+    assert_eq!(bad[0], 50);
+    assert_eq!(rep.bad_measurement_steps, 14);
+    // Held torque during the fault, resumed afterwards.
+    for k in bad.iter().skip(1) {
+        assert_eq!(log.rows[*k].torque_robot, log.rows[bad[0] - 1].torque_robot);
+    }
+    assert_ne!(log.rows[64].status, StepStatus::BadMeasurement);
+    assert!(rep.monitor_trips == 0);
+}
+
+#[test]
+fn stale_sensor_trips_the_timeout_monitor_and_ramps_to_zero() {
+    let mut s = scenario(Kind::Pd, &[0.0]);
+    s.timing.duration_2dof_s = 3.0;
+    s.faults.events = vec![FaultEvent {
+        kind: FaultKind::Dropout,
+        channel: Channel::Qd1,
+        start_s: 1.0,
+        duration_s: 1.0,
+        magnitude: 0.0,
+    }];
+    let mut log = exompc::sim::TraceLog::default();
+    let (sum, rep) = run_experiment_report::<TwoDof, 2>(&s, &mut [&mut log]).unwrap();
+    assert_eq!(sum.limit_violations, 0);
+    let trips: Vec<_> = rep
+        .events
+        .iter()
+        .filter(|e| e.action == MonitorAction::Trip)
+        .collect();
+    assert_eq!(trips.len(), 1, "{:?}", rep.events);
+    assert_eq!(trips[0].monitor, MonitorKind::SensorTimeout);
+    // Window (5 samples) then timeout (0.05 s) after the dropout's start.
+    assert!(trips[0].t > 1.04 && trips[0].t < 1.15, "{:?}", trips[0]);
+    // Torque at zero well inside the trip, and the controller resumed after the fault.
+    let mid = log.rows.iter().find(|r| (r.t - 1.8).abs() < 1e-6).unwrap();
+    assert_eq!(mid.status, StepStatus::MonitorTripped);
+    assert_eq!(mid.torque_robot, SVector::<f64, 2>::zeros());
+    assert!(rep.events.iter().any(|e| e.action == MonitorAction::Clear));
+    assert_eq!(log.rows.last().unwrap().status, StepStatus::Ok);
+}
+
+#[test]
+fn supervisor_keeps_the_inner_previous_torque_in_sync() {
+    let s = scenario(Kind::MsDecoupled, &[0.0, 2.0]);
+    let inner = build_controller::<TwoDof, 2>(&s, ControllerKind::Msnmpc).unwrap();
+    let mut settings = SafetySettings::from_scenario(&s);
+    settings.monitors.response = MonitorResponse::RampToZero;
+    let mut sup = Supervisor::new(inner, settings);
+    let good = |k: usize| Measurement::<2> {
+        t: 0.01 * k as f64,
+        q: SVector::from([0.1 + 1e-3 * k as f64, 0.2 - 1e-3 * k as f64]),
+        qd: SVector::from([0.05 + 1e-3 * k as f64, -0.1 - 1e-3 * k as f64]),
+        force: SVector::from([1.0 + 1e-2 * k as f64, -2.0 + 1e-2 * k as f64]),
+    };
+    for k in 0..5 {
+        sup.step(&good(k));
+        assert_eq!(sup.inner().previous_torque(), sup.previous_torque());
+    }
+    let mut bad = good(5);
+    bad.force[0] = 500.0; // implausible (beyond the sensor range) and a strap-force trip
+    for k in 5..40 {
+        bad.t = 0.01 * k as f64;
+        let out = sup.step(&bad);
+        assert_eq!(out.status, StepStatus::MonitorTripped);
+        assert_eq!(sup.inner().previous_torque(), out.torque);
+    }
+    assert_eq!(sup.previous_torque(), SVector::<f64, 2>::zeros());
+    assert!(sup.report().monitor_trips >= 1);
+    for k in 40..80 {
+        sup.step(&good(k));
+        assert_eq!(sup.inner().previous_torque(), sup.previous_torque());
+    }
+    assert!(!sup.is_tripped());
+}
+
+fn check_soak(seconds: f64) {
+    let r = run_soak(&Scenario::default(), seconds, 2.0, &mut []).unwrap();
+    let st = &r.stats;
+    assert_eq!(st.steps as f64, (seconds / 0.01).round());
+    assert_eq!(st.nan_count, 0);
+    assert_eq!(st.limit_violations, 0);
+    assert!(st.max_abs_force_n.is_finite());
+    // Every minute: at least the NaN, inf, dropout and stuck faults trip the timeout monitor.
+    assert!(
+        r.monitor_trips >= 4 * (seconds / 60.0).floor() as u64,
+        "{r:?}"
+    );
+    println!("{}", serde_json_like(&r));
+}
+
+fn serde_json_like(r: &exompc::sim::SoakReport) -> String {
+    format!(
+        "steps {} nan {} violations {} max|F| {:.2} N rms F {:.2} N solver failures {} \
+         monitor trips {} wall {:.1} s",
+        r.stats.steps,
+        r.stats.nan_count,
+        r.stats.limit_violations,
+        r.stats.max_abs_force_n,
+        r.stats.rms_force_n,
+        r.stats.solver_failures,
+        r.monitor_trips,
+        r.wall_time_s
+    )
+}
+
+#[test]
+fn soak_60_s_with_faults() {
+    check_soak(60.0);
+}
+
+#[test]
+#[ignore = "1 h simulated (15-90 s in release); run with --ignored"]
+fn soak_1_h_with_faults() {
+    check_soak(3600.0);
+}
