@@ -160,16 +160,3 @@ fn bad_flags_exit_2() {
     let out = exompc(&["no-such-command"]);
     assert_eq!(out.status.code(), Some(2));
 }
-
-#[test]
-fn stubs_exit_2_with_message() {
-    for cmd in ["model", "solve", "plot"] {
-        let out = exompc(&[cmd]);
-        assert_eq!(out.status.code(), Some(2), "{cmd}");
-        assert!(
-            stderr(&out).contains("not yet implemented"),
-            "{cmd}: {}",
-            stderr(&out)
-        );
-    }
-}
