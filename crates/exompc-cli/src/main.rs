@@ -42,8 +42,21 @@ enum Command {
     /// Run a grid of simulations (controllers × payloads) and write a metrics table.
     Sweep(SweepArgs),
     /// Evaluate the robot/human models at a state (dynamics terms, for checking).
+    ///
+    /// Reads one JSON object on stdin, e.g.
+    /// {"link":"robot","payload_kg":1.0,"q":[0.2,-0.5],"qd":[0.5,-1.0],"tau":[3.0,1.0],"dt":0.01}
+    /// (`link`: robot or human; `body_mass_kg` for the human; 1-element arrays for the 1-DOF
+    /// shank) and prints {"M":..,"Cqd":..,"G":..,"qdd":..,"next":{"q":..,"qd":..}}: `tau` is the
+    /// applied joint torque (robot friction included as the plant has it), `next` one RK4 step
+    /// of `dt` with `tau` held.
     Model(ModelArgs),
     /// Solve one NMPC problem at a given state and print the solution.
+    ///
+    /// Reads one JSON object on stdin, e.g.
+    /// {"payload_kg":0.0,"q":[0.1,-0.3],"qd":[0.5,-1.0],"t_prev":[1.0,0.5],"force":[2.0,-1.0],"disturbance":[0,0]}
+    /// (force: measured strap forces in N; optional "config" object with np, nc, r_d, r_t,
+    /// interaction, torque_max, torque_rate_max) and prints {"status":..,"iterations":..,
+    /// "kkt_residual":..,"cost":..,"dT":..,"T":..,"q_pred":..,"qd_pred":..}.
     Solve(SolveArgs),
     /// Print the default scenario as TOML (`exompc config > my.toml`), or check a file.
     Config(ConfigArgs),

@@ -380,7 +380,7 @@ fn killed_run_leaves_no_truncated_results() {
         .args([
             "simulate",
             "--duration",
-            "600",
+            "3600",
             "--out",
             out_dir.to_str().unwrap(),
         ])

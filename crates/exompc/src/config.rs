@@ -942,6 +942,11 @@ pub struct Scenario {
 
 /// Upper bound on any payload (kg) accepted by validation.
 pub const MAX_PAYLOAD_KG: f64 = 20.0;
+
+/// Most control steps one run may take (`duration / dt`), so that a tiny `dt` cannot start a
+/// practically endless run.
+pub const MAX_CONTROL_STEPS: usize = 100_000_000;
+
 /// Maximum number of multi-stage scenarios.
 pub const MAX_SCENARIOS: usize = 32;
 
@@ -1028,6 +1033,22 @@ impl Scenario {
                 ("duration_1dof_s", tm.duration_1dof_s, R::Closed(tm.dt, 1e6)),
             ],
         )?;
+        for (name, d) in [
+            ("timing.duration_2dof_s", tm.duration_2dof_s),
+            ("timing.duration_1dof_s", tm.duration_1dof_s),
+        ] {
+            if d / tm.dt > MAX_CONTROL_STEPS as f64 {
+                return Err(ConfigError::new(
+                    name,
+                    d,
+                    format!(
+                        "at most {MAX_CONTROL_STEPS} control steps, i.e. <= {} s at timing.dt = {} s",
+                        MAX_CONTROL_STEPS as f64 * tm.dt,
+                        tm.dt
+                    ),
+                ));
+            }
+        }
 
         let c = &self.controller;
         int("controller.np", c.np, 1, 200)?;

@@ -199,3 +199,59 @@ proptest! {
         }
     }
 }
+
+/// A plant step far too long for RK4 makes the run fail with `Diverged`, instead of a summary
+/// that looks healthy (NaN forces were once dropped by `f64::max`).
+#[test]
+fn diverging_plant_is_reported_as_an_error() {
+    let mut s = exompc::config::Scenario::default();
+    s.timing.dt = 1.0;
+    s.timing.plant_substeps = 1;
+    match exompc::sim::run_experiment::<exompc::sim::TwoDof, 2>(&s, &mut []) {
+        Err(exompc::sim::RunError::Diverged { t }) => assert!(t.is_finite() && t > 0.0),
+        other => panic!("expected Diverged, got {other:?}"),
+    }
+}
+
+/// A run whose step count would be absurd is rejected by validation, naming the duration.
+#[test]
+fn too_many_control_steps_are_rejected() {
+    let mut s = exompc::config::Scenario::default();
+    s.timing.dt = 1e-12;
+    let e = s.validate().unwrap_err();
+    assert!(e.to_string().contains("timing.duration_2dof_s"), "{e}");
+}
+
+/// Invalid limits are an error from the constructors, and the clamp never panics on them.
+#[test]
+fn invalid_torque_limits_are_errors_not_panics() {
+    use exompc::control::{Nmpc, TorqueLimits};
+    use nalgebra::Vector2;
+    let s = exompc::config::Scenario::default();
+    let model = exompc::sim::prediction_model::<exompc::sim::TwoDof, 2>(&s, 0.0);
+    for bad in [
+        TorqueLimits {
+            max: -1.0,
+            rate: 10.0,
+        },
+        TorqueLimits {
+            max: 30.0,
+            rate: -1.0,
+        },
+        TorqueLimits {
+            max: f64::NAN,
+            rate: 10.0,
+        },
+    ] {
+        let r = Nmpc::new(
+            model,
+            &exompc::sim::nmpc_settings(&s),
+            exompc::sim::intent(&s),
+            bad,
+            Vector2::zeros(),
+        );
+        assert!(r.is_err(), "{bad:?} accepted");
+        let _ = bad.clamp(&Vector2::new(1.0, f64::NAN), &Vector2::new(5.0, 2.0));
+        let _ = bad.admissible(&Vector2::new(1.0, f64::NAN));
+    }
+}

@@ -12,6 +12,21 @@ pub struct TorqueLimits {
 }
 
 impl TorqueLimits {
+    /// Check the limits: both finite and `> 0`. Controllers check this in their constructors;
+    /// `admissible`/`clamp` never panic, but only valid limits give meaningful torques.
+    pub fn validate(&self) -> Result<(), crate::solver::SolverError> {
+        for (field, value) in [("torque_max", self.max), ("torque_rate", self.rate)] {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(crate::solver::SolverError::InvalidSetting {
+                    field,
+                    value,
+                    allowed: "finite, > 0",
+                });
+            }
+        }
+        Ok(())
+    }
+
     /// `t` brought within `±max`, a NaN entry replaced by 0 (a safe starting torque).
     #[inline]
     pub fn admissible<const N: usize>(&self, t: &SVector<f64, N>) -> SVector<f64, N> {
@@ -19,7 +34,7 @@ impl TorqueLimits {
             if v.is_nan() {
                 0.0
             } else {
-                v.clamp(-self.max, self.max)
+                v.max(-self.max).min(self.max)
             }
         })
     }
@@ -38,7 +53,7 @@ impl TorqueLimits {
             let p = if prev[i].is_nan() {
                 0.0
             } else {
-                prev[i].clamp(-self.max, self.max)
+                prev[i].max(-self.max).min(self.max)
             };
             let d = if desired[i].is_finite() {
                 desired[i]
@@ -47,7 +62,8 @@ impl TorqueLimits {
             };
             let lo = (p - self.rate).max(-self.max);
             let hi = (p + self.rate).min(self.max);
-            out[i] = d.clamp(lo, hi);
+            // max/min rather than f64::clamp: never panics, even on invalid limits.
+            out[i] = d.max(lo).min(hi);
         }
         out
     }

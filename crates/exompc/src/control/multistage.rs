@@ -160,6 +160,7 @@ struct CoupledCore<const N: usize> {
     scratch: Constraints,
     z: DVector<f64>,
     zi: Vec<f64>,
+    shared: Vec<f64>,
 }
 
 impl<const N: usize> CoupledCore<N> {
@@ -178,6 +179,7 @@ impl<const N: usize> CoupledCore<N> {
             scratch: Constraints::unbounded(N * s.nc, N * s.nc),
             z: DVector::zeros(n),
             zi: vec![0.0; N * s.nc],
+            shared: vec![0.0; problem.shared()],
             problem,
         })
     }
@@ -192,8 +194,8 @@ impl<const N: usize> CoupledCore<N> {
     ) -> SqpInfo {
         let (sh, pr) = (self.problem.shared(), self.problem.private());
         // Warm start: shift each scenario's plan one step; shared part is the weighted mean.
-        let mut shared_new = [0.0f64; 64];
-        let sh_buf = &mut shared_new[..sh.min(64)];
+        let mut sh_buf = std::mem::take(&mut self.shared);
+        sh_buf.fill(0.0);
         for (i, w) in weights.iter().enumerate() {
             self.problem.gather(self.z.as_slice(), i, &mut self.zi);
             let n1 = self.zi.len();
@@ -210,6 +212,7 @@ impl<const N: usize> CoupledCore<N> {
         for (k, v) in sh_buf.iter().enumerate() {
             self.z[k] = *v;
         }
+        self.shared = sh_buf;
         if !self.z.iter().all(|v| v.is_finite()) {
             self.z.fill(0.0);
         }
@@ -279,6 +282,7 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
         limits: TorqueLimits,
         t0: SVector<f64, N>,
     ) -> Result<Self, MultiStageError> {
+        limits.validate()?;
         if models.is_empty() {
             return Err(MultiStageError::NoScenario);
         }

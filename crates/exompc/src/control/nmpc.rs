@@ -356,6 +356,7 @@ impl<const N: usize> Nmpc<N> {
         limits: TorqueLimits,
         t0: SVector<f64, N>,
     ) -> Result<Self, SolverError> {
+        limits.validate()?;
         Ok(Nmpc {
             core: NmpcCore::new(model, settings)?,
             intent,

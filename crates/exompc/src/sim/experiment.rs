@@ -2,7 +2,7 @@
 //! [`Scenario`](crate::config::Scenario): the 2-DOF swing ([`TwoDof`]) or the 1-DOF knee
 //! ([`OneDof`], hip locked) variant.
 
-use super::closed_loop::{run_closed_loop, Recorder};
+use super::closed_loop::{run_closed_loop, Recorder, StepRecord};
 use super::human::HumanLeg;
 use super::metrics::{Metrics, Summary};
 use super::plant::{robot_model, Plant, PlantParams};
@@ -31,6 +31,15 @@ pub enum RunError {
     /// A controller could not be built.
     #[error("controller: {0}")]
     Build(String),
+    /// The simulated plant diverged (its state stopped being finite) at time `t`.
+    #[error(
+        "the simulated plant diverged at t = {t} s (its state is no longer finite); \
+         a shorter plant step (timing.dt / timing.plant_substeps) keeps RK4 stable"
+    )]
+    Diverged {
+        /// Time (s) of the first non-finite state.
+        t: f64,
+    },
     /// A recorder failed (e.g. a trace file could not be written).
     #[error("recording failed: {0}")]
     Io(#[from] std::io::Error),
@@ -298,6 +307,23 @@ pub fn run_experiment<D: Dof<N>, const N: usize>(
     run_experiment_report::<D, N>(s, recorders).map(|(summary, _)| summary)
 }
 
+/// Stops a run whose plant state stops being finite (e.g. a plant step too long for RK4).
+struct DivergenceGuard {
+    diverged_at: Option<f64>,
+}
+
+impl<const N: usize> Recorder<N> for DivergenceGuard {
+    fn record(&mut self, r: &StepRecord<'_, N>) -> std::io::Result<()> {
+        let finite = |v: &SVector<f64, N>| v.iter().all(|x| x.is_finite());
+        if finite(&r.robot.q) && finite(&r.robot.qd) && finite(&r.human.q) && finite(&r.human.qd) {
+            Ok(())
+        } else {
+            self.diverged_at = Some(r.t);
+            Err(std::io::Error::other("plant state is not finite"))
+        }
+    }
+}
+
 /// Step-time samples preallocated at most (longer runs grow the buffer as they go, instead
 /// of aborting on a huge up-front allocation).
 const MAX_PREALLOCATED_STEPS: usize = 1 << 22;
@@ -314,20 +340,26 @@ pub fn run_experiment_report<D: Dof<N>, const N: usize>(
         Sensors::new(uncertainty(s), s.uncertainty.filter_window).with_faults(&s.faults);
     let steps = s.control_steps(D::DOF);
     let mut metrics = Metrics::with_capacity(steps.min(MAX_PREALLOCATED_STEPS));
+    let mut guard = DivergenceGuard { diverged_at: None };
     {
-        let mut all: Vec<&mut dyn Recorder<N>> = Vec::with_capacity(recorders.len() + 1);
+        let mut all: Vec<&mut dyn Recorder<N>> = Vec::with_capacity(recorders.len() + 2);
+        all.push(&mut guard);
         all.push(&mut metrics);
         for r in recorders.iter_mut() {
             all.push(&mut **r);
         }
-        run_closed_loop(
+        let result = run_closed_loop(
             &mut plant,
             &mut sensors,
             &mut controller,
             &limits(s),
             steps,
             &mut all,
-        )?;
+        );
+        if let Some(t) = guard.diverged_at {
+            return Err(RunError::Diverged { t });
+        }
+        result?;
     }
     let summary = metrics.summary(
         controller.name(),

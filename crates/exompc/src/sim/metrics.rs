@@ -142,7 +142,11 @@ impl<const N: usize> Recorder<N> for Metrics {
         }
         for i in 0..N {
             self.sum_f2[i] += r.force_true[i] * r.force_true[i];
-            self.delta_max[i] = self.delta_max[i].max((r.human.q[i] - r.robot.q[i]).abs());
+            // A NaN difference must propagate (f64::max would silently drop it).
+            let d = (r.human.q[i] - r.robot.q[i]).abs();
+            if d.is_nan() || d > self.delta_max[i] {
+                self.delta_max[i] = d;
+            }
         }
         if let Some(p) = r.probabilities {
             if self.prob_sum.len() != p.len() {
