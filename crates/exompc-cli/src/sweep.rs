@@ -1,22 +1,354 @@
-//! `exompc sweep`.
-use crate::ConfigOpt;
+//! `exompc sweep`: every payload × controller run of a scenario, in parallel across cores,
+//! each streamed into `DIR/<controller>_<payload>kg/{trace.csv,summary.json}`; then the paper's
+//! Table 2 as `DIR/table2.md` and all summaries as `DIR/sweep.json`.
+
+use crate::simulate::{apply_overrides, FormulationArg};
+use crate::{ConfigOpt, ControllerArg};
 use clap::Args;
+use exompc::config::{ControllerKind, Scenario};
+use exompc::sim::Summary;
 use exompc_cli::error::CliError;
-use std::path::PathBuf;
+use exompc_cli::io;
+use exompc_cli::run::run_to_dir;
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::io::IsTerminal as _;
+use std::path::{Path, PathBuf};
 
 #[derive(Debug, Args)]
 pub(crate) struct SweepArgs {
     #[command(flatten)]
     config: ConfigOpt,
+    /// Payloads (kg): a range `start:step:end` (inclusive) or a comma list `0,1,2`.
+    #[arg(
+        long,
+        value_name = "LIST",
+        default_value = "0:0.25:2",
+        allow_hyphen_values = true
+    )]
+    payloads: String,
+    /// Controllers to compare, comma-separated.
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "nmpc,msnmpc")]
+    controllers: Vec<ControllerArg>,
+    /// Experiment: 1 (knee only, hip locked) or 2 (hip and knee).
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=2))]
+    dof: u8,
+    /// Override `multistage.formulation` (msnmpc only).
+    #[arg(long, value_enum)]
+    formulation: Option<FormulationArg>,
     /// Output folder.
-    #[arg(long, value_name = "DIR")]
-    out: Option<PathBuf>,
+    #[arg(long, value_name = "DIR", default_value = "out/sweep")]
+    out: PathBuf,
+    /// Print `sweep.json` on stdout instead of the Markdown table.
+    #[arg(long)]
+    json: bool,
+    /// No progress bar.
+    #[arg(long)]
+    quiet: bool,
+    /// Also draw the figures into the output folder.
+    #[arg(long)]
+    plot: bool,
+}
+
+/// The content of `sweep.json`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub(crate) struct SweepFile {
+    /// One summary per run, payload-major in the order of `--payloads`, then `--controllers`.
+    pub(crate) rows: Vec<Summary>,
+}
+
+/// Largest number of payloads a sweep accepts.
+const MAX_PAYLOADS: usize = 1000;
+
+fn usage(msg: impl std::fmt::Display) -> CliError {
+    CliError::Usage(format!("--payloads: {msg}"))
+}
+
+fn parse_number(s: &str) -> Result<f64, CliError> {
+    let t = s.trim();
+    let v: f64 = t
+        .parse()
+        .map_err(|_| usage(format!("`{t}` is not a number")))?;
+    if !v.is_finite() {
+        return Err(usage(format!("`{t}` is not a finite number")));
+    }
+    Ok(v)
+}
+
+/// Rounds to 1e-9 kg so that `a + i·step` prints as the user wrote it.
+fn tidy(v: f64) -> f64 {
+    let r = (v * 1e9).round() / 1e9;
+    if r == 0.0 {
+        0.0
+    } else {
+        r
+    }
+}
+
+/// Parses `--payloads`: `start:step:end` (inclusive of `end` within 1e-9) or a comma list.
+pub(crate) fn parse_payloads(spec: &str) -> Result<Vec<f64>, CliError> {
+    let spec = spec.trim();
+    if spec.is_empty() {
+        return Err(usage(
+            "empty list (expected start:step:end or a comma list)",
+        ));
+    }
+    let values = if spec.contains(':') {
+        let parts: Vec<&str> = spec.split(':').collect();
+        let [a, step, b] = parts[..] else {
+            return Err(usage(format!(
+                "`{spec}`: a range has three parts, start:step:end"
+            )));
+        };
+        let (a, step, b) = (parse_number(a)?, parse_number(step)?, parse_number(b)?);
+        if step <= 0.0 {
+            return Err(usage(format!("step {step} must be > 0")));
+        }
+        if b < a {
+            return Err(usage(format!("end {b} is below start {a}")));
+        }
+        let n = ((b - a) / step + 1e-9).floor();
+        if n + 1.0 > MAX_PAYLOADS as f64 {
+            return Err(usage(format!(
+                "more than {MAX_PAYLOADS} payloads in `{spec}`"
+            )));
+        }
+        (0..=n as usize)
+            .map(|i| tidy(a + i as f64 * step))
+            .collect()
+    } else {
+        let v: Vec<f64> = spec
+            .split(',')
+            .map(|p| parse_number(p).map(tidy))
+            .collect::<Result<_, _>>()?;
+        if v.len() > MAX_PAYLOADS {
+            return Err(usage(format!("more than {MAX_PAYLOADS} payloads")));
+        }
+        v
+    };
+    for (i, p) in values.iter().enumerate() {
+        if values[..i].contains(p) {
+            return Err(usage(format!("payload {p} kg is listed twice")));
+        }
+    }
+    Ok(values)
+}
+
+/// Command-line name of a controller (also its folder prefix and `Summary::controller`).
+pub(crate) fn controller_name(c: ControllerArg) -> &'static str {
+    match c {
+        ControllerArg::Pd => "pd",
+        ControllerArg::Nmpc => "nmpc",
+        ControllerArg::Msnmpc => "msnmpc",
+    }
+}
+
+/// Folder name of one run: `<controller>_<payload>kg`.
+pub(crate) fn run_dir_name(controller: &str, payload: f64) -> String {
+    format!("{controller}_{}kg", tidy(payload))
+}
+
+fn progress_bar(len: usize, quiet: bool) -> ProgressBar {
+    let target = if quiet || !std::io::stderr().is_terminal() {
+        ProgressDrawTarget::hidden()
+    } else {
+        ProgressDrawTarget::stderr()
+    };
+    let pb = ProgressBar::with_draw_target(Some(len as u64), target);
+    if let Ok(style) = ProgressStyle::with_template(
+        "{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} runs {msg}",
+    ) {
+        pb.set_style(style);
+    }
+    pb
+}
+
+/// Runs the whole grid into `out`, returning the summaries payload-major.
+fn run_grid(
+    base: &Scenario,
+    dof: u8,
+    payloads: &[f64],
+    controllers: &[ControllerArg],
+    out: &Path,
+    quiet: bool,
+) -> Result<Vec<Summary>, CliError> {
+    let mut jobs = Vec::with_capacity(payloads.len() * controllers.len());
+    for &p in payloads {
+        for &c in controllers {
+            let mut s = base.clone();
+            s.controller.kind = ControllerKind::from(c);
+            s.uncertainty.payload_kg = p;
+            s.validate()
+                .map_err(|e| CliError::Usage(format!("--payloads: {p} kg: {e}")))?;
+            let dir = out.join(run_dir_name(controller_name(c), p));
+            io::ensure_out_dir(&dir)?;
+            jobs.push((s, dir));
+        }
+    }
+    let pb = progress_bar(jobs.len(), quiet);
+    let results: Vec<Result<Summary, CliError>> = jobs
+        .par_iter()
+        .map(|(s, dir)| {
+            let r = run_to_dir(s, dof, Some(dir)).map_err(|e| match e {
+                CliError::Runtime(m) => CliError::Runtime(format!("{}: {m}", dir.display())),
+                other => other,
+            });
+            pb.inc(1);
+            r
+        })
+        .collect();
+    pb.finish_and_clear();
+    results.into_iter().collect()
+}
+
+fn pct(v: Option<f64>, digits: usize) -> String {
+    v.filter(|x| x.is_finite())
+        .map_or_else(|| "–".to_string(), |x| format!("{x:.digits$}"))
+}
+
+/// The Markdown rendering of the paper's Table 2 for `rows` (any subset of controllers).
+pub(crate) fn table2(rows: &[Summary]) -> String {
+    let mut payloads: Vec<f64> = Vec::new();
+    for r in rows {
+        if !payloads.contains(&r.payload_kg) {
+            payloads.push(r.payload_kg);
+        }
+    }
+    let order = ["msnmpc", "nmpc", "pd"];
+    let label = |c: &str| match c {
+        "msnmpc" => "MS-NMPC",
+        "nmpc" => "NMPC",
+        _ => "PD",
+    };
+    let ctrls: Vec<&str> = order
+        .iter()
+        .copied()
+        .filter(|c| rows.iter().any(|r| r.controller == *c))
+        .collect();
+    let find = |p: f64, c: &str| rows.iter().find(|r| r.payload_kg == p && r.controller == c);
+    let scenarios = rows
+        .iter()
+        .filter_map(|r| r.mean_probability.as_ref().map(Vec::len))
+        .max()
+        .unwrap_or(0);
+
+    let mut head = vec!["payload (kg)".to_string()];
+    for c in &ctrls {
+        head.push(format!("{} RMS F thigh (N)", label(c)));
+        head.push(format!("{} RMS F shank (N)", label(c)));
+    }
+    for c in &ctrls {
+        head.push(format!("{} δmax hip (deg)", label(c)));
+        head.push(format!("{} δmax knee (deg)", label(c)));
+    }
+    for i in 1..=scenarios {
+        head.push(format!("μ̄{i} (%)"));
+    }
+    for c in &ctrls {
+        head.push(format!("{} step p50/p99 (µs)", label(c)));
+    }
+    let mut out = format!("| {} |\n", head.join(" | "));
+    out += &format!("|{}\n", "---:|".repeat(head.len()));
+    for &p in &payloads {
+        let mut cells = vec![format!("{p:.2}")];
+        for c in &ctrls {
+            let r = find(p, c);
+            cells.push(pct(r.and_then(|r| r.rms_force_n.thigh), 2));
+            cells.push(pct(r.and_then(|r| r.rms_force_n.shank), 2));
+        }
+        for c in &ctrls {
+            let r = find(p, c);
+            cells.push(pct(r.and_then(|r| r.delta_max_deg.hip), 2));
+            cells.push(pct(r.and_then(|r| r.delta_max_deg.knee), 2));
+        }
+        let mu = ctrls
+            .iter()
+            .find_map(|c| find(p, c).and_then(|r| r.mean_probability.clone()));
+        for i in 0..scenarios {
+            cells.push(pct(
+                mu.as_ref().and_then(|m| m.get(i)).map(|v| 100.0 * v),
+                2,
+            ));
+        }
+        for c in &ctrls {
+            cells.push(match find(p, c) {
+                Some(r) => format!("{:.0} / {:.0}", r.step_time_us.p50, r.step_time_us.p99),
+                None => "–".to_string(),
+            });
+        }
+        out += &format!("| {} |\n", cells.join(" | "));
+    }
+    out
 }
 
 pub(crate) fn run(a: SweepArgs) -> Result<(), CliError> {
-    let _scenario = a.config.load()?;
-    if let Some(out) = &a.out {
-        exompc_cli::io::ensure_out_dir(out)?;
+    let mut s = a.config.load()?;
+    let payloads = parse_payloads(&a.payloads)?;
+    let mut controllers: Vec<ControllerArg> = Vec::new();
+    for c in a.controllers {
+        if controllers
+            .iter()
+            .any(|d| controller_name(*d) == controller_name(c))
+        {
+            return Err(CliError::Usage(format!(
+                "--controllers: {} is listed twice",
+                controller_name(c)
+            )));
+        }
+        controllers.push(c);
     }
-    crate::not_implemented("sweep")
+    if controllers.is_empty() {
+        return Err(CliError::Usage("--controllers: empty list".into()));
+    }
+    apply_overrides(&mut s, a.dof, None, a.formulation, None, None)?;
+    io::ensure_out_dir(&a.out)?;
+
+    let rows = run_grid(&s, a.dof, &payloads, &controllers, &a.out, a.quiet)?;
+    let table = table2(&rows);
+    io::write_atomic(&a.out.join("table2.md"), table.as_bytes())?;
+    let file = SweepFile { rows };
+    let json = serde_json::to_string_pretty(&file)
+        .map_err(|e| CliError::Runtime(format!("serialising sweep: {e}")))?;
+    io::write_atomic(&a.out.join("sweep.json"), json.as_bytes())?;
+    if a.plot {
+        crate::plot::draw_dir(&a.out)?;
+    }
+    if a.json {
+        println!("{json}");
+    } else {
+        print!("{table}");
+        println!(
+            "wrote {0}/table2.md, {0}/sweep.json and {1} run folders",
+            a.out.display(),
+            file.rows.len()
+        );
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn payload_ranges_and_lists() {
+        assert_eq!(
+            parse_payloads("0:0.25:2").unwrap(),
+            vec![0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0]
+        );
+        assert_eq!(
+            parse_payloads("0:0.1:0.3").unwrap(),
+            vec![0.0, 0.1, 0.2, 0.3]
+        );
+        assert_eq!(parse_payloads("0, 2").unwrap(), vec![0.0, 2.0]);
+        assert_eq!(parse_payloads("1").unwrap(), vec![1.0]);
+        for bad in ["", "a", "0:0:1", "1:0.5:0", "0:1", "0,0", "nan", "0:1:1:2"] {
+            let e = parse_payloads(bad).unwrap_err();
+            assert!(e.to_string().starts_with("--payloads"), "{bad}: {e}");
+            assert_eq!(e.exit_code(), 2);
+        }
+        assert_eq!(run_dir_name("nmpc", 0.25), "nmpc_0.25kg");
+        assert_eq!(run_dir_name("msnmpc", 2.0), "msnmpc_2kg");
+    }
 }
