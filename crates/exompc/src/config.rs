@@ -713,66 +713,9 @@ impl Default for Multistage {
 // [ekf]
 // ---------------------------------------------------------------------------------------------
 
-/// `[ekf]`: per-component covariances of each scenario's EKF on `[q, qd, d]` (spec §8).
-///
-/// Each value applies to every joint, so the same table serves 1-DOF and 2-DOF runs. All > 0.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Ekf {
-    /// Process noise variance of each joint angle (rad²). Default 1e-8.
-    pub q_angle: f64,
-    /// Process noise variance of each joint velocity ((rad/s)²). Default 1e-4.
-    pub q_velocity: f64,
-    /// Random-walk variance of each lumped disturbance ((N·m)²). Default 1e-2.
-    pub q_disturbance: f64,
-    /// Measurement noise variance of each angle (rad²). Default 1e-6.
-    pub r_angle: f64,
-    /// Measurement noise variance of each (filtered) velocity ((rad/s)²). Default 1.
-    pub r_velocity: f64,
-    /// Initial covariance of each angle (rad²). Default 1e-6.
-    pub p0_angle: f64,
-    /// Initial covariance of each velocity ((rad/s)²). Default 1e-2.
-    pub p0_velocity: f64,
-    /// Initial covariance of each disturbance ((N·m)²). Default 1.
-    pub p0_disturbance: f64,
-}
-
-impl Default for Ekf {
-    fn default() -> Self {
-        Self {
-            q_angle: 1e-8,
-            q_velocity: 1e-4,
-            q_disturbance: 1e-2,
-            r_angle: 1e-6,
-            r_velocity: 1.0,
-            p0_angle: 1e-6,
-            p0_velocity: 1e-2,
-            p0_disturbance: 1.0,
-        }
-    }
-}
-
-impl Ekf {
-    /// Diagonal of Q for `n` joints, ordered `[q_1..q_n, qd_1..qd_n, d_1..d_n]`.
-    pub fn process_noise_diag(&self, n: usize) -> Vec<f64> {
-        per_joint(n, &[self.q_angle, self.q_velocity, self.q_disturbance])
-    }
-    /// Diagonal of R for `n` joints, ordered `[q_1..q_n, qd_1..qd_n]`.
-    pub fn measurement_noise_diag(&self, n: usize) -> Vec<f64> {
-        per_joint(n, &[self.r_angle, self.r_velocity])
-    }
-    /// Diagonal of P0 for `n` joints, ordered `[q_1..q_n, qd_1..qd_n, d_1..d_n]`.
-    pub fn initial_covariance_diag(&self, n: usize) -> Vec<f64> {
-        per_joint(n, &[self.p0_angle, self.p0_velocity, self.p0_disturbance])
-    }
-}
-
-fn per_joint(n: usize, values: &[f64]) -> Vec<f64> {
-    values
-        .iter()
-        .flat_map(|&v| std::iter::repeat_n(v, n))
-        .collect()
-}
+/// `[ekf]`: per-component covariances of each scenario's EKF on `[q, qd, d]` (spec §8); the
+/// estimator's own settings type, so the scenario file maps onto it one to one.
+pub use crate::estimate::EkfSettings as Ekf;
 
 // ---------------------------------------------------------------------------------------------
 // [faults]

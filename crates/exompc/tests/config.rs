@@ -124,16 +124,25 @@ fn default_matches_spec_values() {
         (1, false, Innovation::Standard)
     );
     // spec §8 EKF starting point: Q = diag(1e-8, 1e-8, 1e-4, 1e-4, 1e-2, 1e-2), R, P0
+    let diag = |m: nalgebra::SMatrix<f64, 6, 6>| m.diagonal().iter().copied().collect::<Vec<_>>();
     assert_eq!(
-        s.ekf.process_noise_diag(2),
+        diag(s.ekf.process_noise::<6>()),
         vec![1e-8, 1e-8, 1e-4, 1e-4, 1e-2, 1e-2]
     );
-    assert_eq!(s.ekf.measurement_noise_diag(2), vec![1e-6, 1e-6, 1.0, 1.0]);
+    let r = s.ekf.measurement_noise::<4>();
     assert_eq!(
-        s.ekf.initial_covariance_diag(2),
+        r.diagonal().iter().copied().collect::<Vec<_>>(),
+        vec![1e-6, 1e-6, 1.0, 1.0]
+    );
+    assert_eq!(
+        diag(s.ekf.initial_covariance::<6>()),
         vec![1e-6, 1e-6, 1e-2, 1e-2, 1.0, 1.0]
     );
-    assert_eq!(s.ekf.process_noise_diag(1), vec![1e-8, 1e-4, 1e-2]);
+    let q1 = s.ekf.process_noise::<3>();
+    assert_eq!(
+        q1.diagonal().iter().copied().collect::<Vec<_>>(),
+        vec![1e-8, 1e-4, 1e-2]
+    );
     // faults and monitors
     assert!(s.faults.events.is_empty());
     assert_eq!(s.faults.saturation_n, 70.0);

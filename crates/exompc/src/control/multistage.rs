@@ -480,17 +480,7 @@ where
         .iter()
         .map(|&p| prediction_model::<D, N>(s, p))
         .collect();
-    let e = &s.ekf;
-    let ekf = EkfSettings {
-        q_angle: e.q_angle,
-        q_velocity: e.q_velocity,
-        q_disturbance: e.q_disturbance,
-        r_angle: e.r_angle,
-        r_velocity: e.r_velocity,
-        p0_angle: e.p0_angle,
-        p0_velocity: e.p0_velocity,
-        p0_disturbance: e.p0_disturbance,
-    };
+    let ekf = s.ekf;
     let est = EstimatorOptions {
         dt: s.timing.dt,
         substeps: s.timing.prediction_substeps,

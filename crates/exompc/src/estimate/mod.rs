@@ -90,7 +90,8 @@ pub enum EstimateError {
 ///
 /// Each value applies to every joint. Variances in SI units: rad², (rad/s)², (N·m)². The
 /// [`Default`] is the spec §8 starting point; see the module documentation for the reasons.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct EkfSettings {
     /// Process noise variance of each joint angle per step (rad²). Default 1e-8.
     pub q_angle: f64,
