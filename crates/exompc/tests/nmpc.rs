@@ -453,8 +453,6 @@ fn nmpc_optimum_equals_independent_clarabel_sqp() {
 
 /// Every random realistic instance converges within the scenario's 20 SQP iterations.
 #[test]
-#[ignore = "fails: the Gauss-Newton SQP stalls (MaxIterations, KKT 1.4e-5 after 20 and 3e-7 after \
-            200 iterations) on a large-residual instance (case 19 of seed 11); see report"]
 fn nmpc_converges_on_random_realistic_states() {
     let su = setup();
     let bad: Vec<String> = cases(&su, 11, 30, 30)

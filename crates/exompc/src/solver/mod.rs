@@ -14,7 +14,7 @@ pub mod qp;
 pub mod sqp;
 
 pub use qp::{DenseQp, QpInfo, QpSettings, QpStatus};
-pub use sqp::{Constraints, LeastSquares, Sqp, SqpInfo, SqpSettings, SqpStatus};
+pub use sqp::{Constraints, HessianModel, LeastSquares, Sqp, SqpInfo, SqpSettings, SqpStatus};
 
 /// Error returned when a solver is configured with invalid settings or dimensions.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

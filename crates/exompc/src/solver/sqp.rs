@@ -82,6 +82,8 @@ pub struct SqpSettings {
     pub backtracking_factor: f64,
     /// Maximum number of step-length reductions per line search. Default `30`; allowed `≥ 0`.
     pub max_line_search_steps: usize,
+    /// Hessian model of the QP subproblems. Default [`HessianModel::StructuredSecant`].
+    pub hessian: HessianModel,
     /// Wall-clock budget for one solve; when exceeded the current (best, feasible) iterate is
     /// returned with [`SqpStatus::MaxTime`]. Checked once per iteration. Default `None`.
     pub max_time: Option<Duration>,
@@ -99,6 +101,7 @@ impl Default for SqpSettings {
             armijo_constant: 1e-4,
             backtracking_factor: 0.5,
             max_line_search_steps: 30,
+            hessian: HessianModel::StructuredSecant,
             max_time: None,
             qp: QpSettings::default(),
         }
@@ -146,6 +149,19 @@ impl SqpSettings {
         )?;
         self.qp.validate()
     }
+}
+
+/// The Hessian model of the QP subproblems.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum HessianModel {
+    /// Gauss–Newton `JᵀJ`: exact for zero residuals, linear convergence otherwise.
+    GaussNewton,
+    /// `JᵀJ + S`, with `S` a structured secant (Dennis–Gay–Welsch, as in NL2SOL) estimate of the
+    /// neglected second-order term `Σ rᵢ ∇²rᵢ`, updated from `y♯ = (J₊ − J)ᵀ r₊` after each
+    /// step and sized as in NL2SOL. Superlinear on large-residual problems; when `JᵀJ + S` is
+    /// not positive definite the iteration falls back to Gauss–Newton (`S` reset). Each solve
+    /// starts from `S = 0`, so its first step is the Gauss–Newton step.
+    StructuredSecant,
 }
 
 /// Termination status of an SQP solve. Only `Converged` certifies a KKT point; every other
@@ -228,6 +244,13 @@ pub struct Sqp {
     work: DVector<f64>,
     /// Per Jacobian column: the row range `[first, last)` holding its nonzeros.
     nz: Vec<(usize, usize)>,
+    /// Structured secant correction `S` and its update buffers.
+    secant: DMatrix<f64>,
+    jac_prev: DMatrix<f64>,
+    grad_prev: DVector<f64>,
+    sec_s: DVector<f64>,
+    sec_y: DVector<f64>,
+    sec_w: DVector<f64>,
     kkt_stationarity: f64,
     kkt_violation: f64,
     kkt_complementarity: f64,
@@ -265,6 +288,12 @@ impl Sqp {
             az: DVector::zeros(p),
             work: DVector::zeros(n),
             nz: vec![(0, 0); n],
+            secant: DMatrix::zeros(n, n),
+            jac_prev: DMatrix::zeros(m, n),
+            grad_prev: DVector::zeros(n),
+            sec_s: DVector::zeros(n),
+            sec_y: DVector::zeros(n),
+            sec_w: DVector::zeros(n),
             kkt_stationarity: f64::INFINITY,
             kkt_violation: f64::INFINITY,
             kkt_complementarity: f64::INFINITY,
@@ -440,6 +469,11 @@ impl Sqp {
         info.cost = cost;
 
         let mut status = SqpStatus::MaxIterations;
+        let secant = s.hessian == HessianModel::StructuredSecant;
+        let mut secant_active = false;
+        if secant {
+            self.secant.fill(0.0);
+        }
         for it in 0..s.max_iterations {
             if it > 0 {
                 if let Some(tmax) = s.max_time {
@@ -481,7 +515,10 @@ impl Sqp {
                 self.hess[(j, j)] += delta;
             }
             self.shift_bounds(cons, z);
-            let qi = self.qp.solve(
+            if secant_active {
+                self.hess += &self.secant;
+            }
+            let mut qi = self.qp.solve(
                 &self.hess,
                 &self.grad,
                 &self.dlb,
@@ -491,6 +528,23 @@ impl Sqp {
                 &self.dbu,
                 &mut self.dz,
             );
+            if secant_active && qi.status == QpStatus::NumericalError {
+                // JᵀJ + S not positive definite: drop S, take the Gauss–Newton step.
+                self.hess -= &self.secant;
+                self.secant.fill(0.0);
+                secant_active = false;
+                info.qp_iterations += qi.iterations;
+                qi = self.qp.solve(
+                    &self.hess,
+                    &self.grad,
+                    &self.dlb,
+                    &self.dub,
+                    &cons.a,
+                    &self.dbl,
+                    &self.dbu,
+                    &mut self.dz,
+                );
+            }
             info.qp_iterations += qi.iterations;
             info.iterations = it + 1;
             match qi.status {
@@ -513,6 +567,10 @@ impl Sqp {
                 return SqpStatus::LineSearchFailed;
             }
             let slope = slope.min(0.0);
+            if secant {
+                self.jac_prev.copy_from(&self.jac);
+                self.grad_prev.copy_from(&self.grad);
+            }
             let mut alpha = 1.0;
             let mut accepted = false;
             let mut have_jac = false;
@@ -563,6 +621,9 @@ impl Sqp {
             if !c_new.is_finite() || !self.grad.iter().all(|v| v.is_finite()) {
                 return SqpStatus::NonFiniteInput;
             }
+            if secant {
+                secant_active = self.update_secant(z) || secant_active;
+            }
             // Accept the step.
             z.copy_from(&self.z_trial);
             std::mem::swap(&mut self.r, &mut self.r_trial);
@@ -580,6 +641,50 @@ impl Sqp {
             }
         }
         status
+    }
+
+    /// Dennis–Gay–Welsch update of the structured secant `S` for the step `z → z_trial`, with
+    /// `self.grad`, `self.jac`, `self.r_trial` at the new point and `grad_prev`, `jac_prev` at
+    /// the old one. Returns whether `S` was updated (skipped when `yᵀs ≤ 0`).
+    fn update_secant(&mut self, z: &DVector<f64>) -> bool {
+        // s = z₊ − z, y = g₊ − g, y♯ = g₊ − J_prevᵀ r₊ = (J₊ − J)ᵀ r₊.
+        self.sec_s.copy_from(&self.z_trial);
+        self.sec_s -= z;
+        self.sec_y.copy_from(&self.grad);
+        self.sec_y -= &self.grad_prev;
+        let ys = self.sec_y.dot(&self.sec_s);
+        let ss = self.sec_s.norm_squared();
+        if ys.is_nan() || ys <= 1e-14 * ss.max(f64::MIN_POSITIVE) || !ys.is_finite() {
+            return false;
+        }
+        // w = y♯ − S s, with NL2SOL's sizing S ← τ S, τ = min(1, |sᵀy♯| / |sᵀ S s|).
+        self.sec_w.copy_from(&self.grad);
+        self.sec_w.gemv_tr(-1.0, &self.jac_prev, &self.r_trial, 1.0);
+        let sy_sharp = self.sec_s.dot(&self.sec_w);
+        self.work.gemv(1.0, &self.secant, &self.sec_s, 0.0);
+        let sss = self.sec_s.dot(&self.work);
+        if sss.abs() > 0.0 {
+            let tau = (sy_sharp.abs() / sss.abs()).min(1.0);
+            self.secant *= tau;
+            self.work *= tau;
+        }
+        self.sec_w -= &self.work;
+        // S ← S + (w yᵀ + y wᵀ)/(yᵀs) − (wᵀs) y yᵀ/(yᵀs)².
+        let ws = self.sec_w.dot(&self.sec_s);
+        let n = self.n;
+        for j in 0..n {
+            for i in 0..n {
+                self.secant[(i, j)] +=
+                    (self.sec_w[i] * self.sec_y[j] + self.sec_y[i] * self.sec_w[j]) / ys
+                        - ws * self.sec_y[i] * self.sec_y[j] / (ys * ys);
+            }
+        }
+        if self.secant.iter().all(|v| v.is_finite()) {
+            true
+        } else {
+            self.secant.fill(0.0);
+            false
+        }
     }
 
     /// QP bounds in step space at `z` (uses `self.az = A z`).
