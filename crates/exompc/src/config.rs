@@ -630,6 +630,10 @@ pub struct Sqp {
     /// Optional wall-clock budget per solve (µs), 1..=10_000_000; absent = no time budget.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_time_us: Option<u64>,
+    /// Hessian model of the QP subproblems: `"structured_secant"` (Gauss-Newton plus a
+    /// secant estimate of the residual curvature) or `"gauss_newton"`. Default
+    /// `"structured_secant"`.
+    pub hessian: crate::solver::HessianModel,
 }
 
 impl Default for Sqp {
@@ -638,6 +642,7 @@ impl Default for Sqp {
             max_iterations: 20,
             kkt_tolerance: 1e-8,
             max_time_us: None,
+            hessian: crate::solver::HessianModel::StructuredSecant,
         }
     }
 }

@@ -231,6 +231,7 @@ pub fn nmpc_settings(s: &Scenario) -> NmpcSettings {
             max_iterations: c.sqp.max_iterations,
             kkt_tolerance: c.sqp.kkt_tolerance,
             max_time: c.sqp.max_time_us.map(Duration::from_micros),
+            hessian: c.sqp.hessian,
             ..SqpSettings::default()
         },
     }

@@ -152,7 +152,8 @@ impl SqpSettings {
 }
 
 /// The Hessian model of the QP subproblems.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum HessianModel {
     /// Gauss–Newton `JᵀJ`: exact for zero residuals, linear convergence otherwise.
     GaussNewton,
