@@ -62,9 +62,9 @@ enum Command {
     Config(ConfigArgs),
     /// Time the controllers on the default scenario.
     Bench(BenchArgs),
-    /// Plot traces written by `simulate`.
+    /// Draw the figures (PNG and SVG) of a folder written by `simulate` or `sweep`.
     Plot(PlotArgs),
-    /// Long randomised runs with fault injection, checking the safety monitors.
+    /// A long run (1 h by default) with sensor faults, checking limits, NaN and the monitors.
     Soak(SoakArgs),
 }
 
