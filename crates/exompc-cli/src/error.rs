@@ -2,8 +2,8 @@
 
 use std::fmt;
 
-/// Exit code for bad input: an invalid config value, an unknown key, a bad flag, or a
-/// subcommand that is not implemented yet (clap's own usage errors also exit 2).
+/// Exit code for bad input: an invalid config value, an unknown key or a bad flag (clap's own
+/// usage errors also exit 2).
 pub const EXIT_USAGE: u8 = 2;
 /// Exit code for a runtime failure (I/O error while writing results, solver failure, ...).
 pub const EXIT_FAILURE: u8 = 1;
@@ -15,8 +15,6 @@ pub enum CliError {
     Config(String),
     /// Invalid command-line flag or combination (exit 2).
     Usage(String),
-    /// Subcommand not implemented yet (exit 2).
-    NotImplemented(&'static str),
     /// File-system problem (exit 1).
     Io(String),
     /// Any other runtime failure (exit 1).
@@ -27,7 +25,7 @@ impl CliError {
     /// Process exit code for this error.
     pub fn exit_code(&self) -> u8 {
         match self {
-            CliError::Config(_) | CliError::Usage(_) | CliError::NotImplemented(_) => EXIT_USAGE,
+            CliError::Config(_) | CliError::Usage(_) => EXIT_USAGE,
             CliError::Io(_) | CliError::Runtime(_) => EXIT_FAILURE,
         }
     }
@@ -44,7 +42,6 @@ impl fmt::Display for CliError {
             CliError::Config(m) | CliError::Usage(m) | CliError::Io(m) | CliError::Runtime(m) => {
                 f.write_str(m)
             }
-            CliError::NotImplemented(cmd) => write!(f, "`exompc {cmd}` is not yet implemented"),
         }
     }
 }

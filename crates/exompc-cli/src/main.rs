@@ -1,7 +1,7 @@
 //! `exompc`: command-line front end of the exompc toolkit.
 //!
 //! Exit codes: 0 success, 1 runtime failure, 2 bad input (invalid config value, unknown key,
-//! bad flag, or a subcommand that is not implemented yet). Every error is one `error: ...`
+//! bad flag). Every error is one `error: ...`
 //! line on stderr.
 
 mod bench;
@@ -137,12 +137,6 @@ struct ConfigArgs {
     /// Instead of printing the default, load and validate FILE and report the first problem.
     #[arg(long, value_name = "FILE")]
     check: Option<PathBuf>,
-}
-
-/// Stub for subcommands not wired yet: reported as an error, exit 2.
-#[allow(dead_code)]
-pub(crate) fn not_implemented(cmd: &'static str) -> Result<(), CliError> {
-    Err(CliError::NotImplemented(cmd))
 }
 
 /// `exompc config`: print the default scenario, or check a file with `--check FILE`.
