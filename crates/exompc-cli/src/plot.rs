@@ -550,16 +550,27 @@ fn step_time_figure(runs: &[Run], payload: f64) -> Figure {
         .map(|r| {
             let label = match &r.summary {
                 Some(s) => format!(
-                    "p50 {:.0} µs, p99 {:.0} µs",
-                    s.step_time_us.p50, s.step_time_us.p99
+                    "p50 {:.0} µs, p99 {:.0} µs, max {:.0} µs",
+                    s.step_time_us.p50, s.step_time_us.p99, s.step_time_us.max
                 ),
                 None => String::new(),
             };
-            vec![Panel::time(
+            let panel = Panel::time(
                 format!("{} compute time per step", r.label()),
                 "time (µs)",
                 vec![Line::new(label, r.t(), r.col("step_us"), ctrl_color(&r.controller)).thin()],
-            )]
+            );
+            // Isolated pre-emption spikes (ms) would flatten the typical values: the axis stops
+            // at 4 × p99; the legend gives the maximum.
+            vec![match &r.summary {
+                Some(s)
+                    if s.step_time_us.p99 > 0.0
+                        && s.step_time_us.max > 4.0 * s.step_time_us.p99 =>
+                {
+                    panel.range(0.0, 4.0 * s.step_time_us.p99)
+                }
+                _ => panel,
+            }]
         })
         .collect();
     Figure {
