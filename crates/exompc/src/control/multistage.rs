@@ -266,6 +266,8 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     prev: SVector<f64, N>,
     prev_t_int: SVector<f64, N>,
     started: bool,
+    /// Time of the last measurement the EKF bank used.
+    last_t: f64,
 }
 
 impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
@@ -324,6 +326,7 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             prev: limits.admissible(&t0),
             prev_t_int: zero,
             started: false,
+            last_t: 0.0,
         })
     }
 
@@ -375,13 +378,19 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
             y[a] = m.q[a];
             y[N + a] = m.qd[a];
         }
-        if self.started {
-            // A failed filter keeps its state and the probabilities; the controller goes on.
-            let _ = self.bank.step(&y, &self.prev, &self.prev_t_int);
-        } else {
+        let dt = self.models[0].dt;
+        if !self.started {
             self.bank.reset_to(&m.q, &m.qd);
             self.started = true;
+        } else if m.t - self.last_t > 1.5 * dt {
+            // Periods were skipped (e.g. a supervisor rejected bad data): restart the filters'
+            // joint states at the measurement, keep d̂ and the probabilities.
+            self.bank.resume_at(&m.q, &m.qd);
+        } else {
+            // A failed filter keeps its state and the probabilities; the controller goes on.
+            let _ = self.bank.step(&y, &self.prev, &self.prev_t_int);
         }
+        self.last_t = m.t;
         let x0 = JointState { q: m.q, qd: m.qd };
         for i in 0..self.models.len() {
             self.dist[i] = self.bank.disturbance(i);

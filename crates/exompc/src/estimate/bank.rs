@@ -187,6 +187,12 @@ impl<const N: usize, const NA: usize, const NY: usize> EkfBank<N, NA, NY> {
         self.probabilities.fill(1.0 / n as f64);
     }
 
+    /// Resume every filter after a gap in the data ([`ScenarioEkf::resume_at`]); the
+    /// probabilities are kept.
+    pub fn resume_at(&mut self, q: &SVector<f64, N>, qd: &SVector<f64, N>) {
+        self.filters.iter_mut().for_each(|f| f.resume_at(q, qd));
+    }
+
     /// One period for every scenario (arguments as in [`ScenarioEkf::step`]), then the
     /// probability update of eqs. 10-11.
     ///

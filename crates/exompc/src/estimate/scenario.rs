@@ -132,6 +132,25 @@ impl<const N: usize, const NA: usize, const NY: usize> ScenarioEkf<N, NA, NY> {
         self.reset();
     }
 
+    /// Resume after a gap in the data (periods without a usable measurement): restart the
+    /// joint states from the measured `[q, qd]` with their `P0` block, keeping the disturbance
+    /// estimate and its covariance, with no update (predicting one period across a longer gap
+    /// would produce a spurious innovation).
+    pub fn resume_at(&mut self, q: &SVector<f64, N>, qd: &SVector<f64, N>) {
+        let (x_now, p_now) = (*self.ekf.state(), *self.ekf.covariance());
+        let mut x = Self::augmented(q, qd);
+        let mut p = self.p0;
+        for i in 2 * N..NA {
+            x[i] = x_now[i];
+            for j in 2 * N..NA {
+                p[(i, j)] = p_now[(i, j)];
+            }
+        }
+        self.ekf.set(x, p);
+        self.residual = SVector::zeros();
+        self.last = None;
+    }
+
     /// The scenario's robot model.
     pub fn model(&self) -> &RobotModel<N> {
         &self.model
