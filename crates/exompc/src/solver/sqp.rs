@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use nalgebra::{DMatrix, DVector};
 
-use super::qp::{DenseQp, QpSettings, QpStatus};
+use super::qp::{DenseQp, QpInfo, QpSettings, QpStatus};
 use super::{check_range, SolverError};
 
 /// A nonlinear least-squares objective `½‖r(z)‖²` with `r: ℝⁿ → ℝᵐ`.
@@ -426,16 +426,7 @@ impl Sqp {
             self.hess.fill_with_identity();
             self.grad.fill(0.0);
             self.shift_bounds(cons, z);
-            let qi = self.qp.solve(
-                &self.hess,
-                &self.grad,
-                &self.dlb,
-                &self.dub,
-                &cons.a,
-                &self.dbl,
-                &self.dbu,
-                &mut self.dz,
-            );
+            let qi = self.solve_step_qp(cons);
             info.qp_iterations += qi.iterations;
             match qi.status {
                 QpStatus::Solved => {}
@@ -519,32 +510,14 @@ impl Sqp {
             if secant_active {
                 self.hess += &self.secant;
             }
-            let mut qi = self.qp.solve(
-                &self.hess,
-                &self.grad,
-                &self.dlb,
-                &self.dub,
-                &cons.a,
-                &self.dbl,
-                &self.dbu,
-                &mut self.dz,
-            );
+            let mut qi = self.solve_step_qp(cons);
             if secant_active && qi.status == QpStatus::NumericalError {
                 // JᵀJ + S not positive definite: drop S, take the Gauss–Newton step.
                 self.hess -= &self.secant;
                 self.secant.fill(0.0);
                 secant_active = false;
                 info.qp_iterations += qi.iterations;
-                qi = self.qp.solve(
-                    &self.hess,
-                    &self.grad,
-                    &self.dlb,
-                    &self.dub,
-                    &cons.a,
-                    &self.dbl,
-                    &self.dbu,
-                    &mut self.dz,
-                );
+                qi = self.solve_step_qp(cons);
             }
             info.qp_iterations += qi.iterations;
             info.iterations = it + 1;
@@ -686,6 +659,21 @@ impl Sqp {
             self.secant.fill(0.0);
             false
         }
+    }
+
+    /// The QP in step space with the current `hess`, `grad` and shifted bounds; the step goes
+    /// into `dz`.
+    fn solve_step_qp(&mut self, cons: &Constraints) -> QpInfo {
+        self.qp.solve(
+            &self.hess,
+            &self.grad,
+            &self.dlb,
+            &self.dub,
+            &cons.a,
+            &self.dbl,
+            &self.dbu,
+            &mut self.dz,
+        )
     }
 
     /// QP bounds in step space at `z` (uses `self.az = A z`).
