@@ -1,6 +1,8 @@
 //! The multi-stage NMPC (paper §3.2, eqs. 10-13): the coupled scenario tree against the plain
 //! NMPC and the decoupled blend, limits under arbitrary measurements, and the probabilities.
 
+mod common;
+use common::measurement;
 use exompc::config::{ControllerKind, Formulation, Scenario};
 use exompc::control::{build_multistage, horizon_inputs, Controller, Measurement, NmpcCore};
 use exompc::model::JointState;
@@ -128,26 +130,6 @@ fn probabilities_sum_to_one_and_respect_the_floor_in_closed_loop() {
             );
         }
     }
-}
-
-fn value() -> impl Strategy<Value = f64> {
-    prop_oneof![
-        8 => -5.0..5.0f64,
-        2 => -1e4..1e4f64,
-        1 => Just(f64::NAN),
-        1 => Just(f64::INFINITY),
-        1 => Just(f64::NEG_INFINITY),
-        1 => any::<f64>(),
-    ]
-}
-
-fn measurement() -> impl Strategy<Value = Measurement<2>> {
-    prop::array::uniform6(value()).prop_map(|v| Measurement {
-        t: 0.0,
-        q: V2::new(v[0], v[1]),
-        qd: V2::new(v[2], v[3]),
-        force: V2::new(v[4], v[5]),
-    })
 }
 
 proptest! {

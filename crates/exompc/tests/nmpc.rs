@@ -4,6 +4,7 @@
 //! Gauss-Newton SQP whose QPs are solved by Clarabel.
 
 mod common;
+use common::measurement;
 
 use clarabel::algebra::CscMatrix;
 use clarabel::solver::{
@@ -465,26 +466,6 @@ fn nmpc_converges_on_random_realistic_states() {
         })
         .collect();
     assert!(bad.is_empty(), "not converged:\n{}", bad.join("\n"));
-}
-
-fn value() -> impl Strategy<Value = f64> {
-    prop_oneof![
-        8 => -5.0..5.0f64,
-        2 => -1e4..1e4f64,
-        1 => Just(f64::NAN),
-        1 => Just(f64::INFINITY),
-        1 => Just(f64::NEG_INFINITY),
-        1 => any::<f64>(),
-    ]
-}
-
-fn measurement() -> impl Strategy<Value = Measurement<2>> {
-    prop::array::uniform6(value()).prop_map(|v| Measurement {
-        t: 0.0,
-        q: V2::new(v[0], v[1]),
-        qd: V2::new(v[2], v[3]),
-        force: V2::new(v[4], v[5]),
-    })
 }
 
 proptest! {

@@ -21,3 +21,27 @@ impl Rng {
         lo + (hi - lo) * ((self.next_u64() >> 11) as f64 / (1u64 << 53) as f64)
     }
 }
+
+/// A value for property tests: mostly moderate, sometimes huge or non-finite.
+pub fn value() -> impl proptest::strategy::Strategy<Value = f64> {
+    use proptest::prelude::*;
+    prop_oneof![
+        8 => -5.0..5.0f64,
+        2 => -1e4..1e4f64,
+        1 => Just(f64::NAN),
+        1 => Just(f64::INFINITY),
+        1 => Just(f64::NEG_INFINITY),
+        1 => any::<f64>(),
+    ]
+}
+
+/// An arbitrary 2-DOF measurement built from [`value`]s.
+pub fn measurement() -> impl proptest::strategy::Strategy<Value = exompc::control::Measurement<2>> {
+    use proptest::prelude::*;
+    prop::array::uniform6(value()).prop_map(|v| exompc::control::Measurement {
+        t: 0.0,
+        q: nalgebra::Vector2::new(v[0], v[1]),
+        qd: nalgebra::Vector2::new(v[2], v[3]),
+        force: nalgebra::Vector2::new(v[4], v[5]),
+    })
+}
