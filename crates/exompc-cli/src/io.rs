@@ -53,6 +53,95 @@ pub fn parse_scenario(text: &str) -> Result<Scenario, String> {
     Ok(scenario)
 }
 
+/// Parses a value written on the command line (or passed from Python) as TOML: `0.43`, `5`,
+/// `true`, `[1.0, 2.0]`, `"coupled"`. A bare word that is not valid TOML counts as a string
+/// (`coupled`).
+pub fn parse_value(value: &str) -> toml::Value {
+    match toml::from_str::<toml::Table>(&format!("v = {value}")) {
+        Ok(mut t) => t
+            .remove("v")
+            .unwrap_or_else(|| toml::Value::String(value.to_string())),
+        Err(_) => toml::Value::String(value.trim().to_string()),
+    }
+}
+
+/// The scenario `s` with one key, named by its dotted path (`robot.payload_position_m`), set to
+/// `value`, validated. The key is checked against the schema exactly as a config file's keys
+/// (unknown key → closest valid name; wrong type → what was expected), then the whole scenario
+/// is validated, so the message names the field and its allowed range.
+pub fn set_key(s: &Scenario, key: &str, value: toml::Value) -> Result<Scenario, String> {
+    let parts: Vec<&str> = key.split('.').map(str::trim).collect();
+    if key.trim().is_empty() || parts.iter().any(|p| p.is_empty()) {
+        return Err(format!(
+            "invalid key `{key}` (expected a dotted path such as robot.payload_position_m)"
+        ));
+    }
+    // The user's change as a one-key TOML tree, checked like a config file.
+    let mut user = value.clone();
+    for p in parts.iter().rev() {
+        let mut t = toml::Table::new();
+        t.insert((*p).to_string(), user);
+        user = toml::Value::Table(t);
+    }
+    if let toml::Value::Table(t) = &user {
+        check_keys(t, &schema(), "")?;
+    }
+    let mut tree = match toml::Value::try_from(s) {
+        Ok(toml::Value::Table(t)) => t,
+        _ => return Err("cannot serialise the scenario".into()),
+    };
+    let (last, tables) = parts.split_last().expect("at least one part");
+    let mut node = &mut tree;
+    for p in tables {
+        let entry = node
+            .entry((*p).to_string())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        node = match entry {
+            toml::Value::Table(t) => t,
+            _ => return Err(format!("`{p}` in `{key}` is not a table")),
+        };
+    }
+    node.insert((*last).to_string(), value);
+    let scenario: Scenario = toml::Value::Table(tree)
+        .try_into()
+        .map_err(|e: toml::de::Error| format!("invalid value for {key}: {}", e.message().trim()))?;
+    scenario.validate().map_err(|e| e.to_string())?;
+    Ok(scenario)
+}
+
+/// The value of one key of `s` by its dotted path, as TOML (`None` for an unset optional key).
+pub fn get_key(s: &Scenario, key: &str) -> Result<Option<toml::Value>, String> {
+    let schema = toml::Value::Table(schema());
+    let tree =
+        toml::Value::try_from(s).map_err(|e| format!("cannot serialise the scenario: {e}"))?;
+    let (mut node, mut known) = (Some(&tree), &schema);
+    let mut prefix = String::new();
+    for p in key.split('.') {
+        let names: Vec<&str> = known
+            .as_table()
+            .map(|t| t.keys().map(String::as_str).collect())
+            .unwrap_or_default();
+        let Some(next) = known.get(p) else {
+            let hint = closest(p, &names)
+                .map(|c| format!("; did you mean `{c}`?"))
+                .unwrap_or_default();
+            let place = if prefix.is_empty() {
+                "at the top level".to_string()
+            } else {
+                format!("in table [{prefix}]")
+            };
+            return Err(format!(
+                "unknown key `{p}` {place}{hint} (valid keys: {})",
+                names.join(", ")
+            ));
+        };
+        known = next;
+        node = node.and_then(|n| n.get(p));
+        prefix = join(&prefix, p);
+    }
+    Ok(node.cloned())
+}
+
 /// A TOML tree holding every key a scenario file may contain (optional keys and one fault
 /// event filled in), used to check user files key by key.
 fn schema() -> toml::Table {

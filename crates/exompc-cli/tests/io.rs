@@ -134,3 +134,35 @@ fn ensure_out_dir_creates_and_rejects_files() {
     assert_eq!(err.exit_code(), 2);
     assert!(err.to_string().contains("plain"), "{err}");
 }
+
+#[test]
+fn set_and_get_keys_by_dotted_path() {
+    use exompc_cli::io::{get_key, parse_value, set_key};
+    let s = Scenario::default();
+    let t = set_key(&s, "robot.payload_position_m", parse_value("0.43")).unwrap();
+    assert_eq!(t.robot.payload_position_m, 0.43);
+    assert_eq!(
+        get_key(&t, "robot.payload_position_m").unwrap(),
+        Some(toml::Value::Float(0.43))
+    );
+    let t = set_key(&t, "uncertainty.filter_window", parse_value("9")).unwrap();
+    assert_eq!(t.uncertainty.filter_window, 9);
+    // An integer is accepted for a float field; a bare word is a string.
+    let t = set_key(&t, "uncertainty.payload_kg", parse_value("2")).unwrap();
+    assert_eq!(t.uncertainty.payload_kg, 2.0);
+    let t = set_key(&t, "multistage.formulation", parse_value("coupled")).unwrap();
+    assert_eq!(
+        get_key(&t, "multistage.formulation").unwrap(),
+        Some(toml::Value::String("coupled".into()))
+    );
+    // Unknown key: closest name suggested; out of range: the field and its range.
+    let e = set_key(&s, "robot.payload_positon_m", parse_value("0.4")).unwrap_err();
+    assert!(e.contains("payload_position_m"), "{e}");
+    let e = set_key(&s, "robot.payload_position_m", parse_value("-1")).unwrap_err();
+    assert!(e.contains("robot.payload_position_m"), "{e}");
+    let e = set_key(&s, "uncertainty.filter_window", parse_value("fast")).unwrap_err();
+    assert!(e.contains("uncertainty.filter_window"), "{e}");
+    let e = get_key(&s, "robot.mass").unwrap_err();
+    assert!(e.contains("unknown key `mass`"), "{e}");
+    assert!(set_key(&s, "", parse_value("1")).is_err());
+}
