@@ -7,6 +7,7 @@
 mod bench;
 mod model_cmd;
 mod plot;
+mod realtime;
 mod simulate;
 mod soak;
 mod solve;
@@ -66,6 +67,10 @@ enum Command {
     Plot(PlotArgs),
     /// A long run (1 h by default) with sensor faults, checking limits, NaN and the monitors.
     Soak(SoakArgs),
+    /// Drive a robot in real time over UDP (the controller process; see docs/REALTIME.md).
+    Run(realtime::RunArgs),
+    /// Simulate the robot of `simulate` in real time behind the UDP protocol, to test `run`.
+    VirtualRobot(realtime::VirtualRobotArgs),
 }
 
 /// `--config FILE`, shared by the subcommands that run a scenario.
@@ -111,6 +116,8 @@ fn run(cli: Cli) -> Result<(), CliError> {
         Command::Model(a) => model_cmd::run(a),
         Command::Solve(a) => solve::run(a),
         Command::Plot(a) => plot::run(a),
+        Command::Run(a) => realtime::run(a),
+        Command::VirtualRobot(a) => realtime::virtual_robot(a),
     }
 }
 

@@ -8,5 +8,6 @@ pub mod config;
 pub mod control;
 pub mod estimate;
 pub mod model;
+pub mod runtime;
 pub mod sim;
 pub mod solver;

@@ -1,0 +1,506 @@
+//! The versioned little-endian binary frame of the robot link (see `docs/REALTIME.md` for the
+//! byte-offset table).
+//!
+//! Every frame is a 24-byte header, a payload whose length is fixed by the frame kind and the
+//! joint count, and a CRC-32 (IEEE, as computed by `crc32fast`) of everything before it:
+//!
+//! | offset | size | field |
+//! |---|---|---|
+//! | 0 | 4 | magic `EXMP` |
+//! | 4 | 1 | version (1) |
+//! | 5 | 1 | kind: 1 sample (robot → controller), 2 command (controller → robot) |
+//! | 6 | 1 | joint count N |
+//! | 7 | 1 | reserved, 0 |
+//! | 8 | 4 | sequence number (u32, the sender's own counter) |
+//! | 12 | 8 | timestamp (u64, ns of the sender's run clock) |
+//! | 20 | 2 | payload length (u16) |
+//! | 22 | 2 | reserved, 0 |
+//! | 24 | L | payload |
+//! | 24 + L | 4 | CRC-32 of bytes 0 .. 24 + L |
+//!
+//! Decoding never panics: every way a byte string can fail is a [`FrameError`] variant, so the
+//! receiver can count it ([`RejectCounts`]).
+
+use nalgebra::SVector;
+use serde::Serialize;
+
+/// The four magic bytes that start every frame.
+pub const MAGIC: [u8; 4] = *b"EXMP";
+/// The protocol version this build speaks.
+pub const VERSION: u8 = 1;
+/// Header length (bytes).
+pub const HEADER_LEN: usize = 24;
+/// CRC trailer length (bytes).
+pub const CRC_LEN: usize = 4;
+/// Largest joint count a frame may carry.
+pub const MAX_JOINTS: usize = 16;
+
+const KIND_SAMPLE: u8 = 1;
+const KIND_COMMAND: u8 = 2;
+
+/// Robot status flags carried by a [`RobotSample`].
+pub mod robot_flags {
+    /// The robot's command watchdog fired: the torque is zero until valid commands return.
+    pub const WATCHDOG: u32 = 1;
+    /// The robot ended the run (duration reached, stop received or robot shut down).
+    pub const END_OF_RUN: u32 = 2;
+    /// A sensor of the robot reports a fault (values may be non-finite).
+    pub const SENSOR_FAULT: u32 = 4;
+}
+
+/// Controller flags carried by a [`RobotCommand`].
+pub mod command_flags {
+    /// The controller is (re)connecting; the torque field is not to be applied.
+    pub const HELLO: u16 = 1;
+    /// The controller stopped: apply zero torque and end the run.
+    pub const STOP: u16 = 2;
+    /// The controller is ramping the torque to zero before a stop.
+    pub const RAMP_DOWN: u16 = 4;
+}
+
+/// One state sample, robot → controller (the `read()` side of the interface).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RobotSample<const N: usize> {
+    /// Robot sequence number (one per period).
+    pub seq: u32,
+    /// Robot time of the sample (ns since the robot's run start).
+    pub stamp_ns: u64,
+    /// Robot status flags ([`robot_flags`]).
+    pub flags: u32,
+    /// Joint angles (rad).
+    pub q: SVector<f64, N>,
+    /// Joint velocities (rad/s), unfiltered.
+    pub qd: SVector<f64, N>,
+    /// Strap forces (N), unfiltered, thigh then shank (1-DOF: shank only).
+    pub force: SVector<f64, N>,
+    /// Joint torque applied over the period that ended at this sample (N·m).
+    pub effort: SVector<f64, N>,
+}
+
+/// One torque command, controller → robot (the `write()` side of the interface).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RobotCommand<const N: usize> {
+    /// Controller sequence number (one per command sent).
+    pub seq: u32,
+    /// Controller time of sending (ns since the controller's run start).
+    pub stamp_ns: u64,
+    /// The sample sequence number this command answers.
+    pub answers: u32,
+    /// Controller flags ([`command_flags`]).
+    pub flags: u16,
+    /// Controller step status code ([`status_code`]).
+    pub status: u8,
+    /// SQP iterations of the step.
+    pub iterations: u32,
+    /// Controller compute time of the step (ns).
+    pub compute_ns: u32,
+    /// Joint torques (N·m), always finite.
+    pub torque: SVector<f64, N>,
+}
+
+/// A decoded frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Frame<const N: usize> {
+    /// Robot → controller.
+    Sample(RobotSample<N>),
+    /// Controller → robot.
+    Command(RobotCommand<N>),
+}
+
+/// Why a byte string is not a valid frame (or not a frame to use).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum FrameError {
+    /// Shorter than the header and CRC, or shorter than its header announces.
+    #[error("truncated frame ({len} bytes)")]
+    Truncated {
+        /// Bytes received.
+        len: usize,
+    },
+    /// Does not start with `EXMP`.
+    #[error("bad magic")]
+    BadMagic,
+    /// A protocol version this build does not speak.
+    #[error("protocol version {0}, expected {VERSION}")]
+    WrongVersion(u8),
+    /// Unknown frame kind.
+    #[error("unknown frame kind {0}")]
+    UnknownKind(u8),
+    /// A joint count other than the receiver's.
+    #[error("frame for {got} joints, expected {expected}")]
+    WrongJoints {
+        /// Joint count in the frame.
+        got: u8,
+        /// Joint count of the receiver.
+        expected: usize,
+    },
+    /// Payload length field or total length inconsistent with the kind and joint count, or a
+    /// reserved byte not zero.
+    #[error("malformed frame (length or reserved fields)")]
+    Malformed,
+    /// CRC-32 mismatch.
+    #[error("CRC mismatch")]
+    BadCrc,
+    /// A command whose torque is not finite (never applied).
+    #[error("non-finite torque in command")]
+    NonFinite,
+    /// A frame of the wrong direction (a sample sent to the robot, a command to the controller).
+    #[error("frame of the wrong direction")]
+    WrongDirection,
+    /// Same sequence number as the last accepted frame.
+    #[error("duplicate frame")]
+    Duplicate,
+    /// Older sequence number than the last accepted frame.
+    #[error("out-of-order frame")]
+    OutOfOrder,
+    /// Valid but too old to use (a command answering an earlier sample than the current one).
+    #[error("stale frame")]
+    Stale,
+}
+
+/// Counters of rejected frames, one per [`FrameError`] reason.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct RejectCounts {
+    /// [`FrameError::Truncated`].
+    pub truncated: u64,
+    /// [`FrameError::BadMagic`].
+    pub bad_magic: u64,
+    /// [`FrameError::WrongVersion`].
+    pub wrong_version: u64,
+    /// [`FrameError::UnknownKind`].
+    pub unknown_kind: u64,
+    /// [`FrameError::WrongJoints`].
+    pub wrong_joints: u64,
+    /// [`FrameError::Malformed`].
+    pub malformed: u64,
+    /// [`FrameError::BadCrc`].
+    pub bad_crc: u64,
+    /// [`FrameError::NonFinite`].
+    pub non_finite: u64,
+    /// [`FrameError::WrongDirection`].
+    pub wrong_direction: u64,
+    /// [`FrameError::Duplicate`].
+    pub duplicate: u64,
+    /// [`FrameError::OutOfOrder`].
+    pub out_of_order: u64,
+    /// [`FrameError::Stale`].
+    pub stale: u64,
+}
+
+impl RejectCounts {
+    /// Count one rejection.
+    pub fn count(&mut self, e: FrameError) {
+        let c = match e {
+            FrameError::Truncated { .. } => &mut self.truncated,
+            FrameError::BadMagic => &mut self.bad_magic,
+            FrameError::WrongVersion(_) => &mut self.wrong_version,
+            FrameError::UnknownKind(_) => &mut self.unknown_kind,
+            FrameError::WrongJoints { .. } => &mut self.wrong_joints,
+            FrameError::Malformed => &mut self.malformed,
+            FrameError::BadCrc => &mut self.bad_crc,
+            FrameError::NonFinite => &mut self.non_finite,
+            FrameError::WrongDirection => &mut self.wrong_direction,
+            FrameError::Duplicate => &mut self.duplicate,
+            FrameError::OutOfOrder => &mut self.out_of_order,
+            FrameError::Stale => &mut self.stale,
+        };
+        *c += 1;
+    }
+
+    /// All rejections.
+    pub fn total(&self) -> u64 {
+        self.truncated
+            + self.bad_magic
+            + self.wrong_version
+            + self.unknown_kind
+            + self.wrong_joints
+            + self.malformed
+            + self.bad_crc
+            + self.non_finite
+            + self.wrong_direction
+            + self.duplicate
+            + self.out_of_order
+            + self.stale
+    }
+}
+
+/// Payload length of a sample with `n` joints (bytes): flags, reserved, then q, qd, F, effort.
+pub const fn sample_payload_len(n: usize) -> usize {
+    8 + 32 * n
+}
+
+/// Payload length of a command with `n` joints (bytes): answers, flags, status, reserved,
+/// iterations, compute time, then the torques.
+pub const fn command_payload_len(n: usize) -> usize {
+    16 + 8 * n
+}
+
+/// Total encoded length of a sample with `n` joints (bytes).
+pub const fn sample_len(n: usize) -> usize {
+    HEADER_LEN + sample_payload_len(n) + CRC_LEN
+}
+
+/// Total encoded length of a command with `n` joints (bytes).
+pub const fn command_len(n: usize) -> usize {
+    HEADER_LEN + command_payload_len(n) + CRC_LEN
+}
+
+/// Longest frame for `n` joints (bytes): a buffer this long holds any frame.
+pub const fn max_frame_len(n: usize) -> usize {
+    let (s, c) = (sample_len(n), command_len(n));
+    if s > c {
+        s
+    } else {
+        c
+    }
+}
+
+fn header(out: &mut Vec<u8>, kind: u8, n: usize, seq: u32, stamp_ns: u64, payload: usize) {
+    out.extend_from_slice(&MAGIC);
+    out.push(VERSION);
+    out.push(kind);
+    out.push(n as u8);
+    out.push(0);
+    out.extend_from_slice(&seq.to_le_bytes());
+    out.extend_from_slice(&stamp_ns.to_le_bytes());
+    out.extend_from_slice(&(payload as u16).to_le_bytes());
+    out.extend_from_slice(&[0, 0]);
+}
+
+fn finish(out: &mut Vec<u8>, start: usize) {
+    let crc = crc32fast::hash(&out[start..]);
+    out.extend_from_slice(&crc.to_le_bytes());
+}
+
+fn put<const N: usize>(out: &mut Vec<u8>, v: &SVector<f64, N>) {
+    for x in v.iter() {
+        out.extend_from_slice(&x.to_le_bytes());
+    }
+}
+
+/// Append the encoding of `s` to `out` (no allocation once `out` has room for
+/// [`sample_len`]`(N)` more bytes).
+pub fn encode_sample<const N: usize>(s: &RobotSample<N>, out: &mut Vec<u8>) {
+    let start = out.len();
+    header(
+        out,
+        KIND_SAMPLE,
+        N,
+        s.seq,
+        s.stamp_ns,
+        sample_payload_len(N),
+    );
+    out.extend_from_slice(&s.flags.to_le_bytes());
+    out.extend_from_slice(&0u32.to_le_bytes());
+    put(out, &s.q);
+    put(out, &s.qd);
+    put(out, &s.force);
+    put(out, &s.effort);
+    finish(out, start);
+}
+
+/// Append the encoding of `c` to `out` (no allocation once `out` has room for
+/// [`command_len`]`(N)` more bytes).
+pub fn encode_command<const N: usize>(c: &RobotCommand<N>, out: &mut Vec<u8>) {
+    let start = out.len();
+    header(
+        out,
+        KIND_COMMAND,
+        N,
+        c.seq,
+        c.stamp_ns,
+        command_payload_len(N),
+    );
+    out.extend_from_slice(&c.answers.to_le_bytes());
+    out.extend_from_slice(&c.flags.to_le_bytes());
+    out.push(c.status);
+    out.push(0);
+    out.extend_from_slice(&c.iterations.to_le_bytes());
+    out.extend_from_slice(&c.compute_ns.to_le_bytes());
+    put(out, &c.torque);
+    finish(out, start);
+}
+
+/// A bounds-checked little-endian reader (never panics: every read is checked before).
+struct Rd<'a> {
+    b: &'a [u8],
+    at: usize,
+}
+
+impl Rd<'_> {
+    fn bytes<const K: usize>(&mut self) -> [u8; K] {
+        let mut a = [0u8; K];
+        if let Some(s) = self.b.get(self.at..self.at + K) {
+            a.copy_from_slice(s);
+        }
+        self.at += K;
+        a
+    }
+    fn u8(&mut self) -> u8 {
+        self.bytes::<1>()[0]
+    }
+    fn u16(&mut self) -> u16 {
+        u16::from_le_bytes(self.bytes())
+    }
+    fn u32(&mut self) -> u32 {
+        u32::from_le_bytes(self.bytes())
+    }
+    fn u64(&mut self) -> u64 {
+        u64::from_le_bytes(self.bytes())
+    }
+    fn vec<const N: usize>(&mut self) -> SVector<f64, N> {
+        SVector::from_fn(|_, _| f64::from_le_bytes(self.bytes()))
+    }
+}
+
+/// Decode one frame for a receiver with `N` joints. Checks, in order: length of header and
+/// CRC, magic, version, kind, joint count, payload length and total length, reserved bytes,
+/// CRC, and (commands) finite torques. Never panics on any input.
+pub fn decode<const N: usize>(bytes: &[u8]) -> Result<Frame<N>, FrameError> {
+    let len = bytes.len();
+    if len < HEADER_LEN + CRC_LEN {
+        return Err(FrameError::Truncated { len });
+    }
+    let mut r = Rd { b: bytes, at: 0 };
+    if r.bytes::<4>() != MAGIC {
+        return Err(FrameError::BadMagic);
+    }
+    let version = r.u8();
+    if version != VERSION {
+        return Err(FrameError::WrongVersion(version));
+    }
+    let kind = r.u8();
+    let expected_payload = match kind {
+        KIND_SAMPLE => sample_payload_len(N),
+        KIND_COMMAND => command_payload_len(N),
+        k => return Err(FrameError::UnknownKind(k)),
+    };
+    let joints = r.u8();
+    if usize::from(joints) != N {
+        return Err(FrameError::WrongJoints {
+            got: joints,
+            expected: N,
+        });
+    }
+    let reserved1 = r.u8();
+    let seq = r.u32();
+    let stamp_ns = r.u64();
+    let payload = usize::from(r.u16());
+    let reserved2 = r.u16();
+    if payload != expected_payload {
+        return Err(FrameError::Malformed);
+    }
+    let total = HEADER_LEN + payload + CRC_LEN;
+    if len < total {
+        return Err(FrameError::Truncated { len });
+    }
+    if len > total || reserved1 != 0 || reserved2 != 0 {
+        return Err(FrameError::Malformed);
+    }
+    let body = HEADER_LEN + payload;
+    let crc = u32::from_le_bytes([
+        bytes[body],
+        bytes[body + 1],
+        bytes[body + 2],
+        bytes[body + 3],
+    ]);
+    if crc32fast::hash(&bytes[..body]) != crc {
+        return Err(FrameError::BadCrc);
+    }
+    if kind == KIND_SAMPLE {
+        let flags = r.u32();
+        let _reserved = r.u32();
+        let q = r.vec();
+        let qd = r.vec();
+        let force = r.vec();
+        let effort = r.vec();
+        Ok(Frame::Sample(RobotSample {
+            seq,
+            stamp_ns,
+            flags,
+            q,
+            qd,
+            force,
+            effort,
+        }))
+    } else {
+        let answers = r.u32();
+        let flags = r.u16();
+        let status = r.u8();
+        let _reserved = r.u8();
+        let iterations = r.u32();
+        let compute_ns = r.u32();
+        let torque: SVector<f64, N> = r.vec();
+        if !torque.iter().all(|v| v.is_finite()) {
+            return Err(FrameError::NonFinite);
+        }
+        Ok(Frame::Command(RobotCommand {
+            seq,
+            stamp_ns,
+            answers,
+            flags,
+            status,
+            iterations,
+            compute_ns,
+            torque,
+        }))
+    }
+}
+
+/// Sequence-number bookkeeping of one direction: rejects duplicates and frames older than the
+/// last accepted one (wrap-around safe: "newer" means ahead by less than 2³¹), counts gaps.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SeqTracker {
+    last: Option<u32>,
+    /// Sequence numbers skipped between accepted frames (frames lost or still in flight).
+    pub gaps: u64,
+}
+
+impl SeqTracker {
+    /// The last accepted sequence number.
+    pub fn last(&self) -> Option<u32> {
+        self.last
+    }
+
+    /// Accept `seq` if it is newer than the last accepted one.
+    pub fn accept(&mut self, seq: u32) -> Result<(), FrameError> {
+        if let Some(last) = self.last {
+            let ahead = seq.wrapping_sub(last) as i32;
+            if ahead == 0 {
+                return Err(FrameError::Duplicate);
+            }
+            if ahead < 0 {
+                return Err(FrameError::OutOfOrder);
+            }
+            self.gaps += u64::from(ahead as u32 - 1);
+        }
+        self.last = Some(seq);
+        Ok(())
+    }
+}
+
+/// Wire code of a controller [`StepStatus`](crate::control::StepStatus).
+pub fn status_code(s: crate::control::StepStatus) -> u8 {
+    use crate::control::StepStatus as S;
+    match s {
+        S::Ok => 0,
+        S::MaxIterations => 1,
+        S::MaxTime => 2,
+        S::SolverFailed => 3,
+        S::BadMeasurement => 4,
+        S::MonitorTripped => 5,
+    }
+}
+
+/// The [`StepStatus`](crate::control::StepStatus) of a wire code (`None` for an unknown code).
+pub fn status_from_code(c: u8) -> Option<crate::control::StepStatus> {
+    use crate::control::StepStatus as S;
+    Some(match c {
+        0 => S::Ok,
+        1 => S::MaxIterations,
+        2 => S::MaxTime,
+        3 => S::SolverFailed,
+        4 => S::BadMeasurement,
+        5 => S::MonitorTripped,
+        _ => return None,
+    })
+}

@@ -1,0 +1,386 @@
+//! The controller side of the real-time loop, one period per call, on absolute deadlines.
+
+use super::frame::{command_flags, robot_flags, status_code, RobotCommand, RobotSample};
+use super::timing::{Clock, Schedule, TimingStats};
+use super::RobotInterface;
+use crate::control::{ControlOutput, Controller, Measurement, StepStatus, TorqueLimits};
+use crate::sim::MovingAverage;
+use nalgebra::SVector;
+use serde::Serialize;
+use std::time::Duration;
+
+/// Timing and filtering of a [`ControlLoop`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LoopSettings {
+    /// Control period (the scenario's `timing.dt`).
+    pub dt: Duration,
+    /// The loop wakes this long before a sample is expected (phase of the deadlines against
+    /// the robot's sending instants).
+    pub lead: Duration,
+    /// Wait for a sample at most this long after the wake-up; `None` after it is a missing
+    /// sample (the supervisor holds the torque and its sensor-timeout monitor counts).
+    pub sample_timeout: Duration,
+    /// Moving-average window of velocities and forces (the scenario's
+    /// `uncertainty.filter_window`, spec §5).
+    pub filter_window: usize,
+    /// Torque limits, checked on every command independently of the controller.
+    pub limits: TorqueLimits,
+    /// Fraction of the measured phase error corrected per period (follows a robot clock that
+    /// drifts against ours); 0 keeps the schedule fixed.
+    pub phase_gain: f64,
+}
+
+impl LoopSettings {
+    /// Defaults for period `dt`: lead `dt/5`, sample timeout `dt/2`, phase gain 0.05.
+    pub fn new(dt: Duration, filter_window: usize, limits: TorqueLimits) -> Self {
+        LoopSettings {
+            dt,
+            lead: dt / 5,
+            sample_timeout: dt / 2,
+            filter_window,
+            limits,
+            phase_gain: 0.05,
+        }
+    }
+}
+
+/// Counters of a [`ControlLoop`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct LoopStats {
+    /// Periods run.
+    pub periods: u64,
+    /// Periods with a fresh sample.
+    pub samples: u64,
+    /// Periods without a sample within the timeout (torque held by the supervisor).
+    pub missing_samples: u64,
+    /// Samples that arrived after their expected instant by more than a quarter period.
+    pub late_samples: u64,
+    /// Samples whose applied torque differed from the last command (a command lost or a
+    /// robot watchdog): the controller resumed from the applied torque.
+    pub effort_resyncs: u64,
+    /// Samples flagged by the robot's watchdog.
+    pub robot_watchdog_samples: u64,
+    /// Samples flagged with a sensor fault.
+    pub sensor_fault_samples: u64,
+    /// Commands written.
+    pub commands: u64,
+    /// Commands that violated a torque limit (must stay 0).
+    pub limit_violations: u64,
+    /// Steps whose solve did not converge.
+    pub solver_failures: u64,
+    /// Steps with a rejected (non-finite or implausible) measurement, missing samples
+    /// included.
+    pub bad_measurements: u64,
+    /// Steps on which a safety monitor set the torque.
+    pub monitor_steps: u64,
+}
+
+/// Everything about one period, for logging.
+#[derive(Clone, Copy, Debug)]
+pub struct PeriodRecord<const N: usize> {
+    /// Period index.
+    pub k: u64,
+    /// Wake-up time minus the deadline (µs).
+    pub wake_error_us: f64,
+    /// The sample used (`None`: none arrived in time).
+    pub sample: Option<RobotSample<N>>,
+    /// The filtered measurement given to the controller (NaN without a sample).
+    pub measurement: Measurement<N>,
+    /// The controller output (torque sent when a sample was answered).
+    pub output: ControlOutput<N>,
+    /// The previous torque `T_R(k−1)`.
+    pub torque_prev: SVector<f64, N>,
+    /// Controller step time (µs).
+    pub compute_us: f64,
+    /// Whether a command was written.
+    pub sent: bool,
+    /// Whether the output met both limits relative to the previous torque.
+    pub within_limits: bool,
+    /// The robot flagged the end of its run.
+    pub robot_ended: bool,
+}
+
+/// The controller process's loop: see the [module documentation](super).
+pub struct ControlLoop<const N: usize, C> {
+    ctrl: C,
+    s: LoopSettings,
+    vel: MovingAverage<N>,
+    force: MovingAverage<N>,
+    schedule: Option<Schedule>,
+    pending: Option<RobotSample<N>>,
+    k: u64,
+    cmd_seq: u32,
+    last_t: f64,
+    started: bool,
+    stopping: bool,
+    stats: LoopStats,
+    timing: TimingStats,
+}
+
+impl<const N: usize, C: Controller<N>> ControlLoop<N, C> {
+    /// A loop around `ctrl` (normally a [`Supervisor`](crate::control::Supervisor));
+    /// `capacity` periods of timing samples are preallocated.
+    pub fn new(ctrl: C, settings: LoopSettings, capacity: usize) -> Self {
+        ControlLoop {
+            ctrl,
+            vel: MovingAverage::new(settings.filter_window),
+            force: MovingAverage::new(settings.filter_window),
+            s: settings,
+            schedule: None,
+            pending: None,
+            k: 0,
+            cmd_seq: 0,
+            last_t: 0.0,
+            started: false,
+            stopping: false,
+            stats: LoopStats::default(),
+            timing: TimingStats::with_capacity(capacity),
+        }
+    }
+
+    /// The controller.
+    pub fn controller(&self) -> &C {
+        &self.ctrl
+    }
+
+    /// Counters so far.
+    pub fn stats(&self) -> &LoopStats {
+        &self.stats
+    }
+
+    /// Timing so far.
+    pub fn timing(&self) -> &TimingStats {
+        &self.timing
+    }
+
+    /// The schedule, once connected.
+    pub fn schedule(&self) -> Option<Schedule> {
+        self.schedule
+    }
+
+    /// True once [`ControlLoop::request_stop`] was called.
+    pub fn is_stopping(&self) -> bool {
+        self.stopping
+    }
+
+    /// True when stopping and the torque has reached zero.
+    pub fn ramp_done(&self) -> bool {
+        self.stopping && self.ctrl.previous_torque().iter().all(|v| *v == 0.0)
+    }
+
+    /// From now on the torque ramps to zero at the rate limit (the controller is no longer
+    /// stepped); see [`ControlLoop::ramp_done`] and [`ControlLoop::send_stop`].
+    pub fn request_stop(&mut self) {
+        self.stopping = true;
+    }
+
+    fn command(
+        &mut self,
+        clock: &dyn Clock,
+        answers: u32,
+        flags: u16,
+        out: &ControlOutput<N>,
+        compute_us: f64,
+    ) -> RobotCommand<N> {
+        self.cmd_seq = self.cmd_seq.wrapping_add(1);
+        RobotCommand {
+            seq: self.cmd_seq,
+            stamp_ns: clock.now().as_nanos() as u64,
+            answers,
+            flags,
+            status: status_code(out.status),
+            iterations: out.iterations,
+            compute_ns: (compute_us * 1e3).clamp(0.0, u32::MAX as f64) as u32,
+            torque: out.torque,
+        }
+    }
+
+    /// Announce the controller (HELLO, every `retry`) until the first sample arrives or
+    /// `timeout` passes; on success the deadlines start `lead` before that sample's arrival
+    /// and the sample is used by the first [`ControlLoop::period`]. Returns whether a sample
+    /// arrived.
+    pub fn connect<R: RobotInterface<N>, K: Clock>(
+        &mut self,
+        robot: &mut R,
+        clock: &mut K,
+        timeout: Duration,
+        retry: Duration,
+    ) -> std::io::Result<bool> {
+        let end = clock.now() + timeout;
+        while clock.now() < end {
+            let hello = ControlOutput {
+                torque: SVector::zeros(),
+                status: StepStatus::Ok,
+                iterations: 0,
+            };
+            let cmd = self.command(clock, 0, command_flags::HELLO, &hello, 0.0);
+            robot.write(&cmd)?;
+            self.stats.commands += 1;
+            if let Some(s) = robot.read(retry.min(end.saturating_sub(clock.now())))? {
+                let arrival = clock.now();
+                self.schedule = Some(Schedule {
+                    start: arrival.saturating_sub(self.s.lead),
+                    dt: self.s.dt,
+                });
+                self.pending = Some(s);
+                return Ok(true);
+            }
+        }
+        Ok(false)
+    }
+
+    /// Run one period: sleep to the deadline `T_k`, read the newest sample (waiting up to the
+    /// sample timeout), filter, step the controller (or ramp down when stopping), write the
+    /// command answering the sample, record timing. Call [`ControlLoop::connect`] first.
+    pub fn period<R: RobotInterface<N>, K: Clock>(
+        &mut self,
+        robot: &mut R,
+        clock: &mut K,
+    ) -> std::io::Result<PeriodRecord<N>> {
+        let mut sched = self.schedule.unwrap_or(Schedule {
+            start: clock.now(),
+            dt: self.s.dt,
+        });
+        let k = self.k;
+        let deadline = sched.deadline(k);
+        clock.sleep_until(deadline);
+        let woke = clock.now();
+        let wake_error_us = (woke.as_secs_f64() - deadline.as_secs_f64()) * 1e6;
+        let sample = match self.pending.take() {
+            Some(s) => Some(s),
+            None => {
+                let until = deadline + self.s.sample_timeout;
+                robot.read(until.saturating_sub(woke))?
+            }
+        };
+        let arrival = clock.now();
+        let dt_s = self.s.dt.as_secs_f64();
+        let mut robot_ended = false;
+        let meas = match &sample {
+            Some(s) => {
+                self.stats.samples += 1;
+                let expected = deadline + self.s.lead;
+                let err_ns = arrival.as_nanos() as i64 - expected.as_nanos() as i64;
+                if k > 0 {
+                    if err_ns > self.s.dt.as_nanos() as i64 / 4 {
+                        self.stats.late_samples += 1;
+                    }
+                    // Follow the robot's clock: when the sample arrived while we waited, its
+                    // arrival is the phase; when it was already queued, we are late.
+                    let waited = arrival.saturating_sub(woke) > Duration::from_micros(20);
+                    let e = if waited {
+                        err_ns as f64
+                    } else {
+                        -(self.s.lead.as_nanos() as f64)
+                    };
+                    let cap = self.s.dt.as_nanos() as f64 / 200.0;
+                    sched.shift((self.s.phase_gain * e).clamp(-cap, cap) as i64);
+                }
+                if s.flags & robot_flags::WATCHDOG != 0 {
+                    self.stats.robot_watchdog_samples += 1;
+                }
+                if s.flags & robot_flags::SENSOR_FAULT != 0 {
+                    self.stats.sensor_fault_samples += 1;
+                }
+                robot_ended = s.flags & robot_flags::END_OF_RUN != 0;
+                // Resume from the torque the robot applied (a lost command, a watchdog).
+                let applied = self.s.limits.admissible(&s.effort);
+                if self.started && applied != self.ctrl.previous_torque() {
+                    self.ctrl.set_previous_torque(applied);
+                    self.stats.effort_resyncs += 1;
+                }
+                self.started = true;
+                let t = s.stamp_ns as f64 * 1e-9;
+                self.last_t = t;
+                Measurement {
+                    t,
+                    q: s.q,
+                    qd: self.vel.push(s.qd),
+                    force: self.force.push(s.force),
+                }
+            }
+            None => {
+                self.stats.missing_samples += 1;
+                self.last_t += dt_s;
+                Measurement {
+                    t: self.last_t,
+                    q: SVector::from_element(f64::NAN),
+                    qd: SVector::from_element(f64::NAN),
+                    force: SVector::from_element(f64::NAN),
+                }
+            }
+        };
+        self.schedule = Some(sched);
+        let prev = self.ctrl.previous_torque();
+        let t0 = clock.now();
+        let output = if self.stopping {
+            let torque = self.s.limits.clamp(&prev, &SVector::zeros());
+            self.ctrl.set_previous_torque(torque);
+            ControlOutput {
+                torque,
+                status: StepStatus::Ok,
+                iterations: 0,
+            }
+        } else {
+            self.ctrl.step(&meas)
+        };
+        let compute_us = (clock.now().as_secs_f64() - t0.as_secs_f64()) * 1e6;
+        let within_limits = self.s.limits.admits(&prev, &output.torque);
+        self.stats.limit_violations += u64::from(!within_limits);
+        self.stats.solver_failures += u64::from(output.status.is_solver_failure());
+        self.stats.bad_measurements += u64::from(output.status == StepStatus::BadMeasurement);
+        self.stats.monitor_steps += u64::from(output.status == StepStatus::MonitorTripped);
+        let mut sent = false;
+        if let Some(s) = &sample {
+            let flags = if self.stopping {
+                command_flags::RAMP_DOWN
+            } else {
+                0
+            };
+            let cmd = self.command(clock, s.seq, flags, &output, compute_us);
+            robot.write(&cmd)?;
+            self.stats.commands += 1;
+            sent = true;
+        }
+        let done = clock.now();
+        let busy_us = (done.as_secs_f64() - arrival.as_secs_f64()) * 1e6;
+        self.timing
+            .record(wake_error_us, busy_us, done > sched.deadline(k + 1));
+        self.stats.periods += 1;
+        self.k += 1;
+        Ok(PeriodRecord {
+            k,
+            wake_error_us,
+            sample,
+            measurement: meas,
+            output,
+            torque_prev: prev,
+            compute_us,
+            sent,
+            within_limits,
+            robot_ended,
+        })
+    }
+
+    /// Tell the robot the controller stopped (zero torque, STOP flag), `repeat` times against
+    /// loss.
+    pub fn send_stop<R: RobotInterface<N>, K: Clock>(
+        &mut self,
+        robot: &mut R,
+        clock: &K,
+        repeat: usize,
+    ) -> std::io::Result<()> {
+        let zero = ControlOutput {
+            torque: SVector::zeros(),
+            status: StepStatus::Ok,
+            iterations: 0,
+        };
+        let answers = self.pending.map_or(0, |s| s.seq);
+        for _ in 0..repeat {
+            let cmd = self.command(clock, answers, command_flags::STOP, &zero, 0.0);
+            robot.write(&cmd)?;
+            self.stats.commands += 1;
+        }
+        Ok(())
+    }
+}
