@@ -28,7 +28,13 @@ pub struct RobotStats {
     pub limit_violations: u64,
     /// Commands whose torque exceeded `±T_max` and were saturated.
     pub saturated: u64,
+    /// Watchdog intervals not logged because the event log was full (counted in
+    /// `watchdog_trips`).
+    pub events_dropped: u64,
 }
+
+/// Capacity of the watchdog event log.
+const MAX_EVENTS: usize = 4096;
 
 /// A watchdog interval (robot time, s).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -87,6 +93,7 @@ pub struct VirtualRobot<const N: usize, Tr: Trajectory<N>> {
     applied: SVector<f64, N>,
     any_applied: bool,
     watchdog: bool,
+    event_open: bool,
     stop: bool,
     ended: bool,
     end_samples: u32,
@@ -120,12 +127,13 @@ impl<const N: usize, Tr: Trajectory<N>> VirtualRobot<N, Tr> {
             applied: SVector::zeros(),
             any_applied: false,
             watchdog: false,
+            event_open: false,
             stop: false,
             ended: false,
             end_samples: 0,
             sampled: None,
             stats: RobotStats::default(),
-            events: Vec::with_capacity(64),
+            events: Vec::with_capacity(MAX_EVENTS),
         }
     }
 
@@ -241,9 +249,12 @@ impl<const N: usize, Tr: Trajectory<N>> VirtualRobot<N, Tr> {
         let torque = if let Some(c) = command {
             if self.watchdog {
                 self.watchdog = false;
-                if let Some(e) = self.events.last_mut() {
-                    e.resumed_at = Some(t);
+                if self.event_open {
+                    if let Some(e) = self.events.last_mut() {
+                        e.resumed_at = Some(t);
+                    }
                 }
+                self.event_open = false;
             }
             self.last_valid_k = Some(self.k);
             self.held = Some(c);
@@ -275,12 +286,15 @@ impl<const N: usize, Tr: Trajectory<N>> VirtualRobot<N, Tr> {
             if !self.watchdog {
                 self.watchdog = true;
                 self.stats.watchdog_trips += 1;
-                if self.events.len() < self.events.capacity() {
+                self.event_open = self.events.len() < MAX_EVENTS;
+                if self.event_open {
                     self.events.push(WatchdogEvent {
                         tripped_at: t,
                         last_command_at: self.last_valid_k.map(|j| j as f64 * self.dt),
                         resumed_at: None,
                     });
+                } else {
+                    self.stats.events_dropped += 1;
                 }
             }
         }
