@@ -6,10 +6,7 @@
 mod common;
 use common::measurement;
 
-use clarabel::algebra::CscMatrix;
-use clarabel::solver::{
-    DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus, SupportedConeT,
-};
+use clarabel::solver::{DefaultSolver, IPSolver, SolverStatus, SupportedConeT};
 use common::Rng;
 use exompc::config::{ControllerKind, Scenario};
 use exompc::control::{
@@ -246,36 +243,10 @@ fn reference_solve(su: &Setup, c: &Case) -> Vec<f64> {
         if min_eig < 1e-3 {
             h += DMatrix::identity(n, n) * (1e-3 - min_eig);
         }
-        let (mut pi, mut pj, mut pv) = (vec![], vec![], vec![]);
-        for j in 0..n {
-            for i in 0..=j {
-                pi.push(i);
-                pj.push(j);
-                pv.push(h[(i, j)]);
-            }
-        }
-        let pm = CscMatrix::new_from_triplets(n, n, pi, pj, pv);
-        let (mut ai, mut aj, mut av, mut b) = (vec![], vec![], vec![], vec![]);
-        for (ri, row) in rows.iter().enumerate() {
-            for (cj, v) in row.0.iter().enumerate() {
-                if *v != 0.0 {
-                    ai.push(ri);
-                    aj.push(cj);
-                    av.push(*v);
-                }
-            }
-            b.push(slack(row, &z));
-        }
-        let am = CscMatrix::new_from_triplets(rows.len(), n, ai, aj, av);
-        let settings = DefaultSettingsBuilder::default()
-            .verbose(false)
-            .tol_gap_abs(1e-12)
-            .tol_gap_rel(1e-12)
-            .tol_feas(1e-12)
-            .tol_ktratio(1e-10)
-            .max_iter(200)
-            .build()
-            .unwrap();
+        let pm = common::clarabel_upper(&h);
+        let b: Vec<f64> = rows.iter().map(|row| slack(row, &z)).collect();
+        let am = common::clarabel_rows(rows.iter().map(|row| row.0.as_slice()), n);
+        let settings = common::clarabel_settings();
         let cones = [SupportedConeT::NonnegativeConeT(rows.len())];
         let mut qp = DefaultSolver::new(&pm, g.as_slice(), &am, &b, &cones, settings).unwrap();
         qp.solve();
