@@ -14,10 +14,7 @@ use exompc::control::{
     NmpcSettings, PredictionModel, TorqueLimits,
 };
 use exompc::model::JointState;
-use exompc::sim::{
-    intent, limits, nmpc_settings, plant_params, prediction_model, run_experiment, uncertainty,
-    Dof, Plant, Sensors, TwoDof,
-};
+use exompc::sim::{intent, limits, nmpc_settings, prediction_model, run_experiment, TwoDof};
 use exompc::solver::SqpStatus;
 use nalgebra::{DMatrix, DVector, SVector, Vector2};
 use proptest::prelude::*;
@@ -496,18 +493,10 @@ fn record_closed_loop(steps: usize) -> Vec<(Measurement<2>, V2)> {
     let su = setup();
     let t0 = exompc::sim::initial_torque::<TwoDof, 2>(&s);
     let mut ctrl = Nmpc::new(su.model, &su.settings, su.intent, su.limits, t0).unwrap();
-    let mut plant = Plant::new(plant_params::<TwoDof, 2>(&s), TwoDof::trajectory(&s));
-    let mut sensors = Sensors::new(uncertainty(&s), s.uncertainty.filter_window);
     let mut log = Vec::with_capacity(steps);
-    for _ in 0..steps {
-        let st = *plant.state();
-        let f = plant.strap_force();
-        let (_, meas) = sensors.read(plant.time(), &st.robot.q, &st.robot.qd, &f);
-        let prev = ctrl.previous_torque();
-        let out = ctrl.step(&meas);
-        log.push((meas, prev));
-        plant.step(&out.torque);
-    }
+    common::closed_loop(&s, &mut ctrl, steps, |_, meas, prev, _, _| {
+        log.push((*meas, prev))
+    });
     log
 }
 

@@ -86,17 +86,7 @@ fn clarabel_solve(p: &Qp) -> (Vec<f64>, f64) {
     let pm = common::clarabel_upper(&p.h);
     // Rows: equalities first (zero cone), then inequalities Gx ≤ h (nonnegative cone).
     let mut eq_rows: Vec<(Vec<f64>, f64)> = vec![];
-    let mut in_rows: Vec<(Vec<f64>, f64)> = vec![];
-    for i in 0..n {
-        let mut e = vec![0.0; n];
-        e[i] = 1.0;
-        if p.ub[i].is_finite() {
-            in_rows.push((e.clone(), p.ub[i]));
-        }
-        if p.lb[i].is_finite() {
-            in_rows.push((e.iter().map(|v| -v).collect(), -p.lb[i]));
-        }
-    }
+    let mut in_rows = common::box_rows(p.lb.as_slice(), p.ub.as_slice());
     for j in 0..m {
         let row: Vec<f64> = (0..n).map(|c| p.a[(j, c)]).collect();
         if p.bl[j] == p.bu[j] {

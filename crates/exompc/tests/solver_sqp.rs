@@ -155,17 +155,7 @@ fn violation(c: &Constraints, z: &DVector<f64>) -> f64 {
 fn clarabel_qp(pm: &DMatrix<f64>, q: &DVector<f64>, c: &Constraints) -> DVector<f64> {
     let n = q.len();
     let p = common::clarabel_upper(pm);
-    let mut rows: Vec<(Vec<f64>, f64)> = vec![];
-    for i in 0..n {
-        let mut e = vec![0.0; n];
-        e[i] = 1.0;
-        if c.zu[i].is_finite() {
-            rows.push((e.clone(), c.zu[i]));
-        }
-        if c.zl[i].is_finite() {
-            rows.push((e.iter().map(|v| -v).collect(), -c.zl[i]));
-        }
-    }
+    let mut rows = common::box_rows(c.zl.as_slice(), c.zu.as_slice());
     for j in 0..c.a.nrows() {
         let row: Vec<f64> = (0..n).map(|k| c.a[(j, k)]).collect();
         if c.bu[j].is_finite() {

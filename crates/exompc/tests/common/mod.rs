@@ -57,6 +57,53 @@ pub fn robot_links() -> [exompc::model::Link; 2] {
     ]
 }
 
+/// Drive the default plant of `s` with `driver` for `steps` control periods (sensors of
+/// docs/MODEL.md §5); `each` sees the step index, the filtered measurement, the previous torque,
+/// the driver's output torque and the driver.
+pub fn closed_loop(
+    s: &exompc::config::Scenario,
+    driver: &mut dyn exompc::control::Controller<2>,
+    steps: usize,
+    mut each: impl FnMut(
+        usize,
+        &exompc::control::Measurement<2>,
+        nalgebra::Vector2<f64>,
+        nalgebra::Vector2<f64>,
+        &dyn exompc::control::Controller<2>,
+    ),
+) {
+    use exompc::sim::{plant_params, uncertainty, Dof, Plant, Sensors, TwoDof};
+    let mut plant = Plant::new(plant_params::<TwoDof, 2>(s), TwoDof::trajectory(s));
+    let mut sensors = Sensors::new(uncertainty(s), s.uncertainty.filter_window);
+    for k in 0..steps {
+        let st = *plant.state();
+        let f = plant.strap_force();
+        let (_, meas) = sensors.read(plant.time(), &st.robot.q, &st.robot.qd, &f);
+        let prev = driver.previous_torque();
+        let out = driver.step(&meas);
+        each(k, &meas, prev, out.torque, &*driver);
+        plant.step(&out.torque);
+    }
+}
+
+/// The rows `(e_i, hi_i)` and `(−e_i, −lo_i)` of `lo ≤ z ≤ hi` as `a·z ≤ b` (infinite bounds
+/// skipped), in the order upper then lower for each `i`.
+pub fn box_rows(lo: &[f64], hi: &[f64]) -> Vec<(Vec<f64>, f64)> {
+    let n = lo.len();
+    let mut rows = vec![];
+    for i in 0..n {
+        let mut e = vec![0.0; n];
+        e[i] = 1.0;
+        if hi[i].is_finite() {
+            rows.push((e.clone(), hi[i]));
+        }
+        if lo[i].is_finite() {
+            rows.push((e.iter().map(|v| -v).collect(), -lo[i]));
+        }
+    }
+    rows
+}
+
 /// Clarabel's upper-triangle CSC form of the dense symmetric matrix `h`.
 pub fn clarabel_upper(h: &nalgebra::DMatrix<f64>) -> clarabel::algebra::CscMatrix<f64> {
     let n = h.nrows();
