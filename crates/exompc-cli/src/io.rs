@@ -9,7 +9,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Comment header printed above the default scenario by `exompc config`.
 pub const CONFIG_HEADER: &str = "\
-# exompc scenario: the embedded default, as fixed by spec/MODEL.md.
+# exompc scenario: the embedded default, as stated in docs/MODEL.md.
 # Units are SI (m, kg, s, rad, N, N·m). Every key is optional: a file that names only a
 # few keys overrides just those and keeps the defaults for the rest.
 # Optional keys not shown: [controller.sqp] max_time_us = <µs per solve>;

@@ -1,24 +1,9 @@
 //! End-to-end tests of the `exompc` binary: `config` round trip and config rejection (exit 2).
 
-use std::path::PathBuf;
-use std::process::{Command, Output};
+use std::process::Output;
 
-fn exompc(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_exompc"))
-        .args(args)
-        .output()
-        .expect("run exompc")
-}
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("exompc-cli-tests");
-    std::fs::create_dir_all(&dir).unwrap();
-    dir.join(name)
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
+mod common;
+use common::{exompc, scratch, stderr};
 
 #[test]
 fn config_prints_default_that_loads_back_identically() {

@@ -5,31 +5,11 @@
 use exompc_cli::io::AtomicWriter;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Command, Stdio};
 use std::time::Duration;
 
-fn exompc(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_exompc"))
-        .args(args)
-        .output()
-        .expect("run exompc")
-}
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("exompc-reliability-tests");
-    std::fs::create_dir_all(&dir).unwrap();
-    dir.join(name)
-}
-
-fn fresh_dir(name: &str) -> PathBuf {
-    let d = scratch(name);
-    let _ = std::fs::remove_dir_all(&d);
-    d
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
+mod common;
+use common::{exompc, fresh_dir, scratch, stderr};
 
 fn with_config(name: &str, toml: &str) -> PathBuf {
     let path = scratch(name);

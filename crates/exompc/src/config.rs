@@ -1,8 +1,8 @@
 //! The whole simulation / control scenario as plain serde structs.
 //!
-//! [`Scenario::default()`] is the embedded default scenario: every value is the one fixed by
-//! the reference specification `spec/MODEL.md` (section numbers below refer to it) or by the
-//! paper (Aliyari & Vossoughi, equation numbers "eq. N" refer to it). A configuration file
+//! [`Scenario::default()`] is the embedded default scenario: every value is the one stated in
+//! the repository's `docs/MODEL.md` (section numbers "§n" below refer to it) or by the paper
+//! (Aliyari & Vossoughi, equation numbers "eq. N" refer to it). A configuration file
 //! (TOML in the CLI, but any serde format works) overrides only what it names: every struct is
 //! `#[serde(default)]`, and the thigh/shank sub-tables are merged field by field onto their own
 //! defaults. Unknown keys are rejected (`#[serde(deny_unknown_fields)]`).

@@ -4,7 +4,7 @@
 //! a simulated plant.
 
 mod common;
-use common::Rng;
+use common::{robot_links, Rng};
 use exompc::estimate::*;
 use exompc::model::*;
 use nalgebra::{DMatrix, DVector, SMatrix, SVector, Vector2, Vector4};
@@ -13,23 +13,6 @@ use proptest::prelude::*;
 // ---------------------------------------------------------------------------------------------
 // Helpers
 // ---------------------------------------------------------------------------------------------
-
-fn robot_links() -> [Link; 2] {
-    [
-        Link {
-            length: 0.43,
-            mass: 2.0,
-            com: 0.20,
-            inertia: 0.035,
-        },
-        Link {
-            length: 0.43,
-            mass: 1.2,
-            com: 0.18,
-            inertia: 0.018,
-        },
-    ]
-}
 
 fn robot(payload: f64, friction: Friction) -> RobotModel<2> {
     let mut links = robot_links();

@@ -2,26 +2,9 @@
 //! the skew-symmetry identity, a direct payload computation and strap energy gradients.
 
 mod common;
-use common::Rng;
+use common::{robot_links, Rng};
 use exompc::model::*;
 use nalgebra::{SMatrix, SVector, Vector1, Vector2, Vector3};
-
-fn robot_links() -> [Link; 2] {
-    [
-        Link {
-            length: 0.43,
-            mass: 2.0,
-            com: 0.20,
-            inertia: 0.035,
-        },
-        Link {
-            length: 0.43,
-            mass: 1.2,
-            com: 0.18,
-            inertia: 0.018,
-        },
-    ]
-}
 
 /// Spec §1 closed form of the double pendulum.
 fn closed_form(

@@ -2,9 +2,9 @@
 //! NMPC and the decoupled blend, limits under arbitrary measurements, and the probabilities.
 
 mod common;
-use common::measurement;
+use common::{closed_loop, measurement};
 use exompc::config::{ControllerKind, Formulation, Scenario};
-use exompc::control::{build_multistage, horizon_inputs, Controller, Measurement, NmpcCore};
+use exompc::control::{build_multistage, horizon_inputs, Controller, NmpcCore};
 use exompc::model::JointState;
 use exompc::sim::{
     initial_torque, intent, limits, nmpc_settings, plant_params, prediction_model, run_experiment,
@@ -30,27 +30,6 @@ fn ms_scenario(payloads: &[f64], formulation: Formulation) -> Scenario {
 
 fn controller(s: &Scenario) -> Box<dyn Controller<2>> {
     build_multistage::<TwoDof, 2, 6, 4>(s, initial_torque::<TwoDof, 2>(s)).unwrap()
-}
-
-/// Drive the plant of `s` with `driver` for `steps`; `each` sees the measurement, the previous
-/// torque and the driver's output at every step.
-fn closed_loop(
-    s: &Scenario,
-    driver: &mut dyn Controller<2>,
-    steps: usize,
-    mut each: impl FnMut(usize, &Measurement<2>, V2, V2, &dyn Controller<2>),
-) {
-    let mut plant = Plant::new(plant_params::<TwoDof, 2>(s), TwoDof::trajectory(s));
-    let mut sensors = Sensors::new(uncertainty(s), s.uncertainty.filter_window);
-    for k in 0..steps {
-        let st = *plant.state();
-        let f = plant.strap_force();
-        let (_, meas) = sensors.read(plant.time(), &st.robot.q, &st.robot.qd, &f);
-        let prev = driver.previous_torque();
-        let out = driver.step(&meas);
-        each(k, &meas, prev, out.torque, &*driver);
-        plant.step(&out.torque);
-    }
 }
 
 #[test]

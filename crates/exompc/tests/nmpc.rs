@@ -6,10 +6,7 @@
 mod common;
 use common::measurement;
 
-use clarabel::algebra::CscMatrix;
-use clarabel::solver::{
-    DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus, SupportedConeT,
-};
+use clarabel::solver::{DefaultSolver, IPSolver, SolverStatus, SupportedConeT};
 use common::Rng;
 use exompc::config::{ControllerKind, Scenario};
 use exompc::control::{
@@ -17,10 +14,7 @@ use exompc::control::{
     NmpcSettings, PredictionModel, TorqueLimits,
 };
 use exompc::model::JointState;
-use exompc::sim::{
-    intent, limits, nmpc_settings, plant_params, prediction_model, run_experiment, uncertainty,
-    Dof, Plant, Sensors, TwoDof,
-};
+use exompc::sim::{intent, limits, nmpc_settings, prediction_model, run_experiment, TwoDof};
 use exompc::solver::SqpStatus;
 use nalgebra::{DMatrix, DVector, SVector, Vector2};
 use proptest::prelude::*;
@@ -246,36 +240,10 @@ fn reference_solve(su: &Setup, c: &Case) -> Vec<f64> {
         if min_eig < 1e-3 {
             h += DMatrix::identity(n, n) * (1e-3 - min_eig);
         }
-        let (mut pi, mut pj, mut pv) = (vec![], vec![], vec![]);
-        for j in 0..n {
-            for i in 0..=j {
-                pi.push(i);
-                pj.push(j);
-                pv.push(h[(i, j)]);
-            }
-        }
-        let pm = CscMatrix::new_from_triplets(n, n, pi, pj, pv);
-        let (mut ai, mut aj, mut av, mut b) = (vec![], vec![], vec![], vec![]);
-        for (ri, row) in rows.iter().enumerate() {
-            for (cj, v) in row.0.iter().enumerate() {
-                if *v != 0.0 {
-                    ai.push(ri);
-                    aj.push(cj);
-                    av.push(*v);
-                }
-            }
-            b.push(slack(row, &z));
-        }
-        let am = CscMatrix::new_from_triplets(rows.len(), n, ai, aj, av);
-        let settings = DefaultSettingsBuilder::default()
-            .verbose(false)
-            .tol_gap_abs(1e-12)
-            .tol_gap_rel(1e-12)
-            .tol_feas(1e-12)
-            .tol_ktratio(1e-10)
-            .max_iter(200)
-            .build()
-            .unwrap();
+        let pm = common::clarabel_upper(&h);
+        let b: Vec<f64> = rows.iter().map(|row| slack(row, &z)).collect();
+        let am = common::clarabel_rows(rows.iter().map(|row| row.0.as_slice()), n);
+        let settings = common::clarabel_settings();
         let cones = [SupportedConeT::NonnegativeConeT(rows.len())];
         let mut qp = DefaultSolver::new(&pm, g.as_slice(), &am, &b, &cones, settings).unwrap();
         qp.solve();
@@ -525,18 +493,10 @@ fn record_closed_loop(steps: usize) -> Vec<(Measurement<2>, V2)> {
     let su = setup();
     let t0 = exompc::sim::initial_torque::<TwoDof, 2>(&s);
     let mut ctrl = Nmpc::new(su.model, &su.settings, su.intent, su.limits, t0).unwrap();
-    let mut plant = Plant::new(plant_params::<TwoDof, 2>(&s), TwoDof::trajectory(&s));
-    let mut sensors = Sensors::new(uncertainty(&s), s.uncertainty.filter_window);
     let mut log = Vec::with_capacity(steps);
-    for _ in 0..steps {
-        let st = *plant.state();
-        let f = plant.strap_force();
-        let (_, meas) = sensors.read(plant.time(), &st.robot.q, &st.robot.qd, &f);
-        let prev = ctrl.previous_torque();
-        let out = ctrl.step(&meas);
-        log.push((meas, prev));
-        plant.step(&out.torque);
-    }
+    common::closed_loop(&s, &mut ctrl, steps, |_, meas, prev, _, _| {
+        log.push((*meas, prev))
+    });
     log
 }
 

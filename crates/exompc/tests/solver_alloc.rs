@@ -1,32 +1,15 @@
 //! Checks that `DenseQp::solve` and `Sqp::solve` do not allocate (counting global allocator,
 //! per-thread counter so parallel tests do not interfere).
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-
 use exompc::solver::qp::{DenseQp, QpStatus};
 use exompc::solver::sqp::{Constraints, LeastSquares, Sqp, SqpSettings, SqpStatus};
 use nalgebra::{DMatrix, DVector};
 
-struct Counting;
-thread_local! {
-    static ALLOCS: Cell<usize> = const { Cell::new(0) };
-}
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        let _ = ALLOCS.try_with(|c| c.set(c.get() + 1));
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-}
+mod common;
+use common::alloc::{thread_allocations as allocs, Counting};
+
 #[global_allocator]
 static GLOBAL: Counting = Counting;
-
-fn allocs() -> usize {
-    ALLOCS.with(|c| c.get())
-}
 
 /// r(z) = (z − t) ∘ (1 + 0.1 z²) … written without allocation.
 struct Prob {

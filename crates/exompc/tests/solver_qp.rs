@@ -1,33 +1,12 @@
 //! Tests of the dense Goldfarb–Idnani QP solver against Clarabel and independent KKT checks.
 
-use clarabel::algebra::CscMatrix;
-use clarabel::solver::{
-    DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus, SupportedConeT,
-};
+use clarabel::solver::{DefaultSolver, IPSolver, SolverStatus, SupportedConeT};
 use exompc::solver::qp::{DenseQp, QpSettings, QpStatus};
 use nalgebra::{DMatrix, DVector};
 use proptest::prelude::*;
 
-/// Tiny xorshift64* generator (deterministic, no external crate).
-struct Rng(u64);
-impl Rng {
-    fn next_u64(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
-    }
-    /// Uniform in [0, 1).
-    fn unif(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn range(&mut self, a: f64, b: f64) -> f64 {
-        a + (b - a) * self.unif()
-    }
-    fn below(&mut self, k: usize) -> usize {
-        (self.next_u64() % k as u64) as usize
-    }
-}
+mod common;
+use common::Rng;
 
 struct Qp {
     h: DMatrix<f64>,
@@ -104,31 +83,10 @@ fn random_qp(rng: &mut Rng) -> Qp {
 fn clarabel_solve(p: &Qp) -> (Vec<f64>, f64) {
     let n = p.g.len();
     let m = p.a.nrows();
-    // Upper triangle of H.
-    let mut pi = vec![];
-    let mut pj = vec![];
-    let mut pv = vec![];
-    for j in 0..n {
-        for i in 0..=j {
-            pi.push(i);
-            pj.push(j);
-            pv.push(p.h[(i, j)]);
-        }
-    }
-    let pm = CscMatrix::new_from_triplets(n, n, pi, pj, pv);
+    let pm = common::clarabel_upper(&p.h);
     // Rows: equalities first (zero cone), then inequalities Gx ≤ h (nonnegative cone).
     let mut eq_rows: Vec<(Vec<f64>, f64)> = vec![];
-    let mut in_rows: Vec<(Vec<f64>, f64)> = vec![];
-    for i in 0..n {
-        let mut e = vec![0.0; n];
-        e[i] = 1.0;
-        if p.ub[i].is_finite() {
-            in_rows.push((e.clone(), p.ub[i]));
-        }
-        if p.lb[i].is_finite() {
-            in_rows.push((e.iter().map(|v| -v).collect(), -p.lb[i]));
-        }
-    }
+    let mut in_rows = common::box_rows(p.lb.as_slice(), p.ub.as_slice());
     for j in 0..m {
         let row: Vec<f64> = (0..n).map(|c| p.a[(j, c)]).collect();
         if p.bl[j] == p.bu[j] {
@@ -143,21 +101,9 @@ fn clarabel_solve(p: &Qp) -> (Vec<f64>, f64) {
         }
     }
     let (neq, nin) = (eq_rows.len(), in_rows.len());
-    let mut ai = vec![];
-    let mut aj = vec![];
-    let mut av = vec![];
-    let mut b = vec![];
-    for (r, (row, rhs)) in eq_rows.iter().chain(in_rows.iter()).enumerate() {
-        for (c, v) in row.iter().enumerate() {
-            if *v != 0.0 {
-                ai.push(r);
-                aj.push(c);
-                av.push(*v);
-            }
-        }
-        b.push(*rhs);
-    }
-    let am = CscMatrix::new_from_triplets(neq + nin, n, ai, aj, av);
+    let all_rows = || eq_rows.iter().chain(in_rows.iter());
+    let b: Vec<f64> = all_rows().map(|(_, rhs)| *rhs).collect();
+    let am = common::clarabel_rows(all_rows().map(|(row, _)| row.as_slice()), n);
     let mut cones = vec![];
     if neq > 0 {
         cones.push(SupportedConeT::ZeroConeT(neq));
@@ -165,15 +111,7 @@ fn clarabel_solve(p: &Qp) -> (Vec<f64>, f64) {
     if nin > 0 {
         cones.push(SupportedConeT::NonnegativeConeT(nin));
     }
-    let settings = DefaultSettingsBuilder::default()
-        .verbose(false)
-        .tol_gap_abs(1e-12)
-        .tol_gap_rel(1e-12)
-        .tol_feas(1e-12)
-        .tol_ktratio(1e-10)
-        .max_iter(200)
-        .build()
-        .unwrap();
+    let settings = common::clarabel_settings();
     let mut solver = DefaultSolver::new(&pm, p.g.as_slice(), &am, &b, &cones, settings).unwrap();
     solver.solve();
     let st = solver.solution.status;

@@ -1,30 +1,14 @@
 //! Tests of the Gauss–Newton SQP solver with independent oracles (Clarabel, grid search,
 //! finite-difference KKT checks).
 
-use clarabel::algebra::CscMatrix;
-use clarabel::solver::{
-    DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus, SupportedConeT,
-};
+use clarabel::solver::{DefaultSolver, IPSolver, SolverStatus, SupportedConeT};
 use exompc::solver::sqp::{Constraints, LeastSquares, Sqp, SqpSettings, SqpStatus};
 use nalgebra::{DMatrix, DVector};
 use proptest::prelude::*;
 use std::time::Duration;
 
-struct Rng(u64);
-impl Rng {
-    fn next_u64(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
-    }
-    fn unif(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn range(&mut self, a: f64, b: f64) -> f64 {
-        a + (b - a) * self.unif()
-    }
-}
+mod common;
+use common::Rng;
 
 /// r(z) = C z − y + β ∘ sin(W z) + γ ∘ (exp(0.3 V z) − 1).
 #[derive(Clone)]
@@ -170,26 +154,8 @@ fn violation(c: &Constraints, z: &DVector<f64>) -> f64 {
 /// Clarabel solution of min ½ zᵀPz + qᵀz subject to `c`.
 fn clarabel_qp(pm: &DMatrix<f64>, q: &DVector<f64>, c: &Constraints) -> DVector<f64> {
     let n = q.len();
-    let (mut pi, mut pj, mut pv) = (vec![], vec![], vec![]);
-    for j in 0..n {
-        for i in 0..=j {
-            pi.push(i);
-            pj.push(j);
-            pv.push(pm[(i, j)]);
-        }
-    }
-    let p = CscMatrix::new_from_triplets(n, n, pi, pj, pv);
-    let mut rows: Vec<(Vec<f64>, f64)> = vec![];
-    for i in 0..n {
-        let mut e = vec![0.0; n];
-        e[i] = 1.0;
-        if c.zu[i].is_finite() {
-            rows.push((e.clone(), c.zu[i]));
-        }
-        if c.zl[i].is_finite() {
-            rows.push((e.iter().map(|v| -v).collect(), -c.zl[i]));
-        }
-    }
+    let p = common::clarabel_upper(pm);
+    let mut rows = common::box_rows(c.zl.as_slice(), c.zu.as_slice());
     for j in 0..c.a.nrows() {
         let row: Vec<f64> = (0..n).map(|k| c.a[(j, k)]).collect();
         if c.bu[j].is_finite() {
@@ -199,28 +165,10 @@ fn clarabel_qp(pm: &DMatrix<f64>, q: &DVector<f64>, c: &Constraints) -> DVector<
             rows.push((row.iter().map(|v| -v).collect(), -c.bl[j]));
         }
     }
-    let (mut ai, mut aj, mut av, mut b) = (vec![], vec![], vec![], vec![]);
-    for (r, (row, rhs)) in rows.iter().enumerate() {
-        for (k, v) in row.iter().enumerate() {
-            if *v != 0.0 {
-                ai.push(r);
-                aj.push(k);
-                av.push(*v);
-            }
-        }
-        b.push(*rhs);
-    }
-    let a = CscMatrix::new_from_triplets(rows.len(), n, ai, aj, av);
+    let b: Vec<f64> = rows.iter().map(|(_, rhs)| *rhs).collect();
+    let a = common::clarabel_rows(rows.iter().map(|(row, _)| row.as_slice()), n);
     let cones = [SupportedConeT::NonnegativeConeT(rows.len())];
-    let settings = DefaultSettingsBuilder::default()
-        .verbose(false)
-        .tol_gap_abs(1e-12)
-        .tol_gap_rel(1e-12)
-        .tol_feas(1e-12)
-        .tol_ktratio(1e-10)
-        .max_iter(200)
-        .build()
-        .unwrap();
+    let settings = common::clarabel_settings();
     let mut s = DefaultSolver::new(&p, q.as_slice(), &a, &b, &cones, settings).unwrap();
     s.solve();
     assert!(matches!(

@@ -3,6 +3,22 @@
 //!
 //! Every controller implements [`Controller`]: one call per control period, filtered
 //! measurements in, a torque out that always satisfies the torque and torque-rate limits.
+//!
+//! # The controllers
+//!
+//! * [`PdController`]: a joint PD on the human-intent estimate, the baseline.
+//! * [`Nmpc`]: the non-robust NMPC of paper eq. 7 on one prediction model (by default the
+//!   nominal robot without payload and without disturbance estimate). [`NmpcProblem`] is the
+//!   optimisation problem of one step, [`NmpcCore`] its solver with all buffers preallocated.
+//! * [`MultiStage`]: the multi-stage robust NMPC (paper eqs. 10-13): one scenario per candidate
+//!   payload, each with its own model and the disturbance estimate of its EKF; the scenario
+//!   probabilities of the EKF bank ([`crate::estimate::EkfBank`]) weight the scenarios, in the
+//!   paper's decoupled form or the coupled scenario-tree form ([`Formulation`]).
+//! * [`Supervisor`]: wraps any controller with sensor plausibility checks, safety monitors and
+//!   a safe fallback torque; every output passes the limits ([`TorqueLimits`]).
+//!
+//! [`crate::sim::build_controller`] and [`crate::sim::build_supervised`] build them from a
+//! [`crate::config::Scenario`]; `docs/MODEL.md` §8 gives the equations and default values.
 
 mod limits;
 mod multistage;

@@ -1,12 +1,4 @@
-//! Multi-stage robust NMPC (paper §3.2, eqs. 10-13): one scenario per candidate payload, each
-//! with its own robot model and EKF disturbance estimate, weighted by the EKF-bank probabilities.
-//!
-//! Two formulations:
-//! - [`Formulation::Decoupled`] (the paper): each scenario's NMPC of eq. 7 is solved on its own
-//!   and the increments are blended by eq. 13, `T(k) = T(k−1) + Σ μ_i dT_i(k)`.
-//! - [`Formulation::Coupled`] (Lucia et al. 2013, as in do-mpc; beyond the paper): one NLP over
-//!   the scenario tree with the probability-weighted cost of eq. 12 and non-anticipativity: the
-//!   first `robust_horizon` increments are shared by all scenarios.
+//! Multi-stage robust NMPC (paper §3.2, eqs. 10-13): see [`MultiStage`].
 
 use super::nmpc::{classify, horizon_inputs, NmpcCore, NmpcProblem, NmpcSettings};
 use super::prediction::{HorizonInputs, PredictionModel};
@@ -252,6 +244,16 @@ pub struct MultiStageOptions {
 /// scenario's disturbance estimate `d̂_i`; every scenario's NMPC starts from `[q, filtered qd]`
 /// with its own model and `d̂_i`; the torque follows eq. 13 (decoupled) or the shared first
 /// increment (coupled), then the hard limits of eqs. 8-9.
+///
+/// One scenario per candidate payload (docs/MODEL.md §8), each with its own robot model and
+/// EKF disturbance estimate, weighted by the EKF-bank probabilities ([`EkfBank`]).
+///
+/// Two formulations:
+/// - [`Formulation::Decoupled`] (the paper): each scenario's NMPC of eq. 7 is solved on its own
+///   and the increments are blended by eq. 13, `T(k) = T(k−1) + Σ μ_i dT_i(k)`.
+/// - [`Formulation::Coupled`] (Lucia et al. 2013, as in do-mpc; beyond the paper): one NLP over
+///   the scenario tree with the probability-weighted cost of eq. 12 and non-anticipativity: the
+///   first `robust_horizon` increments are shared by all scenarios.
 pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     bank: EkfBank<N, NA, NY>,
     cores: Vec<NmpcCore<N>>,

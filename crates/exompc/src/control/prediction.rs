@@ -120,7 +120,8 @@ impl<const N: usize> PredictionModel<N> {
 
     /// [`Self::step`] with its exact Jacobian, by forward-mode dual numbers seeded on `q`, `qd`
     /// and `u` in three passes. The reference for [`Self::step_with_jacobian`] (same values to
-    /// rounding), about ten times slower.
+    /// rounding), about ten times slower. A test and benchmark oracle, hidden from the docs.
+    #[doc(hidden)]
     pub fn step_with_jacobian_dual(
         &self,
         x: &JointState<f64, N>,
@@ -204,7 +205,7 @@ impl<const N: usize> PredictionModel<N> {
     /// [`Self::step`] with its exact Jacobian, hand-derived: per RK4 stage the analytic partial
     /// derivatives of `qdd = M⁻¹(u + T_int + d − C qd − G − friction)` with respect to `q`, `qd`
     /// and `u` (first and second derivatives of `M` from the chain's closed form), chained
-    /// through the stages. Equals [`Self::step_with_jacobian_dual`] to rounding.
+    /// through the stages. Equals the dual-number Jacobian (`step_with_jacobian_dual`, the tests' oracle) to rounding.
     pub fn step_with_jacobian(
         &self,
         x: &JointState<f64, N>,

@@ -1,28 +1,4 @@
-//! Runtime safety supervision (exoskeleton-firmware style): measurement plausibility checks
-//! with a safe fallback, and the `[monitors]` of the scenario, wrapped around any controller.
-//!
-//! [`Supervisor`] implements [`Controller`] around an inner controller:
-//!
-//! * **Plausibility.** A measurement with a non-finite value, `|q| > angle_max` (π),
-//!   `|qd| > velocity_max` (30 rad/s) or `|F| ≥ saturation_n` (the force sensor's range) is
-//!   rejected: the inner controller is *not* stepped (it is never fed garbage) and the previous
-//!   torque is held (status [`StepStatus::BadMeasurement`]). When the data is good again the
-//!   inner controller resumes from the torque actually applied (kept in sync through
-//!   [`Controller::set_previous_torque`]).
-//! * **Monitors.** Human-robot tracking error estimated as `|K1·F|` (q_H is not measured)
-//!   above `tracking_error_max_rad`, strap force above `force_max_n`, and any sensor channel
-//!   without a fresh valid sample (non-finite, implausible, or bit-for-bit repeated) for longer
-//!   than `sensor_timeout_s`. A tripped monitor applies the configured response (`hold` the
-//!   last torque, or `ramp_to_zero` at the rate limit; status
-//!   [`StepStatus::MonitorTripped`]); it clears after its condition has been absent for
-//!   `clear_after_s`, and the inner controller resumes from the applied torque. Trips and
-//!   clears are logged with their time in a bounded event list ([`SafetyReport`]).
-//! * **Limits.** Every output passes through [`TorqueLimits::clamp`] relative to the previous
-//!   output, so `|T| ≤ T_max` and `|T − T_prev| ≤ ΔT_max` hold whatever the inner controller
-//!   returns (NaN included).
-//!
-//! The hot path does not allocate (the event list is preallocated; events beyond its capacity
-//! are counted, not stored).
+//! Runtime safety supervision around any controller: see [`Supervisor`].
 
 use super::{ControlOutput, Controller, Measurement, StepStatus, TorqueLimits};
 use crate::config::{MonitorResponse, Monitors, Scenario};
@@ -137,7 +113,31 @@ pub struct SafetyReport {
     pub events_dropped: u64,
 }
 
-/// Safety wrapper around a controller; see the [module documentation](self).
+/// Runtime safety supervision (exoskeleton-firmware style): measurement plausibility checks
+/// with a safe fallback, and the `[monitors]` of the scenario, wrapped around any controller.
+///
+/// [`Supervisor`] implements [`Controller`] around an inner controller:
+///
+/// * **Plausibility.** A measurement with a non-finite value, `|q| > angle_max` (π),
+///   `|qd| > velocity_max` (30 rad/s) or `|F| ≥ saturation_n` (the force sensor's range) is
+///   rejected: the inner controller is *not* stepped (it is never fed garbage) and the previous
+///   torque is held (status [`StepStatus::BadMeasurement`]). When the data is good again the
+///   inner controller resumes from the torque actually applied (kept in sync through
+///   [`Controller::set_previous_torque`]).
+/// * **Monitors.** Human-robot tracking error estimated as `|K1·F|` (q_H is not measured)
+///   above `tracking_error_max_rad`, strap force above `force_max_n`, and any sensor channel
+///   without a fresh valid sample (non-finite, implausible, or bit-for-bit repeated) for longer
+///   than `sensor_timeout_s`. A tripped monitor applies the configured response (`hold` the
+///   last torque, or `ramp_to_zero` at the rate limit; status
+///   [`StepStatus::MonitorTripped`]); it clears after its condition has been absent for
+///   `clear_after_s`, and the inner controller resumes from the applied torque. Trips and
+///   clears are logged with their time in a bounded event list ([`SafetyReport`]).
+/// * **Limits.** Every output passes through [`TorqueLimits::clamp`] relative to the previous
+///   output, so `|T| ≤ T_max` and `|T − T_prev| ≤ ΔT_max` hold whatever the inner controller
+///   returns (NaN included).
+///
+/// The hot path does not allocate (the event list is preallocated; events beyond its capacity
+/// are counted, not stored).
 #[derive(Clone, Debug)]
 pub struct Supervisor<const N: usize, C> {
     inner: C,

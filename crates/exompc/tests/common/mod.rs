@@ -1,8 +1,12 @@
 //! Helpers shared by the integration tests.
 #![allow(dead_code)]
 
+pub mod alloc;
+
 /// A tiny deterministic random generator (xorshift64*), so tests need no `rand`.
-pub struct Rng(u64);
+///
+/// `Rng::new(seed)` scrambles the seed; `Rng(state)` starts from the raw state (non-zero).
+pub struct Rng(pub u64);
 
 impl Rng {
     pub fn new(seed: u64) -> Self {
@@ -16,10 +20,134 @@ impl Rng {
         self.0 = x;
         x.wrapping_mul(0x2545_F491_4F6C_DD1D)
     }
+    /// Uniform in [0, 1).
+    pub fn unif(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
     /// Uniform in [lo, hi).
     pub fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * ((self.next_u64() >> 11) as f64 / (1u64 << 53) as f64)
+        lo + (hi - lo) * self.unif()
     }
+    /// Uniform in [a, b) (same as [`Rng::uniform`]).
+    pub fn range(&mut self, a: f64, b: f64) -> f64 {
+        self.uniform(a, b)
+    }
+    /// Uniform integer in 0..k.
+    pub fn below(&mut self, k: usize) -> usize {
+        (self.next_u64() % k as u64) as usize
+    }
+}
+
+/// The default robot's links (docs/MODEL.md §3): thigh, then shank.
+pub fn robot_links() -> [exompc::model::Link; 2] {
+    use exompc::model::Link;
+    [
+        Link {
+            length: 0.43,
+            mass: 2.0,
+            com: 0.20,
+            inertia: 0.035,
+        },
+        Link {
+            length: 0.43,
+            mass: 1.2,
+            com: 0.18,
+            inertia: 0.018,
+        },
+    ]
+}
+
+/// Drive the default plant of `s` with `driver` for `steps` control periods (sensors of
+/// docs/MODEL.md §5); `each` sees the step index, the filtered measurement, the previous torque,
+/// the driver's output torque and the driver.
+pub fn closed_loop(
+    s: &exompc::config::Scenario,
+    driver: &mut dyn exompc::control::Controller<2>,
+    steps: usize,
+    mut each: impl FnMut(
+        usize,
+        &exompc::control::Measurement<2>,
+        nalgebra::Vector2<f64>,
+        nalgebra::Vector2<f64>,
+        &dyn exompc::control::Controller<2>,
+    ),
+) {
+    use exompc::sim::{plant_params, uncertainty, Dof, Plant, Sensors, TwoDof};
+    let mut plant = Plant::new(plant_params::<TwoDof, 2>(s), TwoDof::trajectory(s));
+    let mut sensors = Sensors::new(uncertainty(s), s.uncertainty.filter_window);
+    for k in 0..steps {
+        let st = *plant.state();
+        let f = plant.strap_force();
+        let (_, meas) = sensors.read(plant.time(), &st.robot.q, &st.robot.qd, &f);
+        let prev = driver.previous_torque();
+        let out = driver.step(&meas);
+        each(k, &meas, prev, out.torque, &*driver);
+        plant.step(&out.torque);
+    }
+}
+
+/// The rows `(e_i, hi_i)` and `(−e_i, −lo_i)` of `lo ≤ z ≤ hi` as `a·z ≤ b` (infinite bounds
+/// skipped), in the order upper then lower for each `i`.
+pub fn box_rows(lo: &[f64], hi: &[f64]) -> Vec<(Vec<f64>, f64)> {
+    let n = lo.len();
+    let mut rows = vec![];
+    for i in 0..n {
+        let mut e = vec![0.0; n];
+        e[i] = 1.0;
+        if hi[i].is_finite() {
+            rows.push((e.clone(), hi[i]));
+        }
+        if lo[i].is_finite() {
+            rows.push((e.iter().map(|v| -v).collect(), -lo[i]));
+        }
+    }
+    rows
+}
+
+/// Clarabel's upper-triangle CSC form of the dense symmetric matrix `h`.
+pub fn clarabel_upper(h: &nalgebra::DMatrix<f64>) -> clarabel::algebra::CscMatrix<f64> {
+    let n = h.nrows();
+    let (mut pi, mut pj, mut pv) = (vec![], vec![], vec![]);
+    for j in 0..n {
+        for i in 0..=j {
+            pi.push(i);
+            pj.push(j);
+            pv.push(h[(i, j)]);
+        }
+    }
+    clarabel::algebra::CscMatrix::new_from_triplets(n, n, pi, pj, pv)
+}
+
+/// Clarabel's CSC form of a dense constraint matrix given row by row (`n` columns).
+pub fn clarabel_rows<'a>(
+    rows: impl IntoIterator<Item = &'a [f64]>,
+    n: usize,
+) -> clarabel::algebra::CscMatrix<f64> {
+    let (mut ai, mut aj, mut av, mut m) = (vec![], vec![], vec![], 0);
+    for (r, row) in rows.into_iter().enumerate() {
+        for (k, v) in row.iter().enumerate() {
+            if *v != 0.0 {
+                ai.push(r);
+                aj.push(k);
+                av.push(*v);
+            }
+        }
+        m = r + 1;
+    }
+    clarabel::algebra::CscMatrix::new_from_triplets(m, n, ai, aj, av)
+}
+
+/// Tight Clarabel settings for oracle solves (tolerances 1e-12, 200 iterations, quiet).
+pub fn clarabel_settings() -> clarabel::solver::DefaultSettings<f64> {
+    clarabel::solver::DefaultSettingsBuilder::default()
+        .verbose(false)
+        .tol_gap_abs(1e-12)
+        .tol_gap_rel(1e-12)
+        .tol_feas(1e-12)
+        .tol_ktratio(1e-10)
+        .max_iter(200)
+        .build()
+        .unwrap()
 }
 
 /// A value for property tests: mostly moderate, sometimes huge or non-finite.

@@ -1,0 +1,34 @@
+//! Helpers shared by the CLI integration tests: run the `exompc` binary, scratch paths.
+#![allow(dead_code)]
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+/// Run the `exompc` binary built for these tests with `args`.
+pub fn exompc(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_exompc"))
+        .args(args)
+        .output()
+        .expect("run exompc")
+}
+
+/// A path `name` in this test binary's own scratch folder (`exompc-<test>-tests` below
+/// cargo's target tmp dir), created if missing.
+pub fn scratch(name: &str) -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+        .join(format!("exompc-{}-tests", env!("CARGO_CRATE_NAME")));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir.join(name)
+}
+
+/// `scratch(name)` with anything already there removed.
+pub fn fresh_dir(name: &str) -> PathBuf {
+    let d = scratch(name);
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+/// The process's standard error as text.
+pub fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
