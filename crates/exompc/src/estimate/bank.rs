@@ -134,6 +134,9 @@ pub fn update_probabilities(prev: &[f64], log_likelihoods: &[f64], floor: f64, o
 /// log-likelihood `ℓᵢ = −½ c1 vᵢᵀ S̄ᵢ⁻¹ vᵢ − ½ ln((2π)^ny |c1 S̄ᵢ|)` and updates the probabilities
 /// by [`update_probabilities`] (log-sum-exp, floor, renormalisation). The initial probabilities
 /// are uniform. All storage is allocated in [`new`](Self::new); stepping does not allocate.
+///
+/// The [module documentation](crate::estimate) explains the augmented state, the measurement
+/// and why the default noise covariances ([`EkfSettings`]) are what they are.
 #[derive(Clone, Debug)]
 pub struct EkfBank<const N: usize, const NA: usize, const NY: usize> {
     filters: Vec<ScenarioEkf<N, NA, NY>>,

@@ -1,13 +1,4 @@
-//! Sensor fault injection (`[faults]`): scripted NaN, inf, dropout, spike, stuck and saturation
-//! faults applied to the raw sensor sample *before* the moving-average filter, so the
-//! controller sees exactly what a real faulty sensor would produce after filtering (a NaN
-//! poisons the filter window for `filter_window` samples after the fault ends, a spike is
-//! smeared over the window, a dropout or a stuck sensor yields a frozen filtered value once
-//! the window is full of repeated samples).
-//!
-//! Channel mapping: in 2-DOF runs `q1/qd1/f1` are the hip/thigh (index 0) and `q2/qd2/f2`
-//! the knee/shank (index 1). In 1-DOF runs (hip locked) the single joint is the knee, so
-//! `q2/qd2/f2` map to it and `q1/qd1/f1` events are ignored.
+//! Sensor fault injection (`[faults]`, see [`FaultInjector`]) and the soak run.
 
 use super::closed_loop::{Recorder, StepRecord};
 use super::experiment::{run_experiment_report, RunError, TwoDof};
@@ -37,6 +28,17 @@ struct Armed {
 }
 
 /// Applies a fault schedule to raw sensor samples; allocation-free after construction.
+///
+/// The faults of `[faults]` are scripted NaN, inf, dropout, spike, stuck and saturation
+/// faults, applied to the raw sensor sample *before* the moving-average filter, so the
+/// controller sees exactly what a real faulty sensor would produce after filtering (a NaN
+/// poisons the filter window for `filter_window` samples after the fault ends, a spike is
+/// smeared over the window, a dropout or a stuck sensor yields a frozen filtered value once
+/// the window is full of repeated samples).
+///
+/// Channel mapping: in 2-DOF runs `q1/qd1/f1` are the hip/thigh (index 0) and `q2/qd2/f2`
+/// the knee/shank (index 1). In 1-DOF runs (hip locked) the single joint is the knee, so
+/// `q2/qd2/f2` map to it and `q1/qd1/f1` events are ignored.
 #[derive(Clone, Debug)]
 pub struct FaultInjector<const N: usize> {
     events: Vec<Armed>,
