@@ -176,7 +176,17 @@ impl RiccatiQp {
     /// Factorises the reduced Hessian by the backward Riccati recursion. Returns `false` when a
     /// reduced input Hessian `R + BᵀPB` is not numerically positive definite.
     fn factor(&mut self) -> bool {
-        let (nx, nu, np, nc) = (self.nx, self.nu, self.np, self.nc);
+        // The NMPC's stage sizes (1-DOF, 2-DOF) as constants: unrolled, bounds checks removed.
+        match (self.nx, self.nu) {
+            (3, 1) => self.factor_dims(3, 1),
+            (6, 2) => self.factor_dims(6, 2),
+            (nx, nu) => self.factor_dims(nx, nu),
+        }
+    }
+
+    #[inline(always)]
+    fn factor_dims(&mut self, nx: usize, nu: usize) -> bool {
+        let (np, nc) = (self.np, self.nc);
         let n2 = nx * nx;
         self.pm[np * n2..(np + 1) * n2].copy_from_slice(&self.q[(np - 1) * n2..np * n2]);
         for j in (0..np).rev() {
@@ -267,7 +277,16 @@ impl RiccatiQp {
     /// `lin` is zero on every stage after `top` (inputs `u_j`, `j > top`, and states
     /// `x_j`, `j > top + 1`).
     fn sweep(&mut self, use_unit: bool, top: usize, out_is_yp: bool) {
-        let (nx, nu, np, nc) = (self.nx, self.nu, self.np, self.nc);
+        match (self.nx, self.nu) {
+            (3, 1) => self.sweep_dims(3, 1, use_unit, top, out_is_yp),
+            (6, 2) => self.sweep_dims(6, 2, use_unit, top, out_is_yp),
+            (nx, nu) => self.sweep_dims(nx, nu, use_unit, top, out_is_yp),
+        }
+    }
+
+    #[inline(always)]
+    fn sweep_dims(&mut self, nx: usize, nu: usize, use_unit: bool, top: usize, out_is_yp: bool) {
+        let (np, nc) = (self.np, self.nc);
         let n2 = nx * nx;
         let off = nc * nu;
         let lin: &[f64] = if use_unit { &self.unit } else { &self.g };
