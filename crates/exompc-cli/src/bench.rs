@@ -4,6 +4,7 @@
 use crate::ConfigOpt;
 use clap::Args;
 use exompc::config::{ControllerKind, Formulation, Scenario};
+use exompc::control::QpBackend;
 use exompc::sim::{
     build_controller, plant_params, uncertainty, Dof, Plant, Sensors, StepTimeStats, TwoDof,
 };
@@ -12,7 +13,7 @@ use serde_json::json;
 use std::time::{Duration, Instant};
 
 /// Horizons `Np = Nc` of the scaling table.
-const HORIZONS: [usize; 5] = [3, 5, 10, 20, 50];
+const HORIZONS: [usize; 6] = [3, 5, 10, 20, 25, 50];
 /// Prediction horizons of the fixed-`Nc = 3` rows of the scaling table.
 const FIXED_NC_HORIZONS: [usize; 4] = [10, 20, 50, 100];
 /// Scenario counts of the scaling table (payloads spread evenly over 0..2 kg).
@@ -91,7 +92,10 @@ struct ScalingRow {
     nc: usize,
     scenarios: usize,
     formulation: &'static str,
+    /// The dense (condensed) QP path.
     stats: LoopStats,
+    /// The structured (Riccati) QP path, same case, same run (decoupled scenarios only).
+    structured: Option<LoopStats>,
 }
 
 /// Runs the benchmark and prints the report (`--json`: one JSON object on stdout).
@@ -174,18 +178,31 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
                 s.multistage.robust_horizon = s.multistage.robust_horizon.clamp(1, nc);
                 let floor = s.multistage.probability_floor;
                 s.multistage.probability_floor = floor.min(0.5 / ns as f64);
+                s.controller.sqp.qp = QpBackend::Dense;
                 let stats = closed_loop(
                     &s,
                     ControllerKind::Msnmpc,
                     steps.min(CASE_STEPS),
                     Some(CASE_BUDGET),
                 )?;
+                let structured = if formulation == Formulation::Decoupled {
+                    s.controller.sqp.qp = QpBackend::Structured;
+                    Some(closed_loop(
+                        &s,
+                        ControllerKind::Msnmpc,
+                        steps.min(CASE_STEPS),
+                        Some(CASE_BUDGET),
+                    )?)
+                } else {
+                    None
+                };
                 rows.push(ScalingRow {
                     np,
                     nc,
                     scenarios: ns,
                     formulation: name,
                     stats,
+                    structured,
                 });
             }
         }
@@ -216,6 +233,13 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
                     "mean_us": r.stats.step.mean,
                     "iterations_mean": r.stats.iterations_mean,
                     "steps": r.stats.steps,
+                    "structured": r.structured.as_ref().map(|st| json!({
+                        "p50_us": st.step.p50,
+                        "p99_us": st.step.p99,
+                        "mean_us": st.step.mean,
+                        "iterations_mean": st.iterations_mean,
+                        "steps": st.steps,
+                    })),
                 })
             })
             .collect();
@@ -258,19 +282,51 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
         CASE_BUDGET.as_secs_f64()
     );
     println!(
-        "{:<10} {:>4} {:>4} {:>9} {:>11} {:>11} {:>8} {:>6}",
-        "form", "Np", "Nc", "scenarios", "p50 µs", "p99 µs", "iters", "steps"
+        "dense = condensed QP (scenario's Hessian model), structured = Riccati QP (Gauss-Newton);"
+    );
+    println!(
+        "ratio = dense p50 / structured p50, per-iteration ratio = (p50/iters) dense / structured"
+    );
+    println!(
+        "{:<10} {:>4} {:>4} {:>4} {:>11} {:>7} {:>11} {:>7} {:>7} {:>9} {:>6}",
+        "form",
+        "Np",
+        "Nc",
+        "scen",
+        "dense p50",
+        "iters",
+        "struct p50",
+        "iters",
+        "ratio",
+        "per-iter",
+        "steps"
     );
     for r in &rows {
+        let (sp50, sit, ratio, per_iter) = match &r.structured {
+            Some(st) => (
+                format!("{:.1}", st.step.p50),
+                format!("{:.2}", st.iterations_mean),
+                format!("{:.2}", r.stats.step.p50 / st.step.p50),
+                format!(
+                    "{:.2}",
+                    (r.stats.step.p50 / r.stats.iterations_mean.max(1e-9))
+                        / (st.step.p50 / st.iterations_mean.max(1e-9))
+                ),
+            ),
+            None => ("-".into(), "-".into(), "-".into(), "-".into()),
+        };
         println!(
-            "{:<10} {:>4} {:>4} {:>9} {:>11.1} {:>11.1} {:>8.2} {:>6}",
+            "{:<10} {:>4} {:>4} {:>4} {:>11.1} {:>7.2} {:>11} {:>7} {:>7} {:>9} {:>6}",
             r.formulation,
             r.np,
             r.nc,
             r.scenarios,
             r.stats.step.p50,
-            r.stats.step.p99,
             r.stats.iterations_mean,
+            sp50,
+            sit,
+            ratio,
+            per_iter,
             r.stats.steps
         );
     }

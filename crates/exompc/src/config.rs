@@ -634,6 +634,10 @@ pub struct Sqp {
     /// secant estimate of the residual curvature) or `"gauss_newton"`. Default
     /// `"structured_secant"`.
     pub hessian: crate::solver::HessianModel,
+    /// QP solver of the SQP: `"dense"` (condensed, the oracle), `"structured"` (Riccati over
+    /// the horizon stages, Gauss-Newton Hessian) or `"auto"` (structured when joints·nc ≥ 16).
+    /// Default `"auto"`.
+    pub qp: crate::control::QpBackend,
 }
 
 impl Default for Sqp {
@@ -643,6 +647,7 @@ impl Default for Sqp {
             kkt_tolerance: 1e-8,
             max_time_us: None,
             hessian: crate::solver::HessianModel::StructuredSecant,
+            qp: crate::control::QpBackend::Auto,
         }
     }
 }

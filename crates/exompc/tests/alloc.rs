@@ -56,6 +56,24 @@ fn control_steps_do_not_allocate() {
         "msnmpc (coupled) allocates"
     );
 
+    // The structured (Riccati) QP path, plain and decoupled multi-stage, at a longer horizon.
+    s.controller.sqp.qp = exompc::control::QpBackend::Structured;
+    s.controller.np = 12;
+    s.controller.nc = 12;
+    s.controller.kind = ControllerKind::Nmpc;
+    assert_eq!(
+        count_steps(&s, ControllerKind::Nmpc),
+        0,
+        "nmpc (structured QP) allocates"
+    );
+    s.controller.kind = ControllerKind::Msnmpc;
+    s.multistage.formulation = Formulation::Decoupled;
+    assert_eq!(
+        count_steps(&s, ControllerKind::Msnmpc),
+        0,
+        "msnmpc (decoupled, structured QP) allocates"
+    );
+
     // The counter works.
     assert!(allocations_in(|| drop(std::hint::black_box(vec![1u8; 16]))) > 0);
 }

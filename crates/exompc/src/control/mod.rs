@@ -23,6 +23,7 @@
 mod limits;
 mod multistage;
 mod nmpc;
+mod ocp;
 mod pd;
 mod prediction;
 mod safety;
@@ -32,6 +33,7 @@ pub use multistage::{
     build_multistage, CoupledProblem, Formulation, MultiStage, MultiStageError, MultiStageOptions,
 };
 pub use nmpc::{classify, horizon_inputs, Nmpc, NmpcCore, NmpcProblem, NmpcSettings};
+pub use ocp::{QpBackend, StructuredSqp, AUTO_STRUCTURED_MIN_VARS};
 pub use pd::PdController;
 pub use prediction::{HorizonInputs, Interaction, PredictionModel, StepJacobian};
 pub use safety::{

@@ -1,5 +1,6 @@
 //! Non-robust NMPC (paper §3.1, eq. 7 with constraints 8-9) on the SQP of [`crate::solver`].
 
+use super::ocp::{QpBackend, StructuredSqp};
 use super::prediction::{HorizonInputs, PredictionModel, StepJacobian};
 use super::{ControlOutput, Controller, IntentEstimator, Measurement, StepStatus, TorqueLimits};
 use crate::model::JointState;
@@ -19,6 +20,8 @@ pub struct NmpcSettings {
     pub r_t: f64,
     /// SQP settings.
     pub sqp: SqpSettings,
+    /// QP solver of the SQP (dense condensed or structured Riccati).
+    pub qp: QpBackend,
 }
 
 impl Default for NmpcSettings {
@@ -29,6 +32,7 @@ impl Default for NmpcSettings {
             r_d: 0.1,
             r_t: 1e-5,
             sqp: SqpSettings::default(),
+            qp: QpBackend::default(),
         }
     }
 }
@@ -245,6 +249,8 @@ pub struct NmpcCore<const N: usize> {
     /// The problem (model and per-step data).
     pub problem: NmpcProblem<N>,
     sqp: Sqp,
+    /// The structured solver, when the settings' [`QpBackend`] resolves to it.
+    structured: Option<Box<StructuredSqp<N>>>,
     constraints: Constraints,
     z: DVector<f64>,
     /// Info of the last solve.
@@ -261,6 +267,11 @@ impl<const N: usize> NmpcCore<N> {
         Ok(NmpcCore {
             problem,
             sqp,
+            structured: if settings.qp.is_structured(n) {
+                Some(Box::new(StructuredSqp::new(settings)?))
+            } else {
+                None
+            },
             constraints: Constraints::unbounded(n, n),
             z: DVector::zeros(n),
             info: SqpInfo {
@@ -287,8 +298,10 @@ impl<const N: usize> NmpcCore<N> {
         self.problem.x0 = x0;
         self.problem.t_prev = t_prev;
         self.problem.inputs = inputs;
-        self.problem
-            .write_constraints(limits, &mut self.constraints);
+        if self.structured.is_none() {
+            self.problem
+                .write_constraints(limits, &mut self.constraints);
+        }
         // Warm start: shift the previous increments by one step, last one zero.
         let n = self.z.len();
         for k in 0..n {
@@ -297,9 +310,12 @@ impl<const N: usize> NmpcCore<N> {
         if !self.z.iter().all(|v| v.is_finite()) {
             self.z.fill(0.0);
         }
-        self.info = self
-            .sqp
-            .solve(&mut self.problem, &self.constraints, &mut self.z);
+        self.info = match self.structured.as_deref_mut() {
+            Some(st) => st.solve(&self.problem, limits, &mut self.z),
+            None => self
+                .sqp
+                .solve(&mut self.problem, &self.constraints, &mut self.z),
+        };
         if !matches!(
             self.info.status,
             SqpStatus::Converged | SqpStatus::MaxIterations | SqpStatus::MaxTime
@@ -318,6 +334,11 @@ impl<const N: usize> NmpcCore<N> {
     /// The first increment `dT(k)` of the current solution.
     pub fn first_increment(&self) -> SVector<f64, N> {
         SVector::from_fn(|a, _| self.z[a])
+    }
+
+    /// Whether the structured (Riccati) QP path is in use.
+    pub fn is_structured(&self) -> bool {
+        self.structured.is_some()
     }
 
     /// Reset the warm start.

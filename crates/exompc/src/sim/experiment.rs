@@ -234,6 +234,7 @@ pub fn nmpc_settings(s: &Scenario) -> NmpcSettings {
             hessian: c.sqp.hessian,
             ..SqpSettings::default()
         },
+        qp: c.sqp.qp,
     }
 }
 

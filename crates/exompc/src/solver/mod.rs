@@ -2,6 +2,8 @@
 //!
 //! * [`qp`] — a dense, allocation-free Goldfarb–Idnani dual active-set solver for strictly
 //!   convex QPs with box and two-sided general linear constraints.
+//! * [`riccati`] — the same kind of QP in optimal-control stage form, solved by a Riccati
+//!   factorisation inside the Goldfarb–Idnani method: linear in the horizon.
 //! * [`sqp`] — a Gauss–Newton SQP method for box- and linearly-constrained nonlinear least
 //!   squares, the form of the paper's NMPC problem (eq. 7 with constraints eqs. 8–9).
 //!
@@ -11,9 +13,11 @@
 //! [`SolverError`] is only returned for invalid settings or dimensions at construction time.
 
 pub mod qp;
+pub mod riccati;
 pub mod sqp;
 
 pub use qp::{DenseQp, QpInfo, QpSettings, QpStatus};
+pub use riccati::RiccatiQp;
 pub use sqp::{Constraints, HessianModel, LeastSquares, Sqp, SqpInfo, SqpSettings, SqpStatus};
 
 /// Error returned when a solver is configured with invalid settings or dimensions.

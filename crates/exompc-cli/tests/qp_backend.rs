@@ -1,0 +1,27 @@
+//! `[controller.sqp] qp`: the three values load, a wrong one is rejected with a message naming
+//! the allowed values, and an absent key keeps the default (`auto`).
+
+use exompc::config::Scenario;
+use exompc::control::QpBackend;
+use exompc_cli::io::{get_key, parse_value, set_key};
+
+#[test]
+fn qp_backend_key_round_trips_and_rejects_unknown_values() {
+    let s = Scenario::default();
+    assert_eq!(s.controller.sqp.qp, QpBackend::Auto);
+    for (text, want) in [
+        ("\"dense\"", QpBackend::Dense),
+        ("\"structured\"", QpBackend::Structured),
+        ("\"auto\"", QpBackend::Auto),
+    ] {
+        let t = set_key(&s, "controller.sqp.qp", parse_value(text)).unwrap();
+        assert_eq!(t.controller.sqp.qp, want);
+        let back = get_key(&t, "controller.sqp.qp").unwrap().unwrap();
+        assert_eq!(back, parse_value(text));
+    }
+    let err = set_key(&s, "controller.sqp.qp", parse_value("\"sparse\"")).unwrap_err();
+    assert!(
+        err.contains("dense") && err.contains("structured") && err.contains("auto"),
+        "{err}"
+    );
+}

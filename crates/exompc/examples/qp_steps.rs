@@ -1,0 +1,64 @@
+//! Closed-loop control steps of the 2-DOF decoupled multi-stage NMPC for one horizon, scenario
+//! count and QP backend, for instruction counts per step under callgrind (docs/PERFORMANCE.md):
+//!
+//! ```text
+//! cargo build --release --example qp_steps
+//! valgrind --tool=callgrind --toggle-collect='*MultiStage*as*Controller*step*' \
+//!     target/release/examples/qp_steps 20 9 structured 100
+//! ```
+//!
+//! Arguments: `Np = Nc`, scenarios, `dense | structured`, steps (after 20 warm-up steps, which
+//! also run under the toggle; subtract a run with fewer steps for a per-step figure).
+
+use exompc::config::{ControllerKind, Formulation, Scenario};
+use exompc::control::QpBackend;
+use exompc::sim::{build_controller, plant_params, uncertainty, Dof, Plant, Sensors, TwoDof};
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let arg = |i: usize, d: &str| args.get(i).cloned().unwrap_or_else(|| d.to_string());
+    let n: usize = arg(1, "20").parse().expect("Np = Nc");
+    let ns: usize = arg(2, "9").parse().expect("scenarios");
+    let qp = match arg(3, "structured").as_str() {
+        "dense" => QpBackend::Dense,
+        "structured" => QpBackend::Structured,
+        other => panic!("backend `{other}`: dense or structured"),
+    };
+    let steps: usize = arg(4, "100").parse().expect("steps");
+    let mut s = Scenario::default();
+    s.controller.kind = ControllerKind::Msnmpc;
+    s.controller.np = n;
+    s.controller.nc = n;
+    s.controller.sqp.qp = qp;
+    s.multistage.formulation = Formulation::Decoupled;
+    s.multistage.parallel = false;
+    s.multistage.payloads_kg = (0..ns)
+        .map(|i| {
+            if ns == 1 {
+                0.0
+            } else {
+                2.0 * i as f64 / (ns - 1) as f64
+            }
+        })
+        .collect();
+    s.multistage.probability_floor = s.multistage.probability_floor.min(0.5 / ns as f64);
+    let mut c = build_controller::<TwoDof, 2>(&s, ControllerKind::Msnmpc).expect("controller");
+    let mut plant = Plant::new(plant_params::<TwoDof, 2>(&s), TwoDof::trajectory(&s));
+    let mut sensors = Sensors::new(uncertainty(&s), s.uncertainty.filter_window);
+    let mut iters = 0u64;
+    for k in 0..20 + steps {
+        let st = *plant.state();
+        let f = plant.strap_force();
+        let (_, m) = sensors.read(plant.time(), &st.robot.q, &st.robot.qd, &f);
+        let o = c.step(&m);
+        if k >= 20 {
+            iters += u64::from(o.iterations);
+        }
+        plant.step(&o.torque);
+    }
+    println!(
+        "Np=Nc={n} scenarios={ns} qp={:?} steps={steps} SQP iterations/step={:.2}",
+        qp,
+        iters as f64 / steps as f64
+    );
+}

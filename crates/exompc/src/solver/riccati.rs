@@ -1,0 +1,624 @@
+//! Structure-exploiting QP for optimal-control stages: a Riccati factorisation (as in HPIPM)
+//! inside a Goldfarb–Idnani dual active-set method.
+//!
+//! The QP is the linear-quadratic optimal control problem
+//!
+//! ```text
+//! min  Σ_{j=0}^{Nc−1} ½ u_jᵀ R_j u_j + g_{u,j}ᵀ u_j  +  Σ_{j=1}^{Np} ½ x_jᵀ Q_j x_j + g_{x,j}ᵀ x_j
+//! s.t. x_0 = 0,  x_{j+1} = A_j x_j + B_j u_j   (no input for j ≥ Nc),
+//!      lo ≤ (u, x) ≤ hi   component-wise (entries may be ±∞),
+//! ```
+//!
+//! the step-space QP of one Gauss–Newton SQP iteration of the paper's eq. 7 written in
+//! multiple-shooting stages (state `x = [q, qd, T]`, input `dT`, so the cumulative torque bound of
+//! eq. 8 is a state box and the rate bound of eq. 9 an input box; see `control::ocp`).
+//!
+//! The reduced Hessian `H` (in the inputs) is factorised once per QP by the backward Riccati
+//! recursion, `O(Np·(nx+nu)³)`. The unconstrained minimiser is one vector sweep (backward and
+//! forward, `O(Np·(nx+nu)²)`): if it satisfies every bound, that is the answer. Otherwise the
+//! dual active-set method of Goldfarb and Idnani adds the most violated bound; each addition costs
+//! one more vector sweep (`H⁻¹ n` for the entering normal `n`) plus a `k×k` Cholesky of the
+//! active set's Schur complement `N_Wᵀ H⁻¹ N_W`. The iterates are exactly those of the dense
+//! Goldfarb–Idnani method on the condensed QP (same `H`, `g`, constraints), so the solution agrees
+//! with [`super::DenseQp`] to rounding.
+
+use super::qp::{QpInfo, QpSettings, QpStatus};
+use super::SolverError;
+
+/// The stage-structured QP described in the module documentation, with all workspace allocated
+/// at construction. Trajectory vectors (`g`, `lo`, `hi`, the solution and the multipliers) use
+/// the layout `[u_0, …, u_{Nc−1}, x_1, …, x_{Np}]`.
+#[derive(Debug, Clone)]
+pub struct RiccatiQp {
+    nx: usize,
+    nu: usize,
+    np: usize,
+    nc: usize,
+    settings: QpSettings,
+    /// `A_j`, `j = 0..Np`, each `nx × nx` column-major, concatenated.
+    pub a: Vec<f64>,
+    /// `B_j`, `j = 0..Nc`, each `nx × nu` column-major, concatenated.
+    pub b: Vec<f64>,
+    /// `Q_j` of state `x_j`, `j = 1..=Np` (stored at index `j − 1`), each `nx × nx` column-major.
+    pub q: Vec<f64>,
+    /// `R_j`, `j = 0..Nc`, each `nu × nu` column-major (symmetric positive definite).
+    pub r: Vec<f64>,
+    /// Linear term in trajectory layout.
+    pub g: Vec<f64>,
+    /// Lower bounds in trajectory layout (`−∞` for none).
+    pub lo: Vec<f64>,
+    /// Upper bounds in trajectory layout (`+∞` for none).
+    pub hi: Vec<f64>,
+    // Riccati factor.
+    pm: Vec<f64>,
+    sbar: Vec<f64>,
+    kgain: Vec<f64>,
+    lchol: Vec<f64>,
+    pa: Vec<f64>,
+    pb: Vec<f64>,
+    pv: Vec<f64>,
+    kff: Vec<f64>,
+    xs: Vec<f64>,
+    // Solution, multipliers and active set.
+    sol: Vec<f64>,
+    mult: Vec<f64>,
+    unit: Vec<f64>,
+    act: Vec<(usize, f64)>,
+    mu: Vec<f64>,
+    ycols: Vec<f64>,
+    yp: Vec<f64>,
+    zdir: Vec<f64>,
+    mmat: Vec<f64>,
+    rvec: Vec<f64>,
+}
+
+impl RiccatiQp {
+    /// A solver for `np ≥ 1` stages of state dimension `nx ≥ 1`, of which the first
+    /// `1 ≤ nc ≤ np` have an input of dimension `nu ≥ 1`.
+    pub fn new(
+        nx: usize,
+        nu: usize,
+        np: usize,
+        nc: usize,
+        settings: QpSettings,
+    ) -> Result<Self, SolverError> {
+        settings.validate()?;
+        let dim = |what, value: usize, ok: bool, allowed| {
+            if ok {
+                Ok(())
+            } else {
+                Err(SolverError::InvalidDimension {
+                    what,
+                    value,
+                    allowed,
+                })
+            }
+        };
+        dim("nx", nx, nx >= 1, "at least 1")?;
+        dim("nu", nu, nu >= 1, "at least 1")?;
+        dim("np", np, np >= 1, "at least 1")?;
+        dim("nc", nc, nc >= 1 && nc <= np, "1 ≤ nc ≤ np")?;
+        let len = nc * nu + np * nx;
+        // At most nc·nu linearly independent active constraints; one spare for the entering one.
+        let cap = nc * nu + 1;
+        Ok(Self {
+            nx,
+            nu,
+            np,
+            nc,
+            settings,
+            a: vec![0.0; np * nx * nx],
+            b: vec![0.0; nc * nx * nu],
+            q: vec![0.0; np * nx * nx],
+            r: vec![0.0; nc * nu * nu],
+            g: vec![0.0; len],
+            lo: vec![f64::NEG_INFINITY; len],
+            hi: vec![f64::INFINITY; len],
+            pm: vec![0.0; (np + 1) * nx * nx],
+            sbar: vec![0.0; nc * nu * nx],
+            kgain: vec![0.0; nc * nu * nx],
+            lchol: vec![0.0; nc * nu * nu],
+            pa: vec![0.0; nx * nx],
+            pb: vec![0.0; nx * nu],
+            pv: vec![0.0; (np + 1) * nx],
+            kff: vec![0.0; nc * nu],
+            xs: vec![0.0; nx],
+            sol: vec![0.0; len],
+            mult: vec![0.0; len],
+            unit: vec![0.0; len],
+            act: Vec::with_capacity(cap),
+            mu: vec![0.0; cap],
+            ycols: vec![0.0; cap * len],
+            yp: vec![0.0; len],
+            zdir: vec![0.0; len],
+            mmat: vec![0.0; cap * cap],
+            rvec: vec![0.0; cap],
+        })
+    }
+
+    /// Length of trajectory vectors, `Nc·nu + Np·nx`.
+    pub fn len(&self) -> usize {
+        self.nc * self.nu + self.np * self.nx
+    }
+
+    /// Always `false` (dimensions are at least one); present for API symmetry with `len`.
+    pub fn is_empty(&self) -> bool {
+        false
+    }
+
+    /// Index of input component `i` of stage `j < Nc` in trajectory layout.
+    pub fn u_index(&self, j: usize, i: usize) -> usize {
+        j * self.nu + i
+    }
+
+    /// Index of component `i` of state `x_j`, `1 ≤ j ≤ Np`, in trajectory layout.
+    pub fn x_index(&self, j: usize, i: usize) -> usize {
+        self.nc * self.nu + (j - 1) * self.nx + i
+    }
+
+    /// The solution `(u, x)` of the last solve, in trajectory layout.
+    pub fn solution(&self) -> &[f64] {
+        &self.sol
+    }
+
+    /// Multipliers of the bounds in trajectory layout, with the sign convention of
+    /// [`super::DenseQp`]: negative for an active lower bound, positive for an active upper
+    /// bound, so that `∇(objective) + Σ multᵢ ∇(trajectoryᵢ) = 0` at the solution.
+    pub fn multipliers(&self) -> &[f64] {
+        &self.mult
+    }
+
+    /// Number of active bounds at the last solution.
+    pub fn num_active(&self) -> usize {
+        self.act.len()
+    }
+
+    /// Factorises the reduced Hessian by the backward Riccati recursion. Returns `false` when a
+    /// reduced input Hessian `R + BᵀPB` is not numerically positive definite.
+    fn factor(&mut self) -> bool {
+        // The NMPC's stage sizes (1-DOF, 2-DOF) as constants: unrolled, bounds checks removed.
+        match (self.nx, self.nu) {
+            (3, 1) => self.factor_dims(3, 1),
+            (6, 2) => self.factor_dims(6, 2),
+            (nx, nu) => self.factor_dims(nx, nu),
+        }
+    }
+
+    #[inline(always)]
+    fn factor_dims(&mut self, nx: usize, nu: usize) -> bool {
+        let (np, nc) = (self.np, self.nc);
+        let n2 = nx * nx;
+        self.pm[np * n2..(np + 1) * n2].copy_from_slice(&self.q[(np - 1) * n2..np * n2]);
+        for j in (0..np).rev() {
+            let (head, tail) = self.pm.split_at_mut((j + 1) * n2);
+            let p = &tail[..n2];
+            let a = &self.a[j * n2..(j + 1) * n2];
+            // PA = P A.
+            for c in 0..nx {
+                for rr in 0..nx {
+                    let mut s = 0.0;
+                    for k in 0..nx {
+                        s += p[k * nx + rr] * a[c * nx + k];
+                    }
+                    self.pa[c * nx + rr] = s;
+                }
+            }
+            if j < nc {
+                let b = &self.b[j * nx * nu..(j + 1) * nx * nu];
+                for c in 0..nu {
+                    for rr in 0..nx {
+                        let mut s = 0.0;
+                        for k in 0..nx {
+                            s += p[k * nx + rr] * b[c * nx + k];
+                        }
+                        self.pb[c * nx + rr] = s;
+                    }
+                }
+                let l = &mut self.lchol[j * nu * nu..(j + 1) * nu * nu];
+                let rj = &self.r[j * nu * nu..(j + 1) * nu * nu];
+                for c in 0..nu {
+                    for rr in 0..nu {
+                        let mut s = rj[c * nu + rr];
+                        for k in 0..nx {
+                            s += b[rr * nx + k] * self.pb[c * nx + k];
+                        }
+                        l[c * nu + rr] = s;
+                    }
+                }
+                let sb = &mut self.sbar[j * nu * nx..(j + 1) * nu * nx];
+                for c in 0..nx {
+                    for rr in 0..nu {
+                        let mut s = 0.0;
+                        for k in 0..nx {
+                            s += b[rr * nx + k] * self.pa[c * nx + k];
+                        }
+                        sb[c * nu + rr] = s;
+                    }
+                }
+                if !cholesky(l, nu) {
+                    return false;
+                }
+                let kg = &mut self.kgain[j * nu * nx..(j + 1) * nu * nx];
+                for c in 0..nx {
+                    let col = &mut kg[c * nu..(c + 1) * nu];
+                    for rr in 0..nu {
+                        col[rr] = -sb[c * nu + rr];
+                    }
+                    chol_solve(l, nu, col);
+                }
+            }
+            if j == 0 {
+                break;
+            }
+            let pj = &mut head[j * n2..(j + 1) * n2];
+            let qj = &self.q[(j - 1) * n2..j * n2];
+            for c in 0..nx {
+                for rr in 0..=c {
+                    let mut s = qj[c * nx + rr];
+                    for k in 0..nx {
+                        s += a[rr * nx + k] * self.pa[c * nx + k];
+                    }
+                    if j < nc {
+                        let sb = &self.sbar[j * nu * nx..(j + 1) * nu * nx];
+                        let kg = &self.kgain[j * nu * nx..(j + 1) * nu * nx];
+                        for i in 0..nu {
+                            s += sb[rr * nu + i] * kg[c * nu + i];
+                        }
+                    }
+                    pj[c * nx + rr] = s;
+                    pj[rr * nx + c] = s;
+                }
+            }
+        }
+        self.lchol.iter().all(|v| v.is_finite()) && self.kgain.iter().all(|v| v.is_finite())
+    }
+
+    /// Minimiser of `½wᵀHw + linᵀw` over the dynamics (trajectory layout) into `out`, where
+    /// `lin` is zero on every stage after `top` (inputs `u_j`, `j > top`, and states
+    /// `x_j`, `j > top + 1`).
+    fn sweep(&mut self, use_unit: bool, top: usize, out_is_yp: bool) {
+        match (self.nx, self.nu) {
+            (3, 1) => self.sweep_dims(3, 1, use_unit, top, out_is_yp),
+            (6, 2) => self.sweep_dims(6, 2, use_unit, top, out_is_yp),
+            (nx, nu) => self.sweep_dims(nx, nu, use_unit, top, out_is_yp),
+        }
+    }
+
+    #[inline(always)]
+    fn sweep_dims(&mut self, nx: usize, nu: usize, use_unit: bool, top: usize, out_is_yp: bool) {
+        let (np, nc) = (self.np, self.nc);
+        let n2 = nx * nx;
+        let off = nc * nu;
+        let lin: &[f64] = if use_unit { &self.unit } else { &self.g };
+        // Backward pass for the feed-forward terms.
+        let xi = off + top * nx;
+        self.pv[(top + 1) * nx..(top + 2) * nx].copy_from_slice(&lin[xi..xi + nx]);
+        for j in top + 1..nc {
+            self.kff[j * nu..(j + 1) * nu].fill(0.0);
+        }
+        for j in (0..=top).rev() {
+            let (head, tail) = self.pv.split_at_mut((j + 1) * nx);
+            let pn = &tail[..nx];
+            if j < nc {
+                let b = &self.b[j * nx * nu..(j + 1) * nx * nu];
+                let k = &mut self.kff[j * nu..(j + 1) * nu];
+                for i in 0..nu {
+                    let mut s = lin[j * nu + i];
+                    for t in 0..nx {
+                        s += b[i * nx + t] * pn[t];
+                    }
+                    k[i] = -s;
+                }
+                chol_solve(&self.lchol[j * nu * nu..(j + 1) * nu * nu], nu, k);
+            }
+            if j == 0 {
+                break;
+            }
+            let a = &self.a[j * n2..(j + 1) * n2];
+            let pj = &mut head[j * nx..(j + 1) * nx];
+            let xo = off + (j - 1) * nx;
+            for c in 0..nx {
+                let mut s = lin[xo + c];
+                for t in 0..nx {
+                    s += a[c * nx + t] * pn[t];
+                }
+                if j < nc {
+                    let sb = &self.sbar[j * nu * nx..(j + 1) * nu * nx];
+                    for i in 0..nu {
+                        s += sb[c * nu + i] * self.kff[j * nu + i];
+                    }
+                }
+                pj[c] = s;
+            }
+        }
+        // Forward pass from x_0 = 0.
+        let out: &mut [f64] = if out_is_yp {
+            &mut self.yp
+        } else {
+            &mut self.sol
+        };
+        self.xs.fill(0.0);
+        for j in 0..np {
+            let a = &self.a[j * n2..(j + 1) * n2];
+            let xo = off + j * nx;
+            for rr in 0..nx {
+                let mut s = 0.0;
+                for c in 0..nx {
+                    s += a[c * nx + rr] * self.xs[c];
+                }
+                out[xo + rr] = s;
+            }
+            if j < nc {
+                let kg = &self.kgain[j * nu * nx..(j + 1) * nu * nx];
+                let b = &self.b[j * nx * nu..(j + 1) * nx * nu];
+                for i in 0..nu {
+                    let mut s = self.kff[j * nu + i];
+                    for c in 0..nx {
+                        s += kg[c * nu + i] * self.xs[c];
+                    }
+                    out[j * nu + i] = s;
+                    for rr in 0..nx {
+                        out[xo + rr] += b[i * nx + rr] * s;
+                    }
+                }
+            }
+            self.xs.copy_from_slice(&out[xo..xo + nx]);
+        }
+    }
+
+    /// Trajectory `H⁻¹ n` for the constraint normal `n = σ e_id` (in trajectory coordinates)
+    /// into `yp`.
+    fn normal_solve(&mut self, id: usize, sigma: f64) {
+        let (nx, nu, nc) = (self.nx, self.nu, self.nc);
+        self.unit[id] = 1.0;
+        let top = if id < nc * nu {
+            id / nu
+        } else {
+            (id - nc * nu) / nx
+        };
+        self.sweep(true, top, true);
+        self.unit[id] = 0.0;
+        // The sweep gives −H⁻¹ e; the normal is σ e.
+        for v in self.yp.iter_mut() {
+            *v *= -sigma;
+        }
+    }
+
+    /// Objective `½wᵀHw + gᵀw` of the trajectory `w = self.sol`.
+    fn objective(&self) -> f64 {
+        let (nx, nu, np, nc) = (self.nx, self.nu, self.np, self.nc);
+        let off = nc * nu;
+        let mut f = 0.0;
+        for (w, g) in self.sol.iter().zip(&self.g) {
+            f += w * g;
+        }
+        for j in 0..nc {
+            let u = &self.sol[j * nu..(j + 1) * nu];
+            let rj = &self.r[j * nu * nu..(j + 1) * nu * nu];
+            for c in 0..nu {
+                for rr in 0..nu {
+                    f += 0.5 * u[rr] * rj[c * nu + rr] * u[c];
+                }
+            }
+        }
+        for j in 0..np {
+            let x = &self.sol[off + j * nx..off + (j + 1) * nx];
+            let qj = &self.q[j * nx * nx..(j + 1) * nx * nx];
+            for c in 0..nx {
+                for rr in 0..nx {
+                    f += 0.5 * x[rr] * qj[c * nx + rr] * x[c];
+                }
+            }
+        }
+        f
+    }
+
+    /// Solves the QP with the current data. Never panics and allocates nothing; the solution is
+    /// [`Self::solution`] and the multipliers [`Self::multipliers`].
+    pub fn solve(&mut self) -> QpInfo {
+        let len = self.len();
+        let mut info = QpInfo {
+            status: QpStatus::Solved,
+            iterations: 0,
+            objective: f64::NAN,
+        };
+        self.act.clear();
+        self.mult.fill(0.0);
+        let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+        let data_finite = finite(&self.a)
+            && finite(&self.b)
+            && finite(&self.q)
+            && finite(&self.r)
+            && finite(&self.g);
+        if !data_finite {
+            info.status = QpStatus::NonFiniteInput;
+            return info;
+        }
+        for i in 0..len {
+            let (l, h) = (self.lo[i], self.hi[i]);
+            if l.is_nan() || h.is_nan() {
+                info.status = QpStatus::NonFiniteInput;
+                return info;
+            }
+            if l > h || l == f64::INFINITY || h == f64::NEG_INFINITY {
+                info.status = QpStatus::Infeasible;
+                return info;
+            }
+        }
+        if !self.factor() {
+            info.status = QpStatus::NumericalError;
+            return info;
+        }
+        let top = self.np - 1;
+        self.sweep(false, top, false);
+        let tol = self.settings.feasibility_tolerance;
+        let dep2 = self.settings.dependency_tolerance * self.settings.dependency_tolerance;
+        let cap = self.mu.len();
+        'outer: loop {
+            // Most violated bound not in the active set.
+            let mut best = 0.0;
+            let mut entering: Option<(usize, f64)> = None;
+            for i in 0..len {
+                let w = self.sol[i];
+                let (l, h) = (self.lo[i], self.hi[i]);
+                let (v, sigma, bound) = if w < l {
+                    (l - w, 1.0, l)
+                } else if w > h {
+                    (w - h, -1.0, h)
+                } else {
+                    continue;
+                };
+                if v > tol * (1.0 + bound.abs())
+                    && v > best
+                    && !self.act.iter().any(|&(id, _)| id == i)
+                {
+                    best = v;
+                    entering = Some((i, sigma));
+                }
+            }
+            let Some((p, sp)) = entering else {
+                break;
+            };
+            let bp = if sp > 0.0 { self.lo[p] } else { -self.hi[p] };
+            self.normal_solve(p, sp);
+            let npp = sp * self.yp[p];
+            let mut mu_p = 0.0;
+            loop {
+                if info.iterations >= self.settings.max_iterations {
+                    info.status = QpStatus::MaxIterations;
+                    break 'outer;
+                }
+                info.iterations += 1;
+                let k = self.act.len();
+                // r = M⁻¹ N_Wᵀ H⁻¹ n_p, M = N_Wᵀ H⁻¹ N_W.
+                for (a, &(ida, sa)) in self.act.iter().enumerate() {
+                    self.rvec[a] = sa * self.yp[ida];
+                    for c in 0..k {
+                        self.mmat[c * k + a] = sa * self.ycols[c * len + ida];
+                    }
+                }
+                if k > 0 {
+                    if !cholesky(&mut self.mmat[..k * k], k) {
+                        info.status = QpStatus::NumericalError;
+                        break 'outer;
+                    }
+                    chol_solve(&self.mmat[..k * k], k, &mut self.rvec[..k]);
+                }
+                // z = H⁻¹ n_p − Σ rᵢ H⁻¹ nᵢ.
+                self.zdir.copy_from_slice(&self.yp);
+                for c in 0..k {
+                    let rc = self.rvec[c];
+                    let col = &self.ycols[c * len..(c + 1) * len];
+                    for (z, y) in self.zdir.iter_mut().zip(col) {
+                        *z -= rc * y;
+                    }
+                }
+                let nz = sp * self.zdir[p];
+                let full = nz > dep2 * npp.abs().max(f64::MIN_POSITIVE);
+                // Largest dual step keeping the active multipliers nonnegative.
+                let mut t1 = f64::INFINITY;
+                let mut block = usize::MAX;
+                for c in 0..k {
+                    let rc = self.rvec[c];
+                    if rc > 0.0 {
+                        let t = self.mu[c] / rc;
+                        if t < t1 {
+                            t1 = t;
+                            block = c;
+                        }
+                    }
+                }
+                let slack = sp * self.sol[p] - bp;
+                let t2 = if full { -slack / nz } else { f64::INFINITY };
+                let t = t1.min(t2);
+                if !t.is_finite() {
+                    info.status = QpStatus::Infeasible;
+                    break 'outer;
+                }
+                for c in 0..k {
+                    self.mu[c] -= t * self.rvec[c];
+                }
+                mu_p += t;
+                if full {
+                    for (w, z) in self.sol.iter_mut().zip(&self.zdir) {
+                        *w += t * z;
+                    }
+                }
+                if full && t2 <= t1 {
+                    if k + 1 > cap {
+                        info.status = QpStatus::NumericalError;
+                        break 'outer;
+                    }
+                    self.act.push((p, sp));
+                    self.mu[k] = mu_p;
+                    self.ycols[k * len..(k + 1) * len].copy_from_slice(&self.yp);
+                    continue 'outer;
+                }
+                // Drop the blocking constraint (order of the active set is irrelevant).
+                let last = k - 1;
+                self.act.swap(block, last);
+                self.act.pop();
+                self.mu[block] = self.mu[last];
+                if block != last {
+                    let (lo_part, hi_part) = self.ycols.split_at_mut(last * len);
+                    lo_part[block * len..(block + 1) * len].copy_from_slice(&hi_part[..len]);
+                }
+            }
+        }
+        for (c, &(id, s)) in self.act.iter().enumerate() {
+            self.mult[id] = -s * self.mu[c];
+        }
+        if !self.sol.iter().all(|v| v.is_finite()) {
+            info.status = QpStatus::NumericalError;
+            return info;
+        }
+        info.objective = self.objective();
+        info
+    }
+}
+
+/// In-place lower Cholesky factor of the `n × n` column-major `m` (upper part ignored).
+/// Returns `false` unless the matrix is numerically positive definite.
+fn cholesky(m: &mut [f64], n: usize) -> bool {
+    let mut maxd: f64 = 0.0;
+    for i in 0..n {
+        maxd = maxd.max(m[i * n + i].abs());
+    }
+    for j in 0..n {
+        let mut d = m[j * n + j];
+        for k in 0..j {
+            d -= m[k * n + j] * m[k * n + j];
+        }
+        if d.is_nan() || d <= 1e-14 * maxd || !d.is_finite() {
+            return false;
+        }
+        let d = d.sqrt();
+        m[j * n + j] = d;
+        for i in j + 1..n {
+            let mut s = m[j * n + i];
+            for k in 0..j {
+                s -= m[k * n + i] * m[k * n + j];
+            }
+            m[j * n + i] = s / d;
+        }
+    }
+    true
+}
+
+/// Solves `L Lᵀ x = b` in place with the factor of [`cholesky`].
+fn chol_solve(l: &[f64], n: usize, b: &mut [f64]) {
+    for i in 0..n {
+        let mut s = b[i];
+        for k in 0..i {
+            s -= l[k * n + i] * b[k];
+        }
+        b[i] = s / l[i * n + i];
+    }
+    for i in (0..n).rev() {
+        let mut s = b[i];
+        for k in i + 1..n {
+            s -= l[i * n + k] * b[k];
+        }
+        b[i] = s / l[i * n + i];
+    }
+}
