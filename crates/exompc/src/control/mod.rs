@@ -19,7 +19,8 @@ pub use nmpc::{classify, horizon_inputs, Nmpc, NmpcCore, NmpcProblem, NmpcSettin
 pub use pd::PdController;
 pub use prediction::{HorizonInputs, Interaction, PredictionModel, StepJacobian};
 pub use safety::{
-    MonitorAction, MonitorEvent, MonitorKind, SafetyReport, SafetySettings, Supervisor,
+    MonitorAction, MonitorEvent, MonitorKind, OscillationDetector, SafetyReport, SafetySettings,
+    StrapAngleEstimate, Supervisor,
 };
 
 use nalgebra::SVector;
