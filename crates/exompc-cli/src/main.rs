@@ -5,6 +5,7 @@
 //! line on stderr.
 
 mod bench;
+mod envelope_cmd;
 mod model_cmd;
 mod plot;
 mod simulate;
@@ -14,6 +15,7 @@ mod sweep;
 
 use bench::BenchArgs;
 use clap::{Args, Parser, Subcommand};
+use envelope_cmd::EnvelopeArgs;
 use exompc::config::{ControllerKind, Scenario};
 use exompc_cli::error::CliError;
 use exompc_cli::io;
@@ -66,6 +68,10 @@ enum Command {
     Plot(PlotArgs),
     /// A long run (1 h by default) with sensor faults, checking limits, NaN and the monitors.
     Soak(SoakArgs),
+    /// Scan the operating envelope (scenario changes × payloads × controllers): classify every
+    /// run (stable / limit cycle / growing / saturating), judge MS-NMPC against NMPC per cell,
+    /// write envelope.json, envelope.md and a heat map (see docs/ROBUSTNESS.md).
+    Envelope(EnvelopeArgs),
 }
 
 /// `--config FILE`, shared by the subcommands that run a scenario.
@@ -111,6 +117,7 @@ fn run(cli: Cli) -> Result<(), CliError> {
         Command::Model(a) => model_cmd::run(a),
         Command::Solve(a) => solve::run(a),
         Command::Plot(a) => plot::run(a),
+        Command::Envelope(a) => envelope_cmd::run(a),
     }
 }
 

@@ -303,17 +303,20 @@ pub struct CellVerdict {
     pub within_limits: bool,
     /// Every strap's RMS ≤ `ratio ×` the NMPC's (ratio 1 at payloads ≥ 1 kg, 1.1 below).
     pub no_worse_than_nmpc: bool,
+    /// No safety monitor tripped (a run that needs the safety layer does not hold).
+    pub no_monitor_trip: bool,
     /// All of the above.
     pub pass: bool,
 }
 
 /// The acceptance of one cell: `ms` and `nmpc` are the classified runs, `*_rms` their
-/// per-strap RMS forces, `violations` the robust run's limit violations, `payload_kg` the
-/// true payload.
+/// per-strap RMS forces, `violations` and `monitor_trips` the robust run's limit violations
+/// and safety-monitor trips, `payload_kg` the true payload.
 pub fn cell_verdict(
     ms: &RunStability,
     nmpc_rms: &[f64],
     violations: u64,
+    monitor_trips: u64,
     payload_kg: f64,
     c: &StabilityCriteria,
 ) -> CellVerdict {
@@ -337,7 +340,8 @@ pub fn cell_verdict(
         rms_waived,
         within_limits,
         no_worse_than_nmpc,
-        pass: stable && rms_ok && within_limits && no_worse_than_nmpc,
+        no_monitor_trip: monitor_trips == 0,
+        pass: stable && rms_ok && within_limits && no_worse_than_nmpc && monitor_trips == 0,
     }
 }
 
@@ -433,17 +437,19 @@ mod tests {
             classify(vec![strap(&x), strap(&x)], tl, 0.0, n, &c)
         };
         let a = 5.0 / 2f64.sqrt(); // RMS of the 5 N sine
-        assert!(cell_verdict(&ms(5.0, 0.0), &[a, a], 0, 1.0, &c).pass);
+        assert!(cell_verdict(&ms(5.0, 0.0), &[a, a], 0, 0, 1.0, &c).pass);
         // At ≥ 1 kg no worse than NMPC; at 0 kg within 1.1×.
-        let v = cell_verdict(&ms(5.0, 0.0), &[0.95 * a, a], 0, 1.0, &c);
+        let v = cell_verdict(&ms(5.0, 0.0), &[0.95 * a, a], 0, 0, 1.0, &c);
         assert!(!v.pass && !v.no_worse_than_nmpc && v.stable);
-        assert!(cell_verdict(&ms(5.0, 0.0), &[0.95 * a, a], 0, 0.0, &c).pass);
-        assert!(!cell_verdict(&ms(5.0, 0.0), &[a, a], 1, 0.0, &c).pass);
+        assert!(cell_verdict(&ms(5.0, 0.0), &[0.95 * a, a], 0, 0, 0.0, &c).pass);
+        assert!(!cell_verdict(&ms(5.0, 0.0), &[a, a], 1, 0, 0.0, &c).pass);
         // 30 N amplitude: RMS 21 N fails unless the torque limit waives it.
         let big = 30.0 / 2f64.sqrt() + 0.01;
-        let v = cell_verdict(&ms(30.0, 0.0), &[big, big], 0, 2.0, &c);
+        let v = cell_verdict(&ms(30.0, 0.0), &[big, big], 0, 0, 2.0, &c);
         assert!(!v.rms_ok && !v.pass);
-        let v = cell_verdict(&ms(30.0, 0.2), &[big, big], 0, 2.0, &c);
+        let v = cell_verdict(&ms(30.0, 0.2), &[big, big], 0, 0, 2.0, &c);
         assert!(v.rms_ok && v.rms_waived && v.pass);
+        let v = cell_verdict(&ms(5.0, 0.0), &[a, a], 0, 1, 1.0, &c);
+        assert!(!v.pass && !v.no_monitor_trip);
     }
 }
