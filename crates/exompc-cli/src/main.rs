@@ -5,6 +5,7 @@
 //! line on stderr.
 
 mod bench;
+mod envelope_cmd;
 mod model_cmd;
 mod plot;
 mod realtime;
@@ -15,6 +16,7 @@ mod sweep;
 
 use bench::BenchArgs;
 use clap::{Args, Parser, Subcommand};
+use envelope_cmd::EnvelopeArgs;
 use exompc::config::{ControllerKind, Scenario};
 use exompc_cli::error::CliError;
 use exompc_cli::io;
@@ -71,6 +73,10 @@ enum Command {
     Run(realtime::RunArgs),
     /// Simulate the robot of `simulate` in real time behind the UDP protocol, to test `run`.
     VirtualRobot(realtime::VirtualRobotArgs),
+    /// Scan the operating envelope (scenario changes × payloads × controllers): classify every
+    /// run (stable / limit cycle / growing / saturating), judge MS-NMPC against NMPC per cell,
+    /// write envelope.json, envelope.md and a heat map (see docs/ROBUSTNESS.md).
+    Envelope(EnvelopeArgs),
 }
 
 /// `--config FILE`, shared by the subcommands that run a scenario.
@@ -118,6 +124,7 @@ fn run(cli: Cli) -> Result<(), CliError> {
         Command::Plot(a) => plot::run(a),
         Command::Run(a) => realtime::run(a),
         Command::VirtualRobot(a) => realtime::virtual_robot(a),
+        Command::Envelope(a) => envelope_cmd::run(a),
     }
 }
 

@@ -70,7 +70,7 @@ fn ctrl_label(c: &str) -> &'static str {
 }
 
 /// Registers the embedded DejaVu Sans font once (no system font library needed).
-fn ensure_font() -> Result<(), CliError> {
+pub(crate) fn ensure_font() -> Result<(), CliError> {
     static DONE: OnceLock<bool> = OnceLock::new();
     let ok = *DONE.get_or_init(|| {
         register_font(FONT, FontStyle::Normal, dejavu::sans::regular()).is_ok()

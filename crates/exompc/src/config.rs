@@ -838,7 +838,10 @@ pub enum MonitorResponse {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Monitors {
-    /// Trip when any |q_H - q_R| estimate exceeds this (rad), > 0. Default 0.35.
+    /// Trip when the human-robot angle error `|q_H − q_R|` of some joint, estimated from the
+    /// measured strap forces by inverting the strap model (`F = ks J (Δq + (cs/ks) Δqd)`,
+    /// docs/MODEL.md §4), exceeds this (rad), > 0. Default 0.35 (20°; the default scenario
+    /// stays below 0.15).
     pub tracking_error_max_rad: f64,
     /// Trip when any measured strap force exceeds this (N), > 0. Default 70.
     pub force_max_n: f64,
@@ -846,6 +849,21 @@ pub struct Monitors {
     pub sensor_timeout_s: f64,
     /// Response when tripped (`"hold"` or `"ramp_to_zero"`). Default `"ramp_to_zero"`.
     pub response: MonitorResponse,
+    /// Oscillation monitor: trip when the RMS of a measured strap force's content above
+    /// `oscillation_cutoff_hz` over the last `oscillation_window_s` exceeds this (N), > 0.
+    /// Default 8.
+    pub oscillation_force_rms_n: f64,
+    /// Oscillation monitor: the same on the commanded joint torques (N·m), > 0. Default 10.
+    pub oscillation_torque_rms_nm: f64,
+    /// Oscillation monitor high-pass cutoff (Hz), > 0; a cutoff at or above the Nyquist
+    /// frequency `0.5 / timing.dt` is taken just below it. Default 3.
+    pub oscillation_cutoff_hz: f64,
+    /// Oscillation monitor sliding window (s), in (0, 10]; at least one sample. Default 0.5.
+    pub oscillation_window_s: f64,
+    /// A tripped oscillation monitor (which applies `response`) clears after its condition
+    /// has been absent this long (s), in [0, 1e6]: longer than the other monitors' 0.1 s so
+    /// that a limit cycle does not restart at once. Default 2.
+    pub oscillation_clear_s: f64,
 }
 
 impl Default for Monitors {
@@ -855,6 +873,11 @@ impl Default for Monitors {
             force_max_n: 70.0,
             sensor_timeout_s: 0.05,
             response: MonitorResponse::RampToZero,
+            oscillation_force_rms_n: 8.0,
+            oscillation_torque_rms_nm: 10.0,
+            oscillation_cutoff_hz: 3.0,
+            oscillation_window_s: 0.5,
+            oscillation_clear_s: 2.0,
         }
     }
 }
@@ -1105,6 +1128,27 @@ impl Scenario {
                 ("tracking_error_max_rad", mo.tracking_error_max_rad, R::Pos),
                 ("force_max_n", mo.force_max_n, R::Pos),
                 ("sensor_timeout_s", mo.sensor_timeout_s, R::Pos),
+                (
+                    "oscillation_force_rms_n",
+                    mo.oscillation_force_rms_n,
+                    R::Pos,
+                ),
+                (
+                    "oscillation_torque_rms_nm",
+                    mo.oscillation_torque_rms_nm,
+                    R::Pos,
+                ),
+                ("oscillation_cutoff_hz", mo.oscillation_cutoff_hz, R::Pos),
+                (
+                    "oscillation_window_s",
+                    mo.oscillation_window_s,
+                    R::OpenClosed(0.0, 10.0),
+                ),
+                (
+                    "oscillation_clear_s",
+                    mo.oscillation_clear_s,
+                    R::Closed(0.0, 1e6),
+                ),
             ],
         )
     }

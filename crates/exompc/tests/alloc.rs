@@ -88,3 +88,36 @@ fn controller_sizes() {
     eprintln!("size_of Nmpc<2> = {nmpc} B, MultiStage<2, 6, 4> = {ms} B");
     assert!(nmpc > 0 && ms > 0);
 }
+
+/// The safety supervisor (plausibility, monitors incl. the oscillation detectors' ring
+/// buffers, event log) adds no allocation: on the default scenario and on a limit-cycling one
+/// whose monitors trip and clear.
+#[test]
+fn supervised_steps_do_not_allocate() {
+    let mut provoked = Scenario::default();
+    provoked.uncertainty.filter_window = 9;
+    provoked.uncertainty.payload_kg = 2.0;
+    provoked.robot.payload_position_m = 0.43;
+    for s in [Scenario::default(), provoked] {
+        let mut controller =
+            exompc::sim::build_supervised::<TwoDof, 2>(&s, ControllerKind::Msnmpc).unwrap();
+        let mut plant = Plant::new(plant_params::<TwoDof, 2>(&s), TwoDof::trajectory(&s));
+        let mut sensors = Sensors::new(uncertainty(&s), s.uncertainty.filter_window);
+        let mut total = 0;
+        for k in 0..400 {
+            let t = plant.time();
+            let st = *plant.state();
+            let force = plant.strap_force();
+            let (_raw, meas) = sensors.read(t, &st.robot.q, &st.robot.qd, &force);
+            let mut out = None;
+            let n = allocations_in(|| {
+                out = Some(exompc::control::Controller::step(&mut controller, &meas))
+            });
+            if k >= 20 {
+                total += n;
+            }
+            plant.step(&out.expect("stepped").torque);
+        }
+        assert_eq!(total, 0, "supervised msnmpc allocates");
+    }
+}

@@ -37,7 +37,8 @@ pub use ocp::{QpBackend, StructuredSqp, AUTO_STRUCTURED_MIN_VARS};
 pub use pd::PdController;
 pub use prediction::{HorizonInputs, Interaction, PredictionModel, StepJacobian};
 pub use safety::{
-    MonitorAction, MonitorEvent, MonitorKind, SafetyReport, SafetySettings, Supervisor,
+    MonitorAction, MonitorEvent, MonitorKind, OscillationDetector, SafetyReport, SafetySettings,
+    StrapAngleEstimate, Supervisor,
 };
 
 use nalgebra::SVector;

@@ -2,7 +2,7 @@
 
 use super::{ControlOutput, Controller, Measurement, StepStatus, TorqueLimits};
 use crate::config::{MonitorResponse, Monitors, Scenario};
-use nalgebra::SVector;
+use nalgebra::{SMatrix, SVector};
 use serde::Serialize;
 
 /// Thresholds and responses of a [`Supervisor`].
@@ -12,8 +12,16 @@ pub struct SafetySettings {
     pub limits: TorqueLimits,
     /// Control period (s), the supervisor's clock.
     pub dt: f64,
-    /// Intent gain `K1` (rad/N) of the tracking-error estimate `|K1·F|`.
+    /// Intent gain `K1` (rad/N) of the scenario (for reference: the tracking-error monitor
+    /// inverts the strap model instead, see `strap_levers_m`).
     pub k1: f64,
+    /// Strap levers `Ls` (m), hip outwards (`[Ls1, Ls2]`); a supervisor of `N` joints uses
+    /// the last `N` (the 1-DOF knee: `Ls2`) in `J(s, i) = Ls_i` for `i ≤ s` (docs/MODEL.md §4).
+    pub strap_levers_m: Vec<f64>,
+    /// Strap stiffness `ks` (N/m).
+    pub strap_stiffness: f64,
+    /// Strap damping `cs` (N·s/m).
+    pub strap_damping: f64,
     /// Force sensor range (N): `|F| ≥ saturation_n` is implausible.
     pub saturation_n: f64,
     /// Plausible joint angles `|q| ≤ angle_max` (rad).
@@ -45,6 +53,9 @@ impl SafetySettings {
             },
             dt: s.timing.dt,
             k1: s.controller.k1,
+            strap_levers_m: vec![s.straps.ls1_m, s.straps.ls2_m],
+            strap_stiffness: s.straps.stiffness,
+            strap_damping: s.straps.damping,
             saturation_n: s.faults.saturation_n,
             angle_max: Self::ANGLE_MAX,
             velocity_max: Self::VELOCITY_MAX,
@@ -59,19 +70,187 @@ impl SafetySettings {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum MonitorKind {
-    /// `|K1·F| > tracking_error_max_rad` on some joint.
+    /// Estimated `|q_H − q_R| > tracking_error_max_rad` on some joint.
     TrackingError,
     /// `|F| > force_max_n` on some strap.
     StrapForce,
     /// A channel without a fresh valid sample for longer than `sensor_timeout_s`.
     SensorTimeout,
+    /// Strap-force RMS above the cutoff over the window `> oscillation_force_rms_n`.
+    ForceOscillation,
+    /// Torque RMS above the cutoff over the window `> oscillation_torque_rms_nm`.
+    TorqueOscillation,
 }
 
-const MONITORS: [MonitorKind; 3] = [
+const MONITORS: [MonitorKind; 5] = [
     MonitorKind::TrackingError,
     MonitorKind::StrapForce,
     MonitorKind::SensorTimeout,
+    MonitorKind::ForceOscillation,
+    MonitorKind::TorqueOscillation,
 ];
+
+/// Indices of the oscillation monitors in [`MONITORS`].
+const OSCILLATION: [usize; 2] = [3, 4];
+
+/// Sliding-window RMS of a signal's content above a cutoff frequency, per channel: a
+/// second-order Butterworth high-pass (bilinear transform with pre-warping, so that
+/// `|H(f)|² = 1 / (1 + (tan(π f_c dt) / tan(π f dt))⁴)` exactly) followed by the mean square
+/// of its output over the last `window` samples, kept in a ring buffer allocated once.
+#[derive(Clone, Debug)]
+pub struct OscillationDetector<const N: usize> {
+    b: [f64; 3],
+    a: [f64; 2],
+    x: [SVector<f64, N>; 2],
+    y: [SVector<f64, N>; 2],
+    ring: Vec<SVector<f64, N>>,
+    pos: usize,
+    filled: usize,
+    sum: SVector<f64, N>,
+    started: bool,
+}
+
+impl<const N: usize> OscillationDetector<N> {
+    /// High-pass at `cutoff_hz` for samples every `dt` s, RMS over `window_s` (at least one
+    /// sample). Out-of-range values are brought into range: the cutoff into (0, Nyquist).
+    pub fn new(cutoff_hz: f64, dt: f64, window_s: f64) -> Self {
+        let dt = if dt.is_finite() && dt > 0.0 { dt } else { 0.01 };
+        let nyquist = 0.5 / dt;
+        let fc = if cutoff_hz.is_finite() {
+            cutoff_hz.clamp(1e-6 * nyquist, 0.999 * nyquist)
+        } else {
+            0.3 * nyquist
+        };
+        let k = (std::f64::consts::PI * fc * dt).tan();
+        let r2 = std::f64::consts::SQRT_2;
+        let norm = 1.0 / (1.0 + r2 * k + k * k);
+        let w = if window_s.is_finite() {
+            ((window_s / dt).round() as usize).clamp(1, 1 << 20)
+        } else {
+            1
+        };
+        OscillationDetector {
+            b: [norm, -2.0 * norm, norm],
+            a: [2.0 * (k * k - 1.0) * norm, (1.0 - r2 * k + k * k) * norm],
+            x: [SVector::zeros(); 2],
+            y: [SVector::zeros(); 2],
+            ring: vec![SVector::zeros(); w],
+            pos: 0,
+            filled: 0,
+            sum: SVector::zeros(),
+            started: false,
+        }
+    }
+
+    /// Window length (samples).
+    pub fn window(&self) -> usize {
+        self.ring.len()
+    }
+
+    /// Feed one sample; returns the largest channel RMS over the (partly filled) window. A
+    /// sample with a non-finite entry is skipped (the detector keeps its state).
+    pub fn push(&mut self, v: &SVector<f64, N>) -> f64 {
+        if !v.iter().all(|x| x.is_finite()) {
+            return self.rms_max();
+        }
+        if !self.started {
+            // Start as if the first value had always been there (no step response).
+            self.x = [*v, *v];
+            self.started = true;
+        }
+        let [b0, b1, b2] = self.b;
+        let [a1, a2] = self.a;
+        let y = v * b0 + self.x[0] * b1 + self.x[1] * b2 - self.y[0] * a1 - self.y[1] * a2;
+        self.x = [*v, self.x[0]];
+        self.y = [y, self.y[0]];
+        let sq = y.component_mul(&y);
+        let w = self.ring.len();
+        self.sum += sq - self.ring[self.pos];
+        self.ring[self.pos] = sq;
+        self.pos = (self.pos + 1) % w;
+        self.filled = (self.filled + 1).min(w);
+        if self.pos == 0 {
+            // Re-sum once per window against rounding drift (amortised O(1)).
+            self.sum = self.ring.iter().fold(SVector::zeros(), |a, b| a + b);
+        }
+        self.rms_max()
+    }
+
+    /// Per-channel RMS of the high-passed signal over the window (0 before any sample).
+    pub fn rms(&self) -> SVector<f64, N> {
+        let n = self.filled.max(1) as f64;
+        self.sum.map(|s| (s.max(0.0) / n).sqrt())
+    }
+
+    /// Largest channel RMS.
+    pub fn rms_max(&self) -> f64 {
+        self.rms().iter().copied().fold(0.0, f64::max)
+    }
+}
+
+/// Human-robot angle error `Δq = q_H − q_R` estimated from measured strap forces by inverting
+/// the strap model `F = ks J (Δq + τ Δqd)`, `τ = cs/ks` (paper eqs. 3-4, docs/MODEL.md §4):
+/// `u = (ks J)⁻¹ F` is the error the springs alone would need, and `Δq` follows
+/// `τ Δqd + Δq = u`, integrated exactly for `u` held over each period.
+#[derive(Clone, Copy, Debug)]
+pub struct StrapAngleEstimate<const N: usize> {
+    inv: SMatrix<f64, N, N>,
+    alpha: f64,
+    dq: SVector<f64, N>,
+    started: bool,
+}
+
+impl<const N: usize> StrapAngleEstimate<N> {
+    /// From the strap levers (the last `N` of `levers`, hip outwards; a missing or
+    /// non-positive lever counts as 1 m), stiffness, damping and control period `dt`.
+    pub fn new(levers: &[f64], stiffness: f64, damping: f64, dt: f64) -> Self {
+        let lever = |i: usize| {
+            let j = (levers.len() + i).checked_sub(N);
+            j.and_then(|j| levers.get(j))
+                .copied()
+                .filter(|l| l.is_finite() && *l > 0.0)
+                .unwrap_or(1.0)
+        };
+        let ks = if stiffness.is_finite() && stiffness > 0.0 {
+            stiffness
+        } else {
+            1.0
+        };
+        let j = SMatrix::<f64, N, N>::from_fn(|s, i| if i <= s { ks * lever(i) } else { 0.0 });
+        let inv = j.try_inverse().unwrap_or_else(SMatrix::zeros);
+        let tau = if damping.is_finite() && damping > 0.0 {
+            damping / ks
+        } else {
+            0.0
+        };
+        let alpha = if tau > 0.0 && dt.is_finite() && dt > 0.0 {
+            1.0 - (-dt / tau).exp()
+        } else {
+            1.0
+        };
+        StrapAngleEstimate {
+            inv,
+            alpha,
+            dq: SVector::zeros(),
+            started: false,
+        }
+    }
+
+    /// Update with measured forces `f` (N); returns the estimated `Δq` (rad). A non-finite
+    /// force keeps the previous estimate.
+    pub fn update(&mut self, f: &SVector<f64, N>) -> SVector<f64, N> {
+        if f.iter().all(|v| v.is_finite()) {
+            let u = self.inv * f;
+            self.dq = if self.started {
+                self.dq + (u - self.dq) * self.alpha
+            } else {
+                u
+            };
+            self.started = true;
+        }
+        self.dq
+    }
+}
 
 /// A monitor tripping or clearing.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -124,7 +303,9 @@ pub struct SafetyReport {
 ///   torque is held (status [`StepStatus::BadMeasurement`]). When the data is good again the
 ///   inner controller resumes from the torque actually applied (kept in sync through
 ///   [`Controller::set_previous_torque`]).
-/// * **Monitors.** Human-robot tracking error estimated as `|K1·F|` (q_H is not measured)
+/// * **Monitors.** The human-robot angle error `|q_H − q_R|` (q_H is not measured: it is
+///   estimated from the measured strap forces by inverting the strap model
+///   `F = ks J (Δq + τ Δqd)`, `τ = cs/ks`, docs/MODEL.md §4, see [`StrapAngleEstimate`])
 ///   above `tracking_error_max_rad`, strap force above `force_max_n`, and any sensor channel
 ///   without a fresh valid sample (non-finite, implausible, or bit-for-bit repeated) for longer
 ///   than `sensor_timeout_s`. A tripped monitor applies the configured response (`hold` the
@@ -132,6 +313,14 @@ pub struct SafetyReport {
 ///   [`StepStatus::MonitorTripped`]); it clears after its condition has been absent for
 ///   `clear_after_s`, and the inner controller resumes from the applied torque. Trips and
 ///   clears are logged with their time in a bounded event list ([`SafetyReport`]).
+/// * **Oscillation.** The measured strap forces and the commanded torques each pass a
+///   second-order Butterworth high-pass at `oscillation_cutoff_hz` (3 Hz: the gait lives
+///   below, the delay-driven limit cycles near 4 Hz above); the RMS of its output over the
+///   last `oscillation_window_s` ([`OscillationDetector`], a ring buffer) above
+///   `oscillation_force_rms_n` / `oscillation_torque_rms_nm` trips the oscillation monitor.
+///   It applies the configured `response` like the other monitors and clears after
+///   `oscillation_clear_s` (2 s) without oscillation, so that a limit cycle does not restart
+///   at once.
 /// * **Limits.** Every output passes through [`TorqueLimits::clamp`] relative to the previous
 ///   output, so `|T| ≤ T_max` and `|T − T_prev| ≤ ΔT_max` hold whatever the inner controller
 ///   returns (NaN included).
@@ -149,8 +338,11 @@ pub struct Supervisor<const N: usize, C> {
     fresh_t: [SVector<f64, N>; 3],
     /// Previous raw value per signal and joint (bit-exact staleness check).
     last: [SVector<f64, N>; 3],
-    tripped: [bool; 3],
-    ok_since: [Option<f64>; 3],
+    tripped: [bool; 5],
+    ok_since: [Option<f64>; 5],
+    angle: StrapAngleEstimate<N>,
+    force_osc: OscillationDetector<N>,
+    torque_osc: OscillationDetector<N>,
     report: SafetyReport,
 }
 
@@ -159,6 +351,21 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
     pub fn new(inner: C, settings: SafetySettings) -> Self {
         let cap = settings.max_events;
         let prev = settings.limits.admissible(&inner.previous_torque());
+        let mo = &settings.monitors;
+        let detector = || {
+            OscillationDetector::new(
+                mo.oscillation_cutoff_hz,
+                settings.dt,
+                mo.oscillation_window_s,
+            )
+        };
+        let (force_osc, torque_osc) = (detector(), detector());
+        let angle = StrapAngleEstimate::new(
+            &settings.strap_levers_m,
+            settings.strap_stiffness,
+            settings.strap_damping,
+            settings.dt,
+        );
         let mut sup = Supervisor {
             inner,
             s: settings,
@@ -167,8 +374,11 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             t0: 0.0,
             fresh_t: [SVector::zeros(); 3],
             last: [SVector::zeros(); 3],
-            tripped: [false; 3],
-            ok_since: [None; 3],
+            tripped: [false; 5],
+            ok_since: [None; 5],
+            angle,
+            force_osc,
+            torque_osc,
             report: SafetyReport {
                 events: Vec::with_capacity(cap),
                 ..Default::default()
@@ -196,6 +406,11 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
     /// True while any monitor is tripped.
     pub fn is_tripped(&self) -> bool {
         self.tripped.iter().any(|&t| t)
+    }
+
+    /// True while an oscillation monitor is tripped.
+    pub fn is_oscillation_tripped(&self) -> bool {
+        OSCILLATION.iter().any(|&i| self.tripped[i])
     }
 
     fn log(&mut self, e: MonitorEvent) {
@@ -234,24 +449,41 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
     }
 
     /// Evaluates the monitors; returns true while any is tripped.
-    fn update_monitors(&mut self, m: &Measurement<N>, silent: f64, now: f64) -> bool {
-        let mo = self.s.monitors.clone();
-        let mut track: f64 = 0.0;
+    fn update_monitors(&mut self, m: &Measurement<N>, silent: f64, now: f64) {
+        let mo = &self.s.monitors;
         let mut force: f64 = 0.0;
         for j in 0..N {
             let f = m.force[j];
             if f.is_finite() {
-                track = track.max((self.s.k1 * f).abs());
                 force = force.max(f.abs());
             }
         }
-        let values = [track, force, silent];
+        // Only plausible forces feed the estimates (an implausible one keeps their state).
+        let plausible = m.force.iter().all(|f| f.abs() < self.s.saturation_n);
+        let forces = if plausible {
+            m.force
+        } else {
+            SVector::repeat(f64::NAN)
+        };
+        let track = self.angle.update(&forces).amax();
+        let force_osc = self.force_osc.push(&forces);
+        let torque_osc = self.torque_osc.push(&self.prev);
+        let values = [track, force, silent, force_osc, torque_osc];
         let cond = [
             track > mo.tracking_error_max_rad,
             force > mo.force_max_n,
             silent > mo.sensor_timeout_s + 1e-9,
+            force_osc > mo.oscillation_force_rms_n,
+            torque_osc > mo.oscillation_torque_rms_nm,
         ];
-        for i in 0..3 {
+        let clear_after = [
+            self.s.clear_after_s,
+            self.s.clear_after_s,
+            self.s.clear_after_s,
+            mo.oscillation_clear_s,
+            mo.oscillation_clear_s,
+        ];
+        for i in 0..MONITORS.len() {
             if cond[i] {
                 self.ok_since[i] = None;
                 if !self.tripped[i] {
@@ -266,7 +498,7 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
                 }
             } else if self.tripped[i] {
                 let since = *self.ok_since[i].get_or_insert(now);
-                if now - since >= self.s.clear_after_s - 1e-9 {
+                if now - since >= clear_after[i] - 1e-9 {
                     self.tripped[i] = false;
                     self.ok_since[i] = None;
                     self.log(MonitorEvent {
@@ -278,7 +510,6 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
                 }
             }
         }
-        self.is_tripped()
     }
 }
 
@@ -296,7 +527,8 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         let now = self.t0 + (self.k - 1) as f64 * dt;
         self.report.steps += 1;
         let (valid, silent) = self.check_channels(m, now);
-        let tripped = self.update_monitors(m, silent, now);
+        self.update_monitors(m, silent, now);
+        let tripped = self.is_tripped();
         let prev = self.prev;
         let response = match self.s.monitors.response {
             MonitorResponse::Hold => prev,

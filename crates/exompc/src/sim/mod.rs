@@ -11,6 +11,7 @@ mod human;
 mod metrics;
 mod plant;
 mod sensors;
+mod stability;
 mod trajectory;
 mod uncertainty;
 
@@ -28,6 +29,10 @@ pub use human::{HumanBrain, HumanLeg};
 pub use metrics::{Metrics, StepTimeStats, Summary};
 pub use plant::{robot_model, Plant, PlantParams, PlantState};
 pub use sensors::MovingAverage;
+pub use stability::{
+    cell_verdict, classify, classify_run, high_frequency_fraction, rms, CellVerdict, RunClass,
+    RunStability, StabilityCriteria, StrapStability,
+};
 pub use trajectory::{KneeTrajectory, SwingTrajectory, Trajectory};
 pub use uncertainty::Uncertainty;
 

@@ -1,0 +1,149 @@
+//! The operating envelope as a test (issue 10): the standard grid's acceptance for the default
+//! controller (ignored while it fails: see the list), the scan machinery on cells that pass
+//! and on one that fails today, and `exompc envelope` end to end.
+
+use exompc::config::Scenario;
+use exompc::sim::{RunClass, StabilityCriteria};
+use exompc_cli::envelope::{scan, Envelope, Grid};
+use std::process::Command;
+
+fn run(grid: &Grid) -> Envelope {
+    scan(
+        &Scenario::default(),
+        grid,
+        &StabilityCriteria::default(),
+        &|| {},
+    )
+    .unwrap()
+}
+
+fn describe_failures(env: &Envelope) -> String {
+    env.failing()
+        .iter()
+        .map(|v| format!("{}, {} kg: {}", v.name, v.payload_kg, v.failures()))
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// Issue 10 "Done when": in every cell of the standard envelope (envelopes/standard.toml,
+/// 18 cells × 0-3 kg, ~20 s in release) the default MS-NMPC is stable, RMS < 20 N (unless
+/// torque-limited), within the limits, no worse than the NMPC, and trips no monitor.
+///
+/// FAILS today (paper-method default, measured with `exompc envelope`) in 26 of 72 cells:
+/// payload at 0.10 m 1, 2 kg (worse than NMPC); payload at 0.30 m 2, 3 kg; payload at 0.43 m
+/// 1, 2, 3 kg; filter window 7 at 0-3 kg; filter window 9 at 0-3 kg; gait 1.1 Hz 0, 3 kg;
+/// gait 1.3 Hz 0, 2, 3 kg; straps ×2 0, 1 kg (monitor trips); heavier robot 2 kg; 1-DOF
+/// filter window 9 at 1, 2, 3 kg. The robust-controller work is meant to make it pass.
+#[test]
+#[ignore = "26 of 72 standard-envelope cells fail with today's default controller (see doc)"]
+fn standard_envelope_meets_the_acceptance() {
+    let env = run(&Grid::standard());
+    assert_eq!(env.verdicts.len(), 72);
+    assert!(
+        env.failing().is_empty(),
+        "failing cells:\n{}",
+        describe_failures(&env)
+    );
+}
+
+/// The machinery on a reduced grid: cells that pass today pass, and a cell that limit-cycles
+/// today (filter window 9 at 1 kg) is caught as unstable and worse than the NMPC.
+#[test]
+fn envelope_scan_judges_cells() {
+    let mut g = Grid::standard();
+    let keep = ["default", "filter window 1", "straps x0.5", "gait 0.6 Hz"];
+    g.cells.retain(|c| keep.contains(&c.name.as_str()));
+    g.payloads_kg = vec![0.0, 2.0];
+    let env = run(&g);
+    assert_eq!(env.runs.len(), 4 * 2 * 2);
+    assert_eq!(env.verdicts.len(), 8);
+    assert!(env.failing().is_empty(), "{}", describe_failures(&env));
+    for r in &env.runs {
+        let st = r.stability.as_ref().unwrap();
+        assert_eq!(st.class, RunClass::Stable, "{r:?}");
+        assert_eq!(r.summary.as_ref().unwrap().limit_violations, 0);
+        assert_eq!(r.monitor_trips, 0);
+    }
+
+    let bad = Grid::product(
+        &["uncertainty.filter_window=9".into()],
+        2,
+        vec![1.0],
+        vec!["nmpc".into(), "msnmpc".into()],
+    )
+    .unwrap();
+    let env = run(&bad);
+    let v = env.verdicts[0].verdict.clone().unwrap();
+    assert!(!v.pass && !v.stable && !v.no_worse_than_nmpc, "{v:?}");
+    assert_eq!(
+        env.run(0, 1.0, "nmpc")
+            .unwrap()
+            .stability
+            .as_ref()
+            .unwrap()
+            .class,
+        RunClass::Stable
+    );
+}
+
+#[test]
+fn envelope_command_writes_json_markdown_and_heat_map() {
+    let dir = std::env::temp_dir().join(format!("exompc-envelope-test-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let cfg = dir.join("short.toml");
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(&cfg, "[timing]\nduration_2dof_s = 5.0\n").unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_exompc"))
+        .args(["envelope", "--quiet", "--config"])
+        .arg(&cfg)
+        .args([
+            "--set",
+            "uncertainty.filter_window=1,9",
+            "--payloads",
+            "1",
+            "--check",
+            "--out",
+        ])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    // filter window 9 fails the acceptance: --check exits 1 after writing everything.
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for f in [
+        "envelope.json",
+        "envelope.md",
+        "envelope.png",
+        "envelope.svg",
+    ] {
+        assert!(dir.join(f).is_file(), "{f}");
+    }
+    let env: Envelope =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("envelope.json")).unwrap()).unwrap();
+    assert_eq!(env.grid.cells.len(), 2);
+    assert_eq!(env.runs.len(), 4);
+    assert!(env.verdicts[0].pass(), "{:?}", env.verdicts[0]);
+    assert!(!env.verdicts[1].pass());
+    let md = std::fs::read_to_string(dir.join("envelope.md")).unwrap();
+    assert!(md.contains("uncertainty.filter_window=9") && md.contains("1 of 2 cells pass"));
+
+    // A bad key names the field; exit 2.
+    let out = Command::new(env!("CARGO_BIN_EXE_exompc"))
+        .args([
+            "envelope",
+            "--quiet",
+            "--set",
+            "robot.payload_pos=0.1",
+            "--out",
+        ])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("payload_position_m"));
+    let _ = std::fs::remove_dir_all(&dir);
+}
