@@ -278,7 +278,13 @@ impl<const N: usize, C: Controller<N>> ControlLoop<N, C> {
                 self.offsets_next = (self.offsets_next + 1) % self.s.sync_window.max(1).max(1);
                 let min_off = self.offsets.iter().copied().min().unwrap_or(off);
                 let dt_ns = self.s.dt.as_nanos() as i64;
-                let at = s.stamp_ns as i64 + dt_ns + min_off - self.s.lead.as_nanos() as i64;
+                let mut at = s.stamp_ns as i64 + dt_ns + min_off - self.s.lead.as_nanos() as i64;
+                // A sample that arrived late (a delay spike) may put that slot in the past:
+                // skip to the first slot still ahead instead of running catch-up periods.
+                let now_ns = arrival.as_nanos() as i64;
+                if at <= now_ns && dt_ns > 0 {
+                    at += ((now_ns - at) / dt_ns + 1) * dt_ns;
+                }
                 next = Duration::from_nanos(at.max(0) as u64);
                 if s.flags & robot_flags::WATCHDOG != 0 {
                     self.stats.robot_watchdog_samples += 1;
