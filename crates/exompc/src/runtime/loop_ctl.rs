@@ -57,6 +57,9 @@ pub struct LoopStats {
     pub missing_samples: u64,
     /// Samples that arrived after their expected instant by more than a quarter period.
     pub late_samples: u64,
+    /// Samples read from an earlier slot than the current period's (queued after a stall);
+    /// the loop then waited for the current one.
+    pub old_samples: u64,
     /// Samples whose applied torque differed from the last command (a command lost or a
     /// robot watchdog): the controller resumed from the applied torque.
     pub effort_resyncs: u64,
@@ -253,7 +256,20 @@ impl<const N: usize, C: Controller<N>> ControlLoop<N, C> {
             Some(s) => Some(s),
             None => {
                 let until = deadline + self.s.sample_timeout;
-                robot.read(until.saturating_sub(woke))?
+                let mut got = robot.read(until.saturating_sub(woke))?;
+                // A sample from an earlier slot (left queued after a stall) would make this
+                // period answer a sample the robot has already moved past, and keep the loop a
+                // period behind: wait, within the timeout, for this slot's sample.
+                if let (Some(s), Some(min_off)) = (got, self.offsets.iter().copied().min()) {
+                    let slot_stamp = (deadline + self.s.lead).as_nanos() as i64 - min_off;
+                    if (s.stamp_ns as i64) < slot_stamp - self.s.dt.as_nanos() as i64 / 2 {
+                        self.stats.old_samples += 1;
+                        if let Some(newer) = robot.read(until.saturating_sub(clock.now()))? {
+                            got = Some(newer);
+                        }
+                    }
+                }
+                got
             }
         };
         let arrival = clock.now();
