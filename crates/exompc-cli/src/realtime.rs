@@ -145,9 +145,10 @@ fn write_json(path: &std::path::Path, v: &impl Serialize) -> Result<(), CliError
 
 fn live(t: f64, timing: &TimingStats, extra: &str) {
     let p = timing.recent(100);
+    let b = timing.recent_busy(100);
     eprintln!(
-        "t {t:7.1} s | period error p50 {:6.0} us p99 {:6.0} us max {:6.0} us | deadline misses {} | {extra}",
-        p.p50, p.p99, p.max, timing.deadline_misses
+        "t {t:7.1} s | period error p50 {:6.0} us p99 {:6.0} us max {:6.0} us | busy p99 {:5.0} us | deadline misses {} | {extra}",
+        p.p50, p.p99, p.max, b.p99, timing.deadline_misses
     );
 }
 
@@ -352,8 +353,9 @@ fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs) -> Result<(), C
                 m.t,
                 lp.timing(),
                 &format!(
-                    "missing samples {} | robot watchdog {} | rejected {}",
+                    "missing samples {} late {} | robot watchdog {} | rejected {}",
                     st.missing_samples,
+                    st.late_samples,
                     st.robot_watchdog_samples,
                     robot_rejected(&robot)
                 ),

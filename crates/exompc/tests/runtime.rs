@@ -9,9 +9,9 @@ use exompc::runtime::frame::{
     command_flags, command_len, robot_flags, sample_len, status_code, status_from_code,
 };
 use exompc::runtime::{
-    decode, encode_command, encode_sample, ControlLoop, Frame, FrameError, LinkStats, LoopSettings,
-    NetFaultSettings, NetFaults, RejectCounts, RobotCommand, RobotInterface, RobotSample,
-    RobotStep, SeqTracker, TestClock, VirtualRobot,
+    decode, encode_command, encode_sample, Clock, ControlLoop, Frame, FrameError, LinkStats,
+    LoopSettings, NetFaultSettings, NetFaults, RejectCounts, RobotCommand, RobotInterface,
+    RobotSample, RobotStep, SeqTracker, VirtualRobot,
 };
 use exompc::sim::{
     build_supervised, limits, plant_params, run_experiment, uncertainty, Dof, Plant, Sensors,
@@ -19,6 +19,8 @@ use exompc::sim::{
 };
 use nalgebra::{SVector, Vector2};
 use proptest::prelude::*;
+use std::cell::Cell;
+use std::rc::Rc;
 use std::time::Duration;
 
 fn any_f64() -> impl Strategy<Value = f64> + Clone {
@@ -249,26 +251,45 @@ fn robot(s: &Scenario, watchdog: u64) -> Robot {
     VirtualRobot::new(plant, sensors, limits(s), s.timing.dt, watchdog)
 }
 
+/// A test clock shared by the loop and the robot (time moves only when someone waits).
+#[derive(Clone, Default)]
+struct SharedClock(Rc<Cell<Duration>>);
+
+impl Clock for SharedClock {
+    fn now(&self) -> Duration {
+        self.0.get()
+    }
+    fn sleep_until(&mut self, t: Duration) {
+        self.0.set(self.0.get().max(t));
+    }
+}
+
 /// The virtual robot wired directly to the loop: `read` advances the robot over the previous
-/// period (with whatever command arrived) and returns its next sample; samples of the periods
-/// in `drop_samples` and commands answering `drop_commands` are lost.
+/// period (with whatever command arrived) and returns its next sample, at its timestamp on the
+/// shared clock (zero transit time); samples of the periods in `drop_samples` and commands
+/// answering `drop_commands` are lost.
 struct Direct {
+    clock: SharedClock,
     vr: Robot,
     started: bool,
     steps: Vec<RobotStep<2>>,
     drop_samples: Vec<u64>,
     drop_commands: Vec<u32>,
+    /// Samples arriving 3 ms after their timestamp.
+    late_samples: Vec<u64>,
     stats: LinkStats,
 }
 
 impl Direct {
     fn new(vr: Robot) -> Self {
         Direct {
+            clock: SharedClock::default(),
             vr,
             started: false,
             steps: Vec::new(),
             drop_samples: Vec::new(),
             drop_commands: Vec::new(),
+            late_samples: Vec::new(),
             stats: LinkStats::default(),
         }
     }
@@ -281,6 +302,11 @@ impl RobotInterface<2> for Direct {
         }
         self.started = true;
         let s = self.vr.sample();
+        let mut at = Duration::from_nanos(s.stamp_ns);
+        if self.late_samples.contains(&u64::from(s.seq)) {
+            at += Duration::from_millis(3);
+        }
+        self.clock.sleep_until(at);
         if self.drop_samples.contains(&u64::from(s.seq)) {
             return Ok(None);
         }
@@ -331,7 +357,7 @@ fn run(
 ) -> (Direct, Loop, Vec<exompc::runtime::PeriodRecord<2>>) {
     let mut lp = control_loop(s);
     let mut link = link;
-    let mut clock = TestClock::default();
+    let mut clock = link.clock.clone();
     assert!(lp
         .connect(
             &mut link,
@@ -445,14 +471,28 @@ fn watchdog_zeroes_after_two_periods_and_resumes() {
     assert_eq!(link.vr.stats().limit_violations, 0);
 }
 
+/// Clock sync: a sample arriving late (a robot or network stall) is used, counted as late,
+/// and does not shift the loop's phase: the following deadlines stay `lead` before the
+/// robot's sending instants, so every later sample is answered in its own period.
+#[test]
+fn late_sample_does_not_shift_the_phase() {
+    let s = scenario(1.0);
+    let mut link = Direct::new(robot(&s, 2));
+    link.late_samples = vec![20, 21, 22];
+    let (link, lp, recs) = run(&s, 40, link);
+    assert_eq!(lp.stats().late_samples, 3);
+    assert!(recs.iter().all(|r| r.sent && r.wake_error_us == 0.0));
+    assert_eq!(link.vr.stats().commanded, 40);
+    // Next deadline: the next sample's timestamp (period 40) minus the lead (2 ms).
+    assert_eq!(lp.next_deadline(), Some(Duration::from_millis(398)));
+}
+
 /// Stop: the torque ramps to zero at the rate limit, then STOP tells the robot.
 #[test]
 fn stop_ramps_to_zero_and_tells_the_robot() {
     let s = scenario(1.0);
     let (mut link, mut lp, _) = run(&s, 30, Direct::new(robot(&s, 2)));
-    let mut clock = TestClock {
-        now: Duration::from_secs(1),
-    };
+    let mut clock = link.clock.clone();
     lp.request_stop();
     let rate = limits(&s).rate;
     let mut n = 0;

@@ -1,7 +1,7 @@
 //! The controller side of the real-time loop, one period per call, on absolute deadlines.
 
 use super::frame::{command_flags, robot_flags, status_code, RobotCommand, RobotSample};
-use super::timing::{Clock, Schedule, TimingStats};
+use super::timing::{Clock, TimingStats};
 use super::RobotInterface;
 use crate::control::{ControlOutput, Controller, Measurement, StepStatus, TorqueLimits};
 use crate::sim::MovingAverage;
@@ -25,13 +25,15 @@ pub struct LoopSettings {
     pub filter_window: usize,
     /// Torque limits, checked on every command independently of the controller.
     pub limits: TorqueLimits,
-    /// Fraction of the measured phase error corrected per period (follows a robot clock that
-    /// drifts against ours); 0 keeps the schedule fixed.
-    pub phase_gain: f64,
+    /// Clock sync: the deadlines follow the robot's sample timestamps plus the smallest
+    /// `arrival − timestamp` over this many recent samples (the robot's clock offset plus the
+    /// fastest transit), so a late sample, a stall or a drifting robot clock never shifts the
+    /// loop's phase against the robot's (≥ 1).
+    pub sync_window: usize,
 }
 
 impl LoopSettings {
-    /// Defaults for period `dt`: lead `dt/5`, sample timeout `dt/2`, phase gain 0.05.
+    /// Defaults for period `dt`: lead `dt/5`, sample timeout `dt/2`, sync window 100 samples.
     pub fn new(dt: Duration, filter_window: usize, limits: TorqueLimits) -> Self {
         LoopSettings {
             dt,
@@ -39,7 +41,7 @@ impl LoopSettings {
             sample_timeout: dt / 2,
             filter_window,
             limits,
-            phase_gain: 0.05,
+            sync_window: 100,
         }
     }
 }
@@ -55,6 +57,9 @@ pub struct LoopStats {
     pub missing_samples: u64,
     /// Samples that arrived after their expected instant by more than a quarter period.
     pub late_samples: u64,
+    /// Samples read from an earlier slot than the current period's (queued after a stall);
+    /// the loop then waited for the current one.
+    pub old_samples: u64,
     /// Samples whose applied torque differed from the last command (a command lost or a
     /// robot watchdog): the controller resumed from the applied torque.
     pub effort_resyncs: u64,
@@ -106,7 +111,8 @@ pub struct ControlLoop<const N: usize, C> {
     s: LoopSettings,
     vel: MovingAverage<N>,
     force: MovingAverage<N>,
-    schedule: Option<Schedule>,
+    /// Deadline of the next period (clock time), once connected.
+    next: Option<Duration>,
     pending: Option<RobotSample<N>>,
     k: u64,
     cmd_seq: u32,
@@ -115,6 +121,9 @@ pub struct ControlLoop<const N: usize, C> {
     stopping: bool,
     stats: LoopStats,
     timing: TimingStats,
+    /// Recent `arrival − timestamp` (ns), a ring of `sync_window` entries.
+    offsets: Vec<i64>,
+    offsets_next: usize,
 }
 
 impl<const N: usize, C: Controller<N>> ControlLoop<N, C> {
@@ -126,7 +135,7 @@ impl<const N: usize, C: Controller<N>> ControlLoop<N, C> {
             vel: MovingAverage::new(settings.filter_window),
             force: MovingAverage::new(settings.filter_window),
             s: settings,
-            schedule: None,
+            next: None,
             pending: None,
             k: 0,
             cmd_seq: 0,
@@ -135,6 +144,8 @@ impl<const N: usize, C: Controller<N>> ControlLoop<N, C> {
             stopping: false,
             stats: LoopStats::default(),
             timing: TimingStats::with_capacity(capacity),
+            offsets: Vec::with_capacity(settings.sync_window.max(1)),
+            offsets_next: 0,
         }
     }
 
@@ -153,9 +164,9 @@ impl<const N: usize, C: Controller<N>> ControlLoop<N, C> {
         &self.timing
     }
 
-    /// The schedule, once connected.
-    pub fn schedule(&self) -> Option<Schedule> {
-        self.schedule
+    /// The next period's deadline (clock time), once connected.
+    pub fn next_deadline(&self) -> Option<Duration> {
+        self.next
     }
 
     /// True once [`ControlLoop::request_stop`] was called.
@@ -218,10 +229,7 @@ impl<const N: usize, C: Controller<N>> ControlLoop<N, C> {
             self.stats.commands += 1;
             if let Some(s) = robot.read(retry.min(end.saturating_sub(clock.now())))? {
                 let arrival = clock.now();
-                self.schedule = Some(Schedule {
-                    start: arrival.saturating_sub(self.s.lead),
-                    dt: self.s.dt,
-                });
+                self.next = Some(arrival.saturating_sub(self.s.lead));
                 self.pending = Some(s);
                 return Ok(true);
             }
@@ -237,12 +245,10 @@ impl<const N: usize, C: Controller<N>> ControlLoop<N, C> {
         robot: &mut R,
         clock: &mut K,
     ) -> std::io::Result<PeriodRecord<N>> {
-        let mut sched = self.schedule.unwrap_or(Schedule {
-            start: clock.now(),
-            dt: self.s.dt,
-        });
         let k = self.k;
-        let deadline = sched.deadline(k);
+        let deadline = self.next.unwrap_or_else(|| clock.now());
+        // Without a sample this period, the next deadline is one period on.
+        let mut next = deadline + self.s.dt;
         clock.sleep_until(deadline);
         let woke = clock.now();
         let wake_error_us = (woke.as_secs_f64() - deadline.as_secs_f64()) * 1e6;
@@ -250,7 +256,20 @@ impl<const N: usize, C: Controller<N>> ControlLoop<N, C> {
             Some(s) => Some(s),
             None => {
                 let until = deadline + self.s.sample_timeout;
-                robot.read(until.saturating_sub(woke))?
+                let mut got = robot.read(until.saturating_sub(woke))?;
+                // A sample from an earlier slot (left queued after a stall) would make this
+                // period answer a sample the robot has already moved past, and keep the loop a
+                // period behind: wait, within the timeout, for this slot's sample.
+                if let (Some(s), Some(min_off)) = (got, self.offsets.iter().copied().min()) {
+                    let slot_stamp = (deadline + self.s.lead).as_nanos() as i64 - min_off;
+                    if (s.stamp_ns as i64) < slot_stamp - self.s.dt.as_nanos() as i64 / 2 {
+                        self.stats.old_samples += 1;
+                        if let Some(newer) = robot.read(until.saturating_sub(clock.now()))? {
+                            got = Some(newer);
+                        }
+                    }
+                }
+                got
             }
         };
         let arrival = clock.now();
@@ -261,21 +280,28 @@ impl<const N: usize, C: Controller<N>> ControlLoop<N, C> {
                 self.stats.samples += 1;
                 let expected = deadline + self.s.lead;
                 let err_ns = arrival.as_nanos() as i64 - expected.as_nanos() as i64;
-                if k > 0 {
-                    if err_ns > self.s.dt.as_nanos() as i64 / 4 {
-                        self.stats.late_samples += 1;
-                    }
-                    // Follow the robot's clock: when the sample arrived while we waited, its
-                    // arrival is the phase; when it was already queued, we are late.
-                    let waited = arrival.saturating_sub(woke) > Duration::from_micros(20);
-                    let e = if waited {
-                        err_ns as f64
-                    } else {
-                        -(self.s.lead.as_nanos() as f64)
-                    };
-                    let cap = self.s.dt.as_nanos() as f64 / 200.0;
-                    sched.shift((self.s.phase_gain * e).clamp(-cap, cap) as i64);
+                if k > 0 && err_ns > self.s.dt.as_nanos() as i64 / 4 {
+                    self.stats.late_samples += 1;
                 }
+                // Clock sync: the next sample is expected at its timestamp plus the smallest
+                // recent offset; wake `lead` before it.
+                let off = arrival.as_nanos() as i64 - s.stamp_ns as i64;
+                if self.offsets.len() < self.s.sync_window.max(1) {
+                    self.offsets.push(off);
+                } else if let Some(slot) = self.offsets.get_mut(self.offsets_next) {
+                    *slot = off;
+                }
+                self.offsets_next = (self.offsets_next + 1) % self.s.sync_window.max(1).max(1);
+                let min_off = self.offsets.iter().copied().min().unwrap_or(off);
+                let dt_ns = self.s.dt.as_nanos() as i64;
+                let mut at = s.stamp_ns as i64 + dt_ns + min_off - self.s.lead.as_nanos() as i64;
+                // A sample that arrived late (a delay spike) may put that slot in the past:
+                // skip to the first slot still ahead instead of running catch-up periods.
+                let now_ns = arrival.as_nanos() as i64;
+                if at <= now_ns && dt_ns > 0 {
+                    at += ((now_ns - at) / dt_ns + 1) * dt_ns;
+                }
+                next = Duration::from_nanos(at.max(0) as u64);
                 if s.flags & robot_flags::WATCHDOG != 0 {
                     self.stats.robot_watchdog_samples += 1;
                 }
@@ -310,7 +336,7 @@ impl<const N: usize, C: Controller<N>> ControlLoop<N, C> {
                 }
             }
         };
-        self.schedule = Some(sched);
+        self.next = Some(next);
         let prev = self.ctrl.previous_torque();
         let t0 = clock.now();
         let output = if self.stopping {
@@ -345,7 +371,7 @@ impl<const N: usize, C: Controller<N>> ControlLoop<N, C> {
         let done = clock.now();
         let busy_us = (done.as_secs_f64() - arrival.as_secs_f64()) * 1e6;
         self.timing
-            .record(wake_error_us, busy_us, done > sched.deadline(k + 1));
+            .record(wake_error_us, busy_us, done > deadline + self.s.dt);
         self.stats.periods += 1;
         self.k += 1;
         Ok(PeriodRecord {

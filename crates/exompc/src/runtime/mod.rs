@@ -8,9 +8,9 @@
 //! * [`frame`]: the versioned little-endian frame (magic, version, sequence number, timestamp,
 //!   payload, CRC-32); decoding rejects every malformed, truncated, wrong-version, duplicate,
 //!   out-of-order or stale frame with a counted reason, never a panic.
-//! * [`ControlLoop`]: the controller side of one period on absolute-time deadlines (wake at
-//!   `T_k`, read the newest sample with a timeout, filter, supervised controller step, write
-//!   the torque), written against the [`Clock`] and [`RobotInterface`] traits so that it runs
+//! * [`ControlLoop`]: the controller side of one period on absolute-time deadlines synchronised
+//!   to the robot's sample timestamps (wake at `T_k`, read the newest sample with a timeout,
+//!   filter, supervised controller step, write the torque), written against the [`Clock`] and [`RobotInterface`] traits so that it runs
 //!   in tests without sockets or real time.
 //! * [`VirtualRobot`]: the simulated human + exoskeleton of `exompc simulate` (the same
 //!   [`Plant`](crate::sim::Plant) and [`Sensors`](crate::sim::Sensors)) behind the robot side of

@@ -162,6 +162,13 @@ impl TimingStats {
         Percentiles::of(&mut v)
     }
 
+    /// The latest `window` busy times' percentiles (for live display).
+    pub fn recent_busy(&self, window: usize) -> Percentiles {
+        let from = self.compute_us.len().saturating_sub(window);
+        let mut v = self.compute_us[from..].to_vec();
+        Percentiles::of(&mut v)
+    }
+
     /// Summary over all periods.
     pub fn summary(&self) -> TimingSummary {
         TimingSummary {
