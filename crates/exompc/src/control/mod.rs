@@ -4,13 +4,16 @@
 //! Every controller implements [`Controller`]: one call per control period, filtered
 //! measurements in, a torque out that always satisfies the torque and torque-rate limits.
 
+mod lag;
 mod limits;
 mod multistage;
 mod nmpc;
 mod pd;
 mod prediction;
+mod robust;
 mod safety;
 
+pub use lag::{ForceLag, OscillationDetector};
 pub use limits::TorqueLimits;
 pub use multistage::{
     build_multistage, CoupledProblem, Formulation, MultiStage, MultiStageError, MultiStageOptions,
@@ -18,6 +21,7 @@ pub use multistage::{
 pub use nmpc::{classify, horizon_inputs, Nmpc, NmpcCore, NmpcProblem, NmpcSettings};
 pub use pd::PdController;
 pub use prediction::{HorizonInputs, Interaction, PredictionModel, StepJacobian};
+pub use robust::{FilterAware, Method, RobustSettings};
 pub use safety::{
     MonitorAction, MonitorEvent, MonitorKind, SafetyReport, SafetySettings, Supervisor,
 };
