@@ -1049,11 +1049,7 @@ impl Scenario {
         reals(
             "controller.robust",
             &[
-                (
-                    "oscillation_cutoff_hz",
-                    rb.oscillation_cutoff_hz,
-                    R::Open(0.0, 0.5 / self.timing.dt),
-                ),
+                ("oscillation_cutoff_hz", rb.oscillation_cutoff_hz, R::Pos),
                 (
                     "oscillation_window_s",
                     rb.oscillation_window_s,
@@ -1070,6 +1066,7 @@ impl Scenario {
                     R::NonNeg,
                 ),
                 ("human_bandwidth_hz", rb.human_bandwidth_hz, R::Pos),
+                ("release_s", rb.release_s, R::Closed(0.0, 1e6)),
             ],
         )?;
 

@@ -126,7 +126,7 @@ fn method_and_robust_settings_are_configured_and_validated() {
             "controller.robust.oscillation_fraction",
         ),
         (
-            |s: &mut Scenario| s.controller.robust.oscillation_cutoff_hz = 60.0,
+            |s: &mut Scenario| s.controller.robust.oscillation_cutoff_hz = 0.0,
             "controller.robust.oscillation_cutoff_hz",
         ),
         (
@@ -140,6 +140,10 @@ fn method_and_robust_settings_are_configured_and_validated() {
         (
             |s: &mut Scenario| s.controller.robust.human_bandwidth_hz = f64::NAN,
             "controller.robust.human_bandwidth_hz",
+        ),
+        (
+            |s: &mut Scenario| s.controller.robust.release_s = -1.0,
+            "controller.robust.release_s",
         ),
     ] {
         let mut bad = Scenario::default();

@@ -146,6 +146,13 @@ impl<const N: usize> OscillationDetector<N> {
         }
     }
 
+    /// Restart from the next sample (after a gap in the data).
+    pub fn reset(&mut self) {
+        self.started = false;
+        self.hp_power = 0.0;
+        self.total_power = 0.0;
+    }
+
     /// Feed one filtered force sample; returns true while an oscillation is detected.
     pub fn push(&mut self, f: &SVector<f64, N>) -> bool {
         if !self.started {

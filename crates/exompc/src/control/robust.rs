@@ -46,8 +46,8 @@ pub enum FilterAware {
 pub struct RobustSettings {
     /// `"off"`, `"on_oscillation"` or `"always"`. Default `"on_oscillation"`.
     pub filter_aware: FilterAware,
-    /// Cut-off (Hz) above which filtered strap-force power counts as oscillation, > 0 and
-    /// below the Nyquist frequency `1/(2·timing.dt)`. Default 3.
+    /// Cut-off (Hz) above which filtered strap-force power counts as oscillation, > 0 (one
+    /// at or above the Nyquist frequency `1/(2·timing.dt)` sees almost nothing). Default 3.
     pub oscillation_cutoff_hz: f64,
     /// Averaging time (s) of the oscillation detector, in (0, 10]. Default 0.25.
     pub oscillation_window_s: f64,
@@ -60,6 +60,9 @@ pub struct RobustSettings {
     /// Bandwidth (Hz) of the human's motion in the Smith predictor: the human's acceleration
     /// is taken as the robot's low-passed at this frequency, > 0. Default 3.
     pub human_bandwidth_hz: f64,
+    /// With `"on_oscillation"`: return to the paper's estimate after this long (s) without a
+    /// detected oscillation; 0 = stay engaged for the rest of the run. >= 0. Default 0.
+    pub release_s: f64,
 }
 
 impl Default for RobustSettings {
@@ -71,6 +74,7 @@ impl Default for RobustSettings {
             oscillation_fraction: 0.1,
             oscillation_min_force_n: 2.0,
             human_bandwidth_hz: 3.0,
+            release_s: 0.0,
         }
     }
 }
@@ -82,6 +86,9 @@ pub(crate) struct RobustState<const N: usize> {
     detector: OscillationDetector<N>,
     mode: FilterAware,
     engaged: bool,
+    /// Steps without a detected oscillation before release (0 = never), and the count.
+    release_steps: usize,
+    quiet: usize,
 }
 
 impl<const N: usize> RobustState<N> {
@@ -97,6 +104,8 @@ impl<const N: usize> RobustState<N> {
             ),
             mode: s.filter_aware,
             engaged: s.filter_aware == FilterAware::Always,
+            release_steps: (s.release_s / dt).round() as usize,
+            quiet: 0,
         }
     }
 
@@ -105,11 +114,21 @@ impl<const N: usize> RobustState<N> {
     pub(crate) fn observe(&mut self, m: &Measurement<N>, gap: bool) -> bool {
         if gap {
             self.lag.reset();
+            self.detector.reset();
         }
         self.lag.push(&m.q);
         let osc = self.detector.push(&m.force);
-        if self.mode == FilterAware::OnOscillation && osc {
-            self.engaged = true;
+        if self.mode == FilterAware::OnOscillation {
+            if osc {
+                self.engaged = true;
+                self.quiet = 0;
+            } else if self.engaged && self.release_steps > 0 {
+                self.quiet += 1;
+                if self.quiet >= self.release_steps {
+                    self.engaged = false;
+                    self.quiet = 0;
+                }
+            }
         }
         self.engaged
     }
