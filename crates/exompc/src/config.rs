@@ -568,6 +568,7 @@ pub enum ControllerKind {
 }
 
 pub use crate::control::Interaction;
+pub use crate::control::{FilterAware, Method, RobustSettings};
 
 /// `[controller]`: intent estimation and NMPC (spec §8, paper eqs. 5-9, Table 1).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -598,6 +599,12 @@ pub struct Controller {
     pub sqp: Sqp,
     /// `[controller.pd]` baseline PD gains.
     pub pd: PdGains,
+    /// Multi-stage method: `"robust"` (the paper's method with the `[controller.robust]`
+    /// extensions) or `"paper"` (exactly the paper's, reproduces `docs/REPRODUCING.md`).
+    /// Default `"robust"`.
+    pub method: Method,
+    /// `[controller.robust]` switches of `method = "robust"`.
+    pub robust: RobustSettings,
 }
 
 impl Default for Controller {
@@ -615,6 +622,8 @@ impl Default for Controller {
             interaction: Interaction::Predict,
             sqp: Sqp::default(),
             pd: PdGains::default(),
+            method: Method::Robust,
+            robust: RobustSettings::default(),
         }
     }
 }
@@ -1063,6 +1072,30 @@ impl Scenario {
         reals(
             "controller.pd",
             &[("kp", c.pd.kp, R::Pos), ("kd", c.pd.kd, R::Pos)],
+        )?;
+        let rb = &c.robust;
+        reals(
+            "controller.robust",
+            &[
+                ("oscillation_cutoff_hz", rb.oscillation_cutoff_hz, R::Pos),
+                (
+                    "oscillation_window_s",
+                    rb.oscillation_window_s,
+                    R::OpenClosed(0.0, 10.0),
+                ),
+                (
+                    "oscillation_fraction",
+                    rb.oscillation_fraction,
+                    R::Open(0.0, 1.0),
+                ),
+                (
+                    "oscillation_min_force_n",
+                    rb.oscillation_min_force_n,
+                    R::NonNeg,
+                ),
+                ("human_bandwidth_hz", rb.human_bandwidth_hz, R::Pos),
+                ("release_s", rb.release_s, R::Closed(0.0, 1e6)),
+            ],
         )?;
 
         let m = &self.multistage;

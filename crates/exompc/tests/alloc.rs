@@ -73,6 +73,17 @@ fn control_steps_do_not_allocate() {
         0,
         "msnmpc (decoupled, structured QP) allocates"
     );
+    s.controller.sqp.qp = exompc::control::QpBackend::Auto;
+    s.controller.np = 3;
+    s.controller.nc = 3;
+    // The robust method's filter-aware mode engaged from the first step.
+    s.multistage.formulation = Formulation::Decoupled;
+    s.controller.robust.filter_aware = exompc::config::FilterAware::Always;
+    assert_eq!(
+        count_steps(&s, ControllerKind::Msnmpc),
+        0,
+        "msnmpc (filter-aware) allocates"
+    );
 
     // The counter works.
     assert!(allocations_in(|| drop(std::hint::black_box(vec![1u8; 16]))) > 0);

@@ -140,11 +140,24 @@ proptest! {
 /// After a gap in the data (steps the controller was not called for, as when a supervisor
 /// rejects bad samples) the EKF bank resumes from the measurement: the probabilities and the
 /// disturbance estimates are carried across the gap unchanged, and the true scenario (2 kg)
-/// keeps a mean probability above 0.9 afterwards.
+/// keeps a mean probability above 0.9 afterwards with the paper's method. The robust default's
+/// oscillation detector sees the transient after the 0.2-s torque hold and engages its
+/// filter-aware mode, whose EKF input is the Smith-predicted strap torque: there the mean is
+/// lower (measured 0.77), asserted above 0.7.
 #[test]
 fn ekf_bank_resumes_after_a_gap_in_the_data() {
+    for (method, min_mean) in [
+        (exompc::config::Method::Paper, 0.9),
+        (exompc::config::Method::Robust, 0.7),
+    ] {
+        ekf_bank_resumes_after_a_gap(method, min_mean);
+    }
+}
+
+fn ekf_bank_resumes_after_a_gap(method: exompc::config::Method, min_mean: f64) {
     let mut s = ms_scenario(&[0.0, 1.0, 2.0], Formulation::Decoupled);
     s.uncertainty.payload_kg = 2.0;
+    s.controller.method = method;
     let mut c = controller(&s);
     let mut plant = Plant::new(plant_params::<TwoDof, 2>(&s), TwoDof::trajectory(&s));
     let mut sensors = Sensors::new(uncertainty(&s), s.uncertainty.filter_window);
@@ -184,5 +197,5 @@ fn ekf_bank_resumes_after_a_gap_in_the_data() {
         plant.step(&out.torque);
     }
     let mean = after_sum / after_n as f64;
-    assert!(mean > 0.9, "mean μ3 after the gap {mean}");
+    assert!(mean > min_mean, "{method:?}: mean μ3 after the gap {mean}");
 }

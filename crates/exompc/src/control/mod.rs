@@ -20,14 +20,17 @@
 //! [`crate::sim::build_controller`] and [`crate::sim::build_supervised`] build them from a
 //! [`crate::config::Scenario`]; `docs/MODEL.md` §8 gives the equations and default values.
 
+mod lag;
 mod limits;
 mod multistage;
 mod nmpc;
 mod ocp;
 mod pd;
 mod prediction;
+mod robust;
 mod safety;
 
+pub use lag::{ForceLag, HfShareDetector};
 pub use limits::TorqueLimits;
 pub use multistage::{
     build_multistage, CoupledProblem, Formulation, MultiStage, MultiStageError, MultiStageOptions,
@@ -36,6 +39,7 @@ pub use nmpc::{classify, horizon_inputs, Nmpc, NmpcCore, NmpcProblem, NmpcSettin
 pub use ocp::{QpBackend, StructuredSqp, AUTO_STRUCTURED_MIN_VARS};
 pub use pd::PdController;
 pub use prediction::{HorizonInputs, Interaction, PredictionModel, StepJacobian};
+pub use robust::{FilterAware, Method, RobustSettings};
 pub use safety::{
     MonitorAction, MonitorEvent, MonitorKind, OscillationDetector, SafetyReport, SafetySettings,
     StrapAngleEstimate, Supervisor,

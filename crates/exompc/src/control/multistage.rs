@@ -2,6 +2,7 @@
 
 use super::nmpc::{classify, horizon_inputs, NmpcCore, NmpcProblem, NmpcSettings};
 use super::prediction::{HorizonInputs, PredictionModel};
+use super::robust::{RobustSettings, RobustState};
 use super::{ControlOutput, Controller, IntentEstimator, Measurement, StepStatus, TorqueLimits};
 use crate::estimate::{EkfBank, EkfSettings, EstimatorOptions};
 use crate::model::JointState;
@@ -270,6 +271,8 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     started: bool,
     /// Time of the last measurement the EKF bank used.
     last_t: f64,
+    /// Robust extensions (`[controller] method = "robust"`); `None` = the paper's method.
+    robust: Option<RobustState<N>>,
 }
 
 impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
@@ -329,7 +332,15 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             prev_t_int: zero,
             started: false,
             last_t: 0.0,
+            robust: None,
         })
+    }
+
+    /// Enable the robust extensions of [`RobustSettings`] for a sensor filter of `window`
+    /// samples (see `control/robust.rs`); without this call the controller is the paper's.
+    pub fn with_robust(mut self, settings: &RobustSettings, window: usize) -> Self {
+        self.robust = Some(RobustState::new(settings, window, self.models[0].dt));
+        self
     }
 
     /// The EKF bank.
@@ -381,6 +392,7 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
             y[N + a] = m.qd[a];
         }
         let dt = self.models[0].dt;
+        let gap = !self.started || m.t - self.last_t > 1.5 * dt;
         if !self.started {
             self.bank.reset_to(&m.q, &m.qd);
             self.started = true;
@@ -393,10 +405,27 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
             let _ = self.bank.step(&y, &self.prev, &self.prev_t_int);
         }
         self.last_t = m.t;
-        let x0 = JointState { q: m.q, qd: m.qd };
+        let mut x0 = JointState { q: m.q, qd: m.qd };
+        // The measurement the intent estimate and the EKF's strap torque use: the filtered one,
+        // or in the robust filter-aware mode the lag-free velocity and Smith-predicted force.
+        let mut mi = *m;
+        if let Some(r) = self.robust.as_mut() {
+            if r.observe(m, gap) {
+                let p = self.bank.probabilities();
+                let mut qd = SVector::<f64, N>::zeros();
+                for (f, pi) in self.bank.filters().iter().zip(p) {
+                    qd += f.velocities() * *pi;
+                }
+                if qd.iter().all(|v| v.is_finite()) {
+                    x0.qd = qd;
+                    mi.qd = qd;
+                    mi.force = r.predicted_force(&self.models[0].straps, m, &qd);
+                }
+            }
+        }
         for i in 0..self.models.len() {
             self.dist[i] = self.bank.disturbance(i);
-            self.inputs[i] = horizon_inputs(&self.intent, &self.models[i], m, self.dist[i]);
+            self.inputs[i] = horizon_inputs(&self.intent, &self.models[i], &mi, self.dist[i]);
         }
         self.weights.copy_from_slice(self.bank.probabilities());
         let prev = self.prev;
@@ -447,7 +476,7 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
         };
         let torque = self.limits.clamp(&prev, &desired);
         self.prev = torque;
-        self.prev_t_int = self.models[0].straps.torque(&m.force);
+        self.prev_t_int = self.models[0].straps.torque(&mi.force);
         ControlOutput {
             torque,
             status,
@@ -518,5 +547,11 @@ where
         MultiStageError::Solver(e) => crate::sim::RunError::Solver(e),
         other => crate::sim::RunError::Build(other.to_string()),
     })?;
+    let ms = match s.controller.method {
+        crate::config::Method::Paper => ms,
+        crate::config::Method::Robust => {
+            ms.with_robust(&s.controller.robust, s.uncertainty.filter_window)
+        }
+    };
     Ok(Box::new(ms))
 }

@@ -1,0 +1,265 @@
+//! The robust method (`[controller] method = "robust"`, `control/robust.rs`, `control/lag.rs`):
+//! the Smith predictor on the filtered strap force against a closed-form oracle, the
+//! oscillation detector on sinusoids, the configuration, and closed-loop runs on envelope
+//! cells where the paper's method limit-cycles.
+
+use exompc::config::{ControllerKind, FilterAware, Method, Scenario};
+use exompc::control::{ForceLag, Measurement, HfShareDetector};
+use exompc::model::Straps;
+use exompc::sim::{run_experiment, MovingAverage, OneDof, TraceLog, TwoDof};
+use nalgebra::SVector;
+
+const DT: f64 = 0.01;
+
+/// Robot and human at the same constant acceleration with a constant offset: the true strap
+/// force is constant, the robot's motion over the filter window is all "smooth", so the Smith
+/// predictor must return the true force exactly once its acceleration estimate has settled.
+#[test]
+fn predicted_force_is_exact_for_common_constant_acceleration() {
+    let straps = Straps::two_dof(0.28, 0.16, 937.5, 93.7);
+    let (a, v0, offset) = (
+        SVector::<f64, 2>::new(3.0, -5.0),
+        SVector::<f64, 2>::new(0.5, 1.0),
+        SVector::<f64, 2>::new(0.01, -0.02),
+    );
+    for w in [1usize, 3, 5, 9] {
+        let mut lag = ForceLag::<2>::new(w, DT, 3.0);
+        let mut qd_filter = MovingAverage::<2>::new(w);
+        let mut f_filter = MovingAverage::<2>::new(w);
+        let mut last = (SVector::zeros(), SVector::zeros());
+        for k in 0..400 {
+            let t = k as f64 * DT;
+            let q_r = v0 * t + a * (0.5 * t * t);
+            let qd_r = v0 + a * t;
+            // Human = robot + offset (same velocity): F = ks J offset.
+            let f_true = straps.force(&offset, &SVector::zeros());
+            let m = Measurement {
+                t,
+                q: q_r,
+                qd: qd_filter.push(qd_r),
+                force: f_filter.push(f_true),
+            };
+            lag.push(&q_r);
+            lag.push_velocity(&qd_r);
+            last = (lag.predicted_force(&straps, &m, &qd_r), f_true);
+        }
+        let (f_hat, f_true) = last;
+        assert!(
+            (f_hat - f_true).norm() < 1e-6 * f_true.norm().max(1.0),
+            "w = {w}: predicted {f_hat:?}, true {f_true:?}"
+        );
+    }
+}
+
+/// The robot oscillating at 4 Hz against a still human: the filtered force lags the true one;
+/// the Smith prediction (human bandwidth low; it still takes the human to move like the filtered
+/// robot velocity over the window) has under a quarter of the filtered force's squared error
+/// (measured: 0.12).
+#[test]
+fn predicted_force_removes_the_filter_lag_of_the_robot_motion() {
+    let straps = Straps::one_dof(0.16, 937.5, 93.7);
+    let w = 9;
+    let mut lag = ForceLag::<1>::new(w, DT, 0.05);
+    let mut qd_filter = MovingAverage::<1>::new(w);
+    let mut f_filter = MovingAverage::<1>::new(w);
+    let (mut err_filtered, mut err_pred) = (0.0, 0.0);
+    let om = 2.0 * std::f64::consts::PI * 4.0;
+    for k in 0..500 {
+        let t = k as f64 * DT;
+        let q_r = SVector::<f64, 1>::new(0.05 * (om * t).sin());
+        let qd_r = SVector::<f64, 1>::new(0.05 * om * (om * t).cos());
+        let f_true = straps.force(&(-q_r), &(-qd_r));
+        let m = Measurement {
+            t,
+            q: q_r,
+            qd: qd_filter.push(qd_r),
+            force: f_filter.push(f_true),
+        };
+        lag.push(&q_r);
+        lag.push_velocity(&qd_r);
+        let f_hat = lag.predicted_force(&straps, &m, &qd_r);
+        if k > 200 {
+            err_filtered += (m.force - f_true).norm_squared();
+            err_pred += (f_hat - f_true).norm_squared();
+        }
+    }
+    assert!(
+        err_pred < 0.25 * err_filtered,
+        "prediction error {err_pred} vs filter error {err_filtered}"
+    );
+}
+
+fn detector_on_sine(freq_hz: f64, amplitude: f64) -> bool {
+    let mut d = HfShareDetector::<2>::new(DT, 3.0, 0.25, 0.1, 2.0);
+    let mut seen = false;
+    for k in 0..500 {
+        let t = k as f64 * DT;
+        let s = amplitude * (2.0 * std::f64::consts::PI * freq_hz * t).sin();
+        let f = SVector::<f64, 2>::new(5.0 + s, s);
+        let on = d.push(&f);
+        if k > 100 {
+            seen |= on;
+        }
+    }
+    seen
+}
+
+#[test]
+fn oscillation_detector_separates_gait_from_limit_cycles() {
+    // Gait-frequency strap forces, even large ones, are not an oscillation.
+    assert!(!detector_on_sine(0.8, 20.0));
+    assert!(!detector_on_sine(1.3, 20.0));
+    // A 4 Hz limit cycle is, unless it is below the force floor.
+    assert!(detector_on_sine(4.0, 10.0));
+    assert!(!detector_on_sine(4.0, 0.5));
+}
+
+#[test]
+fn method_and_robust_settings_are_configured_and_validated() {
+    let s = Scenario::default();
+    assert_eq!(s.controller.method, Method::Robust);
+    assert_eq!(s.controller.robust.filter_aware, FilterAware::OnOscillation);
+    for (set, field) in [
+        (
+            (|s: &mut Scenario| s.controller.robust.oscillation_fraction = 1.0)
+                as fn(&mut Scenario),
+            "controller.robust.oscillation_fraction",
+        ),
+        (
+            |s: &mut Scenario| s.controller.robust.oscillation_cutoff_hz = 0.0,
+            "controller.robust.oscillation_cutoff_hz",
+        ),
+        (
+            |s: &mut Scenario| s.controller.robust.oscillation_window_s = 0.0,
+            "controller.robust.oscillation_window_s",
+        ),
+        (
+            |s: &mut Scenario| s.controller.robust.oscillation_min_force_n = -1.0,
+            "controller.robust.oscillation_min_force_n",
+        ),
+        (
+            |s: &mut Scenario| s.controller.robust.human_bandwidth_hz = f64::NAN,
+            "controller.robust.human_bandwidth_hz",
+        ),
+        (
+            |s: &mut Scenario| s.controller.robust.release_s = -1.0,
+            "controller.robust.release_s",
+        ),
+    ] {
+        let mut bad = Scenario::default();
+        set(&mut bad);
+        let e = bad.validate().expect_err(field);
+        assert_eq!(e.field, field);
+    }
+}
+
+/// (RMS thigh/shank or shank, share of power above 3 Hz) of the true strap forces.
+fn rms_and_hf(forces: &[Vec<f64>]) -> (Vec<f64>, Vec<f64>) {
+    let n = forces.len();
+    let joints = forces[0].len();
+    let mut rms = Vec::new();
+    let mut hf = Vec::new();
+    for a in 0..joints {
+        let x: Vec<f64> = forces.iter().map(|f| f[a]).collect();
+        let total: f64 = x.iter().map(|v| v * v).sum();
+        rms.push((total / n as f64).sqrt());
+        let kmax = (3.0 * n as f64 * DT).floor() as usize;
+        let mut low = 0.0;
+        for k in 0..=kmax {
+            let (mut re, mut im) = (0.0, 0.0);
+            for (i, v) in x.iter().enumerate() {
+                let ph = -2.0 * std::f64::consts::PI * (k * i) as f64 / n as f64;
+                re += v * ph.cos();
+                im += v * ph.sin();
+            }
+            let p = (re * re + im * im) / n as f64;
+            low += if k == 0 { p } else { 2.0 * p };
+        }
+        hf.push((1.0 - low / total).max(0.0));
+    }
+    (rms, hf)
+}
+
+fn run2(s: &Scenario) -> (Vec<f64>, Vec<f64>) {
+    let mut log = TraceLog::<2>::default();
+    run_experiment::<TwoDof, 2>(s, &mut [&mut log]).expect("run");
+    let f: Vec<Vec<f64>> = log
+        .rows
+        .iter()
+        .map(|r| r.force_true.iter().copied().collect())
+        .collect();
+    rms_and_hf(&f)
+}
+
+fn run1(s: &Scenario) -> (Vec<f64>, Vec<f64>) {
+    let mut log = TraceLog::<1>::default();
+    run_experiment::<OneDof, 1>(s, &mut [&mut log]).expect("run");
+    let f: Vec<Vec<f64>> = log
+        .rows
+        .iter()
+        .map(|r| r.force_true.iter().copied().collect())
+        .collect();
+    rms_and_hf(&f)
+}
+
+/// Envelope cells where the paper's MS-NMPC limit-cycles (issue table): the robust default is
+/// stable there and at least as good as the plain NMPC, while the paper setting still
+/// oscillates (so the test would see a regression of the robust method to the paper's).
+#[test]
+fn robust_default_holds_where_the_paper_method_limit_cycles() {
+    type Cell = (&'static str, usize, f64, fn(&mut Scenario));
+    let cells: [Cell; 4] = [
+        ("payload at 0.30 m", 2, 2.0, |s| {
+            s.robot.payload_position_m = 0.30
+        }),
+        ("filter window 9", 2, 2.0, |s| {
+            s.uncertainty.filter_window = 9
+        }),
+        ("heavier robot", 2, 2.0, |s| {
+            s.robot.thigh.mass_kg = 4.0;
+            s.robot.thigh.inertia_kgm2 = 0.07;
+            s.robot.shank.mass_kg = 2.5;
+            s.robot.shank.inertia_kgm2 = 0.036;
+        }),
+        ("1-DOF, filter window 9", 1, 2.0, |s| {
+            s.uncertainty.filter_window = 9
+        }),
+    ];
+    for (name, dof, payload, change) in cells {
+        let mut s = Scenario::default();
+        change(&mut s);
+        s.uncertainty.payload_kg = payload;
+        let run = |s: &Scenario| if dof == 1 { run1(s) } else { run2(s) };
+        let robust = run(&s);
+        let mut paper = s.clone();
+        paper.controller.method = Method::Paper;
+        let paper = run(&paper);
+        let mut nmpc = s.clone();
+        nmpc.controller.kind = ControllerKind::Nmpc;
+        let nmpc = run(&nmpc);
+        for a in 0..robust.0.len() {
+            assert!(
+                robust.0[a] < 20.0 && robust.0[a] <= nmpc.0[a],
+                "{name}: robust RMS {:?} vs NMPC {:?}",
+                robust.0,
+                nmpc.0
+            );
+        }
+        assert!(
+            paper.1.iter().any(|h| *h > 0.25),
+            "{name}: the paper's method no longer oscillates here ({:?}); pick another cell",
+            paper.1
+        );
+    }
+}
+
+/// On the default scenario the robust method never engages and equals the paper's run.
+#[test]
+fn robust_default_equals_the_paper_method_on_the_default_scenario() {
+    let mut s = Scenario::default();
+    s.uncertainty.payload_kg = 2.0;
+    let mut p = s.clone();
+    p.controller.method = Method::Paper;
+    let (a, b) = (run2(&s), run2(&p));
+    assert_eq!(a.0, b.0);
+}
