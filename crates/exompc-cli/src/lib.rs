@@ -7,3 +7,4 @@ pub mod error;
 pub mod io;
 pub mod run;
 pub mod trace;
+pub mod verdict;

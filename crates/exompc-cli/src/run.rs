@@ -91,8 +91,19 @@ pub fn describe(s: &Summary) -> String {
         s.step_time_us.mean, s.step_time_us.p50, s.step_time_us.p99, s.step_time_us.max
     );
     out += &format!(
-        "  limit violations {}   solver failures {}",
+        "  limit violations {}   solver failures {}\n",
         s.limit_violations, s.solver_failures
     );
+    let sa = &s.safety;
+    out += &format!(
+        "  safety            monitor trips {}   monitor-held steps {}   rejected measurements {}",
+        sa.monitor_trips, sa.monitor_steps, sa.bad_measurement_steps
+    );
+    for m in &sa.monitors {
+        out += &format!(
+            "\n    {:<16}{} trips, first at {:.2} s",
+            m.monitor, m.trips, m.first_trip_s
+        );
+    }
     out
 }

@@ -7,6 +7,7 @@ use exompc::config::Formulation;
 use exompc_cli::error::CliError;
 use exompc_cli::io;
 use exompc_cli::run::{describe, run_to_dir};
+use exompc_cli::verdict::Verdict;
 use std::path::PathBuf;
 
 #[derive(Debug, Args)]
@@ -103,6 +104,7 @@ pub(crate) fn run(a: SimulateArgs) -> Result<(), CliError> {
     if a.plot {
         crate::plot::draw_dir(&a.out)?;
     }
+    let verdict = Verdict::of_run(&summary);
     if a.json {
         let json = serde_json::to_string(&summary)
             .map_err(|e| CliError::Runtime(format!("serialising summary: {e}")))?;
@@ -110,6 +112,12 @@ pub(crate) fn run(a: SimulateArgs) -> Result<(), CliError> {
     } else {
         println!("{}", describe(&summary));
         println!("  wrote {}/trace.csv and summary.json", a.out.display());
+        println!("{verdict}");
+    }
+    if verdict.is_failed() {
+        return Err(CliError::Runtime(format!(
+            "run failed its checks: {verdict}"
+        )));
     }
     Ok(())
 }

@@ -10,6 +10,7 @@ use exompc::sim::Summary;
 use exompc_cli::error::CliError;
 use exompc_cli::io;
 use exompc_cli::run::run_to_dir;
+use exompc_cli::verdict::Verdict;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -323,6 +324,15 @@ pub(crate) fn run(a: SweepArgs) -> Result<(), CliError> {
             a.out.display(),
             file.rows.len()
         );
+    }
+    let verdict = Verdict::of_sweep(&file.rows);
+    if !a.json {
+        println!("{verdict}");
+    }
+    if verdict.is_failed() {
+        return Err(CliError::Runtime(format!(
+            "sweep failed its checks: {verdict}"
+        )));
     }
     Ok(())
 }
