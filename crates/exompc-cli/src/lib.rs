@@ -4,6 +4,7 @@
 #![warn(missing_docs)]
 
 pub mod error;
+pub mod interrupt;
 pub mod io;
 pub mod run;
 pub mod trace;

@@ -56,6 +56,14 @@ impl From<FormulationArg> for Formulation {
     }
 }
 
+/// Command-line spelling of a formulation.
+pub(crate) fn formulation_name(f: FormulationArg) -> &'static str {
+    match f {
+        FormulationArg::Decoupled => "decoupled",
+        FormulationArg::Coupled => "coupled",
+    }
+}
+
 /// Apply the command-line overrides to the scenario and validate the result; a bad flag value
 /// is reported naming the flag.
 pub(crate) fn apply_overrides(
@@ -68,6 +76,15 @@ pub(crate) fn apply_overrides(
 ) -> Result<(), CliError> {
     if let Some(k) = controller {
         s.controller.kind = k.into();
+    }
+    if let (Some(f), Some(k)) = (formulation, controller) {
+        if !matches!(k, ControllerArg::Msnmpc) {
+            return Err(CliError::Usage(format!(
+                "--formulation {} applies to --controller msnmpc only, not --controller {}",
+                formulation_name(f),
+                crate::sweep::controller_name(k)
+            )));
+        }
     }
     if let Some(f) = formulation {
         s.multistage.formulation = f.into();
