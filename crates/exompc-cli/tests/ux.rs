@@ -249,3 +249,26 @@ fn sweep_refuses_a_folder_with_earlier_results_unless_forced() {
         "old run folders gone, the user's own file kept"
     );
 }
+
+#[test]
+fn a_key_in_the_wrong_table_is_pointed_to_its_table() {
+    let dir = fresh_dir("wrong_table");
+    std::fs::create_dir_all(&dir).unwrap();
+    for (toml, want) in [
+        (
+            "payload_kg = 2.0\n",
+            "`payload_kg` belongs in [uncertainty]",
+        ),
+        (
+            "[robot]\nmass_kg = 2.0\n",
+            "`mass_kg` belongs in [robot.shank] or [robot.thigh]",
+        ),
+    ] {
+        let path = dir.join("c.toml");
+        std::fs::write(&path, toml).unwrap();
+        let out = exompc(&["config", "--check", path.to_str().unwrap()]);
+        assert_eq!(out.status.code(), Some(2));
+        let err = text(&out.stderr);
+        assert!(err.contains(want), "{toml}: {err}");
+    }
+}
