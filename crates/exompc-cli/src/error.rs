@@ -5,6 +5,8 @@ use std::fmt;
 /// Exit code for bad input: an invalid config value, an unknown key or a bad flag (clap's own
 /// usage errors also exit 2).
 pub const EXIT_USAGE: u8 = 2;
+/// Exit code after SIGINT/SIGTERM (128 + 2, as the shell reports a Ctrl-C).
+pub const EXIT_INTERRUPTED: u8 = 130;
 /// Exit code for a runtime failure (I/O error while writing results, solver failure, ...).
 pub const EXIT_FAILURE: u8 = 1;
 
@@ -19,6 +21,8 @@ pub enum CliError {
     Io(String),
     /// Any other runtime failure (exit 1).
     Runtime(String),
+    /// Stopped by SIGINT/SIGTERM; the message says what was completed (exit 130).
+    Interrupted(String),
 }
 
 impl CliError {
@@ -27,6 +31,7 @@ impl CliError {
         match self {
             CliError::Config(_) | CliError::Usage(_) => EXIT_USAGE,
             CliError::Io(_) | CliError::Runtime(_) => EXIT_FAILURE,
+            CliError::Interrupted(_) => EXIT_INTERRUPTED,
         }
     }
 
@@ -39,9 +44,11 @@ impl CliError {
 impl fmt::Display for CliError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            CliError::Config(m) | CliError::Usage(m) | CliError::Io(m) | CliError::Runtime(m) => {
-                f.write_str(m)
-            }
+            CliError::Config(m)
+            | CliError::Usage(m)
+            | CliError::Io(m)
+            | CliError::Runtime(m)
+            | CliError::Interrupted(m) => f.write_str(m),
         }
     }
 }

@@ -193,9 +193,17 @@ fn check_keys(user: &toml::Table, schema: &toml::Table, prefix: &str) -> Result<
             } else {
                 format!("in table [{prefix}]")
             };
-            let hint = closest(key, &names)
+            let homes = tables_holding(&schema_root(), key, "");
+            // A near miss here (a typo) first, then where the key exists elsewhere.
+            let near =
+                closest(key, &names).filter(|c| homes.is_empty() || levenshtein(key, c) <= 2);
+            let mut hint = near
                 .map(|c| format!("; did you mean `{c}`?"))
                 .unwrap_or_default();
+            if !homes.is_empty() {
+                let list: Vec<String> = homes.iter().map(|t| format!("[{t}]")).collect();
+                hint += &format!("; `{key}` belongs in {}", list.join(" or "));
+            }
             return Err(format!(
                 "unknown key `{key}` {place}{hint} (valid keys: {})",
                 names.join(", ")
@@ -204,6 +212,26 @@ fn check_keys(user: &toml::Table, schema: &toml::Table, prefix: &str) -> Result<
         check_value(value, expected, &path)?;
     }
     Ok(())
+}
+
+/// The whole schema (see [`schema`]), built once.
+fn schema_root() -> toml::Table {
+    static ROOT: std::sync::OnceLock<toml::Table> = std::sync::OnceLock::new();
+    ROOT.get_or_init(schema).clone()
+}
+
+/// Dotted paths of the tables of `t` (searched recursively) that have a key `key`.
+fn tables_holding(t: &toml::Table, key: &str, prefix: &str) -> Vec<String> {
+    let mut out = Vec::new();
+    if !prefix.is_empty() && t.contains_key(key) {
+        out.push(prefix.to_string());
+    }
+    for (k, v) in t {
+        if let toml::Value::Table(sub) = v {
+            out.extend(tables_holding(sub, key, &join(prefix, k)));
+        }
+    }
+    out
 }
 
 fn check_value(value: &toml::Value, expected: &toml::Value, path: &str) -> Result<(), String> {

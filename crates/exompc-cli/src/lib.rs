@@ -5,6 +5,8 @@
 
 pub mod envelope;
 pub mod error;
+pub mod interrupt;
 pub mod io;
 pub mod run;
 pub mod trace;
+pub mod verdict;

@@ -170,37 +170,208 @@ fn finite_range(vals: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
     r
 }
 
-fn draw_panel<DB: DrawingBackend>(area: &DrawingArea<DB, Shift>, p: &Panel) -> Result<(), CliError>
-where
-    DB::ErrorType: 'static,
-{
+/// Label of a tick value with no needless decimals (`40`, `2.5`, `0.25`, `-1e-5`).
+fn tick_label(v: f64) -> String {
+    if v == 0.0 {
+        return "0".into();
+    }
+    let a = v.abs();
+    if !(1e-3..1e6).contains(&a) {
+        return format!("{v:.1e}");
+    }
+    let t = format!("{v:.4}");
+    let t = t.trim_end_matches('0').trim_end_matches('.');
+    if t == "-0" {
+        "0".into()
+    } else {
+        t.to_string()
+    }
+}
+
+/// The axis ranges of a panel: x over the data, y over the data (or the panel's fixed range)
+/// with a small margin; no head room is reserved for the legend, which is drawn beside the plot.
+fn panel_ranges(p: &Panel) -> ((f64, f64), (f64, f64)) {
     let (x0, x1) =
         finite_range(p.lines.iter().flat_map(|l| l.x.iter().copied())).unwrap_or((0.0, 1.0));
-    let (x0, x1) = if x1 > x0 {
-        (x0, x1)
+    let x = if x1 > x0 {
+        // Markers at the first and last x get room to be drawn whole.
+        let pad = if p.lines.iter().any(|l| l.markers) {
+            0.05 * (x1 - x0)
+        } else {
+            0.0
+        };
+        (x0 - pad, x1 + pad)
     } else {
         (x0 - 0.5, x1 + 0.5)
     };
-    let with_legend = p.lines.iter().any(|l| !l.label.is_empty());
-    let (y0, y1) = match p.y_range {
+    let y = match p.y_range {
         Some(r) => r,
         None => {
             let (a, b) = finite_range(p.lines.iter().flat_map(|l| l.y.iter().copied()))
                 .unwrap_or((0.0, 1.0));
             let span = if b > a { b - a } else { a.abs().max(1.0) };
-            // Head room for the legend above the data.
-            let top = if with_legend { 0.35 } else { 0.05 };
-            (a - 0.05 * span, b + top * span)
+            (a - 0.05 * span, b + 0.05 * span)
         }
     };
-    let mut chart = ChartBuilder::on(area)
+    (x, y)
+}
+
+/// Cuts polyline `pts` to the box `x × y`: the pieces inside it, with the crossing points
+/// interpolated on the border (non-finite points break the line). Every returned point lies in
+/// the box, so nothing is drawn outside its panel.
+fn clip_polyline(pts: &[(f64, f64)], x: (f64, f64), y: (f64, f64)) -> Vec<Vec<(f64, f64)>> {
+    let inside = |p: (f64, f64)| p.0 >= x.0 && p.0 <= x.1 && p.1 >= y.0 && p.1 <= y.1;
+    let finite = |p: (f64, f64)| p.0.is_finite() && p.1.is_finite();
+    // Liang-Barsky clipping of segment a-b to the box.
+    let clip = |a: (f64, f64), b: (f64, f64)| -> Option<((f64, f64), (f64, f64))> {
+        let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+        let (mut t0, mut t1) = (0.0_f64, 1.0_f64);
+        for (pk, qk) in [
+            (-dx, a.0 - x.0),
+            (dx, x.1 - a.0),
+            (-dy, a.1 - y.0),
+            (dy, y.1 - a.1),
+        ] {
+            if pk == 0.0 {
+                if qk < 0.0 {
+                    return None;
+                }
+            } else {
+                let r = qk / pk;
+                if pk < 0.0 {
+                    t0 = t0.max(r);
+                } else {
+                    t1 = t1.min(r);
+                }
+            }
+        }
+        if t0 > t1 {
+            return None;
+        }
+        let at = |t: f64| {
+            (
+                (a.0 + t * dx).clamp(x.0, x.1),
+                (a.1 + t * dy).clamp(y.0, y.1),
+            )
+        };
+        Some((at(t0), at(t1)))
+    };
+    let mut pieces: Vec<Vec<(f64, f64)>> = Vec::new();
+    let mut cur: Vec<(f64, f64)> = Vec::new();
+    let flush = |cur: &mut Vec<(f64, f64)>, pieces: &mut Vec<Vec<(f64, f64)>>| {
+        if !cur.is_empty() {
+            pieces.push(std::mem::take(cur));
+        }
+    };
+    for (i, &b) in pts.iter().enumerate() {
+        if !finite(b) {
+            flush(&mut cur, &mut pieces);
+            continue;
+        }
+        let a = if i > 0 {
+            pts[i - 1]
+        } else {
+            (f64::NAN, f64::NAN)
+        };
+        if !finite(a) {
+            if inside(b) {
+                cur.push(b);
+            }
+            continue;
+        }
+        match clip(a, b) {
+            Some((pa, pb)) => {
+                if cur.last() != Some(&pa) {
+                    flush(&mut cur, &mut pieces);
+                    cur.push(pa);
+                }
+                cur.push(pb);
+                if pb != b {
+                    flush(&mut cur, &mut pieces);
+                }
+            }
+            None => flush(&mut cur, &mut pieces),
+        }
+    }
+    flush(&mut cur, &mut pieces);
+    pieces
+}
+
+/// What a panel draws, in data coordinates: the axis ranges and, per line, its clipped pieces.
+/// Drawing goes through this only, so a test can check that every drawn point is inside.
+struct PanelGeometry {
+    x: (f64, f64),
+    y: (f64, f64),
+    pieces: Vec<Vec<Vec<(f64, f64)>>>,
+}
+
+fn panel_geometry(p: &Panel) -> PanelGeometry {
+    let (x, y) = panel_ranges(p);
+    let pieces = p
+        .lines
+        .iter()
+        .map(|l| {
+            let pts: Vec<(f64, f64)> = l.x.iter().copied().zip(l.y.iter().copied()).collect();
+            clip_polyline(&pts, x, y)
+        })
+        .collect();
+    PanelGeometry { x, y, pieces }
+}
+
+/// Width (px) of the legend column beside a panel's plot.
+fn legend_width(p: &Panel) -> u32 {
+    let chars = p
+        .lines
+        .iter()
+        .map(|l| l.label.chars().count())
+        .max()
+        .unwrap_or(0) as u32;
+    if chars == 0 {
+        0
+    } else {
+        40 + 8 * chars
+    }
+}
+
+/// Pixel rectangle `(x0, y0, x1, y1)` (inclusive) of a drawing area.
+type Rect = (i32, i32, i32, i32);
+
+fn rect_of<DB: DrawingBackend, CT: plotters::coord::CoordTranslate>(
+    a: &DrawingArea<DB, CT>,
+) -> Rect {
+    let (x, y) = a.get_pixel_range();
+    (x.start, y.start, x.end - 1, y.end - 1)
+}
+
+/// Draws panel `p` into `area`; returns the pixel rectangles where series colours may appear
+/// (the plot area and the legend column).
+fn draw_panel<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    p: &Panel,
+) -> Result<Vec<Rect>, CliError>
+where
+    DB::ErrorType: 'static,
+{
+    let g = panel_geometry(p);
+    // The legend gets its own column right of the plot: it never covers data. A line with
+    // nothing visible gets no entry.
+    let lw = legend_width(p);
+    let (plot_area, legend_area) = if lw > 0 {
+        let w = area.dim_in_pixel().0;
+        let (a, b) = area.split_horizontally(w.saturating_sub(lw));
+        (a, Some(b))
+    } else {
+        (area.clone(), None)
+    };
+    let mut chart = ChartBuilder::on(&plot_area)
         .caption(&p.title, (FONT, 17))
         .margin(6)
-        .margin_right(14)
+        .margin_right(if lw > 0 { 4 } else { 14 })
         .x_label_area_size(38)
         .y_label_area_size(62)
-        .build_cartesian_2d(x0..x1, y0..y1)
+        .build_cartesian_2d(g.x.0..g.x.1, g.y.0..g.y.1)
         .map_err(err)?;
+    let fmt = |v: &f64| tick_label(*v);
     chart
         .configure_mesh()
         .x_desc(p.x_label.as_str())
@@ -211,57 +382,105 @@ where
         .bold_line_style(BLACK.mix(0.12))
         .x_labels(8)
         .y_labels(6)
+        .x_label_formatter(&fmt)
+        .y_label_formatter(&fmt)
         .draw()
         .map_err(err)?;
-    for l in &p.lines {
+    let mut entries: Vec<(String, ShapeStyle, bool)> = Vec::new();
+    for (l, pieces) in p.lines.iter().zip(&g.pieces) {
         let style = ShapeStyle {
             color: l.color.to_rgba(),
             filled: false,
             stroke_width: l.width,
         };
-        let pts: Vec<(f64, f64)> =
-            l.x.iter()
-                .zip(&l.y)
-                .map(|(&x, &y)| (x, y))
-                .filter(|(x, y)| x.is_finite() && y.is_finite())
-                .collect();
-        let anno = if l.dashed {
-            chart
-                .draw_series(DashedLineSeries::new(pts.clone(), 7, 4, style))
-                .map_err(err)?
-        } else {
-            chart
-                .draw_series(LineSeries::new(pts.clone(), style))
-                .map_err(err)?
-        };
-        if !l.label.is_empty() {
-            let legend_style = ShapeStyle {
-                stroke_width: 3,
-                ..style
-            };
-            anno.label(l.label.as_str())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], legend_style));
+        // Wide polylines are drawn with mitred joins: a sharp reversal (a chattering
+        // probability, a noisy peak) would shoot a long spike out of the panel. Split the
+        // pieces at every turn sharper than 90° in pixel space, so there are no such joins.
+        let to_px = |q: &(f64, f64)| chart.backend_coord(q);
+        let mut runs: Vec<Vec<(f64, f64)>> = Vec::new();
+        for piece in pieces {
+            let mut cur: Vec<(f64, f64)> = Vec::with_capacity(piece.len());
+            for &q in piece {
+                let n = cur.len();
+                // A point on the previous point's pixel makes a zero-length segment, whose
+                // join has no direction: skip it.
+                if n >= 1 && to_px(&q) == to_px(&cur[n - 1]) {
+                    continue;
+                }
+                if n >= 2 {
+                    let (a, b, c) = (to_px(&cur[n - 2]), to_px(&cur[n - 1]), to_px(&q));
+                    let dot = (b.0 - a.0) * (c.0 - b.0) + (b.1 - a.1) * (c.1 - b.1);
+                    if dot <= 0 {
+                        let last = cur[n - 1];
+                        runs.push(std::mem::take(&mut cur));
+                        cur.push(last);
+                    }
+                }
+                cur.push(q);
+            }
+            if !cur.is_empty() {
+                runs.push(cur);
+            }
+        }
+        for piece in &runs {
+            if l.dashed {
+                chart
+                    .draw_series(DashedLineSeries::new(piece.clone(), 7, 4, style))
+                    .map_err(err)?;
+            } else {
+                chart
+                    .draw_series(LineSeries::new(piece.clone(), style))
+                    .map_err(err)?;
+            }
         }
         if l.markers {
+            let marks =
+                l.x.iter()
+                    .zip(&l.y)
+                    .map(|(&x, &y)| (x, y))
+                    .filter(|&(x, y)| x >= g.x.0 && x <= g.x.1 && y >= g.y.0 && y <= g.y.1);
             chart
-                .draw_series(pts.iter().map(|&p| Circle::new(p, 4, style.filled())))
+                .draw_series(marks.map(|q| Circle::new(q, 4, style.filled())))
                 .map_err(err)?;
         }
+        if !l.label.is_empty() && pieces.iter().any(|q| !q.is_empty()) {
+            entries.push((l.label.clone(), style, l.dashed));
+        }
     }
-    if with_legend {
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK.mix(0.3))
-            .label_font((FONT, 12))
-            .draw()
+    let mut rects = vec![rect_of(chart.plotting_area())];
+    if let Some(la) = legend_area {
+        rects.push(rect_of(&la));
+        for (i, (label, style, dashed)) in entries.iter().enumerate() {
+            let y = 40 + 20 * i as i32;
+            let s = ShapeStyle {
+                stroke_width: 3,
+                ..*style
+            };
+            if *dashed {
+                la.draw(&PathElement::new(vec![(4, y), (11, y)], s))
+                    .map_err(err)?;
+                la.draw(&PathElement::new(vec![(17, y), (24, y)], s))
+                    .map_err(err)?;
+            } else {
+                la.draw(&PathElement::new(vec![(4, y), (24, y)], s))
+                    .map_err(err)?;
+            }
+            la.draw(&Text::new(
+                label.as_str(),
+                (30, y - 7),
+                (FONT, 12).into_font(),
+            ))
             .map_err(err)?;
+        }
     }
-    Ok(())
+    Ok(rects)
 }
 
-fn render<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, fig: &Figure) -> Result<(), CliError>
+/// Draws `fig` into `root`; returns the pixel rectangles where series colours may appear.
+fn render<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    fig: &Figure,
+) -> Result<Vec<Rect>, CliError>
 where
     DB::ErrorType: 'static,
 {
@@ -270,14 +489,15 @@ where
         .titled(&fig.title, (FONT, 20).into_font().style(FontStyle::Bold))
         .map_err(err)?;
     let rows = body.split_evenly((fig.rows.len().max(1), 1));
+    let mut rects = Vec::new();
     for (area, row) in rows.iter().zip(&fig.rows) {
         let cells = area.split_evenly((1, row.len().max(1)));
         for (cell, panel) in cells.iter().zip(row) {
-            draw_panel(cell, panel)?;
+            rects.extend(draw_panel(cell, panel)?);
         }
     }
     root.present().map_err(err)?;
-    Ok(())
+    Ok(rects)
 }
 
 /// Writes `dir/stem.svg` and `dir/stem.png` (each through a temporary file renamed at the end).
@@ -388,8 +608,14 @@ fn probability_panel(run: &Run) -> Option<Panel> {
             "probability (%)",
             lines,
         )
-        .range(-3.0, 140.0),
+        .range(0.0, 100.0),
     )
+}
+
+/// Title of a strap-force panel, with the sign convention (docs/MODEL.md §4:
+/// `F = ks J (q_H − q_R) + cs J (qd_H − qd_R)`, positive when the human is ahead of the robot).
+fn strap_title(s: &str) -> String {
+    format!("{s} strap force (F > 0: human ahead of robot)")
 }
 
 /// Angles human vs robot, velocities and robot torques per joint (Figs. 3 and 7).
@@ -458,9 +684,11 @@ fn interaction_figure(run: &Run) -> Figure {
         .iter()
         .map(|s| {
             Panel::time(
-                format!("{s} strap force"),
+                strap_title(s),
                 "force (N)",
+                // The thin measured line on top of the true one, so that both stay visible.
                 vec![
+                    Line::new("true", t.clone(), run.col(&format!("force_true_{s}")), c),
                     Line::new(
                         "measured",
                         t.clone(),
@@ -468,7 +696,6 @@ fn interaction_figure(run: &Run) -> Figure {
                         MEASURED,
                     )
                     .thin(),
-                    Line::new("true", t.clone(), run.col(&format!("force_true_{s}")), c),
                 ],
             )
         })
@@ -526,7 +753,7 @@ fn compare_figure(runs: &[Run], payload: f64) -> Figure {
                     )
                 })
                 .collect();
-            Panel::time(format!("{s} strap force"), "force (N)", lines)
+            Panel::time(strap_title(s), "force (N)", lines)
         })
         .collect();
     let mut rows = vec![errors, forces];
@@ -548,20 +775,20 @@ fn step_time_figure(runs: &[Run], payload: f64) -> Figure {
     let panels = runs
         .iter()
         .map(|r| {
-            let label = match &r.summary {
+            let stats = match &r.summary {
                 Some(s) => format!(
-                    "p50 {:.0} µs, p99 {:.0} µs, max {:.0} µs",
+                    ": p50 {:.0} µs, p99 {:.0} µs, max {:.0} µs",
                     s.step_time_us.p50, s.step_time_us.p99, s.step_time_us.max
                 ),
                 None => String::new(),
             };
             let panel = Panel::time(
-                format!("{} compute time per step", r.label()),
+                format!("{} compute time per step{stats}", r.label()),
                 "time (µs)",
-                vec![Line::new(label, r.t(), r.col("step_us"), ctrl_color(&r.controller)).thin()],
+                vec![Line::new("", r.t(), r.col("step_us"), ctrl_color(&r.controller)).thin()],
             );
             // Isolated pre-emption spikes (ms) would flatten the typical values: the axis stops
-            // at 4 × p99; the legend gives the maximum.
+            // at 4 × p99 (the spikes are cut at the top); the title gives the maximum.
             vec![match &r.summary {
                 Some(s)
                     if s.step_time_us.p99 > 0.0
@@ -649,7 +876,7 @@ fn payload_figure(rows: &[Summary]) -> Figure {
             "mean probability (%)",
             lines,
         )
-        .range(-3.0, 140.0);
+        .range(0.0, 100.0);
         p.x_label = "payload (kg)".into();
         fig_rows.push(vec![p]);
     }
@@ -742,4 +969,182 @@ pub(crate) fn draw_dir(dir: &Path) -> Result<Vec<PathBuf>, CliError> {
         files.extend(draw_sweep_dir(dir)?);
     }
     Ok(files)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use exompc_cli::trace::header;
+
+    /// A 2-DOF, 3-scenario trace whose probabilities chatter between 0 and 1 every step
+    /// (with rounding excursions just outside [0, 1]), with force spikes and NaN gaps.
+    fn chattering_run() -> Run {
+        let columns = header(2, 3);
+        // More steps than pixels across a panel: several points share a pixel column.
+        let n = 3000;
+        let rows = (0..n)
+            .map(|k| {
+                let t = k as f64 * 0.01;
+                columns
+                    .iter()
+                    .map(|c| {
+                        let ph = (t * 6.0).sin();
+                        match c.as_str() {
+                            "t" => t,
+                            "mu_1" => {
+                                if (k / 2) % 2 == 0 {
+                                    1.0 + 1e-12
+                                } else {
+                                    -1e-12
+                                }
+                            }
+                            "mu_2" => (k % 3) as f64 / 2.0,
+                            "mu_3" => 1.0 - (k % 2) as f64,
+                            c if c.starts_with("force") && k % 97 == 0 => 1e4,
+                            c if c.starts_with("q_human") && k % 50 == 0 => f64::NAN,
+                            "step_us" => {
+                                if k % 100 == 7 {
+                                    9000.0
+                                } else {
+                                    5.0
+                                }
+                            }
+                            _ => ph,
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        Run {
+            trace: TraceTable {
+                columns,
+                rows,
+                status: vec![String::new(); n],
+            },
+            summary: Some(Summary {
+                controller: "msnmpc".into(),
+                dof: 2,
+                payload_kg: 2.0,
+                step_time_us: exompc::sim::StepTimeStats {
+                    p50: 5.0,
+                    p99: 6.0,
+                    max: 9000.0,
+                    ..Default::default()
+                },
+                ..Default::default()
+            }),
+            controller: "msnmpc".into(),
+        }
+    }
+
+    fn assert_inside(fig: &Figure) {
+        for panel in fig.rows.iter().flatten() {
+            let g = panel_geometry(panel);
+            let mut drawn = 0;
+            for pieces in &g.pieces {
+                for piece in pieces {
+                    for &(x, y) in piece {
+                        drawn += 1;
+                        assert!(
+                            x >= g.x.0 && x <= g.x.1 && y >= g.y.0 && y <= g.y.1,
+                            "{}: ({x}, {y}) outside {:?} × {:?}",
+                            panel.title,
+                            g.x,
+                            g.y
+                        );
+                    }
+                }
+            }
+            assert!(drawn > 0, "{}: something is drawn", panel.title);
+            if panel.y_label.contains("probability") {
+                assert_eq!(g.y, (0.0, 100.0), "{}", panel.title);
+            }
+        }
+        // The rendered pixels: every pixel of a series colour lies in a plot area or a legend
+        // column (catches spikes of line joins and anything else drawn outside).
+        let mut buf = vec![0u8; (SIZE.0 * SIZE.1 * 3) as usize];
+        let rects = render(
+            BitMapBackend::with_buffer(&mut buf, SIZE).into_drawing_area(),
+            fig,
+        )
+        .unwrap();
+        // (The greys of the human and measured lines also occur in anti-aliased text.)
+        let colours: Vec<RGBColor> = [MS, NM, PD_C].into_iter().chain(SCEN).collect();
+        // A line on the border may overhang by half its width (4 px lines).
+        const PEN: i32 = 2;
+        let mut seen = 0;
+        for (i, px) in buf.chunks(3).enumerate() {
+            if !colours.iter().any(|c| px == [c.0, c.1, c.2]) {
+                continue;
+            }
+            seen += 1;
+            let (x, y) = ((i as u32 % SIZE.0) as i32, (i as u32 / SIZE.0) as i32);
+            assert!(
+                rects
+                    .iter()
+                    .any(|r| x >= r.0 - PEN && x <= r.2 + PEN && y >= r.1 - PEN && y <= r.3 + PEN),
+                "{}: series pixel at ({x}, {y}) outside every panel",
+                fig.title
+            );
+        }
+        assert!(seen > 1000, "{}: series drawn", fig.title);
+    }
+
+    #[test]
+    fn no_series_leaves_its_panel() {
+        ensure_font().unwrap();
+        let run = chattering_run();
+        let runs = [chattering_run(), {
+            let mut r = chattering_run();
+            r.controller = "nmpc".into();
+            r
+        }];
+        let mut rows = vec![run.summary.clone().unwrap()];
+        rows[0].mean_probability = Some(vec![0.5, 1.0 + 1e-12, -1e-12]);
+        rows[0].rms_force_n.thigh = Some(3.0);
+        rows[0].rms_force_n.shank = Some(f64::NAN);
+        let mut r2 = rows[0].clone();
+        r2.payload_kg = 0.0;
+        r2.rms_force_n.shank = Some(4.0);
+        rows.push(r2);
+        for fig in [
+            states_figure(&run),
+            interaction_figure(&run),
+            compare_figure(&runs, 2.0),
+            step_time_figure(&runs, 2.0),
+            payload_figure(&rows),
+        ] {
+            assert_inside(&fig);
+        }
+    }
+
+    #[test]
+    fn clipping_cuts_at_the_border() {
+        let b = ((0.0, 10.0), (0.0, 1.0));
+        // Up through the top and back: two pieces meeting the border at y = 1.
+        let p = clip_polyline(&[(0.0, 0.5), (2.0, 1.5), (4.0, 0.5)], b.0, b.1);
+        assert_eq!(
+            p,
+            vec![vec![(0.0, 0.5), (1.0, 1.0)], vec![(3.0, 1.0), (4.0, 0.5)]]
+        );
+        // Entirely outside: nothing drawn (and so no legend entry).
+        assert!(clip_polyline(&[(0.0, 5.0), (1.0, 6.0)], b.0, b.1).is_empty());
+        // A NaN breaks the line.
+        let p = clip_polyline(
+            &[(0.0, 0.2), (1.0, f64::NAN), (2.0, 0.3), (3.0, 0.4)],
+            b.0,
+            b.1,
+        );
+        assert_eq!(p, vec![vec![(0.0, 0.2)], vec![(2.0, 0.3), (3.0, 0.4)]]);
+    }
+
+    #[test]
+    fn tick_labels_have_no_needless_decimals() {
+        assert_eq!(tick_label(40.0), "40");
+        assert_eq!(tick_label(2.5), "2.5");
+        assert_eq!(tick_label(0.25), "0.25");
+        assert_eq!(tick_label(-0.0), "0");
+        assert_eq!(tick_label(-3.0), "-3");
+        assert_eq!(tick_label(1e-5), "1.0e-5");
+    }
 }

@@ -1,6 +1,7 @@
 //! Running one experiment of a scenario into an output folder (`trace.csv`, `summary.json`).
 
 use crate::error::CliError;
+use crate::interrupt::StopOnInterrupt;
 use crate::io::write_atomic;
 use crate::trace::CsvTrace;
 use exompc::config::{ControllerKind, Scenario};
@@ -35,23 +36,37 @@ pub fn run_to_dir(s: &Scenario, dof: u8, out: Option<&Path>) -> Result<Summary, 
         )?),
         None => None,
     };
+    let mut stop = StopOnInterrupt;
     let summary = match dof {
         1 => {
-            let mut recs: Vec<&mut dyn Recorder<1>> = Vec::new();
+            let mut recs: Vec<&mut dyn Recorder<1>> = vec![&mut stop];
             if let Some(t) = trace.as_mut() {
                 recs.push(t);
             }
             run_experiment::<OneDof, 1>(s, &mut recs)
         }
         _ => {
-            let mut recs: Vec<&mut dyn Recorder<2>> = Vec::new();
+            let mut recs: Vec<&mut dyn Recorder<2>> = vec![&mut stop];
             if let Some(t) = trace.as_mut() {
                 recs.push(t);
             }
             run_experiment::<TwoDof, 2>(s, &mut recs)
         }
     }
-    .map_err(run_error)?;
+    .map_err(|e| {
+        if crate::interrupt::requested() {
+            // The trace's temporary file is removed as `trace` drops.
+            CliError::Interrupted(format!(
+                "interrupted: run not completed{}",
+                out.map_or(String::new(), |d| format!(
+                    ", nothing written to {}",
+                    d.display()
+                ))
+            ))
+        } else {
+            run_error(e)
+        }
+    })?;
     if let (Some(t), Some(dir)) = (trace, out) {
         t.finish()?;
         let json = serde_json::to_string_pretty(&summary)
@@ -91,8 +106,19 @@ pub fn describe(s: &Summary) -> String {
         s.step_time_us.mean, s.step_time_us.p50, s.step_time_us.p99, s.step_time_us.max
     );
     out += &format!(
-        "  limit violations {}   solver failures {}",
+        "  limit violations {}   solver failures {}\n",
         s.limit_violations, s.solver_failures
     );
+    let sa = &s.safety;
+    out += &format!(
+        "  safety            monitor trips {}   monitor-held steps {}   rejected measurements {}",
+        sa.monitor_trips, sa.monitor_steps, sa.bad_measurement_steps
+    );
+    for m in &sa.monitors {
+        out += &format!(
+            "\n    {:<16}{} trips, first at {:.2} s",
+            m.monitor, m.trips, m.first_trip_s
+        );
+    }
     out
 }

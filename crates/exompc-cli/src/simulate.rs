@@ -7,6 +7,7 @@ use exompc::config::Formulation;
 use exompc_cli::error::CliError;
 use exompc_cli::io;
 use exompc_cli::run::{describe, run_to_dir};
+use exompc_cli::verdict::Verdict;
 use std::path::PathBuf;
 
 #[derive(Debug, Args)]
@@ -55,6 +56,14 @@ impl From<FormulationArg> for Formulation {
     }
 }
 
+/// Command-line spelling of a formulation.
+pub(crate) fn formulation_name(f: FormulationArg) -> &'static str {
+    match f {
+        FormulationArg::Decoupled => "decoupled",
+        FormulationArg::Coupled => "coupled",
+    }
+}
+
 /// Apply the command-line overrides to the scenario and validate the result; a bad flag value
 /// is reported naming the flag.
 pub(crate) fn apply_overrides(
@@ -67,6 +76,15 @@ pub(crate) fn apply_overrides(
 ) -> Result<(), CliError> {
     if let Some(k) = controller {
         s.controller.kind = k.into();
+    }
+    if let (Some(f), Some(k)) = (formulation, controller) {
+        if !matches!(k, ControllerArg::Msnmpc) {
+            return Err(CliError::Usage(format!(
+                "--formulation {} applies to --controller msnmpc only, not --controller {}",
+                formulation_name(f),
+                crate::sweep::controller_name(k)
+            )));
+        }
     }
     if let Some(f) = formulation {
         s.multistage.formulation = f.into();
@@ -103,6 +121,7 @@ pub(crate) fn run(a: SimulateArgs) -> Result<(), CliError> {
     if a.plot {
         crate::plot::draw_dir(&a.out)?;
     }
+    let verdict = Verdict::of_run(&summary);
     if a.json {
         let json = serde_json::to_string(&summary)
             .map_err(|e| CliError::Runtime(format!("serialising summary: {e}")))?;
@@ -110,6 +129,12 @@ pub(crate) fn run(a: SimulateArgs) -> Result<(), CliError> {
     } else {
         println!("{}", describe(&summary));
         println!("  wrote {}/trace.csv and summary.json", a.out.display());
+        println!("{verdict}");
+    }
+    if verdict.is_failed() {
+        return Err(CliError::Runtime(format!(
+            "run failed its checks: {verdict}"
+        )));
     }
     Ok(())
 }

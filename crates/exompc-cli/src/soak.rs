@@ -7,6 +7,7 @@ use exompc::sim::{run_soak, soak_scenario, Recorder, RunError, StepRecord};
 use exompc_cli::error::CliError;
 use exompc_cli::io;
 use exompc_cli::trace::CsvTrace;
+use exompc_cli::verdict::Verdict;
 use std::path::PathBuf;
 
 /// Longest soak (h): the summary keeps 8 bytes of step time per step (2.9 MB per hour).
@@ -110,7 +111,9 @@ pub(crate) fn run(a: SoakArgs) -> Result<(), CliError> {
     let path = out.join("soak.json");
     io::write_atomic(&path, json.as_bytes())?;
     println!("  wrote {}", path.display());
-    if s.limit_violations > 0 || s.nan_count > 0 {
+    let verdict = Verdict::of_soak(&report);
+    println!("{verdict}");
+    if verdict.is_failed() {
         return Err(CliError::Runtime(format!(
             "soak failed: {} limit violations, {} non-finite steps",
             s.limit_violations, s.nan_count

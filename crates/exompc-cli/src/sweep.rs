@@ -8,8 +8,10 @@ use clap::Args;
 use exompc::config::{ControllerKind, Scenario};
 use exompc::sim::Summary;
 use exompc_cli::error::CliError;
+use exompc_cli::interrupt;
 use exompc_cli::io;
 use exompc_cli::run::run_to_dir;
+use exompc_cli::verdict::Verdict;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -37,9 +39,16 @@ pub(crate) struct SweepArgs {
     /// Override `multistage.formulation` (msnmpc only).
     #[arg(long, value_enum)]
     formulation: Option<FormulationArg>,
+    /// Override the run length (s) of the chosen experiment.
+    #[arg(long, value_name = "S", allow_negative_numbers = true)]
+    duration: Option<f64>,
     /// Output folder.
     #[arg(long, value_name = "DIR", default_value = "out/sweep")]
     out: PathBuf,
+    /// Replace the results of an earlier sweep in the output folder (without it, such a
+    /// folder is refused so that old and new results never mix).
+    #[arg(long)]
+    force: bool,
     /// Print `sweep.json` on stdout instead of the Markdown table.
     #[arg(long)]
     json: bool,
@@ -182,7 +191,6 @@ fn run_grid(
             s.validate()
                 .map_err(|e| CliError::Usage(format!("--payloads: {p} kg: {e}")))?;
             let dir = out.join(run_dir_name(controller_name(c), p));
-            io::ensure_out_dir(&dir)?;
             jobs.push((s, dir));
         }
     }
@@ -190,16 +198,115 @@ fn run_grid(
     let results: Vec<Result<Summary, CliError>> = jobs
         .par_iter()
         .map(|(s, dir)| {
-            let r = run_to_dir(s, dof, Some(dir)).map_err(|e| match e {
-                CliError::Runtime(m) => CliError::Runtime(format!("{}: {m}", dir.display())),
-                other => other,
-            });
+            let r = run_job(s, dof, dir);
             pb.inc(1);
             r
         })
         .collect();
     pb.finish_and_clear();
+    if interrupt::requested() {
+        let done: Vec<String> = jobs
+            .iter()
+            .zip(&results)
+            .filter(|(_, r)| r.is_ok())
+            .map(|((_, d), _)| {
+                d.file_name()
+                    .unwrap_or_default()
+                    .to_string_lossy()
+                    .into_owned()
+            })
+            .collect();
+        return Err(CliError::Interrupted(format!(
+            "interrupted: {} of {} runs completed in {} ({}); no table2.md or sweep.json written",
+            done.len(),
+            jobs.len(),
+            out.display(),
+            if done.is_empty() {
+                "none".to_string()
+            } else {
+                done.join(", ")
+            }
+        )));
+    }
     results.into_iter().collect()
+}
+
+/// One run of the grid, written whole or not at all: into a hidden temporary folder beside
+/// `dir`, renamed to `dir` when complete (removed on failure or interruption).
+fn run_job(s: &Scenario, dof: u8, dir: &Path) -> Result<Summary, CliError> {
+    interrupt::check("not started")?;
+    let name = dir.file_name().unwrap_or_default().to_string_lossy();
+    let tmp = dir.with_file_name(format!(".{name}.tmp.{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&tmp);
+    io::ensure_out_dir(&tmp)?;
+    let r = run_to_dir(s, dof, Some(&tmp)).and_then(|summary| {
+        std::fs::rename(&tmp, dir)
+            .map_err(|e| CliError::io(format!("moving {} into place", dir.display()), e))?;
+        Ok(summary)
+    });
+    if r.is_err() {
+        let _ = std::fs::remove_dir_all(&tmp);
+    }
+    r.map_err(|e| match e {
+        CliError::Runtime(m) => CliError::Runtime(format!("{}: {m}", dir.display())),
+        other => other,
+    })
+}
+
+/// Files a sweep (and `plot`) writes at the top of its folder.
+fn is_sweep_output(name: &str) -> bool {
+    let figure = [".png", ".svg"].iter().any(|e| name.ends_with(e))
+        && ["payload_sweep", "states_", "compare_", "step_time_"]
+            .iter()
+            .any(|p| name.starts_with(p));
+    figure || name == "sweep.json" || name == "table2.md"
+}
+
+/// A run folder `<controller>_<payload>kg` holding a run's results.
+fn is_run_dir(path: &Path) -> bool {
+    let name = path.file_name().unwrap_or_default().to_string_lossy();
+    ["pd_", "nmpc_", "msnmpc_"]
+        .iter()
+        .any(|p| name.starts_with(p))
+        && name.ends_with("kg")
+        && (path.join("summary.json").is_file() || path.join("trace.csv").is_file())
+}
+
+/// Refuses an output folder holding earlier sweep results unless `force`; with `force`,
+/// removes those results (only what a sweep writes) so old and new never mix.
+fn clear_earlier_results(out: &Path, force: bool) -> Result<(), CliError> {
+    let Ok(entries) = std::fs::read_dir(out) else {
+        return Ok(());
+    };
+    let earlier: Vec<PathBuf> = entries
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .filter(|p| {
+            let name = p.file_name().unwrap_or_default().to_string_lossy();
+            (p.is_file() && is_sweep_output(&name)) || (p.is_dir() && is_run_dir(p))
+        })
+        .collect();
+    if earlier.is_empty() {
+        return Ok(());
+    }
+    if !force {
+        return Err(CliError::Usage(format!(
+            "{} already holds results of an earlier sweep ({} files and run folders, e.g. {}): \
+             choose another --out, or pass --force to replace them",
+            out.display(),
+            earlier.len(),
+            earlier[0].file_name().unwrap_or_default().to_string_lossy()
+        )));
+    }
+    for p in earlier {
+        let r = if p.is_dir() {
+            std::fs::remove_dir_all(&p)
+        } else {
+            std::fs::remove_file(&p)
+        };
+        r.map_err(|e| CliError::io(format!("removing earlier result {}", p.display()), e))?;
+    }
+    Ok(())
 }
 
 fn pct(v: Option<f64>, digits: usize) -> String {
@@ -301,8 +408,20 @@ pub(crate) fn run(a: SweepArgs) -> Result<(), CliError> {
     if controllers.is_empty() {
         return Err(CliError::Usage("--controllers: empty list".into()));
     }
-    apply_overrides(&mut s, a.dof, None, a.formulation, None, None)?;
+    if let Some(f) = a.formulation {
+        if !controllers
+            .iter()
+            .any(|c| matches!(c, ControllerArg::Msnmpc))
+        {
+            return Err(CliError::Usage(format!(
+                "--formulation {} applies to msnmpc, which --controllers does not list",
+                crate::simulate::formulation_name(f)
+            )));
+        }
+    }
+    apply_overrides(&mut s, a.dof, None, a.formulation, None, a.duration)?;
     io::ensure_out_dir(&a.out)?;
+    clear_earlier_results(&a.out, a.force)?;
 
     let rows = run_grid(&s, a.dof, &payloads, &controllers, &a.out, a.quiet)?;
     let table = table2(&rows);
@@ -323,6 +442,15 @@ pub(crate) fn run(a: SweepArgs) -> Result<(), CliError> {
             a.out.display(),
             file.rows.len()
         );
+    }
+    let verdict = Verdict::of_sweep(&file.rows);
+    if !a.json {
+        println!("{verdict}");
+    }
+    if verdict.is_failed() {
+        return Err(CliError::Runtime(format!(
+            "sweep failed its checks: {verdict}"
+        )));
     }
     Ok(())
 }

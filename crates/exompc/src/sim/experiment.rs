@@ -363,11 +363,12 @@ pub fn run_experiment_report<D: Dof<N>, const N: usize>(
         }
         result?;
     }
-    let summary = metrics.summary(
+    let mut summary = metrics.summary(
         controller.name(),
         D::DOF,
         s.uncertainty.payload_kg,
         s.timing.dt,
     );
+    summary.safety = super::SafetySummary::from_report(controller.report());
     Ok((summary, controller.report().clone()))
 }

@@ -77,6 +77,9 @@ pub struct Summary {
     pub limit_violations: u64,
     /// Steps whose solve did not converge (fallback or best iterate used).
     pub solver_failures: u64,
+    /// Safety supervisor: monitor trips (per kind, first time), monitor-held and rejected steps.
+    #[serde(default)]
+    pub safety: super::SafetySummary,
 }
 
 /// Online accumulator of the summary metrics (spec §9, §8a: true forces and angle differences
@@ -130,6 +133,7 @@ impl Metrics {
             step_time_us: StepTimeStats::from_samples(&mut times),
             limit_violations: self.limit_violations,
             solver_failures: self.solver_failures,
+            safety: Default::default(),
         }
     }
 }

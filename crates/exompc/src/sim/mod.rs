@@ -10,6 +10,7 @@ mod faults;
 mod human;
 mod metrics;
 mod plant;
+mod safety_summary;
 mod sensors;
 mod stability;
 mod trajectory;
@@ -28,6 +29,7 @@ pub use faults::{
 pub use human::{HumanBrain, HumanLeg};
 pub use metrics::{Metrics, StepTimeStats, Summary};
 pub use plant::{robot_model, Plant, PlantParams, PlantState};
+pub use safety_summary::{MonitorTally, SafetySummary};
 pub use sensors::MovingAverage;
 pub use stability::{
     cell_verdict, classify, classify_run, high_frequency_fraction, rms, CellVerdict, RunClass,

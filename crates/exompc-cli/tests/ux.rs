@@ -1,0 +1,274 @@
+//! What a new user meets: verdict lines, monitor trips in the summary, interrupted and repeated
+//! runs, config help, recorded gaits (issue 15).
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+fn exompc(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_exompc"))
+        .args(args)
+        .output()
+        .expect("run exompc")
+}
+
+fn fresh_dir(name: &str) -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+        .join("exompc-ux-tests")
+        .join(name);
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(dir.parent().unwrap()).unwrap();
+    dir
+}
+
+fn text(o: &[u8]) -> String {
+    String::from_utf8_lossy(o).into_owned()
+}
+
+#[test]
+fn simulate_prints_a_verdict_and_the_monitor_trips() {
+    let ok_dir = fresh_dir("verdict_ok");
+    let out = exompc(&["simulate", "--dof", "1", "--out", ok_dir.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    assert_eq!(stdout.lines().last(), Some("verdict: ok"), "{stdout}");
+
+    // 20 kg is far outside the scenarios: the monitors take over on many steps.
+    let dir = fresh_dir("verdict_degraded");
+    let out = exompc(&[
+        "simulate",
+        "--dof",
+        "1",
+        "--payload",
+        "20",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    let last = stdout.lines().last().unwrap();
+    assert!(last.starts_with("verdict: degraded ("), "{stdout}");
+    assert!(last.contains("monitor trips"), "{last}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    let safety = &summary["safety"];
+    let trips = safety["monitor_trips"].as_u64().unwrap();
+    assert!(trips > 0, "{safety}");
+    assert!(safety["monitor_steps"].as_u64().unwrap() > 0);
+    let kinds = safety["monitors"].as_array().unwrap();
+    assert!(!kinds.is_empty());
+    let sum: u64 = kinds.iter().map(|k| k["trips"].as_u64().unwrap()).sum();
+    assert_eq!(sum, trips, "per-kind trips add up: {safety}");
+    for k in kinds {
+        let name = k["monitor"].as_str().unwrap();
+        assert!(stdout.contains(name), "{name} printed: {stdout}");
+        let t = k["first_trip_s"].as_f64().unwrap();
+        assert!(t > 0.0 && t < 30.0);
+    }
+}
+
+#[test]
+fn soak_prints_a_verdict() {
+    let dir = fresh_dir("soak_verdict");
+    let out = exompc(&["soak", "--hours", "0.005", "--out", dir.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    let last = stdout.lines().last().unwrap();
+    assert!(
+        last == "verdict: ok" || last.starts_with("verdict: degraded ("),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn conflicting_flags_are_rejected_and_sweep_takes_a_duration() {
+    let out = exompc(&[
+        "simulate",
+        "--formulation",
+        "coupled",
+        "--controller",
+        "nmpc",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    let err = text(&out.stderr);
+    assert!(
+        err.contains("--formulation coupled") && err.contains("--controller nmpc"),
+        "{err}"
+    );
+    let out = exompc(&[
+        "sweep",
+        "--formulation",
+        "coupled",
+        "--controllers",
+        "nmpc,pd",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(text(&out.stderr).contains("--formulation coupled"));
+
+    let out = exompc(&["sweep", "--duration", "-1"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(
+        text(&out.stderr).contains("--duration"),
+        "{}",
+        text(&out.stderr)
+    );
+    let dir = fresh_dir("sweep_duration");
+    let out = exompc(&[
+        "sweep",
+        "--dof",
+        "1",
+        "--payloads",
+        "1",
+        "--controllers",
+        "pd",
+        "--duration",
+        "0.5",
+        "--quiet",
+        "--json",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let sweep: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let d = sweep["rows"][0]["duration_s"].as_f64().unwrap();
+    assert!((d - 0.5).abs() < 1e-9, "{d}");
+}
+
+/// Entries of `dir` (names), sorted.
+fn entries(dir: &std::path::Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .map(|r| {
+            r.filter_map(Result::ok)
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .collect()
+        })
+        .unwrap_or_default();
+    v.sort();
+    v
+}
+
+/// Starts exompc, sends SIGINT after 1 s, returns its output.
+#[cfg(unix)]
+fn interrupted(args: &[&str]) -> Output {
+    use std::process::Stdio;
+    let child = Command::new(env!("CARGO_BIN_EXE_exompc"))
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_secs(1));
+    // SAFETY: plain kill(2) on our own child.
+    unsafe {
+        libc::kill(child.id() as libc::pid_t, libc::SIGINT);
+    }
+    child.wait_with_output().unwrap()
+}
+
+#[cfg(unix)]
+#[test]
+fn interrupted_simulate_and_sweep_leave_no_temporary_file_or_half_run() {
+    // Runs far longer than 1 s, so the signal arrives mid-run.
+    let dir = fresh_dir("interrupt_simulate");
+    let out = interrupted(&[
+        "simulate",
+        "--duration",
+        "3000",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(130), "{}", text(&out.stderr));
+    let err = text(&out.stderr);
+    assert!(err.contains("interrupted"), "{err}");
+    assert!(err.contains("nothing written"), "{err}");
+    assert_eq!(
+        entries(&dir),
+        Vec::<String>::new(),
+        "no temporary trace left"
+    );
+
+    let dir = fresh_dir("interrupt_sweep");
+    let out = interrupted(&[
+        "sweep",
+        "--payloads",
+        "0,1,2",
+        "--duration",
+        "3000",
+        "--quiet",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(130), "{}", text(&out.stderr));
+    let err = text(&out.stderr);
+    assert!(err.contains("interrupted: 0 of 6 runs completed"), "{err}");
+    assert_eq!(
+        entries(&dir),
+        Vec::<String>::new(),
+        "no half-written run folder"
+    );
+}
+
+#[test]
+fn sweep_refuses_a_folder_with_earlier_results_unless_forced() {
+    let dir = fresh_dir("sweep_force");
+    let args = |payloads: &'static str, force: bool| {
+        let mut v = vec![
+            "sweep",
+            "--dof",
+            "1",
+            "--controllers",
+            "pd",
+            "--duration",
+            "0.2",
+            "--quiet",
+            "--payloads",
+            payloads,
+            "--out",
+            dir.to_str().unwrap(),
+        ];
+        if force {
+            v.push("--force");
+        }
+        v
+    };
+    let out = exompc(&args("0,1", false));
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(dir.join("pd_1kg/summary.json").is_file());
+    let again = exompc(&args("0", false));
+    assert_eq!(again.status.code(), Some(2));
+    assert!(
+        text(&again.stderr).contains("--force"),
+        "{}",
+        text(&again.stderr)
+    );
+    std::fs::write(dir.join("notes.txt"), "mine").unwrap();
+    let forced = exompc(&args("0", true));
+    assert!(forced.status.success(), "{}", text(&forced.stderr));
+    assert_eq!(
+        entries(&dir),
+        ["notes.txt", "pd_0kg", "sweep.json", "table2.md"],
+        "old run folders gone, the user's own file kept"
+    );
+}
+
+#[test]
+fn a_key_in_the_wrong_table_is_pointed_to_its_table() {
+    let dir = fresh_dir("wrong_table");
+    std::fs::create_dir_all(&dir).unwrap();
+    for (toml, want) in [
+        (
+            "payload_kg = 2.0\n",
+            "`payload_kg` belongs in [uncertainty]",
+        ),
+        (
+            "[robot]\nmass_kg = 2.0\n",
+            "`mass_kg` belongs in [robot.shank] or [robot.thigh]",
+        ),
+    ] {
+        let path = dir.join("c.toml");
+        std::fs::write(&path, toml).unwrap();
+        let out = exompc(&["config", "--check", path.to_str().unwrap()]);
+        assert_eq!(out.status.code(), Some(2));
+        let err = text(&out.stderr);
+        assert!(err.contains(want), "{toml}: {err}");
+    }
+}

@@ -1,0 +1,127 @@
+//! The safety supervisor's counters of one run, as carried in a [`Summary`](super::Summary):
+//! monitor trips per monitor kind with the time of the first, steps whose torque a monitor
+//! response set, and steps held on a rejected measurement (read from the [`SafetyReport`]).
+
+use crate::control::{MonitorAction, SafetyReport};
+use serde::{Deserialize, Serialize};
+
+/// Trips of one monitor kind during a run.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct MonitorTally {
+    /// The monitor, in the event log's spelling (`tracking_error`, `strap_force`, ...).
+    pub monitor: String,
+    /// Logged trips of this monitor.
+    pub trips: u64,
+    /// Supervisor time of its first trip (s).
+    pub first_trip_s: f64,
+}
+
+/// Supervisor counters of a run (all zero and empty for an undisturbed run).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct SafetySummary {
+    /// Monitor trips, all monitors (including trips beyond the event log's capacity).
+    pub monitor_trips: u64,
+    /// Steps on which a monitor's response (hold or ramp to zero) set the torque.
+    pub monitor_steps: u64,
+    /// Steps whose measurement was rejected as implausible (previous torque held).
+    pub bad_measurement_steps: u64,
+    /// Trips per monitor kind, in order of first trip (from the logged events).
+    pub monitors: Vec<MonitorTally>,
+}
+
+/// `TrackingError` → `tracking_error` (the serde spelling of a unit variant's `Debug` name), so
+/// that any monitor kind shows up here without a list to keep in step.
+fn snake_case(name: &str) -> String {
+    let mut out = String::with_capacity(name.len() + 4);
+    for (i, c) in name.chars().enumerate() {
+        if c.is_uppercase() {
+            if i > 0 {
+                out.push('_');
+            }
+            out.extend(c.to_lowercase());
+        } else {
+            out.push(c);
+        }
+    }
+    out
+}
+
+impl SafetySummary {
+    /// The counters of `r` and its trips grouped by monitor kind.
+    pub fn from_report(r: &SafetyReport) -> Self {
+        let mut monitors: Vec<MonitorTally> = Vec::new();
+        for e in r.events.iter().filter(|e| e.action == MonitorAction::Trip) {
+            let name = snake_case(&format!("{:?}", e.monitor));
+            match monitors.iter_mut().find(|m| m.monitor == name) {
+                Some(m) => m.trips += 1,
+                None => monitors.push(MonitorTally {
+                    monitor: name,
+                    trips: 1,
+                    first_trip_s: e.t,
+                }),
+            }
+        }
+        SafetySummary {
+            monitor_trips: r.monitor_trips,
+            monitor_steps: r.monitor_steps,
+            bad_measurement_steps: r.bad_measurement_steps,
+            monitors,
+        }
+    }
+
+    /// True when no monitor tripped and no measurement was rejected.
+    pub fn is_clean(&self) -> bool {
+        self.monitor_trips == 0 && self.monitor_steps == 0 && self.bad_measurement_steps == 0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::control::{MonitorEvent, MonitorKind};
+
+    #[test]
+    fn groups_trips_by_kind_with_first_time() {
+        let ev = |t, monitor, action| MonitorEvent {
+            t,
+            monitor,
+            action,
+            value: 1.0,
+        };
+        let r = SafetyReport {
+            steps: 100,
+            bad_measurement_steps: 3,
+            monitor_trips: 3,
+            monitor_steps: 40,
+            events: vec![
+                ev(0.5, MonitorKind::StrapForce, MonitorAction::Trip),
+                ev(0.7, MonitorKind::StrapForce, MonitorAction::Clear),
+                ev(0.9, MonitorKind::TrackingError, MonitorAction::Trip),
+                ev(1.2, MonitorKind::StrapForce, MonitorAction::Trip),
+            ],
+            events_dropped: 0,
+        };
+        let s = SafetySummary::from_report(&r);
+        assert_eq!(s.monitor_trips, 3);
+        assert_eq!(s.monitor_steps, 40);
+        assert_eq!(s.bad_measurement_steps, 3);
+        assert_eq!(
+            s.monitors,
+            vec![
+                MonitorTally {
+                    monitor: "strap_force".into(),
+                    trips: 2,
+                    first_trip_s: 0.5
+                },
+                MonitorTally {
+                    monitor: "tracking_error".into(),
+                    trips: 1,
+                    first_trip_s: 0.9
+                },
+            ]
+        );
+        assert!(!s.is_clean());
+        assert!(SafetySummary::from_report(&SafetyReport::default()).is_clean());
+        assert_eq!(snake_case("SensorTimeout"), "sensor_timeout");
+    }
+}
