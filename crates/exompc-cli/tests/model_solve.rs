@@ -61,7 +61,7 @@ fn assert_vec_close(name: &str, got: &[f64], want: &[f64], tol: f64) {
     }
 }
 
-/// A link as in spec §1: length, mass, COM distance, COM inertia.
+/// A link as in MODEL.md §1: length, mass, COM distance, COM inertia.
 #[derive(Clone, Copy, Debug)]
 struct L {
     l: f64,
@@ -70,7 +70,7 @@ struct L {
     i: f64,
 }
 
-/// The spec §3 robot links with a point mass `mp` at 0.215 m on the shank (parallel axis).
+/// The MODEL.md §3 robot links with a point mass `mp` at 0.215 m on the shank (parallel axis).
 fn robot_links(mp: f64) -> (L, L) {
     let thigh = L {
         l: 0.43,
@@ -85,7 +85,7 @@ fn robot_links(mp: f64) -> (L, L) {
     (thigh, L { l: 0.43, m, c, i })
 }
 
-/// The spec §2 Winter leg for body mass `mb`, height 1.75 m.
+/// The MODEL.md §2 Winter leg for body mass `mb`, height 1.75 m.
 fn human_links(mb: f64) -> (L, L) {
     let seg = |fm: f64, fl: f64, fc: f64, fr: f64| {
         let l = fl * 1.75;
@@ -103,7 +103,7 @@ fn human_links(mb: f64) -> (L, L) {
     )
 }
 
-/// Spec §1 closed form: (M, C qd, G).
+/// MODEL.md §1 closed form: (M, C qd, G).
 fn closed_form(
     a: L,
     b: L,
@@ -248,7 +248,7 @@ fn model_robot_matches_closed_form_with_payload_and_friction() {
 
 #[test]
 fn model_human_matches_closed_form() {
-    // Spec §2 numbers at 60 kg.
+    // MODEL.md §2 numbers at 60 kg.
     let (a, b) = human_links(60.0);
     assert!(close(a.c, 0.18565, 1e-4) && close(a.i, 0.11507, 1e-4));
     assert!(close(b.c, 0.26088, 1e-4) && close(b.i, 0.11739, 1e-4));

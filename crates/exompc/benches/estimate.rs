@@ -1,4 +1,4 @@
-//! Cost of one scenario EKF step and one 3-scenario bank step (2-DOF robot, spec §8 settings).
+//! Cost of one scenario EKF step and one 3-scenario bank step (2-DOF robot, MODEL.md §8 settings).
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use exompc::estimate::{EkfBank, EkfSettings, EstimatorOptions, ScenarioEkf};

@@ -147,30 +147,30 @@ macro_rules! patch_deserializer {
 // [human]
 // ---------------------------------------------------------------------------------------------
 
-/// `[human]`: the human leg model and its "brain" (spec §2, paper eq. 2).
+/// `[human]`: the human leg model and its "brain" (MODEL.md §2, paper eq. 2).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Human {
-    /// Body height (m); segment lengths are fractions of it (spec §2). Default 1.75.
+    /// Body height (m); segment lengths are fractions of it (MODEL.md §2). Default 1.75.
     pub height_m: f64,
-    /// Body mass m_b (kg) of the nominal brain model and initial plant mass (spec §2). Default 60.
+    /// Body mass m_b (kg) of the nominal brain model and initial plant mass (MODEL.md §2). Default 60.
     pub body_mass_kg: f64,
     /// Plant body mass (kg) at the end of the 2-DOF run, reached by a linear ramp from
-    /// `body_mass_kg` (spec §2, paper §4.1); the 1-DOF run keeps `body_mass_kg`. Default 85.
+    /// `body_mass_kg` (MODEL.md §2, paper §4.1); the 1-DOF run keeps `body_mass_kg`. Default 85.
     pub final_body_mass_kg: f64,
-    /// Brain PD stiffness Kp (1/s², applied as `Kp·I` on the joint-angle error) (spec §2). Default 400.
+    /// Brain PD stiffness Kp (1/s², applied as `Kp·I` on the joint-angle error) (MODEL.md §2). Default 400.
     pub kp: f64,
-    /// Brain PD damping Kd (1/s, applied as `Kd·I` on the joint-velocity error) (spec §2). Default 40.
+    /// Brain PD damping Kd (1/s, applied as `Kd·I` on the joint-velocity error) (MODEL.md §2). Default 40.
     pub kd: f64,
-    /// `[human.thigh]`: Winter fractions of the thigh (spec §2 table).
+    /// `[human.thigh]`: Winter fractions of the thigh (MODEL.md §2 table).
     #[serde(deserialize_with = "de_human_thigh")]
     pub thigh: HumanSegment,
-    /// `[human.shank]`: Winter fractions of the shank + foot (spec §2 table).
+    /// `[human.shank]`: Winter fractions of the shank + foot (MODEL.md §2 table).
     #[serde(deserialize_with = "de_human_shank")]
     pub shank: HumanSegment,
 }
 
-/// `[human.thigh]` / `[human.shank]`: anthropometric fractions from Winter's tables (spec §2).
+/// `[human.thigh]` / `[human.shank]`: anthropometric fractions from Winter's tables (MODEL.md §2).
 ///
 /// A partial table overrides only the fields it names; the rest keep the thigh's or shank's
 /// default (see [`HumanSegment::WINTER_THIGH`], [`HumanSegment::WINTER_SHANK`]).
@@ -188,14 +188,14 @@ pub struct HumanSegment {
 }
 
 impl HumanSegment {
-    /// Winter's thigh: mass 0.100 m_b, length 0.245 H, COM 0.433 l, gyration 0.323 l (spec §2).
+    /// Winter's thigh: mass 0.100 m_b, length 0.245 H, COM 0.433 l, gyration 0.323 l (MODEL.md §2).
     pub const WINTER_THIGH: Self = Self {
         mass_fraction: 0.100,
         length_fraction: 0.245,
         com_fraction: 0.433,
         gyration_fraction: 0.323,
     };
-    /// Winter's shank + foot: mass 0.061 m_b, length 0.246 H, COM 0.606 l, gyration 0.416 l (spec §2).
+    /// Winter's shank + foot: mass 0.061 m_b, length 0.246 H, COM 0.606 l, gyration 0.416 l (MODEL.md §2).
     pub const WINTER_SHANK: Self = Self {
         mass_fraction: 0.061,
         length_fraction: 0.246,
@@ -215,7 +215,7 @@ impl HumanSegment {
     pub fn com_m(&self, height_m: f64) -> f64 {
         self.com_fraction * self.length_m(height_m)
     }
-    /// Inertia about the COM, `I = m (rho l)^2` (kg·m², spec §2).
+    /// Inertia about the COM, `I = m (rho l)^2` (kg·m², MODEL.md §2).
     pub fn inertia_kgm2(&self, body_mass_kg: f64, height_m: f64) -> f64 {
         let r = self.gyration_fraction * self.length_m(height_m);
         self.mass_kg(body_mass_kg) * r * r
@@ -276,7 +276,7 @@ impl Human {
 // [robot]
 // ---------------------------------------------------------------------------------------------
 
-/// `[robot]`: the exoskeleton (spec §3, paper eq. 1 and Table 1).
+/// `[robot]`: the exoskeleton (MODEL.md §3, paper eq. 1 and Table 1).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Robot {
@@ -285,19 +285,19 @@ pub struct Robot {
     /// Coulomb friction kf2 per joint (N·m) (paper Table 1). Default 0.05048.
     pub coulomb_friction: f64,
     /// Width (rad/s) of the smooth Coulomb term `kf2·tanh(qd/w)` used by prediction models
-    /// (the plant uses `sign`) (spec §3). Default 0.01.
+    /// (the plant uses `sign`) (MODEL.md §3). Default 0.01.
     pub coulomb_smoothing: f64,
-    /// Payload point-mass position on the shank, measured from the knee (m) (spec §3). Default 0.215.
+    /// Payload point-mass position on the shank, measured from the knee (m) (MODEL.md §3). Default 0.215.
     pub payload_position_m: f64,
-    /// `[robot.thigh]` link parameters (spec §3 table).
+    /// `[robot.thigh]` link parameters (MODEL.md §3 table).
     #[serde(deserialize_with = "de_robot_thigh")]
     pub thigh: RobotLink,
-    /// `[robot.shank]` link parameters (spec §3 table).
+    /// `[robot.shank]` link parameters (MODEL.md §3 table).
     #[serde(deserialize_with = "de_robot_shank")]
     pub shank: RobotLink,
 }
 
-/// `[robot.thigh]` / `[robot.shank]`: one rigid link of the exoskeleton (spec §1, §3).
+/// `[robot.thigh]` / `[robot.shank]`: one rigid link of the exoskeleton (MODEL.md §1, §3).
 ///
 /// A partial table overrides only the fields it names; the rest keep the thigh's or shank's
 /// default ([`RobotLink::THIGH`], [`RobotLink::SHANK`]).
@@ -315,14 +315,14 @@ pub struct RobotLink {
 }
 
 impl RobotLink {
-    /// Default robot thigh: l 0.43 m, m 2.0 kg, c 0.20 m, I 0.035 kg·m² (spec §3).
+    /// Default robot thigh: l 0.43 m, m 2.0 kg, c 0.20 m, I 0.035 kg·m² (MODEL.md §3).
     pub const THIGH: Self = Self {
         length_m: 0.43,
         mass_kg: 2.0,
         com_m: 0.20,
         inertia_kgm2: 0.035,
     };
-    /// Default robot shank: l 0.43 m, m 1.2 kg, c 0.18 m, I 0.018 kg·m² (spec §3).
+    /// Default robot shank: l 0.43 m, m 1.2 kg, c 0.18 m, I 0.018 kg·m² (MODEL.md §3).
     pub const SHANK: Self = Self {
         length_m: 0.43,
         mass_kg: 1.2,
@@ -391,7 +391,7 @@ impl Robot {
 // [straps]
 // ---------------------------------------------------------------------------------------------
 
-/// `[straps]`: spring-damper human-robot interaction (spec §4, paper eqs. 3-4).
+/// `[straps]`: spring-damper human-robot interaction (MODEL.md §4, paper eqs. 3-4).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Straps {
@@ -420,26 +420,26 @@ impl Default for Straps {
 // [uncertainty]
 // ---------------------------------------------------------------------------------------------
 
-/// `[uncertainty]`: plant uncertainties and sensor imperfections (spec §5, paper §4.1).
+/// `[uncertainty]`: plant uncertainties and sensor imperfections (MODEL.md §5, paper §4.1).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Uncertainty {
     /// True payload m_p at the middle of the robot shank (kg), in [0, 20]; unknown to the
-    /// controller (spec §3, §5). Default 0.
+    /// controller (MODEL.md §3, §5). Default 0.
     pub payload_kg: f64,
-    /// Enable `m_dis(t) = 0.05 sin(t) + 0.01 sin(100 t + pi/4)` kg on each robot link (spec §5).
+    /// Enable `m_dis(t) = 0.05 sin(t) + 0.01 sin(100 t + pi/4)` kg on each robot link (MODEL.md §5).
     pub mass_perturbation: bool,
-    /// Enable the lumped joint disturbance `D(t) = 0.1 sin(t) + 0.05 sin(100 t + pi/2)` N·m (spec §5).
+    /// Enable the lumped joint disturbance `D(t) = 0.1 sin(t) + 0.05 sin(100 t + pi/2)` N·m (MODEL.md §5).
     pub disturbance: bool,
-    /// Enable the linear human body-mass ramp of the 2-DOF run (spec §2).
+    /// Enable the linear human body-mass ramp of the 2-DOF run (MODEL.md §2).
     pub human_mass_ramp: bool,
-    /// Velocity measurement noise amplitude (rad/s), >= 0: `a sin(w t)` (spec §5). Default 1e-4.
+    /// Velocity measurement noise amplitude (rad/s), >= 0: `a sin(w t)` (MODEL.md §5). Default 1e-4.
     pub velocity_noise: f64,
-    /// Strap force measurement noise amplitude (N), >= 0 (spec §5). Default 1e-3.
+    /// Strap force measurement noise amplitude (N), >= 0 (MODEL.md §5). Default 1e-3.
     pub force_noise: f64,
-    /// Angular frequency w of the measurement noise (rad/s), >= 0 (spec §5). Default 100.
+    /// Angular frequency w of the measurement noise (rad/s), >= 0 (MODEL.md §5). Default 100.
     pub noise_frequency: f64,
-    /// Moving-average window on measured velocities and forces (samples), 1..=100 (spec §5). Default 5.
+    /// Moving-average window on measured velocities and forces (samples), 1..=100 (MODEL.md §5). Default 5.
     pub filter_window: usize,
 }
 
@@ -462,7 +462,7 @@ impl Default for Uncertainty {
 // [trajectory]
 // ---------------------------------------------------------------------------------------------
 
-/// `[trajectory]`: the human's desired trajectory (spec §6).
+/// `[trajectory]`: the human's desired trajectory (MODEL.md §6).
 ///
 /// 2-DOF: `f(t) = base + swing sin(2 pi t / period)`, `a_h(t) = hip_amplitude +
 /// hip_amplitude_swing sin(2 pi t / hip_amplitude_period_s)`, likewise `a_k`,
@@ -512,7 +512,7 @@ impl Default for Trajectory {
             knee_amplitude: 1.00,
             knee_amplitude_swing: 0.15,
             knee_amplitude_period_s: 7.0,
-            knee_phase: std::f64::consts::PI / 3.0, // 1.0471975511965976, as in spec §6
+            knee_phase: std::f64::consts::PI / 3.0, // 1.0471975511965976, as in MODEL.md §6
             one_dof_amplitude: 0.6,
             one_dof_frequency_hz: 0.5,
         }
@@ -523,7 +523,7 @@ impl Default for Trajectory {
 // [timing]
 // ---------------------------------------------------------------------------------------------
 
-/// `[timing]`: control period, integration steps and run lengths (spec §7).
+/// `[timing]`: control period, integration steps and run lengths (MODEL.md §7).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Timing {
@@ -570,7 +570,7 @@ pub enum ControllerKind {
 pub use crate::control::Interaction;
 pub use crate::control::{FilterAware, Method, RobustSettings};
 
-/// `[controller]`: intent estimation and NMPC (spec §8, paper eqs. 5-9, Table 1).
+/// `[controller]`: intent estimation and NMPC (MODEL.md §8, paper eqs. 5-9, Table 1).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Controller {
@@ -586,7 +586,7 @@ pub struct Controller {
     pub nc: usize,
     /// Velocity tracking weight r_d (paper eq. 7), >= 0. Default 0.1.
     pub r_d: f64,
-    /// Torque-increment weight r_t (1/(N·m)², paper eq. 7; see spec §9 note), > 0. Default 1e-5.
+    /// Torque-increment weight r_t (1/(N·m)², paper eq. 7; see MODEL.md §9 note), > 0. Default 1e-5.
     pub r_t: f64,
     /// Torque bound |T| (N·m) per joint (paper eq. 8), > 0. Default 30.
     pub torque_max: f64,
@@ -694,7 +694,7 @@ pub enum Formulation {
 
 pub use crate::estimate::Innovation;
 
-/// `[multistage]`: scenario tree and probabilities (spec §8, paper §3.2, eqs. 10-13).
+/// `[multistage]`: scenario tree and probabilities (MODEL.md §8, paper §3.2, eqs. 10-13).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Multistage {
@@ -732,7 +732,7 @@ impl Default for Multistage {
 // [ekf]
 // ---------------------------------------------------------------------------------------------
 
-/// `[ekf]`: per-component covariances of each scenario's EKF on `[q, qd, d]` (spec §8); the
+/// `[ekf]`: per-component covariances of each scenario's EKF on `[q, qd, d]` (MODEL.md §8); the
 /// estimator's own settings type, so the scenario file maps onto it one to one.
 pub use crate::estimate::EkfSettings as Ekf;
 
@@ -901,23 +901,23 @@ impl Default for Monitors {
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Scenario {
-    /// `[human]` (spec §2).
+    /// `[human]` (MODEL.md §2).
     pub human: Human,
-    /// `[robot]` (spec §3).
+    /// `[robot]` (MODEL.md §3).
     pub robot: Robot,
-    /// `[straps]` (spec §4).
+    /// `[straps]` (MODEL.md §4).
     pub straps: Straps,
-    /// `[uncertainty]` (spec §5).
+    /// `[uncertainty]` (MODEL.md §5).
     pub uncertainty: Uncertainty,
-    /// `[trajectory]` (spec §6).
+    /// `[trajectory]` (MODEL.md §6).
     pub trajectory: Trajectory,
-    /// `[timing]` (spec §7).
+    /// `[timing]` (MODEL.md §7).
     pub timing: Timing,
-    /// `[controller]` (spec §8).
+    /// `[controller]` (MODEL.md §8).
     pub controller: Controller,
-    /// `[multistage]` (spec §8).
+    /// `[multistage]` (MODEL.md §8).
     pub multistage: Multistage,
-    /// `[ekf]` (spec §8).
+    /// `[ekf]` (MODEL.md §8).
     pub ekf: Ekf,
     /// `[faults]`.
     pub faults: Faults,
@@ -1187,7 +1187,7 @@ impl Scenario {
     }
 
     /// Run length (s) of the `dof`-DOF experiment: `duration_1dof_s` for `dof == 1`,
-    /// `duration_2dof_s` otherwise (spec §7).
+    /// `duration_2dof_s` otherwise (MODEL.md §7).
     pub fn duration_s(&self, dof: usize) -> f64 {
         if dof == 1 {
             self.timing.duration_1dof_s
@@ -1196,7 +1196,7 @@ impl Scenario {
         }
     }
 
-    /// Number of control steps N of the `dof`-DOF run, `round(duration / dt)` (spec §7, §8a).
+    /// Number of control steps N of the `dof`-DOF run, `round(duration / dt)` (MODEL.md §7, §8a).
     pub fn control_steps(&self, dof: usize) -> usize {
         (self.duration_s(dof) / self.timing.dt).round() as usize
     }
@@ -1206,19 +1206,19 @@ impl Scenario {
         self.controller.torque_rate_max * self.timing.dt
     }
 
-    /// Plant RK4 step `dt / plant_substeps` (s; 1 ms by default, spec §7).
+    /// Plant RK4 step `dt / plant_substeps` (s; 1 ms by default, MODEL.md §7).
     pub fn plant_step_s(&self) -> f64 {
         self.timing.dt / self.timing.plant_substeps as f64
     }
 
-    /// Prediction-model RK4 step `dt / prediction_substeps` (s, spec §7).
+    /// Prediction-model RK4 step `dt / prediction_substeps` (s, MODEL.md §7).
     pub fn prediction_step_s(&self) -> f64 {
         self.timing.dt / self.timing.prediction_substeps as f64
     }
 
     /// True human body mass of the plant (kg) at time `t` (s) of the `dof`-DOF run: a linear
     /// ramp from `body_mass_kg` at t = 0 to `final_body_mass_kg` at the end of the 2-DOF run
-    /// when `uncertainty.human_mass_ramp` is on; constant `body_mass_kg` otherwise (spec §2).
+    /// when `uncertainty.human_mass_ramp` is on; constant `body_mass_kg` otherwise (MODEL.md §2).
     /// `t` is clamped to `[0, duration]`.
     pub fn plant_body_mass_kg(&self, dof: usize, t: f64) -> f64 {
         let h = &self.human;

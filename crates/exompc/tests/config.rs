@@ -16,7 +16,7 @@ fn default_validates() {
 #[test]
 fn default_matches_spec_values() {
     let s = Scenario::default();
-    // spec §2
+    // MODEL.md §2
     assert_eq!(s.human.height_m, 1.75);
     assert_eq!(s.human.body_mass_kg, 60.0);
     assert_eq!(s.human.final_body_mass_kg, 85.0);
@@ -24,7 +24,7 @@ fn default_matches_spec_values() {
     assert_eq!(s.human.thigh.mass_fraction, 0.100);
     assert_eq!(s.human.shank.com_fraction, 0.606);
     assert_eq!(s.human.shank.gyration_fraction, 0.416);
-    // spec §3
+    // MODEL.md §3
     assert_eq!(s.robot.viscous_friction, 0.000899);
     assert_eq!(s.robot.coulomb_friction, 0.05048);
     assert_eq!(s.robot.coulomb_smoothing, 0.01);
@@ -47,10 +47,10 @@ fn default_matches_spec_values() {
             inertia_kgm2: 0.018
         }
     );
-    // spec §4
+    // MODEL.md §4
     assert_eq!((s.straps.ls1_m, s.straps.ls2_m), (0.28, 0.16));
     assert_eq!((s.straps.stiffness, s.straps.damping), (937.5, 93.7));
-    // spec §5
+    // MODEL.md §5
     assert_eq!(s.uncertainty.payload_kg, 0.0);
     assert!(
         s.uncertainty.mass_perturbation
@@ -63,7 +63,7 @@ fn default_matches_spec_values() {
     );
     assert_eq!(s.uncertainty.noise_frequency, 100.0);
     assert_eq!(s.uncertainty.filter_window, 5);
-    // spec §6
+    // MODEL.md §6
     let t = &s.trajectory;
     assert_eq!(
         (
@@ -92,7 +92,7 @@ fn default_matches_spec_values() {
     );
     assert_eq!(t.knee_phase, 1.0471975511965976);
     assert_eq!((t.one_dof_amplitude, t.one_dof_frequency_hz), (0.6, 0.5));
-    // spec §7
+    // MODEL.md §7
     assert_eq!(s.timing.dt, 0.01);
     assert_eq!(
         (s.timing.plant_substeps, s.timing.prediction_substeps),
@@ -102,7 +102,7 @@ fn default_matches_spec_values() {
         (s.timing.duration_2dof_s, s.timing.duration_1dof_s),
         (20.0, 30.0)
     );
-    // spec §8
+    // MODEL.md §8
     let c = &s.controller;
     assert_eq!(c.kind, ControllerKind::Msnmpc);
     assert_eq!((c.k1, c.k2), (0.005, 0.05));
@@ -123,7 +123,7 @@ fn default_matches_spec_values() {
         (m.robust_horizon, m.parallel, m.innovation),
         (1, false, Innovation::Standard)
     );
-    // spec §8 EKF starting point: Q = diag(1e-8, 1e-8, 1e-4, 1e-4, 1e-2, 1e-2), R, P0
+    // MODEL.md §8 EKF starting point: Q = diag(1e-8, 1e-8, 1e-4, 1e-4, 1e-2, 1e-2), R, P0
     let diag = |m: nalgebra::SMatrix<f64, 6, 6>| m.diagonal().iter().copied().collect::<Vec<_>>();
     assert_eq!(
         diag(s.ekf.process_noise::<6>()),
@@ -156,7 +156,7 @@ fn default_matches_spec_values() {
 
 #[test]
 fn human_segments_at_60kg_match_spec_table() {
-    // spec §2: thigh m = 6.0, c = 0.18565, I = 0.11507; shank m = 3.66, c = 0.26088, I = 0.11739.
+    // MODEL.md §2: thigh m = 6.0, c = 0.18565, I = 0.11507; shank m = 3.66, c = 0.26088, I = 0.11739.
     let h = Human::default();
     let (mb, hh) = (h.body_mass_kg, h.height_m);
     assert!(close(h.thigh.mass_kg(mb), 6.0, 1e-12));

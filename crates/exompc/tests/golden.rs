@@ -1,4 +1,4 @@
-//! Acceptance figures of the simulation study (paper §4, Table 2; spec §9) on the full default
+//! Acceptance figures of the simulation study (paper §4, Table 2; MODEL.md §9) on the full default
 //! scenario: golden numbers pinned to a tolerance, and the qualitative claims of the issue.
 //!
 //! All runs are independent and go through rayon; one test builds them all so that the whole
@@ -251,7 +251,7 @@ fn one_dof_identifies_the_payload() {
     assert!(worst > 0.9, "μ3 drops to {worst} after 17 s");
 }
 
-// Measured on the default scenario (δmax in degrees; spec §9 gives the forces and the matching
+// Measured on the default scenario (δmax in degrees; MODEL.md §9 gives the forces and the matching
 // probabilities, the rest was measured when this test was written).
 const DELTA_NMPC_0: [f64; 2] = [0.924, 2.018];
 const DELTA_NMPC_2: [f64; 2] = [3.144, 8.249];

@@ -6,7 +6,7 @@ use common::{robot_links, Rng};
 use exompc::model::*;
 use nalgebra::{SMatrix, SVector, Vector1, Vector2, Vector3};
 
-/// Spec §1 closed form of the double pendulum.
+/// MODEL.md §1 closed form of the double pendulum.
 fn closed_form(
     l: &[Link; 2],
     q: [f64; 2],
@@ -232,7 +232,7 @@ fn strap_torque_is_the_negative_energy_gradient_and_forces_are_opposite() {
             assert!((-t_robot[i] + d_human).abs() < 1e-5, "human side");
         }
     }
-    // Spec §4 numbers: thigh strap sees only the hip difference.
+    // MODEL.md §4 numbers: thigh strap sees only the hip difference.
     let f: Vector2<f64> = straps.force(&Vector2::new(0.01, 0.02), &Vector2::new(0.1, 0.0));
     assert!((f[0] - (937.5 * 0.28 * 0.01 + 93.7 * 0.28 * 0.1)).abs() < 1e-12);
     assert!((f[1] - (937.5 * (0.28 * 0.01 + 0.16 * 0.02) + 93.7 * 0.28 * 0.1)).abs() < 1e-12);

@@ -1,4 +1,4 @@
-//! The non-robust NMPC (paper §3.1, eq. 7 with constraints 8-9; spec §8) against oracles built
+//! The non-robust NMPC (paper §3.1, eq. 7 with constraints 8-9; MODEL.md §8) against oracles built
 //! here: the cost of eq. 7 written from the spec, finite-difference gradients, multipliers
 //! recovered by a small non-negative least squares on the active set, and an independent
 //! Gauss-Newton SQP whose QPs are solved by Clarabel.
@@ -99,7 +99,7 @@ fn solve_lib(su: &Setup, c: &Case) -> (Vec<f64>, SqpStatus) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// The oracle: eq. 7 written from spec §8.
+// The oracle: eq. 7 written from MODEL.md §8.
 // ---------------------------------------------------------------------------------------------
 
 /// Residual vector of eq. 7 (so that the cost is `½‖r‖²`): for `j = 1..Np`,

@@ -4,7 +4,7 @@
 //! cells where the paper's method limit-cycles.
 
 use exompc::config::{ControllerKind, FilterAware, Method, Scenario};
-use exompc::control::{ForceLag, Measurement, HfShareDetector};
+use exompc::control::{ForceLag, HfShareDetector, Measurement};
 use exompc::model::Straps;
 use exompc::sim::{run_experiment, MovingAverage, OneDof, TraceLog, TwoDof};
 use nalgebra::SVector;

@@ -1,5 +1,5 @@
-//! Simulation building blocks against direct oracles: trajectories (spec §6) against the
-//! written-out formulas and finite differences, the moving-average filter (spec §5) against a
+//! Simulation building blocks against direct oracles: trajectories (MODEL.md §6) against the
+//! written-out formulas and finite differences, the moving-average filter (MODEL.md §5) against a
 //! direct mean, the plant's energy balance, and the torque-limit projection (paper eqs. 8-9).
 
 mod common;
@@ -15,7 +15,7 @@ use nalgebra::{SVector, Vector2};
 use proptest::prelude::*;
 use std::f64::consts::PI;
 
-/// Spec §6 written out.
+/// MODEL.md §6 written out.
 fn swing_spec(t: f64) -> [f64; 2] {
     let phi =
         2.0 * PI * (0.8 * t + (0.2 * 15.0 / (2.0 * PI)) * (1.0 - (2.0 * PI * t / 15.0).cos()));

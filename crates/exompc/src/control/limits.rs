@@ -2,7 +2,7 @@
 
 use nalgebra::SVector;
 
-/// `|T| ≤ max` and `|T − T_prev| ≤ rate` on every joint (paper eqs. 8-9, spec §8).
+/// `|T| ≤ max` and `|T − T_prev| ≤ rate` on every joint (paper eqs. 8-9, MODEL.md §8).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TorqueLimits {
     /// Torque magnitude limit `T_max` (N·m), spec 30.

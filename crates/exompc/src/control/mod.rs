@@ -49,7 +49,7 @@ use nalgebra::SVector;
 use serde::Serialize;
 
 /// What the controller receives each period: encoder angles and the filtered velocities and
-/// strap forces (spec §5, §8).
+/// strap forces (MODEL.md §5, §8).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Measurement<const N: usize> {
     /// Time of the sample (s).

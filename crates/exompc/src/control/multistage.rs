@@ -227,7 +227,7 @@ impl<const N: usize> CoupledCore<N> {
     }
 }
 
-/// Options of the multi-stage controller (spec §8).
+/// Options of the multi-stage controller (MODEL.md §8).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct MultiStageOptions {
     /// Decoupled (paper) or coupled (scenario-tree NLP).
@@ -241,7 +241,7 @@ pub struct MultiStageOptions {
 /// The multi-stage robust NMPC controller of paper §3.2.
 ///
 /// Each step: the EKF bank is advanced with `y = [q, qd]`, `T(k−1)` and the filtered strap
-/// torque of step `k−1` (spec §8), giving the probabilities `μ_i(k)` of eqs. 10-11 and each
+/// torque of step `k−1` (MODEL.md §8), giving the probabilities `μ_i(k)` of eqs. 10-11 and each
 /// scenario's disturbance estimate `d̂_i`; every scenario's NMPC starts from `[q, filtered qd]`
 /// with its own model and `d̂_i`; the torque follows eq. 13 (decoupled) or the shared first
 /// increment (coupled), then the hard limits of eqs. 8-9.

@@ -7,7 +7,7 @@ use crate::model::JointState;
 use crate::solver::{Constraints, LeastSquares, SolverError, Sqp, SqpInfo, SqpSettings, SqpStatus};
 use nalgebra::{DMatrix, DVector, SMatrix, SVector};
 
-/// Horizon and weights of eq. 7 (spec §8).
+/// Horizon and weights of eq. 7 (MODEL.md §8).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct NmpcSettings {
     /// Prediction horizon `Np` (steps), spec 3.
@@ -40,7 +40,7 @@ impl Default for NmpcSettings {
 /// The least-squares form of eq. 7 for one scenario: decision variables the torque increments
 /// `dT(k..k+Nc−1)`, residuals `q(k+j) − q_ref(k+j)`, `√r_d (qd(k+j) − qd_ref)` for `j = 1..Np`
 /// and `√r_t dT(k+j)` for `j = 0..Nc−1`, with `q_ref(k+j) = q̂_H + j dt q̂d_H`, `qd_ref = q̂d_H`
-/// (spec §8). The Jacobian is condensed by forward sensitivity propagation through the exact
+/// (MODEL.md §8). The Jacobian is condensed by forward sensitivity propagation through the exact
 /// RK4 step Jacobians, at cost O(Np·Nc).
 #[derive(Clone, Debug)]
 pub struct NmpcProblem<const N: usize> {
@@ -368,7 +368,7 @@ pub struct Nmpc<const N: usize> {
 }
 
 impl<const N: usize> Nmpc<N> {
-    /// A controller for `model` with initial previous torque `t0` (spec §7: the nominal gravity
+    /// A controller for `model` with initial previous torque `t0` (MODEL.md §7: the nominal gravity
     /// torque at the initial state).
     pub fn new(
         model: PredictionModel<N>,
@@ -392,7 +392,7 @@ impl<const N: usize> Nmpc<N> {
     }
 }
 
-/// Horizon inputs from a filtered measurement (spec §8).
+/// Horizon inputs from a filtered measurement (MODEL.md §8).
 pub fn horizon_inputs<const N: usize>(
     intent: &IntentEstimator,
     model: &PredictionModel<N>,

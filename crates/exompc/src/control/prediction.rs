@@ -1,4 +1,4 @@
-//! The NMPC prediction model (spec §8): the scenario's robot model, the disturbance estimate,
+//! The NMPC prediction model (MODEL.md §8): the scenario's robot model, the disturbance estimate,
 //! and the strap torque predicted from the human-intent estimate inside every RK4 stage.
 
 use crate::model::{c, rk4_step, tanh, Friction, JointState, Real, RkState, RobotModel, Straps};
@@ -6,7 +6,7 @@ use nalgebra::{SMatrix, SVector};
 use num_dual::{DualSVec64, DualStruct};
 use serde::{Deserialize, Serialize};
 
-/// How the strap torque is modelled over the horizon (spec §8).
+/// How the strap torque is modelled over the horizon (MODEL.md §8).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Interaction {

@@ -128,7 +128,7 @@ pub fn update_probabilities(prev: &[f64], log_likelihoods: &[f64], floor: f64, o
 }
 
 /// A bank of [`ScenarioEkf`]s, one per payload scenario, with the scenario probabilities `μ`
-/// of paper eqs. 10-11 (spec §8).
+/// of paper eqs. 10-11 (MODEL.md §8).
 ///
 /// Each [`step`](Self::step) runs every filter, turns its innovation `(vᵢ, S̄ᵢ)` into the
 /// log-likelihood `ℓᵢ = −½ c1 vᵢᵀ S̄ᵢ⁻¹ vᵢ − ½ ln((2π)^ny |c1 S̄ᵢ|)` and updates the probabilities

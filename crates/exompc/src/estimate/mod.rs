@@ -19,17 +19,17 @@
 //! * [`EkfBank`]: all scenarios plus the probabilities of eqs. 10-11, computed in the log
 //!   domain.
 //!
-//! # Why these noise values (spec §8)
+//! # Why these noise values (MODEL.md §8)
 //!
 //! The default [`EkfSettings`] are
 //! `Q = diag(1e-8 (angle), 1e-4 (velocity), 1e-2 (disturbance))`,
 //! `R = diag(1e-6 (angle), 1 (velocity))`, `P0 = diag(1e-6, 1e-2, 1)` per joint:
 //!
-//! * **Angles are trusted.** Encoder angles are exact and undelayed (spec §5), so both their
+//! * **Angles are trusted.** Encoder angles are exact and undelayed (MODEL.md §5), so both their
 //!   measurement variance and their process noise are tiny; the filter leans on the angle
 //!   channel.
 //! * **Velocities are distrusted.** The controller's velocity is the mean of the five most recent
-//!   samples (spec §5), which lags the true velocity by about two samples. Treated as white
+//!   samples (MODEL.md §5), which lags the true velocity by about two samples. Treated as white
 //!   noise that lag is a large error, hence `R_velocity = 1`: the velocity estimate is driven
 //!   mostly by the (exact) angle sequence through the model.
 //! * **The disturbance is a slow random walk.** `Q_d = 1e-2 (N·m)²` per step lets `d̂` absorb the
@@ -58,7 +58,7 @@ use nalgebra::{SMatrix, SVector};
 )]
 #[serde(rename_all = "lowercase")]
 pub enum Innovation {
-    /// The usual EKF innovation `vᵢ(k) = y(k) − h(x̂ᵢ(k|k−1))` (spec §8 default).
+    /// The usual EKF innovation `vᵢ(k) = y(k) − h(x̂ᵢ(k|k−1))` (MODEL.md §8 default).
     #[default]
     Standard,
     /// Paper §3.2: "the predicted output of each scenario is the sum of the output calculated by
@@ -86,10 +86,10 @@ pub enum EstimateError {
     NoScenario,
 }
 
-/// Per-component covariances of each scenario EKF on `[q, qd, d]` (spec §8).
+/// Per-component covariances of each scenario EKF on `[q, qd, d]` (MODEL.md §8).
 ///
 /// Each value applies to every joint. Variances in SI units: rad², (rad/s)², (N·m)². The
-/// [`Default`] is the spec §8 starting point; see the module documentation for the reasons.
+/// [`Default`] is the MODEL.md §8 starting point; see the module documentation for the reasons.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct EkfSettings {
@@ -184,14 +184,14 @@ fn diag3<const NA: usize>(a: f64, b: f64, c: f64) -> SMatrix<f64, NA, NA> {
 }
 
 /// Timing, innovation mode and probability parameters shared by the scenario filters
-/// (spec §7-8, paper eqs. 10-11).
+/// (MODEL.md §7-8, paper eqs. 10-11).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct EstimatorOptions {
-    /// Control / filter period `dt` (s), > 0. Default 0.01 (spec §7).
+    /// Control / filter period `dt` (s), > 0. Default 0.01 (MODEL.md §7).
     pub dt: f64,
-    /// RK4 steps per period in the filter's prediction, ≥ 1. Default 1 (spec §7).
+    /// RK4 steps per period in the filter's prediction, ≥ 1. Default 1 (MODEL.md §7).
     pub substeps: usize,
-    /// Innovation entering eq. 10. Default [`Innovation::Standard`] (spec §8).
+    /// Innovation entering eq. 10. Default [`Innovation::Standard`] (MODEL.md §8).
     pub innovation: Innovation,
     /// Convergence constant `c1` of eq. 10, > 0. Default 100 (paper Table 1).
     pub c1: f64,

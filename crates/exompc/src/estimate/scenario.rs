@@ -11,7 +11,7 @@ use num_dual::DualSVec64;
 /// form, see [`Innovation`]) or the reason the step failed, in which case the filter is unchanged.
 pub type ScenarioUpdate<const NY: usize> = Result<InnovationStats<NY>, EkfError>;
 
-/// The EKF of one payload scenario (paper §3.2, spec §8).
+/// The EKF of one payload scenario (paper §3.2, MODEL.md §8).
 ///
 /// Augmented state `x = [q, qd, d] ∈ ℝ^{3N}` (`NA = 3N`), measurement `y = [q, qd] ∈ ℝ^{2N}`
 /// (`NY = 2N`, linear: `H = [I 0]`).
@@ -20,7 +20,7 @@ pub type ScenarioUpdate<const NY: usize> = Result<InnovationStats<NY>, EkfError>
 /// `qdd = M(q)⁻¹ (T_R(k−1) + T_int(k−1) + d − C(q, qd) qd − G(q) − friction(qd))`
 /// is integrated by `substeps` RK4 steps with the applied torque `T_R(k−1)`, the filtered strap
 /// torque `T_int(k−1) = Jᵀ F(k−1)` and the disturbance `d` held, and `d` is a random walk
-/// (`d(k) = d(k−1) + w`). The model should use the smooth `tanh` Coulomb law (spec §3) so that
+/// (`d(k) = d(k−1) + w`). The model should use the smooth `tanh` Coulomb law (MODEL.md §3) so that
 /// its Jacobian is meaningful.
 ///
 /// **Jacobian.** `F = ∂x(k|k−1)/∂x(k−1|k−1)` is exact: the RK4 prediction runs once on

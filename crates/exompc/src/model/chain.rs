@@ -1,11 +1,11 @@
-//! A planar serial chain of `N` revolute links hanging from a fixed base (spec §1).
+//! A planar serial chain of `N` revolute links hanging from a fixed base (MODEL.md §1).
 #![allow(clippy::needless_range_loop)] // index-heavy formulas read closest to the math
 
 use super::{c, Real, GRAVITY};
 use nalgebra::{SMatrix, SVector};
 use serde::{Deserialize, Serialize};
 
-/// Rigid link parameters (spec §1): length, mass, COM distance from the proximal joint along
+/// Rigid link parameters (MODEL.md §1): length, mass, COM distance from the proximal joint along
 /// the link, and inertia about the COM.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Link {
@@ -21,7 +21,7 @@ pub struct Link {
 
 impl Link {
     /// The link with a point mass `mp` (kg) rigidly attached at distance `d` (m) from its proximal
-    /// joint, merged by the parallel-axis theorem (spec §3, payload).
+    /// joint, merged by the parallel-axis theorem (MODEL.md §3, payload).
     pub fn with_point_mass(&self, mp: f64, d: f64) -> Link {
         let m = self.mass + mp;
         if m <= 0.0 {
@@ -38,7 +38,7 @@ impl Link {
     }
 
     /// The link with `dm` (kg) added to its mass, COM location and COM inertia unchanged
-    /// (spec §5, `m_dis`).
+    /// (MODEL.md §5, `m_dis`).
     pub fn with_mass_added(&self, dm: f64) -> Link {
         Link {
             mass: self.mass + dm,
@@ -48,7 +48,7 @@ impl Link {
 }
 
 /// Planar serial chain of `N` links in the sagittal plane, hip joint at the origin, joint
-/// angles relative (spec §1): `q1` from the downward vertical, `q_i` relative to link `i-1`.
+/// angles relative (MODEL.md §1): `q1` from the downward vertical, `q_i` relative to link `i-1`.
 ///
 /// Implements the rigid-body terms of paper eqs. 1-2: `M(q) qdd + C(q, qd) qd + G(q)`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -107,7 +107,7 @@ impl<const N: usize> Chain<N> {
         (cs, sn)
     }
 
-    /// Mass matrix `M(q)` (spec §1), from the planar Lagrangian:
+    /// Mass matrix `M(q)` (MODEL.md §1), from the planar Lagrangian:
     /// `M_ij = Σ_{k ≥ max(i,j)} [ I_k + m_k Σ_{a=i..k} Σ_{b=j..k} d_ka d_kb cos(θ_a − θ_b) ]`.
     pub fn mass_matrix<T: Real>(&self, q: &SVector<T, N>) -> SMatrix<T, N, N> {
         let th = Self::absolute_angles(q);
@@ -196,7 +196,7 @@ impl<const N: usize> Chain<N> {
         cm
     }
 
-    /// Gravity torque `G(q) = ∂V/∂q`, `G_r = g Σ_k m_k Σ_{a=r..k} d_ka sin θ_a` (spec §1).
+    /// Gravity torque `G(q) = ∂V/∂q`, `G_r = g Σ_k m_k Σ_{a=r..k} d_ka sin θ_a` (MODEL.md §1).
     pub fn gravity_torque<T: Real>(&self, q: &SVector<T, N>) -> SVector<T, N> {
         let th = Self::absolute_angles(q);
         let mut sin = [T::zero(); N];

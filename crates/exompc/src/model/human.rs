@@ -1,9 +1,9 @@
-//! The human leg from Winter's anthropometric tables (spec §2, paper eq. 2).
+//! The human leg from Winter's anthropometric tables (MODEL.md §2, paper eq. 2).
 
 use super::Link;
 use serde::{Deserialize, Serialize};
 
-/// Winter's segment fractions (spec §2): of body mass, of height, COM from the proximal joint
+/// Winter's segment fractions (MODEL.md §2): of body mass, of height, COM from the proximal joint
 /// (fraction of segment length), radius of gyration about the COM (fraction of segment length).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct WinterFractions {
@@ -17,7 +17,7 @@ pub struct WinterFractions {
     pub gyration: f64,
 }
 
-/// The two human leg segments of spec §2.
+/// The two human leg segments of MODEL.md §2.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum HumanSegment {
     /// Thigh: 0.100 m_b, 0.245 h, COM 0.433 l, gyration 0.323 l.
@@ -27,7 +27,7 @@ pub enum HumanSegment {
 }
 
 impl HumanSegment {
-    /// Winter's fractions of this segment (spec §2 table).
+    /// Winter's fractions of this segment (MODEL.md §2 table).
     pub fn fractions(self) -> WinterFractions {
         match self {
             HumanSegment::Thigh => WinterFractions {
@@ -48,7 +48,7 @@ impl HumanSegment {
 
 impl WinterFractions {
     /// The segment's link for body mass `body_mass` (kg) and height `height` (m):
-    /// `m = f_m m_b`, `l = f_l h`, `c = f_c l`, `I = m (f_ρ l)²` (spec §2).
+    /// `m = f_m m_b`, `l = f_l h`, `c = f_c l`, `I = m (f_ρ l)²` (MODEL.md §2).
     pub fn link(&self, body_mass: f64, height: f64) -> Link {
         let mass = self.mass * body_mass;
         let length = self.length * height;

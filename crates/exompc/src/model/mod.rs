@@ -18,7 +18,7 @@ pub use straps::Straps;
 
 use num_dual::DualNum;
 
-/// Standard gravity (m/s²), spec §1.
+/// Standard gravity (m/s²), MODEL.md §1.
 pub const GRAVITY: f64 = 9.81;
 
 /// A real scalar: `f64` or a forward-mode dual number over `f64`.

@@ -1,4 +1,4 @@
-//! The exoskeleton robot: a chain with joint friction (paper eq. 1, spec §3).
+//! The exoskeleton robot: a chain with joint friction (paper eq. 1, MODEL.md §3).
 
 use super::{c, Chain, Real};
 use nalgebra::SVector;
@@ -6,9 +6,9 @@ use nalgebra::SVector;
 /// Coulomb friction law.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Friction {
-    /// `kf2 sign(qd)` — the plant (spec §3).
+    /// `kf2 sign(qd)` — the plant (MODEL.md §3).
     Sign,
-    /// `kf2 tanh(qd / width)` — the smooth law of prediction models (spec §3), `width` in rad/s.
+    /// `kf2 tanh(qd / width)` — the smooth law of prediction models (MODEL.md §3), `width` in rad/s.
     Tanh {
         /// Velocity scale of the smoothing (rad/s).
         width: f64,

@@ -1,4 +1,4 @@
-//! Human-robot interaction straps as spring-dampers (paper eqs. 3-4, spec §4).
+//! Human-robot interaction straps as spring-dampers (paper eqs. 3-4, MODEL.md §4).
 
 use super::Real;
 use nalgebra::{SMatrix, SVector};
@@ -16,7 +16,7 @@ pub struct Straps<const N: usize> {
 }
 
 impl Straps<2> {
-    /// The 2-DOF straps of spec §4: `J = [[Ls1, 0], [Ls1, Ls2]]`.
+    /// The 2-DOF straps of MODEL.md §4: `J = [[Ls1, 0], [Ls1, Ls2]]`.
     pub fn two_dof(ls1: f64, ls2: f64, stiffness: f64, damping: f64) -> Self {
         Straps {
             j: SMatrix::<f64, 2, 2>::new(ls1, 0.0, ls1, ls2),
@@ -27,7 +27,7 @@ impl Straps<2> {
 }
 
 impl Straps<1> {
-    /// The 1-DOF (hip locked) shank strap: `J = [Ls2]` (spec §6, paper eq. 4 with `dq_hip = 0`).
+    /// The 1-DOF (hip locked) shank strap: `J = [Ls2]` (MODEL.md §6, paper eq. 4 with `dq_hip = 0`).
     pub fn one_dof(ls2: f64, stiffness: f64, damping: f64) -> Self {
         Straps {
             j: SMatrix::<f64, 1, 1>::new(ls2),

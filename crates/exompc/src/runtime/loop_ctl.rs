@@ -21,7 +21,7 @@ pub struct LoopSettings {
     /// sample (the supervisor holds the torque and its sensor-timeout monitor counts).
     pub sample_timeout: Duration,
     /// Moving-average window of velocities and forces (the scenario's
-    /// `uncertainty.filter_window`, spec §5).
+    /// `uncertainty.filter_window`, MODEL.md §5).
     pub filter_window: usize,
     /// Torque limits, checked on every command independently of the controller.
     pub limits: TorqueLimits,

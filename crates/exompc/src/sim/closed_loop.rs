@@ -105,7 +105,7 @@ impl<const N: usize> Recorder<N> for TraceLog<N> {
 }
 
 /// Run `steps` control periods: sample the sensors at `t_k`, call the controller, record, and
-/// advance the plant with the torque held (spec §7). `limits` are checked on every output
+/// advance the plant with the torque held (MODEL.md §7). `limits` are checked on every output
 /// independently of the controller (a violation is recorded, never silently fixed).
 pub fn run_closed_loop<const N: usize, Tr: Trajectory<N>, C: Controller<N> + ?Sized>(
     plant: &mut Plant<N, Tr>,

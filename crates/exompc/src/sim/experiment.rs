@@ -81,11 +81,11 @@ pub trait Dof<const N: usize> {
     fn multistage(s: &Scenario, t0: SVector<f64, N>) -> Result<Box<dyn Controller<N>>, RunError>;
 }
 
-/// The 2-DOF hip-knee experiment (paper §4.1, spec §6).
+/// The 2-DOF hip-knee experiment (paper §4.1, MODEL.md §6).
 #[derive(Clone, Copy, Debug)]
 pub struct TwoDof;
 
-/// The 1-DOF knee experiment with the hip locked at 0 (paper §4.1 end, spec §6).
+/// The 1-DOF knee experiment with the hip locked at 0 (paper §4.1 end, MODEL.md §6).
 #[derive(Clone, Copy, Debug)]
 pub struct OneDof;
 
@@ -160,7 +160,7 @@ pub fn uncertainty(s: &Scenario) -> Uncertainty {
     }
 }
 
-/// Plant parameters of a scenario for layout `D` (spec §2-7).
+/// Plant parameters of a scenario for layout `D` (MODEL.md §2-7).
 pub fn plant_params<D: Dof<N>, const N: usize>(s: &Scenario) -> PlantParams<N> {
     let duration = s.duration_s(D::DOF);
     let ramp = D::DOF == 2 && s.uncertainty.human_mass_ramp;
@@ -205,7 +205,7 @@ pub fn scenario_robot<D: Dof<N>, const N: usize>(s: &Scenario, payload_kg: f64) 
     )
 }
 
-/// The NMPC prediction model of a payload scenario (spec §8).
+/// The NMPC prediction model of a payload scenario (MODEL.md §8).
 pub fn prediction_model<D: Dof<N>, const N: usize>(
     s: &Scenario,
     payload_kg: f64,
@@ -254,7 +254,7 @@ pub fn intent(s: &Scenario) -> IntentEstimator {
     }
 }
 
-/// Initial previous torque `T_R(−1) = G_R(q(0))` of the nominal robot (spec §7).
+/// Initial previous torque `T_R(−1) = G_R(q(0))` of the nominal robot (MODEL.md §7).
 pub fn initial_torque<D: Dof<N>, const N: usize>(s: &Scenario) -> SVector<f64, N> {
     let q0 = D::trajectory(s).eval(0.0).0;
     scenario_robot::<D, N>(s, 0.0).chain.gravity_torque(&q0)

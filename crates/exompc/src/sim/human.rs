@@ -1,4 +1,4 @@
-//! The simulated human: leg model from Winter's tables and the "brain" (spec §2, paper §4.1).
+//! The simulated human: leg model from Winter's tables and the "brain" (MODEL.md §2, paper §4.1).
 
 use crate::model::{Chain, Link, WinterFractions};
 use nalgebra::SVector;
@@ -22,7 +22,7 @@ impl<const N: usize> HumanLeg<N> {
 }
 
 /// The human "brain": feedback linearisation on the nominal model with PD gains and
-/// compensation of the felt interaction torque (spec §2):
+/// compensation of the felt interaction torque (MODEL.md §2):
 /// `T_H = M̂(q_H)(qdd_d + Kd(qd_d − qd_H) + Kp(q_d − q_H)) + Ĉ qd_H + Ĝ + T_int`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct HumanBrain<const N: usize> {

@@ -1,4 +1,4 @@
-//! Metrics of paper Table 2 (spec §9), accumulated online from the closed loop.
+//! Metrics of paper Table 2 (MODEL.md §9), accumulated online from the closed loop.
 
 use super::closed_loop::{Recorder, StepRecord};
 use serde::{Deserialize, Serialize};
@@ -82,7 +82,7 @@ pub struct Summary {
     pub safety: super::SafetySummary,
 }
 
-/// Online accumulator of the summary metrics (spec §9, §8a: true forces and angle differences
+/// Online accumulator of the summary metrics (MODEL.md §9, §8a: true forces and angle differences
 /// at the control instants).
 #[derive(Clone, Debug, Default)]
 pub struct Metrics {

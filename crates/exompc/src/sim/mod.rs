@@ -41,7 +41,7 @@ pub use uncertainty::Uncertainty;
 use crate::control::Measurement;
 use nalgebra::SVector;
 
-/// The sensor chain of spec §5: exact encoders, noisy velocity and force sensors sampled at the
+/// The sensor chain of MODEL.md §5: exact encoders, noisy velocity and force sensors sampled at the
 /// control instants, and the moving-average filter the controller reads.
 #[derive(Clone, Debug)]
 pub struct Sensors<const N: usize> {

@@ -1,5 +1,5 @@
-//! The coupled human-robot plant (paper eqs. 1-4) under the uncertainties of spec §5,
-//! integrated by RK4 substeps under a zero-order hold of the robot torque (spec §7).
+//! The coupled human-robot plant (paper eqs. 1-4) under the uncertainties of MODEL.md §5,
+//! integrated by RK4 substeps under a zero-order hold of the robot torque (MODEL.md §7).
 
 use super::human::{HumanBrain, HumanLeg};
 use super::trajectory::Trajectory;
@@ -73,7 +73,7 @@ pub struct Plant<const N: usize, Tr: Trajectory<N>> {
 }
 
 impl<const N: usize, Tr: Trajectory<N>> Plant<N, Tr> {
-    /// A plant with human and robot at rest on the desired trajectory's start (spec §7).
+    /// A plant with human and robot at rest on the desired trajectory's start (MODEL.md §7).
     pub fn new(params: PlantParams<N>, trajectory: Tr) -> Self {
         let (q0, qd0, _) = trajectory.eval(0.0);
         let js = JointState { q: q0, qd: qd0 };
@@ -116,7 +116,7 @@ impl<const N: usize, Tr: Trajectory<N>> Plant<N, Tr> {
     }
 
     /// The nominal robot (no payload, no perturbation) with smooth friction: what a controller
-    /// may know (spec §8).
+    /// may know (MODEL.md §8).
     pub fn nominal_robot(&self, coulomb_width: f64) -> RobotModel<N> {
         robot_model(
             &self.params.robot_links,
@@ -132,7 +132,7 @@ impl<const N: usize, Tr: Trajectory<N>> Plant<N, Tr> {
     }
 
     /// The true robot at time `t`: `m_dis(t)` on each bare link, then the payload merged into
-    /// the last link (spec §8a), Coulomb `sign` friction.
+    /// the last link (MODEL.md §8a), Coulomb `sign` friction.
     pub fn true_robot(&self, t: f64) -> RobotModel<N> {
         robot_model(
             &self.params.robot_links,
@@ -222,7 +222,7 @@ impl<const N: usize, Tr: Trajectory<N>> Plant<N, Tr> {
     }
 }
 
-/// A robot model from bare links, friction, payload and mass perturbation (spec §3, §5, §8a).
+/// A robot model from bare links, friction, payload and mass perturbation (MODEL.md §3, §5, §8a).
 pub fn robot_model<const N: usize>(
     links: &[Link; N],
     viscous: f64,

@@ -1,4 +1,4 @@
-//! Sensors and filters: the moving average of the most recent samples (paper §4.1, spec §5).
+//! Sensors and filters: the moving average of the most recent samples (paper §4.1, MODEL.md §5).
 
 use nalgebra::SVector;
 

@@ -1,4 +1,4 @@
-//! The human's desired joint trajectories (spec §6), with exact time derivatives obtained by
+//! The human's desired joint trajectories (MODEL.md §6), with exact time derivatives obtained by
 //! second-order dual numbers (`num_dual::second_derivative`).
 
 use crate::model::Real;
@@ -27,7 +27,7 @@ pub trait Trajectory<const N: usize> {
     }
 }
 
-/// Swing-like hip/knee trajectory of variable frequency and amplitude (spec §6, 2-DOF).
+/// Swing-like hip/knee trajectory of variable frequency and amplitude (MODEL.md §6, 2-DOF).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SwingTrajectory {
     /// Mean frequency (Hz), spec 0.8.
@@ -74,7 +74,7 @@ impl Default for SwingTrajectory {
 
 impl Trajectory<2> for SwingTrajectory {
     /// `q_d1 = offset + a_h(t) sin φ(t)`, `q_d2 = −a_k(t) (1 − cos(φ(t) − phase)) / 2` with
-    /// `φ(t) = 2π (f0 t + fs Tf/(2π) (1 − cos(2π t / Tf)))` (spec §6).
+    /// `φ(t) = 2π (f0 t + fs Tf/(2π) (1 − cos(2π t / Tf)))` (MODEL.md §6).
     fn position<T: Real>(&self, t: T) -> SVector<T, 2> {
         let w = 2.0 * PI / self.frequency_period_s;
         let phi = (t * self.base_frequency_hz
@@ -90,7 +90,7 @@ impl Trajectory<2> for SwingTrajectory {
     }
 }
 
-/// 1-DOF knee trajectory `q_d(t) = −A (1 − cos(2π f t))` (spec §6, paper §4.2).
+/// 1-DOF knee trajectory `q_d(t) = −A (1 − cos(2π f t))` (MODEL.md §6, paper §4.2).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct KneeTrajectory {
     /// Amplitude `A` (rad), spec 0.6.

@@ -1,4 +1,4 @@
-//! Plant uncertainties of paper §4.1 (spec §5): mass perturbation, lumped disturbance,
+//! Plant uncertainties of paper §4.1 (MODEL.md §5): mass perturbation, lumped disturbance,
 //! measurement noise, human mass ramp.
 
 use serde::{Deserialize, Serialize};
@@ -32,7 +32,7 @@ impl Default for Uncertainty {
 }
 
 impl Uncertainty {
-    /// `m_dis(t) = 0.05 sin(t) + 0.01 sin(100 t + π/4)` kg (spec §5), or 0 when off.
+    /// `m_dis(t) = 0.05 sin(t) + 0.01 sin(100 t + π/4)` kg (MODEL.md §5), or 0 when off.
     #[inline]
     pub fn mass_perturbation(&self, t: f64) -> f64 {
         if self.mass_perturbation {
