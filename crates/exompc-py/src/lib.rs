@@ -13,14 +13,14 @@ mod scenario;
 mod simulate;
 
 pyo3::create_exception!(
-    _core,
+    exompc,
     ConfigError,
     pyo3::exceptions::PyValueError,
     "A scenario value, key or argument is invalid; the message names the field and its allowed range."
 );
 
 pyo3::create_exception!(
-    _core,
+    exompc,
     RunError,
     pyo3::exceptions::PyRuntimeError,
     "A run could not complete (e.g. the simulated plant diverged)."

@@ -157,13 +157,22 @@ def scan(
     base = scenario if scenario is not None else Scenario.default()
     keys = list(grid)
     combos = list(itertools.product(*(list(grid[k]) for k in keys)))
-    runs = [base.replace(dict(zip(keys, c))) for c in combos]
-    results = run_many(runs, dof=dof, threads=threads, errors=errors)
-    rows = []
-    for c, r in zip(combos, results):
-        row: Dict[str, Any] = dict(zip(keys, c))
-        row.update(summary_row(r))
-        rows.append(row)
+    if errors not in ("raise", "return"):
+        raise ValueError(f"errors: {errors!r} (allowed: 'raise' or 'return')")
+    rows: List[Dict[str, Any]] = []
+    runs: List[Scenario] = []
+    valid: List[int] = []
+    for i, c in enumerate(combos):
+        rows.append(dict(zip(keys, c)))
+        try:
+            runs.append(base.replace(dict(zip(keys, c))))
+            valid.append(i)
+        except ConfigError as e:
+            if errors == "raise":
+                raise
+            rows[i]["error"] = str(e)
+    for i, r in zip(valid, run_many(runs, dof=dof, threads=threads, errors=errors)):
+        rows[i].update(summary_row(r))
     return _table(rows)
 
 

@@ -123,10 +123,10 @@ def _columns(rows: Sequence[Mapping[str, Any]]) -> Dict[str, np.ndarray]:
             for v in present
         )
         if numeric and present:
-            ints = all(isinstance(v, (int, np.integer)) for v in present) and len(present) == len(vals)
-            out[k] = np.array(vals, dtype=np.int64 if ints else np.float64) if ints else np.array(
-                [np.nan if v is None else float(v) for v in vals], dtype=np.float64
-            )
+            if len(present) == len(vals) and all(isinstance(v, (int, np.integer)) for v in vals):
+                out[k] = np.array(vals, dtype=np.int64)
+            else:
+                out[k] = np.array([np.nan if v is None else float(v) for v in vals])
         elif k == "error":
             out[k] = np.array(["" if v is None else str(v) for v in vals], dtype=object)
         else:
