@@ -146,19 +146,25 @@ class _Progress:
         if not self.enabled:
             return
         now = time.perf_counter()
-        if now - self.last < 0.1 and self.done < self.total:
+        tty = sys.stderr.isatty()
+        if tty and now - self.last < 0.1 and self.done < self.total:
+            return
+        # Not a terminal (CI logs, files): one line per 10 % instead of a redrawn bar.
+        step = max(self.total // 10, 1)
+        if not tty and self.done % step != 0 and self.done < self.total:
             return
         self.last = now
         el = now - self.start
         rate = self.done / el if el > 0 else 0.0
         eta = (self.total - self.done) / rate if rate > 0 else float("nan")
         width = 30
+        cr = "\r" if tty else ""
         fill = int(width * self.done / max(self.total, 1))
         sys.stderr.write(
-            f"\r{self.label} [{'#' * fill}{'.' * (width - fill)}] {self.done}/{self.total} "
+            f"{cr}{self.label} [{'#' * fill}{'.' * (width - fill)}] {self.done}/{self.total} "
             f"{rate:.1f} runs/s, {el:.0f} s elapsed, ETA {eta:.0f} s "
         )
-        if self.done >= self.total:
+        if self.done >= self.total or not tty:
             sys.stderr.write("\n")
         sys.stderr.flush()
 
