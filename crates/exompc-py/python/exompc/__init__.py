@@ -1,0 +1,198 @@
+"""exompc: multi-stage robust NMPC of a lower-limb exoskeleton, from Python.
+
+The controllers, the closed-loop simulator and the paper's studies run in Rust (the native
+module ``exompc._core``); this package adds numpy-friendly wrappers, payload sweeps, grid
+scans and Monte Carlo studies on a local thread pool or on Ray.
+
+>>> import exompc
+>>> s = exompc.Scenario.default()
+>>> r = exompc.simulate(s)
+>>> r["rms_force_n"]            # doctest: +SKIP
+{'thigh': 2.23..., 'shank': 4.90...}
+"""
+
+from __future__ import annotations
+
+import itertools
+from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence
+
+import numpy as np
+
+from . import _core
+from ._core import (
+    STATUS_NAMES,
+    ConfigError,
+    Controller,
+    RunError,
+    Scenario,
+    Simulator,
+    __version__,
+    default_config_toml,
+    run_many,
+)
+from .montecarlo import Choice, Normal, Uniform, draw_parameters, montecarlo, summary_row, write_csv
+
+__all__ = [
+    "STATUS_NAMES",
+    "Choice",
+    "ConfigError",
+    "Controller",
+    "MultiStage",
+    "Nmpc",
+    "Normal",
+    "Pd",
+    "RunError",
+    "Scenario",
+    "Simulator",
+    "Uniform",
+    "__version__",
+    "default_config_toml",
+    "draw_parameters",
+    "montecarlo",
+    "run_many",
+    "scan",
+    "simulate",
+    "summary_row",
+    "sweep",
+    "table2",
+    "write_csv",
+]
+
+
+def simulate(
+    scenario: Optional[Scenario] = None,
+    *,
+    controller: Optional[str] = None,
+    payload: Optional[float] = None,
+    dof: int = 2,
+    duration: Optional[float] = None,
+    formulation: Optional[str] = None,
+    trace: bool = True,
+) -> Dict[str, Any]:
+    """Run one closed-loop experiment; return its summary dict (+ ``"trace"`` columns).
+
+    The summary has the keys of ``exompc simulate --json`` (``rms_force_n``,
+    ``delta_max_deg``, ``mean_probability``, ``step_time_us``, ``limit_violations``,
+    ``solver_failures``, ...). ``trace`` (unless ``trace=False``) maps column names to numpy
+    arrays with one row per control step: ``t``, ``q_robot``, ``qd_robot``, ``q_human``,
+    ``qd_human``, ``q_desired``, ``torque_robot``, ``torque_prev``, ``torque_human``,
+    ``force_true``, ``force_measured`` (shape ``(steps, dof)``), ``probabilities``
+    ``(steps, S)`` and ``disturbances`` ``(steps, S, dof)`` for the multi-stage controller,
+    ``status`` (strings), ``status_code``, ``iterations``, ``step_time_us``,
+    ``within_limits``. The GIL is released while the simulation runs.
+    """
+    out = _core.simulate(
+        scenario,
+        controller=controller,
+        payload=payload,
+        dof=dof,
+        duration=duration,
+        formulation=formulation,
+        trace=trace,
+    )
+    tr = out.get("trace")
+    if tr is not None:
+        codes = tr.pop("status")
+        tr["status_code"] = codes
+        tr["status"] = np.asarray(STATUS_NAMES)[codes]
+    return out
+
+
+class MultiStage(Controller):
+    """The multi-stage robust NMPC (paper §3.2): ``MultiStage(scenario, dof=2)``."""
+
+    def __new__(cls, scenario: Optional[Scenario] = None, *, dof: int = 2, supervised: bool = True):
+        return super().__new__(cls, scenario, "msnmpc", dof=dof, supervised=supervised)
+
+
+class Nmpc(Controller):
+    """The non-robust NMPC on the nominal model (paper §3.1): ``Nmpc(scenario, dof=2)``."""
+
+    def __new__(cls, scenario: Optional[Scenario] = None, *, dof: int = 2, supervised: bool = True):
+        return super().__new__(cls, scenario, "nmpc", dof=dof, supervised=supervised)
+
+
+class Pd(Controller):
+    """The baseline PD on the estimated human intent: ``Pd(scenario, dof=2)``."""
+
+    def __new__(cls, scenario: Optional[Scenario] = None, *, dof: int = 2, supervised: bool = True):
+        return super().__new__(cls, scenario, "pd", dof=dof, supervised=supervised)
+
+
+def sweep(
+    scenario: Optional[Scenario] = None,
+    payloads: Iterable[float] = (0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0),
+    controllers: Sequence[str] = ("nmpc", "msnmpc"),
+    *,
+    dof: int = 2,
+    threads: Optional[int] = None,
+) -> List[Dict[str, Any]]:
+    """Every payload x controller run of ``scenario`` in parallel (like ``exompc sweep``).
+
+    Returns one summary dict per run, payload-major in the order given, then controllers.
+    """
+    base = scenario if scenario is not None else Scenario.default()
+    runs = []
+    for p in payloads:
+        for c in controllers:
+            runs.append(base.replace({"uncertainty.payload_kg": float(p), "controller.kind": c}))
+    return run_many(runs, dof=dof, threads=threads)
+
+
+def scan(
+    grid: Mapping[str, Iterable[Any]],
+    scenario: Optional[Scenario] = None,
+    *,
+    dof: int = 2,
+    threads: Optional[int] = None,
+    errors: str = "return",
+) -> Dict[str, np.ndarray]:
+    """Envelope scan: every combination of the dotted-key values in ``grid``, run in parallel.
+
+    ``scan({"uncertainty.payload_kg": [0, 1, 2], "human.body_mass_kg": [60, 80]})`` returns a
+    table (dict of numpy columns, one row per combination) with the grid keys and the
+    flattened summaries (see :func:`summary_row`). A run that fails (e.g. diverges) gets NaN
+    metrics and its message in the ``error`` column unless ``errors="raise"``.
+    """
+    base = scenario if scenario is not None else Scenario.default()
+    keys = list(grid)
+    combos = list(itertools.product(*(list(grid[k]) for k in keys)))
+    if errors not in ("raise", "return"):
+        raise ValueError(f"errors: {errors!r} (allowed: 'raise' or 'return')")
+    rows: List[Dict[str, Any]] = []
+    runs: List[Scenario] = []
+    valid: List[int] = []
+    for i, c in enumerate(combos):
+        rows.append(dict(zip(keys, c)))
+        try:
+            runs.append(base.replace(dict(zip(keys, c))))
+            valid.append(i)
+        except ConfigError as e:
+            if errors == "raise":
+                raise
+            rows[i]["error"] = str(e)
+    for i, r in zip(valid, run_many(runs, dof=dof, threads=threads, errors=errors)):
+        rows[i].update(summary_row(r))
+    return _table(rows)
+
+
+def table2(rows: Sequence[Mapping[str, Any]]) -> str:
+    """The paper's Table 2 (RMS strap forces, max angle errors) as Markdown from summaries."""
+    lines = [
+        "| controller | payload (kg) | RMS F thigh (N) | RMS F shank (N) | max dq hip (deg) | max dq knee (deg) |",
+        "|---|---|---|---|---|---|",
+    ]
+    f = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
+    for r in rows:
+        lines.append(
+            f"| {r['controller']} | {r['payload_kg']:.2f} | {f(r['rms_force_n']['thigh'])} | "
+            f"{f(r['rms_force_n']['shank'])} | {f(r['delta_max_deg']['hip'])} | "
+            f"{f(r['delta_max_deg']['knee'])} |"
+        )
+    return "\n".join(lines)
+
+
+def _table(rows: Sequence[Mapping[str, Any]]) -> Dict[str, np.ndarray]:
+    from .montecarlo import _columns
+
+    return _columns(rows)

@@ -1,0 +1,205 @@
+//! Conversions between Python objects, TOML values, numpy arrays and nalgebra vectors.
+
+use exompc::control::StepStatus;
+use nalgebra::SVector;
+use numpy::{PyArray1, PyArrayDescrMethods, PyArrayMethods, PyUntypedArray, PyUntypedArrayMethods};
+use pyo3::exceptions::{PyTypeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyList, PyString, PyTuple};
+
+/// Names of the step outcomes, indexed by [`status_code`].
+pub const STATUS_NAMES: [&str; 6] = [
+    "ok",
+    "max_iterations",
+    "max_time",
+    "solver_failed",
+    "bad_measurement",
+    "monitor_tripped",
+];
+
+/// Index of `s` in [`STATUS_NAMES`].
+pub fn status_code(s: StepStatus) -> u8 {
+    match s {
+        StepStatus::Ok => 0,
+        StepStatus::MaxIterations => 1,
+        StepStatus::MaxTime => 2,
+        StepStatus::SolverFailed => 3,
+        StepStatus::BadMeasurement => 4,
+        StepStatus::MonitorTripped => 5,
+    }
+}
+
+/// A TOML value as the matching Python object.
+pub fn toml_to_py<'py>(py: Python<'py>, v: &toml::Value) -> PyResult<Bound<'py, PyAny>> {
+    Ok(match v {
+        toml::Value::String(s) => PyString::new(py, s).into_any(),
+        toml::Value::Integer(i) => i.into_pyobject(py)?.into_any(),
+        toml::Value::Float(f) => PyFloat::new(py, *f).into_any(),
+        toml::Value::Boolean(b) => PyBool::new(py, *b).to_owned().into_any(),
+        toml::Value::Datetime(d) => PyString::new(py, &d.to_string()).into_any(),
+        toml::Value::Array(a) => {
+            let items = a
+                .iter()
+                .map(|x| toml_to_py(py, x))
+                .collect::<PyResult<Vec<_>>>()?;
+            PyList::new(py, items)?.into_any()
+        }
+        toml::Value::Table(t) => {
+            let d = PyDict::new(py);
+            for (k, x) in t {
+                d.set_item(k, toml_to_py(py, x)?)?;
+            }
+            d.into_any()
+        }
+    })
+}
+
+/// A Python value as TOML, for setting a scenario key. Strings go through
+/// [`exompc_cli::io::parse_value`] exactly as a value typed on the command line.
+pub fn py_to_toml(key: &str, v: &Bound<'_, PyAny>) -> PyResult<toml::Value> {
+    if v.is_instance_of::<PyBool>() {
+        return Ok(toml::Value::Boolean(v.extract()?));
+    }
+    if v.is_instance_of::<PyInt>() {
+        return Ok(toml::Value::Integer(v.extract().map_err(|_| {
+            crate::ConfigError::new_err(format!("invalid value for {key}: integer out of range"))
+        })?));
+    }
+    if v.is_instance_of::<PyFloat>() {
+        return Ok(toml::Value::Float(v.extract()?));
+    }
+    if let Ok(s) = v.cast::<PyString>() {
+        return Ok(exompc_cli::io::parse_value(&s.to_cow()?));
+    }
+    if let Ok(d) = v.cast::<PyDict>() {
+        let mut t = toml::Table::new();
+        for (k, x) in d.iter() {
+            let k: String = k.extract()?;
+            let sub = format!("{key}.{k}");
+            t.insert(k, py_to_toml(&sub, &x)?);
+        }
+        return Ok(toml::Value::Table(t));
+    }
+    if v.is_instance_of::<PyList>() || v.is_instance_of::<PyTuple>() {
+        let items = v
+            .try_iter()?
+            .enumerate()
+            .map(|(i, x)| py_to_toml(&format!("{key}[{i}]"), &x?))
+            .collect::<PyResult<Vec<_>>>()?;
+        return Ok(toml::Value::Array(items));
+    }
+    if v.is_instance_of::<PyUntypedArray>() {
+        return py_to_toml(key, &v.call_method0("tolist")?);
+    }
+    // numpy scalars and other number-likes.
+    if v.hasattr("__index__")? {
+        if let Ok(i) = v.call_method0("__index__")?.extract::<i64>() {
+            return Ok(toml::Value::Integer(i));
+        }
+    }
+    if v.hasattr("__float__")? {
+        return Ok(toml::Value::Float(v.call_method0("__float__")?.extract()?));
+    }
+    Err(crate::ConfigError::new_err(format!(
+        "invalid value for {key}: cannot use a {} (expected a number, bool, string or list)",
+        v.get_type().name()?
+    )))
+}
+
+/// Reads a length-`N` float vector argument named `name`: a float64 numpy array of shape
+/// `(N,)`, a list/tuple of `N` numbers, or (for `N == 1`) a number. Anything else raises a
+/// `TypeError` (wrong dtype or type) or `ValueError` (wrong shape) naming the argument.
+pub fn vector<const N: usize>(name: &str, v: &Bound<'_, PyAny>) -> PyResult<SVector<f64, N>> {
+    let mut out = SVector::<f64, N>::zeros();
+    if let Ok(arr) = v.cast::<PyUntypedArray>() {
+        let py = v.py();
+        if !arr.dtype().is_equiv_to(&numpy::dtype::<f64>(py)) {
+            return Err(PyTypeError::new_err(format!(
+                "{name}: expected a float64 array, got dtype {}",
+                arr.dtype().str()?
+            )));
+        }
+        if arr.shape() != [N] {
+            return Err(PyValueError::new_err(format!(
+                "{name}: expected shape ({N},), got {}",
+                shape(arr.shape())
+            )));
+        }
+        let a = arr.cast::<PyArray1<f64>>()?.readonly();
+        for (o, x) in out.iter_mut().zip(a.as_array().iter()) {
+            *o = *x;
+        }
+        return Ok(out);
+    }
+    if N == 1 && (v.is_instance_of::<PyFloat>() || v.is_instance_of::<PyInt>()) {
+        out[0] = v.extract()?;
+        return Ok(out);
+    }
+    if v.is_instance_of::<PyList>() || v.is_instance_of::<PyTuple>() {
+        let len = v.len()?;
+        if len != N {
+            return Err(PyValueError::new_err(format!(
+                "{name}: expected {N} values, got {len}"
+            )));
+        }
+        for (i, x) in v.try_iter()?.enumerate() {
+            let x = x?;
+            if x.is_instance_of::<PyBool>()
+                || !(x.is_instance_of::<PyFloat>() || x.is_instance_of::<PyInt>())
+            {
+                return Err(PyTypeError::new_err(format!(
+                    "{name}[{i}]: expected a number, got {}",
+                    x.get_type().name()?
+                )));
+            }
+            out[i] = x.extract()?;
+        }
+        return Ok(out);
+    }
+    Err(PyTypeError::new_err(format!(
+        "{name}: expected a float64 numpy array of shape ({N},) or a list of {N} numbers, got {}",
+        v.get_type().name()?
+    )))
+}
+
+/// Writes `v` into `out`, a writable float64 array of shape `(N,)`.
+pub fn write_into<const N: usize>(out: &Bound<'_, PyAny>, v: &SVector<f64, N>) -> PyResult<()> {
+    let arr = out.cast::<PyArray1<f64>>().map_err(|_| {
+        PyTypeError::new_err(format!(
+            "out: expected a float64 numpy array of shape ({N},)"
+        ))
+    })?;
+    if arr.shape() != [N] {
+        return Err(PyValueError::new_err(format!(
+            "out: expected shape ({N},), got {}",
+            shape(arr.shape())
+        )));
+    }
+    let mut w = arr.readwrite();
+    for (o, x) in w.as_array_mut().iter_mut().zip(v.iter()) {
+        *o = *x;
+    }
+    Ok(())
+}
+
+/// `v` as a new float64 numpy array.
+pub fn array<'py, const N: usize>(
+    py: Python<'py>,
+    v: &SVector<f64, N>,
+) -> Bound<'py, PyArray1<f64>> {
+    PyArray1::from_slice(py, v.as_slice())
+}
+
+/// A numpy shape as Python prints it: `(3,)`, `(2, 2)`.
+fn shape(s: &[usize]) -> String {
+    match s {
+        [n] => format!("({n},)"),
+        _ => format!(
+            "({})",
+            s.iter()
+                .map(usize::to_string)
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    }
+}

@@ -1,0 +1,200 @@
+//! `exompc.Scenario`: a validated scenario, loaded and saved as TOML, read and written key by
+//! key with the CLI's checks and messages (`exompc_cli::io`).
+
+use crate::convert::{py_to_toml, toml_to_py};
+use crate::ConfigError;
+use exompc::config::Scenario;
+use exompc_cli::io;
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyTuple};
+use std::path::PathBuf;
+
+/// A complete, validated scenario (plant, human, controller, estimator, faults, monitors).
+///
+/// ``Scenario()`` and ``Scenario.default()`` give the embedded default scenario (the output of
+/// ``exompc config``); ``Scenario.load(path)`` reads a TOML file that overrides some keys.
+/// Keys are dotted paths such as ``"uncertainty.payload_kg"``: ``s["controller.np"] = 30`` or
+/// ``s.set(...)`` checks the key and validates the whole scenario exactly as the CLI does,
+/// raising ``exompc.ConfigError`` (a ``ValueError``) that names the field and its range.
+#[pyclass(module = "exompc", name = "Scenario", eq)]
+#[derive(Clone, PartialEq)]
+pub struct PyScenario {
+    pub inner: Scenario,
+}
+
+fn config_err(msg: impl Into<String>) -> PyErr {
+    ConfigError::new_err(msg.into())
+}
+
+#[pymethods]
+impl PyScenario {
+    /// The default scenario, or the scenario of TOML text `toml` (partial override of the
+    /// default, validated).
+    #[new]
+    #[pyo3(signature = (toml = None))]
+    fn new(toml: Option<&str>) -> PyResult<Self> {
+        match toml {
+            None => Ok(Self::default()),
+            Some(t) => Self::from_toml(t),
+        }
+    }
+
+    /// The embedded default scenario (2-DOF swing, MS-NMPC, 20 s).
+    #[staticmethod]
+    #[allow(clippy::should_implement_trait)]
+    pub fn default() -> Self {
+        PyScenario {
+            inner: Scenario::default(),
+        }
+    }
+
+    /// Loads a TOML scenario file (keys it names override the default); validated.
+    #[staticmethod]
+    fn load(path: PathBuf) -> PyResult<Self> {
+        io::load_scenario(Some(&path))
+            .map(|inner| PyScenario { inner })
+            .map_err(|e| config_err(e.to_string()))
+    }
+
+    /// Parses TOML text (keys it names override the default); validated.
+    #[staticmethod]
+    fn from_toml(text: &str) -> PyResult<Self> {
+        io::parse_scenario(text)
+            .map(|inner| PyScenario { inner })
+            .map_err(config_err)
+    }
+
+    /// The scenario as TOML text (every key), loadable by ``Scenario.from_toml`` and the CLI.
+    fn to_toml(&self) -> PyResult<String> {
+        toml::to_string_pretty(&self.inner)
+            .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))
+    }
+
+    /// Writes the scenario as TOML to `path` (atomically: a temporary file renamed).
+    fn save(&self, path: PathBuf) -> PyResult<()> {
+        let text = self.to_toml()?;
+        io::write_atomic(&path, text.as_bytes())
+            .map_err(|e| pyo3::exceptions::PyOSError::new_err(e.to_string()))
+    }
+
+    /// The value of a key by dotted path (a dict for a table, ``None`` for an unset optional
+    /// key). Unknown keys raise ``ConfigError`` with the closest valid name.
+    fn get<'py>(&self, py: Python<'py>, key: &str) -> PyResult<Bound<'py, PyAny>> {
+        match io::get_key(&self.inner, key).map_err(config_err)? {
+            Some(v) => toml_to_py(py, &v),
+            None => Ok(py.None().into_bound(py)),
+        }
+    }
+
+    /// Sets a key by dotted path to `value` (number, bool, string, list or dict; a string is
+    /// read like a command-line value, e.g. ``"coupled"`` or ``"0.5"``), then validates the
+    /// whole scenario. On error the scenario is unchanged and ``ConfigError`` names the field.
+    fn set(&mut self, key: &str, value: &Bound<'_, PyAny>) -> PyResult<()> {
+        let v = py_to_toml(key, value)?;
+        self.inner = io::set_key(&self.inner, key, v).map_err(config_err)?;
+        Ok(())
+    }
+
+    /// A copy with the given keys set: ``s.replace({"uncertainty.payload_kg": 1.0})`` or
+    /// ``s.replace(**{"controller.np": 30})``.
+    #[pyo3(signature = (updates = None, **kwargs))]
+    fn replace(
+        &self,
+        updates: Option<&Bound<'_, PyDict>>,
+        kwargs: Option<&Bound<'_, PyDict>>,
+    ) -> PyResult<Self> {
+        let mut s = self.clone();
+        for d in [updates, kwargs].into_iter().flatten() {
+            for (k, v) in d.iter() {
+                s.set(&k.extract::<String>()?, &v)?;
+            }
+        }
+        Ok(s)
+    }
+
+    /// Every settable leaf key as a dotted path, in file order.
+    fn keys(&self) -> PyResult<Vec<String>> {
+        let tree = toml::Value::try_from(&self.inner)
+            .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))?;
+        let mut out = Vec::new();
+        fn walk(v: &toml::Value, prefix: &str, out: &mut Vec<String>) {
+            match v {
+                toml::Value::Table(t) => {
+                    for (k, x) in t {
+                        let p = if prefix.is_empty() {
+                            k.clone()
+                        } else {
+                            format!("{prefix}.{k}")
+                        };
+                        walk(x, &p, out);
+                    }
+                }
+                _ => out.push(prefix.to_string()),
+            }
+        }
+        walk(&tree, "", &mut out);
+        Ok(out)
+    }
+
+    /// The whole scenario as nested dicts.
+    fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let tree = toml::Value::try_from(&self.inner)
+            .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))?;
+        toml_to_py(py, &tree)
+    }
+
+    /// Checks every field again (always true for a Scenario built through this API).
+    fn validate(&self) -> PyResult<()> {
+        self.inner.validate().map_err(|e| config_err(e.to_string()))
+    }
+
+    /// An independent copy.
+    fn copy(&self) -> Self {
+        self.clone()
+    }
+
+    fn __copy__(&self) -> Self {
+        self.clone()
+    }
+
+    fn __deepcopy__(&self, _memo: &Bound<'_, PyAny>) -> Self {
+        self.clone()
+    }
+
+    fn __getitem__<'py>(&self, py: Python<'py>, key: &str) -> PyResult<Bound<'py, PyAny>> {
+        self.get(py, key)
+    }
+
+    fn __setitem__(&mut self, key: &str, value: &Bound<'_, PyAny>) -> PyResult<()> {
+        self.set(key, value)
+    }
+
+    /// Pickles as TOML text (so scenarios travel to Ray workers and processes).
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<Bound<'py, PyTuple>> {
+        let py = slf.py();
+        let text = slf.borrow().to_toml()?;
+        let ctor = py.get_type::<PyScenario>().getattr("from_toml")?;
+        PyTuple::new(py, [ctor, PyTuple::new(py, [text])?.into_any()])
+    }
+
+    fn __repr__(&self) -> String {
+        let s = &self.inner;
+        format!(
+            "Scenario(controller={:?}, payload_kg={}, dt={}, duration_2dof_s={}, duration_1dof_s={})",
+            s.controller.kind,
+            s.uncertainty.payload_kg,
+            s.timing.dt,
+            s.timing.duration_2dof_s,
+            s.timing.duration_1dof_s
+        )
+        .replace("Msnmpc", "msnmpc")
+        .replace("Nmpc", "nmpc")
+        .replace("Pd", "pd")
+    }
+}
+
+/// The default scenario as commented TOML (the output of ``exompc config``).
+#[pyfunction]
+pub fn default_config_toml() -> PyResult<String> {
+    io::default_config_toml().map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))
+}

@@ -1,0 +1,393 @@
+//! `simulate`, `run_many` and the `Simulator` (plant + sensors) of the closed loop.
+
+use crate::convert::{array, status_code, vector};
+use crate::scenario::PyScenario;
+use crate::{ConfigError, RunError};
+use exompc::config::Scenario;
+use exompc::sim::{
+    plant_params, run_experiment, uncertainty, Dof, KneeTrajectory, OneDof, Plant, Recorder,
+    Sensors, StepRecord, Summary, SwingTrajectory, Trajectory, TwoDof,
+};
+use exompc_cli::io::{parse_value, set_key};
+use numpy::{PyArray1, PyArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use rayon::prelude::*;
+
+/// The trace of one run as flat columns (row-major `steps × width`).
+#[derive(Default)]
+struct Columns {
+    n: usize,
+    scenarios: usize,
+    t: Vec<f64>,
+    vec: [Vec<f64>; 10],
+    probabilities: Vec<f64>,
+    disturbances: Vec<f64>,
+    status: Vec<u8>,
+    iterations: Vec<u32>,
+    step_time_us: Vec<f64>,
+    within_limits: Vec<bool>,
+}
+
+/// Names of the `N`-wide columns, in the order of `Columns::vec`.
+const VEC_NAMES: [&str; 10] = [
+    "q_robot",
+    "qd_robot",
+    "q_human",
+    "qd_human",
+    "q_desired",
+    "torque_robot",
+    "torque_prev",
+    "torque_human",
+    "force_true",
+    "force_measured",
+];
+
+impl<const N: usize> Recorder<N> for Columns {
+    fn record(&mut self, r: &StepRecord<'_, N>) -> std::io::Result<()> {
+        self.n = N;
+        self.t.push(r.t);
+        let cols = [
+            &r.robot.q,
+            &r.robot.qd,
+            &r.human.q,
+            &r.human.qd,
+            &r.desired,
+            &r.torque_robot,
+            &r.torque_prev,
+            &r.torque_human,
+            &r.force_true,
+            &r.force_measured,
+        ];
+        for (c, v) in self.vec.iter_mut().zip(cols) {
+            c.extend_from_slice(v.as_slice());
+        }
+        if let Some(p) = r.probabilities {
+            self.scenarios = p.len();
+            self.probabilities.extend_from_slice(p);
+        }
+        if let Some(d) = r.disturbances {
+            for x in d {
+                self.disturbances.extend_from_slice(x.as_slice());
+            }
+        }
+        self.status.push(status_code(r.status));
+        self.iterations.push(r.iterations);
+        self.step_time_us.push(r.step_time_us);
+        self.within_limits.push(r.within_limits);
+        Ok(())
+    }
+}
+
+impl Columns {
+    fn into_dict(self, py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
+        let d = PyDict::new(py);
+        let steps = self.t.len();
+        d.set_item("t", PyArray1::from_vec(py, self.t))?;
+        for (name, c) in VEC_NAMES.iter().zip(self.vec) {
+            d.set_item(name, PyArray1::from_vec(py, c).reshape([steps, self.n])?)?;
+        }
+        if self.scenarios > 0 {
+            d.set_item(
+                "probabilities",
+                PyArray1::from_vec(py, self.probabilities).reshape([steps, self.scenarios])?,
+            )?;
+            d.set_item(
+                "disturbances",
+                PyArray1::from_vec(py, self.disturbances).reshape([
+                    steps,
+                    self.scenarios,
+                    self.n,
+                ])?,
+            )?;
+        }
+        d.set_item("status", PyArray1::from_vec(py, self.status))?;
+        d.set_item("iterations", PyArray1::from_vec(py, self.iterations))?;
+        d.set_item("step_time_us", PyArray1::from_vec(py, self.step_time_us))?;
+        d.set_item("within_limits", PyArray1::from_vec(py, self.within_limits))?;
+        Ok(d)
+    }
+}
+
+/// Applies the keyword overrides of `simulate` through the CLI's key setter (same checks and
+/// messages), naming the argument on error.
+pub fn overrides(
+    s: &Scenario,
+    dof: u8,
+    controller: Option<&str>,
+    formulation: Option<&str>,
+    payload: Option<f64>,
+    duration: Option<f64>,
+) -> PyResult<Scenario> {
+    if dof != 1 && dof != 2 {
+        return Err(ConfigError::new_err(format!(
+            "dof: {dof} (allowed: 1 or 2)"
+        )));
+    }
+    let mut s = s.clone();
+    let mut apply = |arg: &str, key: &str, v: toml::Value| -> PyResult<()> {
+        s = set_key(&s, key, v).map_err(|e| ConfigError::new_err(format!("{arg}: {e}")))?;
+        Ok(())
+    };
+    if let Some(c) = controller {
+        apply("controller", "controller.kind", parse_value(c))?;
+    }
+    if let Some(f) = formulation {
+        apply("formulation", "multistage.formulation", parse_value(f))?;
+    }
+    if let Some(p) = payload {
+        apply("payload", "uncertainty.payload_kg", toml::Value::Float(p))?;
+    }
+    if let Some(d) = duration {
+        let key = if dof == 1 {
+            "timing.duration_1dof_s"
+        } else {
+            "timing.duration_2dof_s"
+        };
+        apply("duration", key, toml::Value::Float(d))?;
+    }
+    Ok(s)
+}
+
+/// One closed-loop run (no Python involved: called with the GIL released).
+fn run(s: &Scenario, dof: u8, trace: bool) -> Result<(Summary, Option<Columns>), String> {
+    let mut cols = trace.then(Columns::default);
+    let summary = if dof == 1 {
+        let mut recs: Vec<&mut dyn Recorder<1>> = Vec::new();
+        if let Some(c) = cols.as_mut() {
+            recs.push(c);
+        }
+        run_experiment::<OneDof, 1>(s, &mut recs)
+    } else {
+        let mut recs: Vec<&mut dyn Recorder<2>> = Vec::new();
+        if let Some(c) = cols.as_mut() {
+            recs.push(c);
+        }
+        run_experiment::<TwoDof, 2>(s, &mut recs)
+    }
+    .map_err(|e| e.to_string())?;
+    Ok((summary, cols))
+}
+
+fn summary_dict<'py>(py: Python<'py>, s: &Summary) -> PyResult<Bound<'py, PyDict>> {
+    let json = serde_json::to_string(s).map_err(|e| RunError::new_err(format!("summary: {e}")))?;
+    let obj = py.import("json")?.call_method1("loads", (json,))?;
+    Ok(obj.cast_into::<PyDict>()?)
+}
+
+/// Runs one closed-loop experiment of `scenario` (default: the default scenario) and returns
+/// its summary as a dict (the keys of ``exompc simulate --json``: ``rms_force_n``,
+/// ``delta_max_deg``, ``mean_probability``, ``step_time_us``, ...) with, unless
+/// ``trace=False``, a ``"trace"`` dict of numpy columns (one row per control step).
+///
+/// ``controller`` (``"pd"``, ``"nmpc"``, ``"msnmpc"``), ``formulation``, ``payload`` (kg) and
+/// ``duration`` (s) override the scenario like the CLI flags. The GIL is released during the run.
+#[pyfunction]
+#[pyo3(signature = (scenario = None, *, controller = None, payload = None, dof = 2, duration = None, formulation = None, trace = true))]
+#[allow(clippy::too_many_arguments)]
+pub fn simulate<'py>(
+    py: Python<'py>,
+    scenario: Option<PyRef<'py, PyScenario>>,
+    controller: Option<&str>,
+    payload: Option<f64>,
+    dof: u8,
+    duration: Option<f64>,
+    formulation: Option<&str>,
+    trace: bool,
+) -> PyResult<Bound<'py, PyDict>> {
+    let base = scenario.map_or_else(Scenario::default, |s| s.inner.clone());
+    let s = overrides(&base, dof, controller, formulation, payload, duration)?;
+    let (summary, cols) = py
+        .detach(|| run(&s, dof, trace))
+        .map_err(RunError::new_err)?;
+    let d = summary_dict(py, &summary)?;
+    if let Some(c) = cols {
+        d.set_item("trace", c.into_dict(py)?)?;
+    }
+    Ok(d)
+}
+
+/// Runs every scenario of `scenarios` (in parallel on `threads` threads, default all cores,
+/// with the GIL released) and returns their summaries in order. With ``errors="raise"`` the
+/// first failed run raises ``RunError``; with ``errors="return"`` a failed run's entry is
+/// ``{"error": message}``.
+#[pyfunction]
+#[pyo3(signature = (scenarios, *, dof = 2, threads = None, errors = "raise"))]
+pub fn run_many<'py>(
+    py: Python<'py>,
+    scenarios: Vec<PyRef<'py, PyScenario>>,
+    dof: u8,
+    threads: Option<usize>,
+    errors: &str,
+) -> PyResult<Vec<Bound<'py, PyDict>>> {
+    if dof != 1 && dof != 2 {
+        return Err(ConfigError::new_err(format!(
+            "dof: {dof} (allowed: 1 or 2)"
+        )));
+    }
+    let raise = match errors {
+        "raise" => true,
+        "return" => false,
+        other => {
+            return Err(ConfigError::new_err(format!(
+                "errors: `{other}` (allowed: \"raise\" or \"return\")"
+            )))
+        }
+    };
+    if threads == Some(0) {
+        return Err(ConfigError::new_err("threads: 0 (allowed: >= 1)"));
+    }
+    let list: Vec<Scenario> = scenarios.iter().map(|s| s.inner.clone()).collect();
+    let results: Vec<Result<Summary, String>> = py.detach(|| {
+        let go = || {
+            list.par_iter()
+                .map(|s| run(s, dof, false).map(|(summary, _)| summary))
+                .collect()
+        };
+        match threads {
+            Some(n) => rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .map(|p| p.install(go))
+                .unwrap_or_else(|_| go()),
+            None => go(),
+        }
+    });
+    results
+        .into_iter()
+        .enumerate()
+        .map(|(i, r)| match r {
+            Ok(s) => summary_dict(py, &s),
+            Err(e) if raise => Err(RunError::new_err(format!("run {i}: {e}"))),
+            Err(e) => {
+                let d = PyDict::new(py);
+                d.set_item("error", e)?;
+                Ok(d)
+            }
+        })
+        .collect()
+}
+
+/// The plant and sensors of one layout (one lives per `Simulator`; the size gap is harmless).
+#[allow(clippy::large_enum_variant)]
+enum Loop {
+    One(Plant<1, KneeTrajectory>, Sensors<1>),
+    Two(Plant<2, SwingTrajectory>, Sensors<2>),
+}
+
+/// `(t, q, qd, force)` as returned by `Simulator.measure`.
+type Sample<'py> = (
+    f64,
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray1<f64>>,
+);
+
+fn parts<D: Dof<N>, const N: usize>(s: &Scenario) -> (Plant<N, D::Traj>, Sensors<N>) {
+    (
+        Plant::new(plant_params::<D, N>(s), D::trajectory(s)),
+        Sensors::new(uncertainty(s), s.uncertainty.filter_window).with_faults(&s.faults),
+    )
+}
+
+/// The simulated human-exoskeleton plant with its sensor chain, to close the loop from Python
+/// with any controller: each period call ``measure()`` once (sensors sampled at the current
+/// time, returns the filtered ``(t, q, qd, force)`` a controller reads), then
+/// ``advance(torque)`` (the torque held over one control period).
+///
+/// ``Simulator(s)`` driven by ``Controller(s)`` reproduces ``simulate(s)`` step for step.
+#[pyclass(module = "exompc", name = "Simulator", unsendable)]
+pub struct PySimulator {
+    inner: Loop,
+    steps: usize,
+    dt: f64,
+}
+
+macro_rules! with_loop {
+    ($self:expr, $p:ident, $s:ident, $body:expr) => {
+        match &mut $self.inner {
+            Loop::One($p, $s) => $body,
+            Loop::Two($p, $s) => $body,
+        }
+    };
+}
+
+#[pymethods]
+impl PySimulator {
+    /// The plant of `scenario` (default: the default scenario) in the `dof` layout.
+    #[new]
+    #[pyo3(signature = (scenario = None, *, dof = 2))]
+    fn new(scenario: Option<PyRef<'_, PyScenario>>, dof: u8) -> PyResult<Self> {
+        let s = scenario.map_or_else(Scenario::default, |s| s.inner.clone());
+        let s = overrides(&s, dof, None, None, None, None)?;
+        s.validate()
+            .map_err(|e| ConfigError::new_err(e.to_string()))?;
+        let inner = if dof == 1 {
+            let (p, se) = parts::<OneDof, 1>(&s);
+            Loop::One(p, se)
+        } else {
+            let (p, se) = parts::<TwoDof, 2>(&s);
+            Loop::Two(p, se)
+        };
+        Ok(PySimulator {
+            inner,
+            steps: s.control_steps(usize::from(dof)),
+            dt: s.timing.dt,
+        })
+    }
+
+    /// Number of control steps of the scenario's run (duration / dt).
+    #[getter]
+    fn steps(&self) -> usize {
+        self.steps
+    }
+
+    /// Control period (s).
+    #[getter]
+    fn dt(&self) -> f64 {
+        self.dt
+    }
+
+    /// Current time (s).
+    #[getter]
+    fn t(&mut self) -> f64 {
+        with_loop!(self, p, _s, p.time())
+    }
+
+    /// Samples the sensors at the current time; returns the filtered ``(t, q, qd, force)``
+    /// (numpy float64 arrays). Call once per period: the filters advance on every call.
+    fn measure<'py>(&mut self, py: Python<'py>) -> Sample<'py> {
+        with_loop!(self, p, s, {
+            let st = *p.state();
+            let (_raw, m) = s.read(p.time(), &st.robot.q, &st.robot.qd, &p.strap_force());
+            (m.t, array(py, &m.q), array(py, &m.qd), array(py, &m.force))
+        })
+    }
+
+    /// Advances the plant by one control period with robot torque `torque` (N·m) held.
+    fn advance(&mut self, torque: &Bound<'_, PyAny>) -> PyResult<()> {
+        match &mut self.inner {
+            Loop::One(p, _) => p.step(&vector::<1>("torque", torque)?),
+            Loop::Two(p, _) => p.step(&vector::<2>("torque", torque)?),
+        }
+        Ok(())
+    }
+
+    /// The true state: dict of robot and human angles/velocities, desired angles, true strap
+    /// forces and human torque (numpy arrays).
+    fn state<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        with_loop!(self, p, _s, {
+            let st = *p.state();
+            d.set_item("t", p.time())?;
+            d.set_item("q_robot", array(py, &st.robot.q))?;
+            d.set_item("qd_robot", array(py, &st.robot.qd))?;
+            d.set_item("q_human", array(py, &st.human.q))?;
+            d.set_item("qd_human", array(py, &st.human.qd))?;
+            d.set_item("q_desired", array(py, &p.trajectory().eval(p.time()).0))?;
+            d.set_item("force_true", array(py, &p.strap_force()))?;
+            d.set_item("torque_human", array(py, &p.human_torque()))?;
+        });
+        Ok(d)
+    }
+}
