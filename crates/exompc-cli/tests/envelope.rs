@@ -47,7 +47,7 @@ fn standard_envelope_meets_the_acceptance() {
 }
 
 /// The machinery on a reduced grid: cells that pass today pass, and a cell that limit-cycles
-/// today (filter window 9 at 1 kg) is caught as unstable and worse than the NMPC.
+/// with the paper's method (filter window 9 at 1 kg) is caught as unstable and worse than the NMPC.
 #[test]
 fn envelope_scan_judges_cells() {
     let mut g = Grid::standard();
@@ -66,7 +66,10 @@ fn envelope_scan_judges_cells() {
     }
 
     let bad = Grid::product(
-        &["uncertainty.filter_window=9".into()],
+        &[
+            "uncertainty.filter_window=9".into(),
+            "controller.method=paper".into(),
+        ],
         2,
         vec![1.0],
         vec!["nmpc".into(), "msnmpc".into()],
@@ -92,7 +95,12 @@ fn envelope_command_writes_json_markdown_and_heat_map() {
     let _ = std::fs::remove_dir_all(&dir);
     let cfg = dir.join("short.toml");
     std::fs::create_dir_all(&dir).unwrap();
-    std::fs::write(&cfg, "[timing]\nduration_2dof_s = 5.0\n").unwrap();
+    // The paper's method, which fails the filter-window-9 cell.
+    std::fs::write(
+        &cfg,
+        "[timing]\nduration_2dof_s = 5.0\n[controller]\nmethod = \"paper\"\n",
+    )
+    .unwrap();
     let out = Command::new(env!("CARGO_BIN_EXE_exompc"))
         .args(["envelope", "--quiet", "--config"])
         .arg(&cfg)

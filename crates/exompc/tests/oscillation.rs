@@ -86,10 +86,11 @@ fn run(
     (sum, rep, log)
 }
 
-/// Today's default (the paper's method) with a 9-sample filter and 2 kg at the ankle
-/// (0.43 m): a 4 Hz limit cycle from the start.
+/// The paper's method (`controller.method = "paper"`) with a 9-sample filter and 2 kg at the
+/// ankle (0.43 m): a 4 Hz limit cycle from the start.
 fn provoked() -> Scenario {
     let mut s = Scenario::default();
+    s.controller.method = exompc::config::Method::Paper;
     s.uncertainty.filter_window = 9;
     s.uncertainty.payload_kg = 2.0;
     s.robot.payload_position_m = 0.43;

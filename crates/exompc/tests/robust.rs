@@ -233,6 +233,13 @@ fn robust_default_holds_where_the_paper_method_limit_cycles() {
         let robust = run(&s);
         let mut paper = s.clone();
         paper.controller.method = Method::Paper;
+        // The bare paper method, without the safety monitors (the oscillation monitor would
+        // catch its limit cycle and ramp the torque down).
+        let m = &mut paper.monitors;
+        m.tracking_error_max_rad = 1e300;
+        m.force_max_n = 1e300;
+        m.oscillation_force_rms_n = 1e300;
+        m.oscillation_torque_rms_nm = 1e300;
         let paper = run(&paper);
         let mut nmpc = s.clone();
         nmpc.controller.kind = ControllerKind::Nmpc;
