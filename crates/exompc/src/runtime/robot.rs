@@ -78,7 +78,10 @@ pub struct RobotStep<const N: usize> {
     pub within_limits: bool,
 }
 
-/// See the [module documentation](self).
+/// The virtual robot: the simulated human + exoskeleton of `exompc simulate` (the same
+/// [`Plant`] and [`Sensors`]) behind the robot side of the protocol, with a command watchdog
+/// (no valid command for two periods → zero torque and a flag, resumes when commands return).
+/// Time advances one period per [`VirtualRobot::advance`]; the caller paces it in real time.
 pub struct VirtualRobot<const N: usize, Tr: Trajectory<N>> {
     plant: Plant<N, Tr>,
     sensors: Sensors<N>,
