@@ -39,6 +39,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<simulate::PySimulator>()?;
     m.add_function(wrap_pyfunction!(simulate::simulate, m)?)?;
     m.add_function(wrap_pyfunction!(simulate::run_many, m)?)?;
+    m.add_function(wrap_pyfunction!(simulate::envelope_json, m)?)?;
     m.add_function(wrap_pyfunction!(scenario::default_config_toml, m)?)?;
     Ok(())
 }

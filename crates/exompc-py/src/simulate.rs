@@ -391,3 +391,46 @@ impl PySimulator {
         Ok(d)
     }
 }
+
+/// The operating-envelope scan of `exompc envelope` (classification of every run and the
+/// per-cell verdict of MS-NMPC against NMPC), as its JSON text (`envelope.json`). `sets` are
+/// `key=v1,v2` grids (their Cartesian product); without them the standard envelope runs.
+/// The GIL is released during the scan.
+#[pyfunction]
+#[pyo3(signature = (scenario = None, *, sets = Vec::new(), payloads = None, controllers = None, dof = 2, monitors = true))]
+pub fn envelope_json(
+    py: Python<'_>,
+    scenario: Option<PyRef<'_, PyScenario>>,
+    sets: Vec<String>,
+    payloads: Option<Vec<f64>>,
+    controllers: Option<Vec<String>>,
+    dof: u8,
+    monitors: bool,
+) -> PyResult<String> {
+    use exompc_cli::envelope::{scan, without_monitors, Grid};
+    let mut base = scenario.map_or_else(Scenario::default, |s| s.inner.clone());
+    if !monitors {
+        base = without_monitors(&base);
+    }
+    let mut grid = if sets.is_empty() {
+        Grid::standard()
+    } else {
+        Grid::product(&sets, dof, vec![0.0, 1.0, 2.0, 3.0], vec![])
+            .map_err(|e| ConfigError::new_err(e.to_string()))?
+    };
+    if let Some(p) = payloads {
+        grid.payloads_kg = p;
+    }
+    match controllers {
+        Some(c) => grid.controllers = c,
+        None if grid.controllers.is_empty() => {
+            grid.controllers = vec!["nmpc".into(), "msnmpc".into()]
+        }
+        None => {}
+    }
+    let criteria = exompc::sim::StabilityCriteria::default();
+    let env = py
+        .detach(|| scan(&base, &grid, &criteria, &|| {}))
+        .map_err(|e| ConfigError::new_err(e.to_string()))?;
+    serde_json::to_string(&env).map_err(|e| RunError::new_err(e.to_string()))
+}

@@ -312,3 +312,31 @@ def test_sweep_and_scan_match_single_runs():
     assert np.isnan(tab["rms_force_shank_n"][1]) and np.isfinite(tab["rms_force_shank_n"][0])
     with pytest.raises(exompc.ConfigError, match="timing.dt"):
         exompc.scan({"timing.dt": [-1.0]}, s, errors="raise")
+
+
+def test_envelope_matches_the_cli(exompc_bin, tmp_path):
+    """The envelope scan from Python equals `exompc envelope` on the same grid."""
+    s = exompc.Scenario.default()
+    s["timing.duration_2dof_s"] = 4.0
+    s["controller.method"] = "paper"
+    env = exompc.envelope(
+        s, sets={"uncertainty.filter_window": [1, 9]}, payloads=[1.0]
+    )
+    cfg = tmp_path / "short.toml"
+    s.save(str(cfg))
+    subprocess.run(
+        [exompc_bin, "envelope", "--quiet", "--config", str(cfg), "--set",
+         "uncertainty.filter_window=1,9", "--payloads", "1", "--out", str(tmp_path / "env")],
+        check=True, capture_output=True,
+    )
+    cli = json.loads((tmp_path / "env" / "envelope.json").read_text())
+    assert [v["cell"] for v in env["verdicts"]] == [v["cell"] for v in cli["verdicts"]]
+    assert len(env["runs"]) == 4
+    for a, b in zip(env["runs"], cli["runs"]):
+        assert a["stability"] == b["stability"]
+        assert a["summary"]["rms_force_n"] == b["summary"]["rms_force_n"]
+    # filter window 1 passes, 9 fails with the paper's method.
+    passes = [v["verdict"]["pass"] for v in env["verdicts"]]
+    assert passes == [True, False], passes
+    with pytest.raises(exompc.ConfigError, match="payload_positon"):
+        exompc.envelope(s, sets={"robot.payload_positon_m": [0.1]}, payloads=[0.0])

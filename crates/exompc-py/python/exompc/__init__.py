@@ -48,6 +48,7 @@ __all__ = [
     "__version__",
     "default_config_toml",
     "draw_parameters",
+    "envelope",
     "montecarlo",
     "run_many",
     "scan",
@@ -174,6 +175,45 @@ def scan(
     for i, r in zip(valid, run_many(runs, dof=dof, threads=threads, errors=errors)):
         rows[i].update(summary_row(r))
     return _table(rows)
+
+
+def envelope(
+    scenario: Optional[Scenario] = None,
+    *,
+    sets: Optional[Mapping[str, Iterable[Any]]] = None,
+    payloads: Optional[Sequence[float]] = None,
+    controllers: Optional[Sequence[str]] = None,
+    dof: int = 2,
+    monitors: bool = True,
+) -> Dict[str, Any]:
+    """The operating-envelope scan of ``exompc envelope`` (docs/ROBUSTNESS.md).
+
+    Without ``sets`` the standard envelope runs; ``sets={"uncertainty.filter_window": [1, 5, 9]}``
+    scans the Cartesian product of the given dotted-key values instead. Every run is classified
+    (stable / limit_cycle / growing / saturating) and every cell judged (MS-NMPC against NMPC).
+    Returns the content of ``envelope.json`` as a dict: ``grid``, ``runs``, ``verdicts``.
+    ``monitors=False`` scans the bare controller (safety monitors out of reach).
+    """
+    import json
+
+    specs = [f"{k}={','.join(_toml_value(v) for v in vals)}" for k, vals in (sets or {}).items()]
+    text = _core.envelope_json(
+        scenario,
+        sets=specs,
+        payloads=None if payloads is None else [float(p) for p in payloads],
+        controllers=None if controllers is None else list(controllers),
+        dof=dof,
+        monitors=monitors,
+    )
+    return json.loads(text)
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return v
+    return repr(v)
 
 
 def table2(rows: Sequence[Mapping[str, Any]]) -> str:

@@ -62,3 +62,13 @@ def scan(
     errors: str = "return",
 ) -> Dict[str, np.ndarray]: ...
 def table2(rows: Sequence[Mapping[str, Any]]) -> str: ...
+
+def envelope(
+    scenario: Optional[Scenario] = None,
+    *,
+    sets: Optional[Mapping[str, Iterable[Any]]] = None,
+    payloads: Optional[Sequence[float]] = None,
+    controllers: Optional[Sequence[str]] = None,
+    dof: int = 2,
+    monitors: bool = True,
+) -> Dict[str, Any]: ...

@@ -110,3 +110,12 @@ def run_many(
     errors: Literal["raise", "return"] = "raise",
 ) -> List[Dict[str, Any]]: ...
 def default_config_toml() -> str: ...
+def envelope_json(
+    scenario: Optional[Scenario] = None,
+    *,
+    sets: Sequence[str] = ...,
+    payloads: Optional[Sequence[float]] = None,
+    controllers: Optional[Sequence[str]] = None,
+    dof: int = 2,
+    monitors: bool = True,
+) -> str: ...
