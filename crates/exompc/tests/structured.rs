@@ -8,10 +8,7 @@
 
 mod common;
 
-use clarabel::algebra::CscMatrix;
-use clarabel::solver::{
-    DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus, SupportedConeT,
-};
+use clarabel::solver::{DefaultSolver, IPSolver, SolverStatus, SupportedConeT};
 use common::Rng;
 use exompc::config::{ControllerKind, Formulation, Scenario};
 use exompc::control::{
@@ -139,49 +136,17 @@ fn random_instance(rng: &mut Rng, nx: usize, nu: usize, np: usize, nc: usize) ->
 
 fn clarabel(inst: &Instance) -> Vec<f64> {
     let n = inst.g.len();
-    let (mut pi, mut pj, mut pv) = (vec![], vec![], vec![]);
-    for j in 0..n {
-        for i in 0..=j {
-            pi.push(i);
-            pj.push(j);
-            pv.push(inst.h[(i, j)]);
-        }
-    }
-    let pm = CscMatrix::new_from_triplets(n, n, pi, pj, pv);
-    let mut rows: Vec<(Vec<f64>, f64)> = vec![];
-    for i in 0..n {
-        let mut e = vec![0.0; n];
-        e[i] = 1.0;
-        rows.push((e.clone(), inst.ub[i]));
-        rows.push((e.iter().map(|v| -v).collect(), -inst.lb[i]));
-    }
+    let mut rows = common::box_rows(inst.lb.as_slice(), inst.ub.as_slice());
     for r in 0..inst.a.nrows() {
         let row: Vec<f64> = (0..n).map(|c| inst.a[(r, c)]).collect();
         rows.push((row.clone(), inst.bu[r]));
         rows.push((row.iter().map(|v| -v).collect(), -inst.bl[r]));
     }
-    let (mut ai, mut aj, mut av, mut b) = (vec![], vec![], vec![], vec![]);
-    for (r, (row, rhs)) in rows.iter().enumerate() {
-        for (c, v) in row.iter().enumerate() {
-            if *v != 0.0 {
-                ai.push(r);
-                aj.push(c);
-                av.push(*v);
-            }
-        }
-        b.push(*rhs);
-    }
-    let am = CscMatrix::new_from_triplets(rows.len(), n, ai, aj, av);
+    let am = common::clarabel_rows(rows.iter().map(|(row, _)| row.as_slice()), n);
+    let b: Vec<f64> = rows.iter().map(|(_, rhs)| *rhs).collect();
     let cones = vec![SupportedConeT::NonnegativeConeT(rows.len())];
-    let settings = DefaultSettingsBuilder::default()
-        .verbose(false)
-        .tol_gap_abs(1e-12)
-        .tol_gap_rel(1e-12)
-        .tol_feas(1e-12)
-        .tol_ktratio(1e-10)
-        .max_iter(200)
-        .build()
-        .unwrap();
+    let pm = common::clarabel_upper(&inst.h);
+    let settings = common::clarabel_settings();
     let mut solver = DefaultSolver::new(&pm, inst.g.as_slice(), &am, &b, &cones, settings).unwrap();
     solver.solve();
     assert!(matches!(
