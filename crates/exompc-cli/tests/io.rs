@@ -7,11 +7,11 @@ use exompc_cli::io::{
 use std::io::Write;
 use std::path::PathBuf;
 
+mod common;
+
+/// An empty scratch folder `name` (see `common::fresh_dir`).
 fn scratch_dir(name: &str) -> PathBuf {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
-        .join("exompc-io-tests")
-        .join(name);
-    let _ = std::fs::remove_dir_all(&dir);
+    let dir = common::fresh_dir(name);
     std::fs::create_dir_all(&dir).unwrap();
     dir
 }

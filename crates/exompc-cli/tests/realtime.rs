@@ -14,11 +14,11 @@ use std::process::{Child, Command, Output, Stdio};
 
 const EXE: &str = env!("CARGO_BIN_EXE_exompc");
 
+mod common;
+
+/// An empty scratch folder `name` (see `common::fresh_dir`).
 fn scratch(name: &str) -> PathBuf {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
-        .join("exompc-realtime-tests")
-        .join(name);
-    let _ = std::fs::remove_dir_all(&dir);
+    let dir = common::fresh_dir(name);
     std::fs::create_dir_all(&dir).unwrap();
     dir
 }
