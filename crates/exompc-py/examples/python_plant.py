@@ -35,8 +35,11 @@ class KneePlant:
         self.kp, self.kd = h["kp"], h["kd"]
         self.amp = s["trajectory.one_dof_amplitude"]
         self.w = 2 * math.pi * s["trajectory.one_dof_frequency_hz"]
-        self.x = np.array([0.0, 0.0, 0.0, 0.0])  # q_r, qd_r, q_h, qd_h
         self.t = 0.0
+        # q_r, qd_r, q_h, qd_h: both legs start on the human's desired motion (starting the
+        # human at rest while its target already moves would jolt the strap by ~17 N at once).
+        q0, qd0 = self.desired(0.0)
+        self.x = np.array([q0, qd0, q0, qd0])
 
     def desired(self, t):
         return self.amp * math.sin(self.w * t), self.amp * self.w * math.cos(self.w * t)
