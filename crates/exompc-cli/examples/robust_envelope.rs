@@ -11,7 +11,9 @@
 //! only.
 
 use exompc::config::{ControllerKind, Scenario};
-use exompc::sim::{run_experiment, OneDof, Recorder, StepRecord, TwoDof};
+use exompc::sim::{
+    high_frequency_fraction, rms, run_experiment, OneDof, Recorder, StepRecord, TwoDof,
+};
 use exompc_cli::io::{parse_value, set_key};
 use rayon::prelude::*;
 
@@ -60,27 +62,9 @@ fn stats<const N: usize>(log: &Log<N>, dt: f64) -> RunStats {
     };
     for a in 0..N {
         let x: Vec<f64> = log.force.iter().map(|f| f[a]).collect();
-        let total: f64 = x.iter().map(|v| v * v).sum();
-        st.rms.push((total / n as f64).sqrt());
-        // Power at or below 3 Hz from the DFT bins 0..=3 Hz (Parseval for the total).
-        let kmax = (3.0 * n as f64 * dt).floor() as usize;
-        let mut low = 0.0;
-        for k in 0..=kmax {
-            let (mut re, mut im) = (0.0, 0.0);
-            for (i, v) in x.iter().enumerate() {
-                let ph = -2.0 * std::f64::consts::PI * (k * i) as f64 / n as f64;
-                re += v * ph.cos();
-                im += v * ph.sin();
-            }
-            let p = (re * re + im * im) / n as f64;
-            low += if k == 0 || 2 * k == n { p } else { 2.0 * p };
-        }
-        st.hf_fraction.push(if total > 0.0 {
-            (1.0 - low / total).max(0.0)
-        } else {
-            0.0
-        });
-        let rms = |s: &[f64]| (s.iter().map(|v| v * v).sum::<f64>() / s.len() as f64).sqrt();
+        // The envelope classifier's measures (RMS, DFT power share above 3 Hz).
+        st.rms.push(rms(&x));
+        st.hf_fraction.push(high_frequency_fraction(&x, dt, 3.0));
         st.growth.push(rms(&x[n - w..]) / rms(&x[..w]).max(1e-9));
     }
     st

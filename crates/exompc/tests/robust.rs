@@ -6,7 +6,9 @@
 use exompc::config::{ControllerKind, FilterAware, Method, Scenario};
 use exompc::control::{ForceLag, HfShareDetector, Measurement};
 use exompc::model::Straps;
-use exompc::sim::{run_experiment, MovingAverage, OneDof, TraceLog, TwoDof};
+use exompc::sim::{
+    high_frequency_fraction, rms, run_experiment, MovingAverage, OneDof, TraceLog, TwoDof,
+};
 use nalgebra::SVector;
 
 const DT: f64 = 0.01;
@@ -153,53 +155,27 @@ fn method_and_robust_settings_are_configured_and_validated() {
     }
 }
 
-/// (RMS thigh/shank or shank, share of power above 3 Hz) of the true strap forces.
-fn rms_and_hf(forces: &[Vec<f64>]) -> (Vec<f64>, Vec<f64>) {
-    let n = forces.len();
-    let joints = forces[0].len();
-    let mut rms = Vec::new();
-    let mut hf = Vec::new();
-    for a in 0..joints {
-        let x: Vec<f64> = forces.iter().map(|f| f[a]).collect();
-        let total: f64 = x.iter().map(|v| v * v).sum();
-        rms.push((total / n as f64).sqrt());
-        let kmax = (3.0 * n as f64 * DT).floor() as usize;
-        let mut low = 0.0;
-        for k in 0..=kmax {
-            let (mut re, mut im) = (0.0, 0.0);
-            for (i, v) in x.iter().enumerate() {
-                let ph = -2.0 * std::f64::consts::PI * (k * i) as f64 / n as f64;
-                re += v * ph.cos();
-                im += v * ph.sin();
-            }
-            let p = (re * re + im * im) / n as f64;
-            low += if k == 0 { p } else { 2.0 * p };
-        }
-        hf.push((1.0 - low / total).max(0.0));
-    }
-    (rms, hf)
+/// (RMS thigh/shank or shank, share of power above 3 Hz) of the true strap forces, by the
+/// library's `rms` and `high_frequency_fraction` (the envelope classifier's measures).
+fn rms_and_hf<const N: usize>(log: &TraceLog<N>) -> (Vec<f64>, Vec<f64>) {
+    (0..N)
+        .map(|a| {
+            let x: Vec<f64> = log.rows.iter().map(|r| r.force_true[a]).collect();
+            (rms(&x), high_frequency_fraction(&x, DT, 3.0))
+        })
+        .unzip()
 }
 
 fn run2(s: &Scenario) -> (Vec<f64>, Vec<f64>) {
     let mut log = TraceLog::<2>::default();
     run_experiment::<TwoDof, 2>(s, &mut [&mut log]).expect("run");
-    let f: Vec<Vec<f64>> = log
-        .rows
-        .iter()
-        .map(|r| r.force_true.iter().copied().collect())
-        .collect();
-    rms_and_hf(&f)
+    rms_and_hf(&log)
 }
 
 fn run1(s: &Scenario) -> (Vec<f64>, Vec<f64>) {
     let mut log = TraceLog::<1>::default();
     run_experiment::<OneDof, 1>(s, &mut [&mut log]).expect("run");
-    let f: Vec<Vec<f64>> = log
-        .rows
-        .iter()
-        .map(|r| r.force_true.iter().copied().collect())
-        .collect();
-    rms_and_hf(&f)
+    rms_and_hf(&log)
 }
 
 /// Envelope cells where the paper's MS-NMPC limit-cycles (issue table): the robust default is
