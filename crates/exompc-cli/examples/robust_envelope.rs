@@ -11,9 +11,8 @@
 //! only.
 
 use exompc::config::{ControllerKind, Scenario};
-use exompc::sim::{
-    high_frequency_fraction, rms, run_experiment, OneDof, Recorder, StepRecord, TwoDof,
-};
+use exompc::scenario::{run_experiment, OneDof, TwoDof};
+use exompc::sim::{high_frequency_fraction, rms, Recorder, StepRecord};
 use exompc_cli::io::{parse_value, set_key};
 use rayon::prelude::*;
 

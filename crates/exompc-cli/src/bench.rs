@@ -5,9 +5,8 @@ use crate::ConfigOpt;
 use clap::Args;
 use exompc::config::{ControllerKind, Formulation, Scenario};
 use exompc::control::QpBackend;
-use exompc::sim::{
-    build_controller, plant_params, uncertainty, Dof, Plant, Sensors, StepTimeStats, TwoDof,
-};
+use exompc::scenario::{build_controller, plant_params, uncertainty, Dof, TwoDof};
+use exompc::sim::{Plant, Sensors, StepTimeStats};
 use exompc_cli::error::CliError;
 use serde_json::json;
 use std::time::{Duration, Instant};

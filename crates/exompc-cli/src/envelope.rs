@@ -9,9 +9,10 @@ use crate::error::CliError;
 use crate::io::{parse_value, set_key};
 use exompc::config::{ControllerKind, Scenario};
 use exompc::control::{MonitorAction, SafetyReport};
+use exompc::scenario::{limits, run_experiment_report, OneDof, TwoDof};
 use exompc::sim::{
-    cell_verdict, classify_run, limits, run_experiment_report, CellVerdict, OneDof, RunClass,
-    RunStability, StabilityCriteria, Summary, TraceLog, TwoDof,
+    cell_verdict, classify_run, CellVerdict, RunClass, RunStability, StabilityCriteria, Summary,
+    TraceLog,
 };
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};

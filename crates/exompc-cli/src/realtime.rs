@@ -11,10 +11,8 @@ use exompc::runtime::{
     Clock, ControlLoop, LoopSettings, MonotonicClock, NetFaultSettings, NetFaults, Schedule,
     TimingStats, UdpPeer, UdpRobot, VirtualRobot,
 };
-use exompc::sim::{
-    build_supervised, limits, plant_params, uncertainty, Dof, Metrics, OneDof, Plant, Recorder,
-    Sensors, StepRecord, TwoDof,
-};
+use exompc::scenario::{build_supervised, limits, plant_params, uncertainty, Dof, OneDof, TwoDof};
+use exompc::sim::{Metrics, Plant, Recorder, Sensors, StepRecord};
 use exompc_cli::error::CliError;
 use exompc_cli::io;
 use exompc_cli::run::scenario_count;

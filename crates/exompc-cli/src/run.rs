@@ -5,7 +5,8 @@ use crate::interrupt::StopOnInterrupt;
 use crate::io::write_atomic;
 use crate::trace::CsvTrace;
 use exompc::config::{ControllerKind, Scenario};
-use exompc::sim::{run_experiment, OneDof, Recorder, RunError, Summary, TwoDof};
+use exompc::scenario::{run_experiment, OneDof, RunError, TwoDof};
+use exompc::sim::{Recorder, Summary};
 use std::path::Path;
 
 /// Number of scenarios the controller of `s` reports.

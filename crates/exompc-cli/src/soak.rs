@@ -3,7 +3,8 @@
 //! that the output stays within the limits; prints the counters and writes `soak.json`.
 use crate::ConfigOpt;
 use clap::Args;
-use exompc::sim::{run_soak, soak_scenario, Recorder, RunError, StepRecord};
+use exompc::scenario::{run_soak, soak_scenario, RunError};
+use exompc::sim::{Recorder, StepRecord};
 use exompc_cli::error::CliError;
 use exompc_cli::io;
 use exompc_cli::trace::CsvTrace;

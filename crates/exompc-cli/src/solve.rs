@@ -19,7 +19,7 @@ use clap::Args;
 use exompc::config::{Interaction, Scenario};
 use exompc::control::{horizon_inputs, Measurement, NmpcCore};
 use exompc::model::JointState;
-use exompc::sim::{intent, limits, nmpc_settings, prediction_model, Dof, OneDof, TwoDof};
+use exompc::scenario::{intent, limits, nmpc_settings, prediction_model, Dof, OneDof, TwoDof};
 use exompc::solver::SqpStatus;
 use exompc_cli::error::CliError;
 use nalgebra::SVector;

@@ -153,7 +153,7 @@ impl Verdict {
     /// The verdict of a soak: failed on NaN or limit violations; degraded on monitor trips or
     /// solver failures (torque held on a rejected measurement is the expected response to the
     /// injected faults).
-    pub fn of_soak(r: &exompc::sim::SoakReport) -> Self {
+    pub fn of_soak(r: &exompc::scenario::SoakReport) -> Self {
         let s = &r.stats;
         let mut failed = Vec::new();
         if s.limit_violations > 0 {

@@ -6,7 +6,7 @@ use crate::simulate::overrides;
 use crate::ConfigError;
 use exompc::config::Scenario;
 use exompc::control::{ControlOutput, Controller, Measurement};
-use exompc::sim::{build_controller, build_supervised, OneDof, TwoDof};
+use exompc::scenario::{build_controller, build_supervised, OneDof, TwoDof};
 use numpy::PyArray1;
 use pyo3::prelude::*;
 use pyo3::types::PyString;
@@ -17,7 +17,7 @@ enum Ctl {
 }
 
 fn build(s: &Scenario, dof: u8, supervised: bool) -> PyResult<Ctl> {
-    let err = |e: exompc::sim::RunError| ConfigError::new_err(e.to_string());
+    let err = |e: exompc::scenario::RunError| ConfigError::new_err(e.to_string());
     let kind = s.controller.kind;
     Ok(if dof == 1 {
         Ctl::One(if supervised {

@@ -4,10 +4,8 @@ use crate::convert::{array, status_code, vector};
 use crate::scenario::PyScenario;
 use crate::{ConfigError, RunError};
 use exompc::config::Scenario;
-use exompc::sim::{
-    plant_params, run_experiment, uncertainty, Dof, KneeTrajectory, OneDof, Plant, Recorder,
-    Sensors, StepRecord, Summary, SwingTrajectory, Trajectory, TwoDof,
-};
+use exompc::sim::{KneeTrajectory, Plant, Recorder, Sensors, StepRecord, Summary, SwingTrajectory, Trajectory};
+use exompc::scenario::{plant_params, run_experiment, uncertainty, Dof, OneDof, TwoDof};
 use exompc_cli::io::{parse_value, set_key};
 use numpy::{PyArray1, PyArrayMethods};
 use pyo3::prelude::*;

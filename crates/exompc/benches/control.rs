@@ -9,7 +9,7 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use exompc::config::{ControllerKind, Formulation, Scenario};
 use exompc::control::{horizon_inputs, NmpcCore};
 use exompc::model::JointState;
-use exompc::sim::{
+use exompc::scenario::{
     build_controller, initial_torque, intent, limits, nmpc_settings, prediction_model, TwoDof,
 };
 use exompc::solver::{Constraints, DenseQp, LeastSquares};

@@ -5,7 +5,7 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use exompc::config::Scenario;
 use exompc::control::{HorizonInputs, PredictionModel};
 use exompc::model::JointState;
-use exompc::sim::{prediction_model, TwoDof};
+use exompc::scenario::{prediction_model, TwoDof};
 use nalgebra::Vector2;
 use num_dual::{DualSVec64, DualStruct};
 use std::hint::black_box;

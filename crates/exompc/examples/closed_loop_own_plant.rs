@@ -12,7 +12,7 @@
 //! error if they do not.
 
 use exompc::model::{rk4_step, Chain, Friction, JointState, Link, RobotModel, Straps};
-use exompc::sim::limits;
+use exompc::scenario::limits;
 use exompc::{build_controller, Controller, ControllerKind, Measurement, Scenario, TwoDof};
 use nalgebra::Vector2;
 use std::f64::consts::PI;

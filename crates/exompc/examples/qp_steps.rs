@@ -12,7 +12,8 @@
 
 use exompc::config::{ControllerKind, Formulation, Scenario};
 use exompc::control::QpBackend;
-use exompc::sim::{build_controller, plant_params, uncertainty, Dof, Plant, Sensors, TwoDof};
+use exompc::scenario::{build_controller, plant_params, uncertainty, Dof, TwoDof};
+use exompc::sim::{Plant, Sensors};
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();

@@ -14,7 +14,7 @@
 //!
 //! Run with `cargo run --release -p exompc --example robot_step`.
 
-use exompc::sim::limits;
+use exompc::scenario::limits;
 use exompc::{
     build_supervised, Controller, ControllerKind, Measurement, Scenario, StepStatus, TwoDof,
 };

@@ -682,16 +682,7 @@ impl Default for PdGains {
 // [multistage]
 // ---------------------------------------------------------------------------------------------
 
-/// Multi-stage problem formulation.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Formulation {
-    /// One independent NMPC per scenario, combined by probability (paper eq. 13).
-    Decoupled,
-    /// One coupled problem, all scenarios sharing the first `robust_horizon` inputs (paper eq. 12).
-    Coupled,
-}
-
+pub use crate::control::Formulation;
 pub use crate::estimate::Innovation;
 
 /// `[multistage]`: scenario tree and probabilities (MODEL.md §8, paper §3.2, eqs. 10-13).
@@ -740,156 +731,13 @@ pub use crate::estimate::EkfSettings as Ekf;
 // [faults]
 // ---------------------------------------------------------------------------------------------
 
-/// Kind of an injected sensor fault.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum FaultKind {
-    /// The channel reads NaN.
-    Nan,
-    /// The channel reads +infinity.
-    Inf,
-    /// No new sample arrives (the controller sees a stale/missing measurement).
-    Dropout,
-    /// `magnitude` is added to the reading.
-    Spike,
-    /// The reading freezes at its value at the fault's start.
-    Stuck,
-    /// The reading is clipped to `±faults.saturation_n` (force channels).
-    Saturation,
-}
-
-/// Measured channel affected by a fault.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Channel {
-    /// Hip angle (rad).
-    Q1,
-    /// Knee angle (rad).
-    Q2,
-    /// Hip velocity (rad/s).
-    Qd1,
-    /// Knee velocity (rad/s).
-    Qd2,
-    /// Thigh strap force (N).
-    F1,
-    /// Shank strap force (N).
-    F2,
-}
-
-impl Channel {
-    /// Zero-based joint / strap index (0 = hip / thigh, 1 = knee / shank).
-    pub fn joint(self) -> usize {
-        match self {
-            Channel::Q1 | Channel::Qd1 | Channel::F1 => 0,
-            Channel::Q2 | Channel::Qd2 | Channel::F2 => 1,
-        }
-    }
-}
-
-/// One `[[faults.events]]` entry: a sensor fault active on `[start_s, start_s + duration_s)`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct FaultEvent {
-    /// Fault kind (`"nan"`, `"inf"`, `"dropout"`, `"spike"`, `"stuck"`, `"saturation"`).
-    pub kind: FaultKind,
-    /// Affected channel (`"q1"`, `"q2"`, `"qd1"`, `"qd2"`, `"f1"`, `"f2"`).
-    pub channel: Channel,
-    /// Start time (s), >= 0.
-    pub start_s: f64,
-    /// Duration (s), >= 0.
-    pub duration_s: f64,
-    /// Additive magnitude of a spike (channel units), finite; optional, default 0.
-    #[serde(default)]
-    pub magnitude: f64,
-}
-
-impl FaultEvent {
-    /// Whether the fault is active at time `t` (s).
-    pub fn active_at(&self, t: f64) -> bool {
-        t >= self.start_s && t < self.start_s + self.duration_s
-    }
-}
-
-/// `[faults]`: scripted sensor faults for robustness tests.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Faults {
-    /// Fault events (`[[faults.events]]`). Default none.
-    pub events: Vec<FaultEvent>,
-    /// Force sensor range ±saturation_n (N), > 0. Default 70.
-    pub saturation_n: f64,
-}
-
-impl Default for Faults {
-    fn default() -> Self {
-        Self {
-            events: Vec::new(),
-            saturation_n: 70.0,
-        }
-    }
-}
+pub use crate::sim::{Channel, FaultEvent, FaultKind, Faults};
 
 // ---------------------------------------------------------------------------------------------
 // [monitors]
 // ---------------------------------------------------------------------------------------------
 
-/// What the safety monitor does when it trips.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum MonitorResponse {
-    /// Hold the last safe torque.
-    Hold,
-    /// Ramp the torque to zero within the rate limit.
-    RampToZero,
-}
-
-/// `[monitors]`: runtime safety monitors.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Monitors {
-    /// Trip when the human-robot angle error `|q_H − q_R|` of some joint, estimated from the
-    /// measured strap forces by inverting the strap model (`F = ks J (Δq + (cs/ks) Δqd)`,
-    /// docs/MODEL.md §4), exceeds this (rad), > 0. Default 0.35 (20°; the default scenario
-    /// stays below 0.15).
-    pub tracking_error_max_rad: f64,
-    /// Trip when any measured strap force exceeds this (N), > 0. Default 70.
-    pub force_max_n: f64,
-    /// Trip when a channel has delivered no valid sample for this long (s), > 0. Default 0.05.
-    pub sensor_timeout_s: f64,
-    /// Response when tripped (`"hold"` or `"ramp_to_zero"`). Default `"ramp_to_zero"`.
-    pub response: MonitorResponse,
-    /// Oscillation monitor: trip when the RMS of a measured strap force's content above
-    /// `oscillation_cutoff_hz` over the last `oscillation_window_s` exceeds this (N), > 0.
-    /// Default 8.
-    pub oscillation_force_rms_n: f64,
-    /// Oscillation monitor: the same on the commanded joint torques (N·m), > 0. Default 10.
-    pub oscillation_torque_rms_nm: f64,
-    /// Oscillation monitor high-pass cutoff (Hz), > 0; a cutoff at or above the Nyquist
-    /// frequency `0.5 / timing.dt` is taken just below it. Default 3.
-    pub oscillation_cutoff_hz: f64,
-    /// Oscillation monitor sliding window (s), in (0, 10]; at least one sample. Default 0.5.
-    pub oscillation_window_s: f64,
-    /// A tripped oscillation monitor (which applies `response`) clears after its condition
-    /// has been absent this long (s), in [0, 1e6]: longer than the other monitors' 0.1 s so
-    /// that a limit cycle does not restart at once. Default 2.
-    pub oscillation_clear_s: f64,
-}
-
-impl Default for Monitors {
-    fn default() -> Self {
-        Self {
-            tracking_error_max_rad: 0.35,
-            force_max_n: 70.0,
-            sensor_timeout_s: 0.05,
-            response: MonitorResponse::RampToZero,
-            oscillation_force_rms_n: 8.0,
-            oscillation_torque_rms_nm: 10.0,
-            oscillation_cutoff_hz: 3.0,
-            oscillation_window_s: 0.5,
-            oscillation_clear_s: 2.0,
-        }
-    }
-}
+pub use crate::control::{MonitorResponse, Monitors};
 
 // ---------------------------------------------------------------------------------------------
 // Scenario

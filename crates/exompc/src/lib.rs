@@ -40,7 +40,8 @@
 //! satisfies the torque and torque-rate limits, and [`StepStatus`] says how it was obtained.
 //!
 //! ```
-//! use exompc::sim::{initial_torque, limits, Trajectory};
+//! use exompc::sim::Trajectory;
+//! use exompc::scenario::{initial_torque, limits};
 //! use exompc::{build_controller, Controller, ControllerKind, Dof, Measurement, Scenario, TwoDof};
 //! use nalgebra::Vector2;
 //!
@@ -58,7 +59,7 @@
 //! assert!((out.torque - previous).iter().all(|d| d.abs() <= lim.rate + 1e-12));
 //! assert_eq!(controller.probabilities().map(|p| p.len()), Some(3)); // 0, 1 and 2 kg
 //! println!("torque {:?} N·m, status {:?}", out.torque, out.status);
-//! # Ok::<(), exompc::sim::RunError>(())
+//! # Ok::<(), exompc::scenario::RunError>(())
 //! ```
 //!
 //! The crate's `examples/` show a closed loop around a plant of your own
@@ -78,6 +79,7 @@ pub mod control;
 pub mod estimate;
 pub mod model;
 pub mod runtime;
+pub mod scenario;
 pub mod sim;
 pub mod solver;
 
@@ -87,4 +89,4 @@ pub use control::{
 };
 pub use estimate::EkfBank;
 pub use model::RobotModel;
-pub use sim::{build_controller, build_supervised, run_experiment, Dof, OneDof, TwoDof};
+pub use scenario::{build_controller, build_supervised, run_experiment, Dof, OneDof, TwoDof};

@@ -4,7 +4,8 @@
 //! covered: rayon's work stealing may allocate.)
 
 use exompc::config::{ControllerKind, Formulation, Scenario};
-use exompc::sim::{build_controller, plant_params, uncertainty, Dof, Plant, Sensors, TwoDof};
+use exompc::scenario::{build_controller, plant_params, uncertainty, Dof, TwoDof};
+use exompc::sim::{Plant, Sensors};
 
 mod common;
 use common::alloc::{allocations_in, Counting};
@@ -111,7 +112,7 @@ fn supervised_steps_do_not_allocate() {
     provoked.robot.payload_position_m = 0.43;
     for s in [Scenario::default(), provoked] {
         let mut controller =
-            exompc::sim::build_supervised::<TwoDof, 2>(&s, ControllerKind::Msnmpc).unwrap();
+            exompc::scenario::build_supervised::<TwoDof, 2>(&s, ControllerKind::Msnmpc).unwrap();
         let mut plant = Plant::new(plant_params::<TwoDof, 2>(&s), TwoDof::trajectory(&s));
         let mut sensors = Sensors::new(uncertainty(&s), s.uncertainty.filter_window);
         let mut total = 0;

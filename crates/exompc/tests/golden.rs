@@ -5,7 +5,8 @@
 //! set is computed once.
 
 use exompc::config::{ControllerKind, Formulation, Scenario};
-use exompc::sim::{run_experiment, OneDof, Summary, TraceLog, TwoDof};
+use exompc::scenario::{run_experiment, OneDof, TwoDof};
+use exompc::sim::{Summary, TraceLog};
 use rayon::prelude::*;
 
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -4,12 +4,14 @@
 mod common;
 use common::{closed_loop, measurement};
 use exompc::config::{ControllerKind, Formulation, Scenario};
-use exompc::control::{build_multistage, horizon_inputs, Controller, NmpcCore};
+use exompc::control::{horizon_inputs, Controller, NmpcCore};
 use exompc::model::JointState;
-use exompc::sim::{
+use exompc::scenario::build_multistage;
+use exompc::scenario::{
     initial_torque, intent, limits, nmpc_settings, plant_params, prediction_model, run_experiment,
-    uncertainty, Dof, Plant, Sensors, TraceLog, TwoDof,
+    uncertainty, Dof, TwoDof,
 };
+use exompc::sim::{Plant, Sensors, TraceLog};
 use nalgebra::Vector2;
 use proptest::prelude::*;
 

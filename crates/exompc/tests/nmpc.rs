@@ -14,7 +14,7 @@ use exompc::control::{
     NmpcSettings, PredictionModel, TorqueLimits,
 };
 use exompc::model::JointState;
-use exompc::sim::{intent, limits, nmpc_settings, prediction_model, run_experiment, TwoDof};
+use exompc::scenario::{intent, limits, nmpc_settings, prediction_model, run_experiment, TwoDof};
 use exompc::solver::SqpStatus;
 use nalgebra::{DMatrix, DVector, SVector, Vector2};
 use proptest::prelude::*;
@@ -491,7 +491,7 @@ fn nmpc_non_finite_initial_torque_is_contained() {
 fn record_closed_loop(steps: usize) -> Vec<(Measurement<2>, V2)> {
     let s = Scenario::default();
     let su = setup();
-    let t0 = exompc::sim::initial_torque::<TwoDof, 2>(&s);
+    let t0 = exompc::scenario::initial_torque::<TwoDof, 2>(&s);
     let mut ctrl = Nmpc::new(su.model, &su.settings, su.intent, su.limits, t0).unwrap();
     let mut log = Vec::with_capacity(steps);
     common::closed_loop(&s, &mut ctrl, steps, |_, meas, prev, _, _| {

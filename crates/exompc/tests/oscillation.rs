@@ -6,7 +6,8 @@
 use exompc::config::{ControllerKind, Scenario};
 use exompc::control::{MonitorAction, MonitorKind, OscillationDetector, StrapAngleEstimate};
 use exompc::model::Straps;
-use exompc::sim::{run_experiment_report, TraceLog, TwoDof};
+use exompc::scenario::{run_experiment_report, TwoDof};
+use exompc::sim::TraceLog;
 use nalgebra::SVector;
 use rayon::prelude::*;
 use std::f64::consts::PI;

@@ -6,9 +6,8 @@
 use exompc::config::{ControllerKind, FilterAware, Method, Scenario};
 use exompc::control::{ForceLag, HfShareDetector, Measurement};
 use exompc::model::Straps;
-use exompc::sim::{
-    high_frequency_fraction, rms, run_experiment, MovingAverage, OneDof, TraceLog, TwoDof,
-};
+use exompc::scenario::{run_experiment, OneDof, TwoDof};
+use exompc::sim::{high_frequency_fraction, rms, MovingAverage, TraceLog};
 use nalgebra::SVector;
 
 const DT: f64 = 0.01;

@@ -13,10 +13,10 @@ use exompc::runtime::{
     LoopSettings, NetFaultSettings, NetFaults, RejectCounts, RobotCommand, RobotInterface,
     RobotSample, RobotStep, SeqTracker, VirtualRobot,
 };
-use exompc::sim::{
-    build_supervised, limits, plant_params, run_experiment, uncertainty, Dof, Plant, Sensors,
-    TraceLog, TwoDof,
+use exompc::scenario::{
+    build_supervised, limits, plant_params, run_experiment, uncertainty, Dof, TwoDof,
 };
+use exompc::sim::{Plant, Sensors, TraceLog};
 use nalgebra::{SVector, Vector2};
 use proptest::prelude::*;
 use std::cell::Cell;

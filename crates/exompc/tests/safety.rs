@@ -10,7 +10,7 @@ use exompc::config::{
 use exompc::control::{
     Controller, Measurement, MonitorAction, MonitorKind, SafetySettings, StepStatus, Supervisor,
 };
-use exompc::sim::{
+use exompc::scenario::{
     build_controller, build_supervised, limits, run_experiment_report, run_soak, OneDof, TwoDof,
 };
 use nalgebra::SVector;
@@ -362,7 +362,7 @@ fn check_soak(seconds: f64) {
     println!("{}", serde_json_like(&r));
 }
 
-fn serde_json_like(r: &exompc::sim::SoakReport) -> String {
+fn serde_json_like(r: &exompc::scenario::SoakReport) -> String {
     format!(
         "steps {} nan {} violations {} max|F| {:.2} N rms F {:.2} N solver failures {} \
          monitor trips {} wall {:.1} s",

@@ -7,10 +7,8 @@ mod common;
 use common::Rng;
 use exompc::config::Scenario;
 use exompc::control::TorqueLimits;
-use exompc::sim::{
-    plant_params, KneeTrajectory, MovingAverage, Plant, PlantState, SwingTrajectory, Trajectory,
-    TwoDof,
-};
+use exompc::scenario::{plant_params, TwoDof};
+use exompc::sim::{KneeTrajectory, MovingAverage, Plant, PlantState, SwingTrajectory, Trajectory};
 use nalgebra::{SVector, Vector2};
 use proptest::prelude::*;
 use std::f64::consts::PI;
@@ -78,7 +76,7 @@ fn trajectories_match_spec_and_finite_differences() {
     check_derivatives("knee", &KneeTrajectory::default(), knee_spec, 30.0);
     // The scenario's trajectory is the spec's.
     let s = Scenario::default();
-    use exompc::sim::Dof;
+    use exompc::scenario::Dof;
     check_derivatives("scenario swing", &TwoDof::trajectory(&s), swing_spec, 20.0);
 }
 
@@ -207,8 +205,8 @@ fn diverging_plant_is_reported_as_an_error() {
     let mut s = exompc::config::Scenario::default();
     s.timing.dt = 1.0;
     s.timing.plant_substeps = 1;
-    match exompc::sim::run_experiment::<exompc::sim::TwoDof, 2>(&s, &mut []) {
-        Err(exompc::sim::RunError::Diverged { t }) => assert!(t.is_finite() && t > 0.0),
+    match exompc::scenario::run_experiment::<exompc::scenario::TwoDof, 2>(&s, &mut []) {
+        Err(exompc::scenario::RunError::Diverged { t }) => assert!(t.is_finite() && t > 0.0),
         other => panic!("expected Diverged, got {other:?}"),
     }
 }
@@ -228,7 +226,7 @@ fn invalid_torque_limits_are_errors_not_panics() {
     use exompc::control::{Nmpc, TorqueLimits};
     use nalgebra::Vector2;
     let s = exompc::config::Scenario::default();
-    let model = exompc::sim::prediction_model::<exompc::sim::TwoDof, 2>(&s, 0.0);
+    let model = exompc::scenario::prediction_model::<exompc::scenario::TwoDof, 2>(&s, 0.0);
     for bad in [
         TorqueLimits {
             max: -1.0,
@@ -245,8 +243,8 @@ fn invalid_torque_limits_are_errors_not_panics() {
     ] {
         let r = Nmpc::new(
             model,
-            &exompc::sim::nmpc_settings(&s),
-            exompc::sim::intent(&s),
+            &exompc::scenario::nmpc_settings(&s),
+            exompc::scenario::intent(&s),
             bad,
             Vector2::zeros(),
         );

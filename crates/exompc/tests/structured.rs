@@ -15,10 +15,11 @@ use exompc::control::{
     horizon_inputs, Measurement, NmpcCore, NmpcSettings, QpBackend, TorqueLimits,
 };
 use exompc::model::JointState;
-use exompc::sim::{
+use exompc::scenario::{
     build_controller, intent, limits, nmpc_settings, plant_params, prediction_model, uncertainty,
-    Dof, OneDof, Plant, Sensors, TwoDof,
+    Dof, OneDof, TwoDof,
 };
+use exompc::sim::{Plant, Sensors};
 use exompc::solver::{DenseQp, HessianModel, QpSettings, QpStatus, RiccatiQp, SqpStatus};
 use nalgebra::{DMatrix, DVector, SVector};
 

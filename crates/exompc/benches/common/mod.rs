@@ -3,7 +3,8 @@
 
 use exompc::config::{ControllerKind, Scenario};
 use exompc::control::Measurement;
-use exompc::sim::{build_controller, plant_params, uncertainty, Dof, Plant, Sensors, TwoDof};
+use exompc::scenario::{build_controller, plant_params, uncertainty, Dof, TwoDof};
+use exompc::sim::{Plant, Sensors};
 
 /// `steps` filtered measurements of a closed loop of `s` under the plain NMPC.
 pub fn record(s: &Scenario, steps: usize) -> Vec<Measurement<2>> {

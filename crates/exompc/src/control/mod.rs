@@ -17,7 +17,7 @@
 //! * [`Supervisor`]: wraps any controller with sensor plausibility checks, safety monitors and
 //!   a safe fallback torque; every output passes the limits ([`TorqueLimits`]).
 //!
-//! [`crate::sim::build_controller`] and [`crate::sim::build_supervised`] build them from a
+//! [`crate::scenario::build_controller`] and [`crate::scenario::build_supervised`] build them from a
 //! [`crate::config::Scenario`]; `docs/MODEL.md` §8 gives the equations and default values.
 
 mod lag;
@@ -32,17 +32,15 @@ mod safety;
 
 pub use lag::{ForceLag, HfShareDetector};
 pub use limits::TorqueLimits;
-pub use multistage::{
-    build_multistage, CoupledProblem, Formulation, MultiStage, MultiStageError, MultiStageOptions,
-};
+pub use multistage::{CoupledProblem, Formulation, MultiStage, MultiStageError, MultiStageOptions};
 pub use nmpc::{classify, horizon_inputs, Nmpc, NmpcCore, NmpcProblem, NmpcSettings};
 pub use ocp::{QpBackend, StructuredSqp, AUTO_STRUCTURED_MIN_VARS};
 pub use pd::PdController;
 pub use prediction::{HorizonInputs, Interaction, PredictionModel, StepJacobian};
 pub use robust::{FilterAware, Method, RobustSettings};
 pub use safety::{
-    MonitorAction, MonitorEvent, MonitorKind, OscillationDetector, SafetyReport, SafetySettings,
-    StrapAngleEstimate, Supervisor,
+    MonitorAction, MonitorEvent, MonitorKind, MonitorResponse, Monitors, OscillationDetector,
+    SafetyReport, SafetySettings, StrapAngleEstimate, Supervisor,
 };
 
 use nalgebra::SVector;

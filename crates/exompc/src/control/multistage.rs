@@ -11,7 +11,15 @@ use nalgebra::{DMatrix, DVector, SVector};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-pub use crate::config::Formulation;
+/// Multi-stage problem formulation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Formulation {
+    /// One independent NMPC per scenario, combined by probability (paper eq. 13).
+    Decoupled,
+    /// One coupled problem, all scenarios sharing the first `robust_horizon` inputs (paper eq. 12).
+    Coupled,
+}
 
 /// The scenario tree solved as one NLP (eq. 12 with non-anticipativity): decision vector
 /// `[shared increments (N·Nr), scenario 1's remaining (N·(Nc−Nr)), ..., scenario S's]`;
@@ -503,55 +511,4 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
     fn set_previous_torque(&mut self, t: SVector<f64, N>) {
         self.prev = self.limits.admissible(&t);
     }
-}
-
-/// Build the multi-stage controller of scenario `s` for layout `D`.
-pub fn build_multistage<D, const N: usize, const NA: usize, const NY: usize>(
-    s: &crate::config::Scenario,
-    t0: SVector<f64, N>,
-) -> Result<Box<dyn Controller<N>>, crate::sim::RunError>
-where
-    D: crate::sim::Dof<N>,
-{
-    use crate::sim::{intent, limits, nmpc_settings, prediction_model};
-    let models: Vec<_> = s
-        .multistage
-        .payloads_kg
-        .iter()
-        .map(|&p| prediction_model::<D, N>(s, p))
-        .collect();
-    let ekf = s.ekf;
-    let est = EstimatorOptions {
-        dt: s.timing.dt,
-        substeps: s.timing.prediction_substeps,
-        innovation: s.multistage.innovation,
-        c1: s.multistage.c1,
-        floor: s.multistage.probability_floor,
-    };
-    let options = MultiStageOptions {
-        formulation: s.multistage.formulation,
-        robust_horizon: s.multistage.robust_horizon,
-        parallel: s.multistage.parallel,
-    };
-    let ms = MultiStage::<N, NA, NY>::new(
-        models,
-        &nmpc_settings(s),
-        &ekf,
-        &est,
-        options,
-        intent(s),
-        limits(s),
-        t0,
-    )
-    .map_err(|e| match e {
-        MultiStageError::Solver(e) => crate::sim::RunError::Solver(e),
-        other => crate::sim::RunError::Build(other.to_string()),
-    })?;
-    let ms = match s.controller.method {
-        crate::config::Method::Paper => ms,
-        crate::config::Method::Robust => {
-            ms.with_robust(&s.controller.robust, s.uncertainty.filter_window)
-        }
-    };
-    Ok(Box::new(ms))
 }

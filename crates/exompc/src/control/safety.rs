@@ -1,9 +1,8 @@
 //! Runtime safety supervision around any controller: see [`Supervisor`].
 
 use super::{ControlOutput, Controller, Measurement, StepStatus, TorqueLimits};
-use crate::config::{MonitorResponse, Monitors, Scenario};
 use nalgebra::{SMatrix, SVector};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// Thresholds and responses of a [`Supervisor`].
 #[derive(Clone, Debug, PartialEq)]
@@ -43,25 +42,62 @@ impl SafetySettings {
     pub const VELOCITY_MAX: f64 = 30.0;
     /// Default hold-off before a monitor clears (s).
     pub const CLEAR_AFTER_S: f64 = 0.1;
+}
 
-    /// The settings of scenario `s` (`[monitors]`, `[faults] saturation_n`, limits, K1, dt).
-    pub fn from_scenario(s: &Scenario) -> Self {
-        SafetySettings {
-            limits: TorqueLimits {
-                max: s.controller.torque_max,
-                rate: s.rate_limit_per_step(),
-            },
-            dt: s.timing.dt,
-            k1: s.controller.k1,
-            strap_levers_m: vec![s.straps.ls1_m, s.straps.ls2_m],
-            strap_stiffness: s.straps.stiffness,
-            strap_damping: s.straps.damping,
-            saturation_n: s.faults.saturation_n,
-            angle_max: Self::ANGLE_MAX,
-            velocity_max: Self::VELOCITY_MAX,
-            monitors: s.monitors.clone(),
-            clear_after_s: Self::CLEAR_AFTER_S,
-            max_events: 4096,
+/// What the safety monitor does when it trips.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MonitorResponse {
+    /// Hold the last safe torque.
+    Hold,
+    /// Ramp the torque to zero within the rate limit.
+    RampToZero,
+}
+
+/// `[monitors]`: runtime safety monitors.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Monitors {
+    /// Trip when the human-robot angle error `|q_H − q_R|` of some joint, estimated from the
+    /// measured strap forces by inverting the strap model (`F = ks J (Δq + (cs/ks) Δqd)`,
+    /// docs/MODEL.md §4), exceeds this (rad), > 0. Default 0.35 (20°; the default scenario
+    /// stays below 0.15).
+    pub tracking_error_max_rad: f64,
+    /// Trip when any measured strap force exceeds this (N), > 0. Default 70.
+    pub force_max_n: f64,
+    /// Trip when a channel has delivered no valid sample for this long (s), > 0. Default 0.05.
+    pub sensor_timeout_s: f64,
+    /// Response when tripped (`"hold"` or `"ramp_to_zero"`). Default `"ramp_to_zero"`.
+    pub response: MonitorResponse,
+    /// Oscillation monitor: trip when the RMS of a measured strap force's content above
+    /// `oscillation_cutoff_hz` over the last `oscillation_window_s` exceeds this (N), > 0.
+    /// Default 8.
+    pub oscillation_force_rms_n: f64,
+    /// Oscillation monitor: the same on the commanded joint torques (N·m), > 0. Default 10.
+    pub oscillation_torque_rms_nm: f64,
+    /// Oscillation monitor high-pass cutoff (Hz), > 0; a cutoff at or above the Nyquist
+    /// frequency `0.5 / timing.dt` is taken just below it. Default 3.
+    pub oscillation_cutoff_hz: f64,
+    /// Oscillation monitor sliding window (s), in (0, 10]; at least one sample. Default 0.5.
+    pub oscillation_window_s: f64,
+    /// A tripped oscillation monitor (which applies `response`) clears after its condition
+    /// has been absent this long (s), in [0, 1e6]: longer than the other monitors' 0.1 s so
+    /// that a limit cycle does not restart at once. Default 2.
+    pub oscillation_clear_s: f64,
+}
+
+impl Default for Monitors {
+    fn default() -> Self {
+        Self {
+            tracking_error_max_rad: 0.35,
+            force_max_n: 70.0,
+            sensor_timeout_s: 0.05,
+            response: MonitorResponse::RampToZero,
+            oscillation_force_rms_n: 8.0,
+            oscillation_torque_rms_nm: 10.0,
+            oscillation_cutoff_hz: 3.0,
+            oscillation_window_s: 0.5,
+            oscillation_clear_s: 2.0,
         }
     }
 }

@@ -1,11 +1,97 @@
-//! Sensor fault injection (`[faults]`, see [`FaultInjector`]) and the soak run.
+//! Sensor fault injection (`[faults]`, see [`FaultInjector`]) and the soak run's counters.
 
 use super::closed_loop::{Recorder, StepRecord};
-use super::experiment::{run_experiment_report, RunError, TwoDof};
-use crate::config::{Channel, ControllerKind, FaultEvent, FaultKind, Faults, Scenario};
-use crate::control::{Measurement, MonitorEvent, StepStatus};
-use serde::Serialize;
-use std::time::Instant;
+use crate::control::{Measurement, StepStatus};
+use serde::{Deserialize, Serialize};
+
+/// Kind of an injected sensor fault.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FaultKind {
+    /// The channel reads NaN.
+    Nan,
+    /// The channel reads +infinity.
+    Inf,
+    /// No new sample arrives (the controller sees a stale/missing measurement).
+    Dropout,
+    /// `magnitude` is added to the reading.
+    Spike,
+    /// The reading freezes at its value at the fault's start.
+    Stuck,
+    /// The reading is clipped to `±faults.saturation_n` (force channels).
+    Saturation,
+}
+
+/// Measured channel affected by a fault.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Channel {
+    /// Hip angle (rad).
+    Q1,
+    /// Knee angle (rad).
+    Q2,
+    /// Hip velocity (rad/s).
+    Qd1,
+    /// Knee velocity (rad/s).
+    Qd2,
+    /// Thigh strap force (N).
+    F1,
+    /// Shank strap force (N).
+    F2,
+}
+
+impl Channel {
+    /// Zero-based joint / strap index (0 = hip / thigh, 1 = knee / shank).
+    pub fn joint(self) -> usize {
+        match self {
+            Channel::Q1 | Channel::Qd1 | Channel::F1 => 0,
+            Channel::Q2 | Channel::Qd2 | Channel::F2 => 1,
+        }
+    }
+}
+
+/// One `[[faults.events]]` entry: a sensor fault active on `[start_s, start_s + duration_s)`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FaultEvent {
+    /// Fault kind (`"nan"`, `"inf"`, `"dropout"`, `"spike"`, `"stuck"`, `"saturation"`).
+    pub kind: FaultKind,
+    /// Affected channel (`"q1"`, `"q2"`, `"qd1"`, `"qd2"`, `"f1"`, `"f2"`).
+    pub channel: Channel,
+    /// Start time (s), >= 0.
+    pub start_s: f64,
+    /// Duration (s), >= 0.
+    pub duration_s: f64,
+    /// Additive magnitude of a spike (channel units), finite; optional, default 0.
+    #[serde(default)]
+    pub magnitude: f64,
+}
+
+impl FaultEvent {
+    /// Whether the fault is active at time `t` (s).
+    pub fn active_at(&self, t: f64) -> bool {
+        t >= self.start_s && t < self.start_s + self.duration_s
+    }
+}
+
+/// `[faults]`: scripted sensor faults for robustness tests.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Faults {
+    /// Fault events (`[[faults.events]]`). Default none.
+    pub events: Vec<FaultEvent>,
+    /// Force sensor range ±saturation_n (N), > 0. Default 70.
+    pub saturation_n: f64,
+}
+
+impl Default for Faults {
+    fn default() -> Self {
+        Self {
+            events: Vec::new(),
+            saturation_n: 70.0,
+        }
+    }
+}
 
 /// Which signal of a measurement a fault acts on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -288,76 +374,6 @@ impl<const N: usize> Recorder<N> for SoakStats {
         self.monitor_steps += u64::from(r.status == StepStatus::MonitorTripped);
         Ok(())
     }
-}
-
-/// Result of [`run_soak`] (written as `soak.json` by `exompc soak`).
-#[derive(Clone, Debug, Serialize)]
-pub struct SoakReport {
-    /// Controller name.
-    pub controller: String,
-    /// True payload (kg).
-    pub payload_kg: f64,
-    /// Simulated time (s).
-    pub simulated_s: f64,
-    /// Injected fault events.
-    pub fault_events: usize,
-    /// Online counters.
-    #[serde(flatten)]
-    pub stats: SoakStats,
-    /// Monitor trips (all monitors).
-    pub monitor_trips: u64,
-    /// Wall time of the run (s), informative only.
-    pub wall_time_s: f64,
-    /// The first logged monitor events (at most 4096).
-    pub monitor_events: Vec<MonitorEvent>,
-    /// Monitor events not logged (log full).
-    pub monitor_events_dropped: u64,
-}
-
-/// The soak scenario: `base` as a 2-DOF MS-NMPC run of `seconds` simulated seconds with true
-/// payload `payload_kg`; when `base` has no fault events, [`default_schedule`] repeated every
-/// 60 s.
-pub fn soak_scenario(base: &Scenario, seconds: f64, payload_kg: f64) -> Scenario {
-    let mut s = base.clone();
-    s.controller.kind = ControllerKind::Msnmpc;
-    s.uncertainty.payload_kg = payload_kg;
-    s.timing.duration_2dof_s = seconds;
-    if s.faults.events.is_empty() {
-        s.faults.events = repeat_schedule(&default_schedule(0.0, 2), 60.0, seconds);
-    }
-    s
-}
-
-/// Run the soak scenario of [`soak_scenario`] (2-DOF), feeding every step to `recorders` as
-/// well; memory stays constant apart from the summary's step-time samples.
-pub fn run_soak(
-    base: &Scenario,
-    seconds: f64,
-    payload_kg: f64,
-    recorders: &mut [&mut dyn Recorder<2>],
-) -> Result<SoakReport, RunError> {
-    let s = soak_scenario(base, seconds, payload_kg);
-    let mut stats = SoakStats::default();
-    let start = Instant::now();
-    let (summary, report) = {
-        let mut all: Vec<&mut dyn Recorder<2>> = Vec::with_capacity(recorders.len() + 1);
-        all.push(&mut stats);
-        for r in recorders.iter_mut() {
-            all.push(&mut **r);
-        }
-        run_experiment_report::<TwoDof, 2>(&s, &mut all)?
-    };
-    Ok(SoakReport {
-        controller: summary.controller,
-        payload_kg,
-        simulated_s: summary.duration_s,
-        fault_events: s.faults.events.len(),
-        stats,
-        monitor_trips: report.monitor_trips,
-        wall_time_s: start.elapsed().as_secs_f64(),
-        monitor_events: report.events,
-        monitor_events_dropped: report.events_dropped,
-    })
 }
 
 #[cfg(test)]

@@ -5,7 +5,6 @@
 //! controller, hand every part's values to the recorders, advance the plant.
 
 mod closed_loop;
-mod experiment;
 mod faults;
 mod human;
 mod metrics;
@@ -17,14 +16,9 @@ mod trajectory;
 mod uncertainty;
 
 pub use closed_loop::{run_closed_loop, Recorder, StepRecord, TraceLog, TraceRow};
-pub use experiment::{
-    build_controller, build_supervised, initial_torque, intent, limits, nmpc_settings,
-    plant_params, prediction_model, run_experiment, run_experiment_report, scenario_robot,
-    uncertainty, Dof, OneDof, RunError, TwoDof,
-};
 pub use faults::{
-    channel_index, default_schedule, repeat_schedule, run_soak, soak_scenario, FaultInjector,
-    SoakReport, SoakStats,
+    channel_index, default_schedule, repeat_schedule, Channel, FaultEvent, FaultInjector,
+    FaultKind, Faults, SoakStats,
 };
 pub use human::{HumanBrain, HumanLeg};
 pub use metrics::{Metrics, StepTimeStats, Summary};
@@ -64,7 +58,7 @@ impl<const N: usize> Sensors<N> {
 
     /// The same sensors with the fault schedule and force range of `[faults]` (see
     /// [`FaultInjector`]; the default range ±70 N applies without it).
-    pub fn with_faults(mut self, faults: &crate::config::Faults) -> Self {
+    pub fn with_faults(mut self, faults: &Faults) -> Self {
         self.faults = FaultInjector::new(faults);
         self
     }

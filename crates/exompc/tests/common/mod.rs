@@ -72,7 +72,8 @@ pub fn closed_loop(
         &dyn exompc::control::Controller<2>,
     ),
 ) {
-    use exompc::sim::{plant_params, uncertainty, Dof, Plant, Sensors, TwoDof};
+    use exompc::scenario::{plant_params, uncertainty, Dof, TwoDof};
+    use exompc::sim::{Plant, Sensors};
     let mut plant = Plant::new(plant_params::<TwoDof, 2>(s), TwoDof::trajectory(s));
     let mut sensors = Sensors::new(uncertainty(s), s.uncertainty.filter_window);
     for k in 0..steps {

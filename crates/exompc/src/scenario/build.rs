@@ -1,49 +1,21 @@
-//! Building and running one experiment of the paper's simulation study from a
-//! [`Scenario`](crate::config::Scenario): the 2-DOF swing ([`TwoDof`]) or the 1-DOF knee
-//! ([`OneDof`], hip locked) variant.
+//! Building the plant, trajectory, models and controllers of one experiment of the paper's
+//! simulation study from a [`Scenario`](crate::config::Scenario): the 2-DOF swing ([`TwoDof`])
+//! or the 1-DOF knee ([`OneDof`], hip locked) variant.
 
-use super::closed_loop::{run_closed_loop, Recorder, StepRecord};
-use super::human::HumanLeg;
-use super::metrics::{Metrics, Summary};
-use super::plant::{robot_model, Plant, PlantParams};
-use super::trajectory::{KneeTrajectory, SwingTrajectory, Trajectory};
-use super::uncertainty::Uncertainty;
-use super::Sensors;
-use crate::config::{self, ConfigError, ControllerKind, Scenario};
+use super::RunError;
+use crate::config::{self, ControllerKind, Method, Scenario};
 use crate::control::{
-    Controller, IntentEstimator, Nmpc, NmpcSettings, PdController, PredictionModel, SafetyReport,
-    SafetySettings, Supervisor, TorqueLimits,
+    Controller, IntentEstimator, MultiStage, MultiStageError, MultiStageOptions, Nmpc,
+    NmpcSettings, PdController, PredictionModel, SafetySettings, Supervisor, TorqueLimits,
 };
+use crate::estimate::EstimatorOptions;
 use crate::model::{Friction, Link, RobotModel, Straps, WinterFractions};
-use crate::solver::{SolverError, SqpSettings};
+use crate::sim::{
+    robot_model, HumanLeg, KneeTrajectory, PlantParams, SwingTrajectory, Trajectory, Uncertainty,
+};
+use crate::solver::SqpSettings;
 use nalgebra::SVector;
 use std::time::Duration;
-
-/// Why an experiment could not run.
-#[derive(Debug, thiserror::Error)]
-pub enum RunError {
-    /// The scenario is invalid.
-    #[error(transparent)]
-    Config(#[from] ConfigError),
-    /// The solver settings are invalid.
-    #[error("solver settings: {0}")]
-    Solver(#[from] SolverError),
-    /// A controller could not be built.
-    #[error("controller: {0}")]
-    Build(String),
-    /// The simulated plant diverged (its state stopped being finite) at time `t`.
-    #[error(
-        "the simulated plant diverged at t = {t} s (its state is no longer finite); \
-         a shorter plant step (timing.dt / timing.plant_substeps) keeps RK4 stable"
-    )]
-    Diverged {
-        /// Time (s) of the first non-finite state.
-        t: f64,
-    },
-    /// A recorder failed (e.g. a trace file could not be written).
-    #[error("recording failed: {0}")]
-    Io(#[from] std::io::Error),
-}
 
 fn link(l: &config::RobotLink) -> Link {
     Link {
@@ -122,7 +94,7 @@ impl Dof<2> for TwoDof {
         }
     }
     fn multistage(s: &Scenario, t0: SVector<f64, 2>) -> Result<Box<dyn Controller<2>>, RunError> {
-        crate::control::build_multistage::<Self, 2, 6, 4>(s, t0)
+        build_multistage::<Self, 2, 6, 4>(s, t0)
     }
 }
 
@@ -144,7 +116,7 @@ impl Dof<1> for OneDof {
         }
     }
     fn multistage(s: &Scenario, t0: SVector<f64, 1>) -> Result<Box<dyn Controller<1>>, RunError> {
-        crate::control::build_multistage::<Self, 1, 3, 2>(s, t0)
+        build_multistage::<Self, 1, 3, 2>(s, t0)
     }
 }
 
@@ -298,77 +270,73 @@ pub fn build_supervised<D: Dof<N>, const N: usize>(
     ))
 }
 
-/// Run the closed loop of scenario `s` with controller `s.controller.kind` in layout `D` for
-/// `s.duration_s(D::DOF)`, feeding every step to `recorders`; returns the summary (paper
-/// Table 2 metrics). The sensors inject the `[faults]` of `s`; the controller runs under the
-/// safety [`Supervisor`] (see [`run_experiment_report`] for its event log).
-pub fn run_experiment<D: Dof<N>, const N: usize>(
+/// Build the multi-stage controller of scenario `s` for layout `D`.
+pub fn build_multistage<D, const N: usize, const NA: usize, const NY: usize>(
     s: &Scenario,
-    recorders: &mut [&mut dyn Recorder<N>],
-) -> Result<Summary, RunError> {
-    run_experiment_report::<D, N>(s, recorders).map(|(summary, _)| summary)
+    t0: SVector<f64, N>,
+) -> Result<Box<dyn Controller<N>>, RunError>
+where
+    D: Dof<N>,
+{
+    let models: Vec<_> = s
+        .multistage
+        .payloads_kg
+        .iter()
+        .map(|&p| prediction_model::<D, N>(s, p))
+        .collect();
+    let ekf = s.ekf;
+    let est = EstimatorOptions {
+        dt: s.timing.dt,
+        substeps: s.timing.prediction_substeps,
+        innovation: s.multistage.innovation,
+        c1: s.multistage.c1,
+        floor: s.multistage.probability_floor,
+    };
+    let options = MultiStageOptions {
+        formulation: s.multistage.formulation,
+        robust_horizon: s.multistage.robust_horizon,
+        parallel: s.multistage.parallel,
+    };
+    let ms = MultiStage::<N, NA, NY>::new(
+        models,
+        &nmpc_settings(s),
+        &ekf,
+        &est,
+        options,
+        intent(s),
+        limits(s),
+        t0,
+    )
+    .map_err(|e| match e {
+        MultiStageError::Solver(e) => RunError::Solver(e),
+        other => RunError::Build(other.to_string()),
+    })?;
+    let ms = match s.controller.method {
+        Method::Paper => ms,
+        Method::Robust => ms.with_robust(&s.controller.robust, s.uncertainty.filter_window),
+    };
+    Ok(Box::new(ms))
 }
 
-/// Stops a run whose plant state stops being finite (e.g. a plant step too long for RK4).
-struct DivergenceGuard {
-    diverged_at: Option<f64>,
-}
-
-impl<const N: usize> Recorder<N> for DivergenceGuard {
-    fn record(&mut self, r: &StepRecord<'_, N>) -> std::io::Result<()> {
-        let finite = |v: &SVector<f64, N>| v.iter().all(|x| x.is_finite());
-        if finite(&r.robot.q) && finite(&r.robot.qd) && finite(&r.human.q) && finite(&r.human.qd) {
-            Ok(())
-        } else {
-            self.diverged_at = Some(r.t);
-            Err(std::io::Error::other("plant state is not finite"))
+impl SafetySettings {
+    /// The settings of scenario `s` (`[monitors]`, `[faults] saturation_n`, limits, K1, dt).
+    pub fn from_scenario(s: &Scenario) -> Self {
+        SafetySettings {
+            limits: TorqueLimits {
+                max: s.controller.torque_max,
+                rate: s.rate_limit_per_step(),
+            },
+            dt: s.timing.dt,
+            k1: s.controller.k1,
+            strap_levers_m: vec![s.straps.ls1_m, s.straps.ls2_m],
+            strap_stiffness: s.straps.stiffness,
+            strap_damping: s.straps.damping,
+            saturation_n: s.faults.saturation_n,
+            angle_max: Self::ANGLE_MAX,
+            velocity_max: Self::VELOCITY_MAX,
+            monitors: s.monitors.clone(),
+            clear_after_s: Self::CLEAR_AFTER_S,
+            max_events: 4096,
         }
     }
-}
-
-/// Step-time samples preallocated at most (longer runs grow the buffer as they go, instead
-/// of aborting on a huge up-front allocation).
-const MAX_PREALLOCATED_STEPS: usize = 1 << 22;
-
-/// [`run_experiment`], also returning the safety supervisor's counters and monitor events.
-pub fn run_experiment_report<D: Dof<N>, const N: usize>(
-    s: &Scenario,
-    recorders: &mut [&mut dyn Recorder<N>],
-) -> Result<(Summary, SafetyReport), RunError> {
-    s.validate()?;
-    let mut controller = build_supervised::<D, N>(s, s.controller.kind)?;
-    let mut plant = Plant::new(plant_params::<D, N>(s), D::trajectory(s));
-    let mut sensors =
-        Sensors::new(uncertainty(s), s.uncertainty.filter_window).with_faults(&s.faults);
-    let steps = s.control_steps(D::DOF);
-    let mut metrics = Metrics::with_capacity(steps.min(MAX_PREALLOCATED_STEPS));
-    let mut guard = DivergenceGuard { diverged_at: None };
-    {
-        let mut all: Vec<&mut dyn Recorder<N>> = Vec::with_capacity(recorders.len() + 2);
-        all.push(&mut guard);
-        all.push(&mut metrics);
-        for r in recorders.iter_mut() {
-            all.push(&mut **r);
-        }
-        let result = run_closed_loop(
-            &mut plant,
-            &mut sensors,
-            &mut controller,
-            &limits(s),
-            steps,
-            &mut all,
-        );
-        if let Some(t) = guard.diverged_at {
-            return Err(RunError::Diverged { t });
-        }
-        result?;
-    }
-    let mut summary = metrics.summary(
-        controller.name(),
-        D::DOF,
-        s.uncertainty.payload_kg,
-        s.timing.dt,
-    );
-    summary.safety = super::SafetySummary::from_report(controller.report());
-    Ok((summary, controller.report().clone()))
 }

@@ -1,0 +1,18 @@
+//! The scenario layer: turns a [`Scenario`](crate::config::Scenario) description into a plant,
+//! a trajectory, prediction models and controllers ([`build_controller`], [`build_supervised`]),
+//! and runs experiments ([`run_experiment`], [`run_soak`]).
+//!
+//! This layer only composes the domain types of [`crate::model`], [`crate::control`],
+//! [`crate::estimate`] and [`crate::sim`]; nothing below it imports it.
+
+mod build;
+mod run;
+
+pub use build::{
+    build_controller, build_multistage, build_supervised, initial_torque, intent, limits,
+    nmpc_settings, plant_params, prediction_model, scenario_robot, uncertainty, Dof, OneDof,
+    TwoDof,
+};
+pub use run::{
+    run_experiment, run_experiment_report, run_soak, soak_scenario, RunError, SoakReport,
+};
