@@ -1,7 +1,7 @@
 //! `exompc bench`: time the controllers' step alone in closed loops of the 2-DOF scenario, and
 //! a scaling table over the horizon and the number of scenarios (see `docs/PERFORMANCE.md`).
 
-use crate::ConfigOpt;
+use crate::args::ConfigOpt;
 use clap::Args;
 use exompc::config::{ControllerKind, Formulation, Scenario};
 use exompc::control::QpBackend;

@@ -2,8 +2,8 @@
 //! parallel, classify every run, judge every cell (MS-NMPC against NMPC) and write
 //! `envelope.json`, `envelope.md` and the heat map `envelope.{png,svg}`.
 
-use crate::sweep::parse_payloads;
-use crate::ConfigOpt;
+use crate::args::parse_payloads;
+use crate::args::ConfigOpt;
 use clap::Args;
 use exompc::sim::StabilityCriteria;
 use exompc_cli::envelope::{class_counts, markdown, scan, Envelope, Grid};

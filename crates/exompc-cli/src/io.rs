@@ -2,7 +2,10 @@
 
 use crate::error::CliError;
 use exompc::config::{Channel, FaultEvent, FaultKind, Scenario};
+use serde::Deserialize;
+use serde_json::Value;
 use std::fs::{self, File};
+use std::io::Read as _;
 use std::io::{self, BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -445,4 +448,113 @@ pub fn ensure_out_dir(dir: &Path) -> Result<(), CliError> {
     File::create(&probe)
         .and_then(|_| fs::remove_file(&probe))
         .map_err(|e| CliError::Usage(format!("output folder {shown} is not writable: {e}")))
+}
+
+// ---------------------------------------------------------------------------------------------
+// JSON requests on stdin (`exompc model`, `exompc solve`)
+// ---------------------------------------------------------------------------------------------
+
+/// Reads all of stdin as text.
+pub fn read_stdin() -> Result<String, CliError> {
+    let mut text = String::new();
+    std::io::stdin()
+        .read_to_string(&mut text)
+        .map_err(|e| CliError::Usage(format!("cannot read the JSON input on stdin: {e}")))?;
+    Ok(text)
+}
+
+/// Parses `text` as one JSON object of type `T`; every error is a usage error that names the
+/// offending field where there is one. `probe` checks a single field's value against its type
+/// (it returns `None` for a field name it does not know), so that type errors, which serde
+/// reports without the field name, can be attributed.
+pub fn parse_input<T: for<'de> Deserialize<'de>>(
+    text: &str,
+    probe: impl Fn(&str, &Value) -> Option<Result<(), serde_json::Error>>,
+) -> Result<T, CliError> {
+    let value: Value = serde_json::from_str(text).map_err(|e| {
+        let field = key_before(text, e.line(), e.column())
+            .map(|k| format!(" (in field `{k}`)"))
+            .unwrap_or_default();
+        CliError::Usage(format!("malformed JSON input{field}: {e}"))
+    })?;
+    let Value::Object(obj) = &value else {
+        return Err(CliError::Usage(
+            "the JSON input must be one object, e.g. {\"q\": [...], ...}".into(),
+        ));
+    };
+    serde_json::from_value::<T>(value.clone()).map_err(|e| {
+        let msg = e.to_string();
+        if msg.contains("field") {
+            // serde names missing and unknown fields itself.
+            return CliError::Usage(format!("invalid input: {msg}"));
+        }
+        for (k, v) in obj {
+            if let Some(Err(fe)) = probe(k, v) {
+                return CliError::Usage(format!("invalid input: field `{k}`: {fe}"));
+            }
+        }
+        CliError::Usage(format!("invalid input: {msg}"))
+    })
+}
+
+/// The last object key (`"name":`) before 1-based `line`/`column` of `text`, for locating a
+/// syntax error (for example an out-of-range number) in a field.
+fn key_before(text: &str, line: usize, column: usize) -> Option<String> {
+    let mut offset = 0;
+    for (i, l) in text.split_inclusive('\n').enumerate() {
+        if i + 1 == line {
+            offset += column.min(l.len());
+            break;
+        }
+        offset += l.len();
+    }
+    let head = text.get(..offset.min(text.len()))?;
+    let bytes = head.as_bytes();
+    let mut i = head.len();
+    while i > 0 {
+        i -= 1;
+        if bytes[i] != b':' {
+            continue;
+        }
+        let before = head[..i].trim_end();
+        let Some(inner) = before.strip_suffix('"') else {
+            continue;
+        };
+        let start = inner.rfind('"')?;
+        return Some(inner[start + 1..].to_string());
+    }
+    None
+}
+
+/// Probe helper: does `v` deserialise as `T`?
+pub fn probe_as<T: for<'de> Deserialize<'de>>(v: &Value) -> Result<(), serde_json::Error> {
+    T::deserialize(v).map(|_| ())
+}
+
+/// Checks that `v` has `n` finite entries, naming the field.
+pub fn check_vec(name: &str, v: &[f64], n: usize) -> Result<(), CliError> {
+    if v.len() != n {
+        return Err(CliError::Usage(format!(
+            "field `{name}` must have {n} entr{} (like `q`), found {}",
+            if n == 1 { "y" } else { "ies" },
+            v.len()
+        )));
+    }
+    if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+        return Err(CliError::Usage(format!(
+            "field `{name}[{i}]` must be a finite number, found {}",
+            v[i]
+        )));
+    }
+    Ok(())
+}
+
+/// Number of joints given by `q` (1 or 2), naming the field otherwise.
+pub fn joint_count(q: &[f64]) -> Result<usize, CliError> {
+    match q.len() {
+        1 | 2 => Ok(q.len()),
+        n => Err(CliError::Usage(format!(
+            "field `q` must have 1 (knee only) or 2 (hip, knee) entries, found {n}"
+        ))),
+    }
 }

@@ -7,6 +7,7 @@ pub mod envelope;
 pub mod error;
 pub mod interrupt;
 pub mod io;
+pub mod layout;
 pub mod run;
 pub mod trace;
 pub mod verdict;

@@ -4,10 +4,12 @@
 //! bad flag). Every error is one `error: ...`
 //! line on stderr.
 
+mod args;
 mod bench;
 mod envelope_cmd;
 mod model_cmd;
 mod plot;
+mod plot_cmd;
 mod realtime;
 mod simulate;
 mod soak;
@@ -17,11 +19,10 @@ mod sweep;
 use bench::BenchArgs;
 use clap::{Args, Parser, Subcommand};
 use envelope_cmd::EnvelopeArgs;
-use exompc::config::{ControllerKind, Scenario};
 use exompc_cli::error::CliError;
 use exompc_cli::io;
 use model_cmd::ModelArgs;
-use plot::PlotArgs;
+use plot_cmd::PlotArgs;
 use simulate::SimulateArgs;
 use soak::SoakArgs;
 use solve::SolveArgs;
@@ -79,21 +80,6 @@ enum Command {
     Envelope(EnvelopeArgs),
 }
 
-/// `--config FILE`, shared by the subcommands that run a scenario.
-#[derive(Debug, Args)]
-pub(crate) struct ConfigOpt {
-    /// Scenario TOML file applied on top of the default scenario (see `exompc config`).
-    #[arg(long, value_name = "FILE")]
-    pub(crate) config: Option<PathBuf>,
-}
-
-impl ConfigOpt {
-    /// Loads and validates the scenario named by `--config` (the default when absent).
-    pub(crate) fn load(&self) -> Result<Scenario, CliError> {
-        io::load_scenario(self.config.as_deref())
-    }
-}
-
 fn main() -> ExitCode {
     // Behave like other Unix tools when the reader of stdout goes away (`exompc ... | head`):
     // end quietly on SIGPIPE instead of panicking on the failed write.
@@ -123,28 +109,10 @@ fn run(cli: Cli) -> Result<(), CliError> {
         Command::Bench(a) => bench::run(a),
         Command::Model(a) => model_cmd::run(a),
         Command::Solve(a) => solve::run(a),
-        Command::Plot(a) => plot::run(a),
+        Command::Plot(a) => plot_cmd::run(a),
         Command::Run(a) => realtime::run(a),
         Command::VirtualRobot(a) => realtime::virtual_robot(a),
         Command::Envelope(a) => envelope_cmd::run(a),
-    }
-}
-
-/// Controller choice on the command line (mirrors [`ControllerKind`]).
-#[derive(Debug, Clone, Copy, clap::ValueEnum)]
-pub(crate) enum ControllerArg {
-    Pd,
-    Nmpc,
-    Msnmpc,
-}
-
-impl From<ControllerArg> for ControllerKind {
-    fn from(c: ControllerArg) -> Self {
-        match c {
-            ControllerArg::Pd => ControllerKind::Pd,
-            ControllerArg::Nmpc => ControllerKind::Nmpc,
-            ControllerArg::Msnmpc => ControllerKind::Msnmpc,
-        }
     }
 }
 

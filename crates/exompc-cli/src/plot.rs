@@ -7,32 +7,16 @@
 //! `step_time_<p>kg`: Figs. 3-5 / 7-8), at no load (`compare_0kg`: Fig. 6) and the
 //! payload-sweep figure `payload_sweep` (RMS strap forces and mean probabilities vs payload).
 
-use crate::sweep::{run_dir_name, SweepFile};
-use clap::Args;
 use exompc::sim::Summary;
 use exompc_cli::error::CliError;
 use exompc_cli::io;
+use exompc_cli::layout::{run_dir_name, SweepFile};
 use exompc_cli::trace::{joint_names, read_trace, strap_names, TraceTable};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::{register_font, FontStyle};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
-
-#[derive(Debug, Args)]
-pub(crate) struct PlotArgs {
-    /// Folder written by `simulate` (trace.csv) or `sweep` (sweep.json).
-    #[arg(value_name = "DIR", default_value = "out")]
-    input: PathBuf,
-}
-
-pub(crate) fn run(a: PlotArgs) -> Result<(), CliError> {
-    let files = draw_dir(&a.input)?;
-    for f in files {
-        println!("wrote {}", f.display());
-    }
-    Ok(())
-}
 
 /// Figure size in pixels.
 const SIZE: (u32, u32) = (1000, 700);

@@ -2,7 +2,7 @@
 //! process): the real-time loop over the UDP link of `exompc::runtime` (see
 //! `docs/REALTIME.md`).
 
-use crate::{ConfigOpt, ControllerArg};
+use crate::args::{ConfigOpt, ControllerArg};
 use clap::Args;
 use exompc::config::Scenario;
 use exompc::control::{Controller, StepStatus};
@@ -210,7 +210,7 @@ struct RunSummary {
 
 pub(crate) fn run(a: RunArgs) -> Result<(), CliError> {
     let mut s = a.config.load()?;
-    crate::simulate::apply_overrides(&mut s, a.dof, a.controller, None, None, None)?;
+    crate::args::apply_overrides(&mut s, a.dof, a.controller, None, None, None)?;
     if let Some(d) = a.duration {
         secs("duration", d, 0.0, 1e7)?;
     }
@@ -488,7 +488,7 @@ struct NetFaultReport {
 
 pub(crate) fn virtual_robot(a: VirtualRobotArgs) -> Result<(), CliError> {
     let mut s = a.config.load()?;
-    crate::simulate::apply_overrides(&mut s, a.dof, None, None, a.payload, a.duration)?;
+    crate::args::apply_overrides(&mut s, a.dof, None, None, a.payload, a.duration)?;
     secs("connect-timeout", a.connect_timeout, 0.0, 1e6)?;
     if a.watchdog_periods == 0 {
         return Err(CliError::Usage(

@@ -1,9 +1,8 @@
 //! `exompc simulate`: one closed-loop run of the scenario; writes `trace.csv` and
 //! `summary.json` into `--out` (default `out/`) and prints a short summary.
 
-use crate::{ConfigOpt, ControllerArg};
+use crate::args::{apply_overrides, ConfigOpt, ControllerArg, FormulationArg};
 use clap::Args;
-use exompc::config::Formulation;
 use exompc_cli::error::CliError;
 use exompc_cli::io;
 use exompc_cli::run::{describe, run_to_dir};
@@ -38,72 +37,6 @@ pub(crate) struct SimulateArgs {
     /// Also draw the figures into the output folder.
     #[arg(long)]
     pub(crate) plot: bool,
-}
-
-/// Formulation choice on the command line.
-#[derive(Debug, Clone, Copy, clap::ValueEnum)]
-pub(crate) enum FormulationArg {
-    Decoupled,
-    Coupled,
-}
-
-impl From<FormulationArg> for Formulation {
-    fn from(f: FormulationArg) -> Self {
-        match f {
-            FormulationArg::Decoupled => Formulation::Decoupled,
-            FormulationArg::Coupled => Formulation::Coupled,
-        }
-    }
-}
-
-/// Command-line spelling of a formulation.
-pub(crate) fn formulation_name(f: FormulationArg) -> &'static str {
-    match f {
-        FormulationArg::Decoupled => "decoupled",
-        FormulationArg::Coupled => "coupled",
-    }
-}
-
-/// Apply the command-line overrides to the scenario and validate the result; a bad flag value
-/// is reported naming the flag.
-pub(crate) fn apply_overrides(
-    s: &mut exompc::config::Scenario,
-    dof: u8,
-    controller: Option<ControllerArg>,
-    formulation: Option<FormulationArg>,
-    payload: Option<f64>,
-    duration: Option<f64>,
-) -> Result<(), CliError> {
-    if let Some(k) = controller {
-        s.controller.kind = k.into();
-    }
-    if let (Some(f), Some(k)) = (formulation, controller) {
-        if !matches!(k, ControllerArg::Msnmpc) {
-            return Err(CliError::Usage(format!(
-                "--formulation {} applies to --controller msnmpc only, not --controller {}",
-                formulation_name(f),
-                crate::sweep::controller_name(k)
-            )));
-        }
-    }
-    if let Some(f) = formulation {
-        s.multistage.formulation = f.into();
-    }
-    if let Some(p) = payload {
-        s.uncertainty.payload_kg = p;
-        s.validate()
-            .map_err(|e| CliError::Usage(format!("--payload: {e}")))?;
-    }
-    if let Some(d) = duration {
-        if dof == 1 {
-            s.timing.duration_1dof_s = d;
-        } else {
-            s.timing.duration_2dof_s = d;
-        }
-        s.validate()
-            .map_err(|e| CliError::Usage(format!("--duration: {e}")))?;
-    }
-    Ok(())
 }
 
 pub(crate) fn run(a: SimulateArgs) -> Result<(), CliError> {

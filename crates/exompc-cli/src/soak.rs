@@ -1,7 +1,7 @@
 //! `exompc soak`: a long MS-NMPC run (default 1 h simulated, 2 kg payload) with a fault
 //! schedule (the config's `[faults] events`, or one fault of each kind every minute), checking
 //! that the output stays within the limits; prints the counters and writes `soak.json`.
-use crate::ConfigOpt;
+use crate::args::ConfigOpt;
 use clap::Args;
 use exompc::scenario::{run_soak, soak_scenario, RunError};
 use exompc::sim::{Recorder, StepRecord};

@@ -13,8 +13,7 @@
 //! `T(k..k+Np−1)` (held after `Nc`) and the predicted states `k+1..k+Np`. A solver failure
 //! still prints the result, then exits 1.
 
-use crate::model_cmd::{check_vec, joint_count, parse_input, probe_as, read_stdin};
-use crate::ConfigOpt;
+use crate::args::ConfigOpt;
 use clap::Args;
 use exompc::config::{Interaction, Scenario};
 use exompc::control::{horizon_inputs, Measurement, NmpcCore};
@@ -22,6 +21,7 @@ use exompc::model::JointState;
 use exompc::scenario::{intent, limits, nmpc_settings, prediction_model, Dof, OneDof, TwoDof};
 use exompc::solver::SqpStatus;
 use exompc_cli::error::CliError;
+use exompc_cli::io::{check_vec, joint_count, parse_input, probe_as, read_stdin};
 use nalgebra::SVector;
 use serde::Deserialize;
 use serde_json::{json, Value};

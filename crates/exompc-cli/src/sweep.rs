@@ -2,19 +2,21 @@
 //! each streamed into `DIR/<controller>_<payload>kg/{trace.csv,summary.json}`; then the paper's
 //! Table 2 as `DIR/table2.md` and all summaries as `DIR/sweep.json`.
 
-use crate::simulate::{apply_overrides, FormulationArg};
-use crate::{ConfigOpt, ControllerArg};
+use crate::args::{
+    apply_overrides, controller_name, formulation_name, parse_payloads, FormulationArg,
+};
+use crate::args::{ConfigOpt, ControllerArg};
 use clap::Args;
 use exompc::config::{ControllerKind, Scenario};
 use exompc::sim::Summary;
 use exompc_cli::error::CliError;
 use exompc_cli::interrupt;
 use exompc_cli::io;
+use exompc_cli::layout::{run_dir_name, SweepFile};
 use exompc_cli::run::run_to_dir;
 use exompc_cli::verdict::Verdict;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
 use std::io::IsTerminal as _;
 use std::path::{Path, PathBuf};
 
@@ -58,104 +60,6 @@ pub(crate) struct SweepArgs {
     /// Also draw the figures into the output folder.
     #[arg(long)]
     plot: bool,
-}
-
-/// The content of `sweep.json`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub(crate) struct SweepFile {
-    /// One summary per run, payload-major in the order of `--payloads`, then `--controllers`.
-    pub(crate) rows: Vec<Summary>,
-}
-
-/// Largest number of payloads a sweep accepts.
-const MAX_PAYLOADS: usize = 1000;
-
-fn usage(msg: impl std::fmt::Display) -> CliError {
-    CliError::Usage(format!("--payloads: {msg}"))
-}
-
-fn parse_number(s: &str) -> Result<f64, CliError> {
-    let t = s.trim();
-    let v: f64 = t
-        .parse()
-        .map_err(|_| usage(format!("`{t}` is not a number")))?;
-    if !v.is_finite() {
-        return Err(usage(format!("`{t}` is not a finite number")));
-    }
-    Ok(v)
-}
-
-/// Rounds to 1e-9 kg so that `a + i·step` prints as the user wrote it.
-fn tidy(v: f64) -> f64 {
-    let r = (v * 1e9).round() / 1e9;
-    if r == 0.0 {
-        0.0
-    } else {
-        r
-    }
-}
-
-/// Parses `--payloads`: `start:step:end` (inclusive of `end` within 1e-9) or a comma list.
-pub(crate) fn parse_payloads(spec: &str) -> Result<Vec<f64>, CliError> {
-    let spec = spec.trim();
-    if spec.is_empty() {
-        return Err(usage(
-            "empty list (expected start:step:end or a comma list)",
-        ));
-    }
-    let values = if spec.contains(':') {
-        let parts: Vec<&str> = spec.split(':').collect();
-        let [a, step, b] = parts[..] else {
-            return Err(usage(format!(
-                "`{spec}`: a range has three parts, start:step:end"
-            )));
-        };
-        let (a, step, b) = (parse_number(a)?, parse_number(step)?, parse_number(b)?);
-        if step <= 0.0 {
-            return Err(usage(format!("step {step} must be > 0")));
-        }
-        if b < a {
-            return Err(usage(format!("end {b} is below start {a}")));
-        }
-        let n = ((b - a) / step + 1e-9).floor();
-        if n + 1.0 > MAX_PAYLOADS as f64 {
-            return Err(usage(format!(
-                "more than {MAX_PAYLOADS} payloads in `{spec}`"
-            )));
-        }
-        (0..=n as usize)
-            .map(|i| tidy(a + i as f64 * step))
-            .collect()
-    } else {
-        let v: Vec<f64> = spec
-            .split(',')
-            .map(|p| parse_number(p).map(tidy))
-            .collect::<Result<_, _>>()?;
-        if v.len() > MAX_PAYLOADS {
-            return Err(usage(format!("more than {MAX_PAYLOADS} payloads")));
-        }
-        v
-    };
-    for (i, p) in values.iter().enumerate() {
-        if values[..i].contains(p) {
-            return Err(usage(format!("payload {p} kg is listed twice")));
-        }
-    }
-    Ok(values)
-}
-
-/// Command-line name of a controller (also its folder prefix and `Summary::controller`).
-pub(crate) fn controller_name(c: ControllerArg) -> &'static str {
-    match c {
-        ControllerArg::Pd => "pd",
-        ControllerArg::Nmpc => "nmpc",
-        ControllerArg::Msnmpc => "msnmpc",
-    }
-}
-
-/// Folder name of one run: `<controller>_<payload>kg`.
-pub(crate) fn run_dir_name(controller: &str, payload: f64) -> String {
-    format!("{controller}_{}kg", tidy(payload))
 }
 
 fn progress_bar(len: usize, quiet: bool) -> ProgressBar {
@@ -415,7 +319,7 @@ pub(crate) fn run(a: SweepArgs) -> Result<(), CliError> {
         {
             return Err(CliError::Usage(format!(
                 "--formulation {} applies to msnmpc, which --controllers does not list",
-                crate::simulate::formulation_name(f)
+                formulation_name(f)
             )));
         }
     }

@@ -1,0 +1,185 @@
+//! Argument types and flag handling shared by the subcommands (`--config`, `--controller`,
+//! `--formulation`, `--payloads`, the scenario overrides). Command modules import this module
+//! and the `exompc_cli` library, never each other.
+
+use clap::Args;
+use exompc::config::{ControllerKind, Formulation, Scenario};
+use exompc_cli::error::CliError;
+use exompc_cli::io;
+use exompc_cli::layout::tidy;
+use std::path::PathBuf;
+
+/// `--config FILE`, shared by the subcommands that run a scenario.
+#[derive(Debug, Args)]
+pub(crate) struct ConfigOpt {
+    /// Scenario TOML file applied on top of the default scenario (see `exompc config`).
+    #[arg(long, value_name = "FILE")]
+    pub(crate) config: Option<PathBuf>,
+}
+
+impl ConfigOpt {
+    /// Loads and validates the scenario named by `--config` (the default when absent).
+    pub(crate) fn load(&self) -> Result<Scenario, CliError> {
+        io::load_scenario(self.config.as_deref())
+    }
+}
+
+/// Controller choice on the command line (mirrors [`ControllerKind`]).
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub(crate) enum ControllerArg {
+    Pd,
+    Nmpc,
+    Msnmpc,
+}
+
+impl From<ControllerArg> for ControllerKind {
+    fn from(c: ControllerArg) -> Self {
+        match c {
+            ControllerArg::Pd => ControllerKind::Pd,
+            ControllerArg::Nmpc => ControllerKind::Nmpc,
+            ControllerArg::Msnmpc => ControllerKind::Msnmpc,
+        }
+    }
+}
+
+/// Command-line name of a controller (also its folder prefix and `Summary::controller`).
+pub(crate) fn controller_name(c: ControllerArg) -> &'static str {
+    match c {
+        ControllerArg::Pd => "pd",
+        ControllerArg::Nmpc => "nmpc",
+        ControllerArg::Msnmpc => "msnmpc",
+    }
+}
+
+/// Formulation choice on the command line.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub(crate) enum FormulationArg {
+    Decoupled,
+    Coupled,
+}
+
+impl From<FormulationArg> for Formulation {
+    fn from(f: FormulationArg) -> Self {
+        match f {
+            FormulationArg::Decoupled => Formulation::Decoupled,
+            FormulationArg::Coupled => Formulation::Coupled,
+        }
+    }
+}
+
+/// Command-line spelling of a formulation.
+pub(crate) fn formulation_name(f: FormulationArg) -> &'static str {
+    match f {
+        FormulationArg::Decoupled => "decoupled",
+        FormulationArg::Coupled => "coupled",
+    }
+}
+
+/// Apply the command-line overrides to the scenario and validate the result; a bad flag value
+/// is reported naming the flag.
+pub(crate) fn apply_overrides(
+    s: &mut Scenario,
+    dof: u8,
+    controller: Option<ControllerArg>,
+    formulation: Option<FormulationArg>,
+    payload: Option<f64>,
+    duration: Option<f64>,
+) -> Result<(), CliError> {
+    if let Some(k) = controller {
+        s.controller.kind = k.into();
+    }
+    if let (Some(f), Some(k)) = (formulation, controller) {
+        if !matches!(k, ControllerArg::Msnmpc) {
+            return Err(CliError::Usage(format!(
+                "--formulation {} applies to --controller msnmpc only, not --controller {}",
+                formulation_name(f),
+                controller_name(k)
+            )));
+        }
+    }
+    if let Some(f) = formulation {
+        s.multistage.formulation = f.into();
+    }
+    if let Some(p) = payload {
+        s.uncertainty.payload_kg = p;
+        s.validate()
+            .map_err(|e| CliError::Usage(format!("--payload: {e}")))?;
+    }
+    if let Some(d) = duration {
+        if dof == 1 {
+            s.timing.duration_1dof_s = d;
+        } else {
+            s.timing.duration_2dof_s = d;
+        }
+        s.validate()
+            .map_err(|e| CliError::Usage(format!("--duration: {e}")))?;
+    }
+    Ok(())
+}
+
+/// Largest number of payloads a sweep accepts.
+const MAX_PAYLOADS: usize = 1000;
+
+fn usage(msg: impl std::fmt::Display) -> CliError {
+    CliError::Usage(format!("--payloads: {msg}"))
+}
+
+fn parse_number(s: &str) -> Result<f64, CliError> {
+    let t = s.trim();
+    let v: f64 = t
+        .parse()
+        .map_err(|_| usage(format!("`{t}` is not a number")))?;
+    if !v.is_finite() {
+        return Err(usage(format!("`{t}` is not a finite number")));
+    }
+    Ok(v)
+}
+
+/// Parses `--payloads`: `start:step:end` (inclusive of `end` within 1e-9) or a comma list.
+pub(crate) fn parse_payloads(spec: &str) -> Result<Vec<f64>, CliError> {
+    let spec = spec.trim();
+    if spec.is_empty() {
+        return Err(usage(
+            "empty list (expected start:step:end or a comma list)",
+        ));
+    }
+    let values = if spec.contains(':') {
+        let parts: Vec<&str> = spec.split(':').collect();
+        let [a, step, b] = parts[..] else {
+            return Err(usage(format!(
+                "`{spec}`: a range has three parts, start:step:end"
+            )));
+        };
+        let (a, step, b) = (parse_number(a)?, parse_number(step)?, parse_number(b)?);
+        if step <= 0.0 {
+            return Err(usage(format!("step {step} must be > 0")));
+        }
+        if b < a {
+            return Err(usage(format!("end {b} is below start {a}")));
+        }
+        let n = ((b - a) / step + 1e-9).floor();
+        if n + 1.0 > MAX_PAYLOADS as f64 {
+            return Err(usage(format!(
+                "more than {MAX_PAYLOADS} payloads in `{spec}`"
+            )));
+        }
+        (0..=n as usize)
+            .map(|i| tidy(a + i as f64 * step))
+            .collect()
+    } else {
+        let v: Vec<f64> = spec
+            .split(',')
+            .map(|p| parse_number(p).map(tidy))
+            .collect::<Result<_, _>>()?;
+        if v.len() > MAX_PAYLOADS {
+            return Err(usage(format!("more than {MAX_PAYLOADS} payloads")));
+        }
+        v
+    };
+    for (i, p) in values.iter().enumerate() {
+        if values[..i].contains(p) {
+            return Err(usage(format!("payload {p} kg is listed twice")));
+        }
+    }
+    Ok(values)
+}
