@@ -248,8 +248,51 @@ fn invalid_torque_limits_are_errors_not_panics() {
             bad,
             Vector2::zeros(),
         );
-        assert!(r.is_err(), "{bad:?} accepted");
+        // A limits error naming the limit, not a solver-setting error.
+        match r {
+            Err(exompc::control::NmpcError::Limits(e)) => {
+                assert!(["torque_max", "torque_rate"].contains(&e.field), "{e}");
+                assert!(e.to_string().contains("invalid torque limit"), "{e}");
+            }
+            Err(e) => panic!("{bad:?}: expected a limits error, got {e}"),
+            Ok(_) => panic!("{bad:?} accepted"),
+        }
         let _ = bad.clamp(&Vector2::new(1.0, f64::NAN), &Vector2::new(5.0, 2.0));
         let _ = bad.admissible(&Vector2::new(1.0, f64::NAN));
+    }
+}
+
+#[test]
+fn controller_build_errors_are_typed() {
+    use exompc::control::MultiStageError;
+    use exompc::estimate::EstimateError;
+    use exompc::scenario::{build_controller, RunError, TwoDof};
+    let mut s = exompc::config::Scenario::default();
+    s.ekf.q_angle = -1.0; // not validated here: build_controller trusts its caller
+    match build_controller::<TwoDof, 2>(&s, exompc::config::ControllerKind::Msnmpc) {
+        Err(RunError::MultiStage(MultiStageError::Estimator(EstimateError::InvalidSetting(
+            field,
+            _,
+        )))) => assert_eq!(field, "q_angle"),
+        Err(e) => panic!("expected an estimator error, got {e}"),
+        Ok(_) => panic!("a negative EKF variance was accepted"),
+    }
+    let mut s = exompc::config::Scenario::default();
+    s.controller.torque_max = f64::NAN;
+    for kind in [
+        exompc::config::ControllerKind::Nmpc,
+        exompc::config::ControllerKind::Msnmpc,
+    ] {
+        let e = build_controller::<TwoDof, 2>(&s, kind)
+            .err()
+            .expect("NaN limit accepted");
+        assert!(
+            matches!(
+                e,
+                RunError::Nmpc(exompc::control::NmpcError::Limits(_))
+                    | RunError::MultiStage(MultiStageError::Limits(_))
+            ),
+            "{kind:?}: {e}"
+        );
     }
 }

@@ -2,6 +2,18 @@
 
 use nalgebra::SVector;
 
+/// A torque limit outside its allowed range (from [`TorqueLimits::validate`]).
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("invalid torque limit `{field}` = {value}: allowed range is {allowed}")]
+pub struct LimitsError {
+    /// Name of the offending limit (`torque_max` or `torque_rate`).
+    pub field: &'static str,
+    /// The rejected value.
+    pub value: f64,
+    /// Human-readable description of the allowed range.
+    pub allowed: &'static str,
+}
+
 /// `|T| ≤ max` and `|T − T_prev| ≤ rate` on every joint (paper eqs. 8-9, MODEL.md §8).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TorqueLimits {
@@ -14,10 +26,10 @@ pub struct TorqueLimits {
 impl TorqueLimits {
     /// Check the limits: both finite and `> 0`. Controllers check this in their constructors;
     /// `admissible`/`clamp` never panic, but only valid limits give meaningful torques.
-    pub fn validate(&self) -> Result<(), crate::solver::SolverError> {
+    pub fn validate(&self) -> Result<(), LimitsError> {
         for (field, value) in [("torque_max", self.max), ("torque_rate", self.rate)] {
             if !(value.is_finite() && value > 0.0) {
-                return Err(crate::solver::SolverError::InvalidSetting {
+                return Err(LimitsError {
                     field,
                     value,
                     allowed: "finite, > 0",

@@ -31,9 +31,9 @@ mod robust;
 mod safety;
 
 pub use lag::{ForceLag, HfShareDetector};
-pub use limits::TorqueLimits;
+pub use limits::{LimitsError, TorqueLimits};
 pub use multistage::{CoupledProblem, Formulation, MultiStage, MultiStageError, MultiStageOptions};
-pub use nmpc::{classify, horizon_inputs, Nmpc, NmpcCore, NmpcProblem, NmpcSettings};
+pub use nmpc::{classify, horizon_inputs, Nmpc, NmpcCore, NmpcError, NmpcProblem, NmpcSettings};
 pub use ocp::{QpBackend, StructuredSqp, AUTO_STRUCTURED_MIN_VARS};
 pub use pd::PdController;
 pub use prediction::{HorizonInputs, Interaction, PredictionModel, StepJacobian};

@@ -1,10 +1,11 @@
 //! Multi-stage robust NMPC (paper §3.2, eqs. 10-13): see [`MultiStage`].
 
+use super::limits::LimitsError;
 use super::nmpc::{classify, horizon_inputs, NmpcCore, NmpcProblem, NmpcSettings};
 use super::prediction::{HorizonInputs, PredictionModel};
 use super::robust::{RobustSettings, RobustState};
 use super::{ControlOutput, Controller, IntentEstimator, Measurement, StepStatus, TorqueLimits};
-use crate::estimate::{EkfBank, EkfSettings, EstimatorOptions};
+use crate::estimate::{EkfBank, EkfSettings, EstimateError, EstimatorOptions};
 use crate::model::JointState;
 use crate::solver::{Constraints, LeastSquares, SolverError, Sqp, SqpInfo};
 use nalgebra::{DMatrix, DVector, SVector};
@@ -303,8 +304,7 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
         }
         let robots: Vec<_> = models.iter().map(|m| m.robot).collect();
         let zero = SVector::zeros();
-        let bank = EkfBank::new(&robots, ekf, estimator, &zero, &zero)
-            .map_err(|e| MultiStageError::Estimator(e.to_string()))?;
+        let bank = EkfBank::new(&robots, ekf, estimator, &zero, &zero)?;
         let (cores, coupled) = match options.formulation {
             Formulation::Decoupled => (
                 models
@@ -381,9 +381,12 @@ pub enum MultiStageError {
     /// No scenario was given.
     #[error("the multi-stage controller needs at least one scenario")]
     NoScenario,
+    /// Invalid torque limits.
+    #[error(transparent)]
+    Limits(#[from] LimitsError),
     /// Invalid estimator settings.
     #[error("estimator settings: {0}")]
-    Estimator(String),
+    Estimator(#[from] EstimateError),
     /// Invalid solver settings.
     #[error(transparent)]
     Solver(#[from] SolverError),

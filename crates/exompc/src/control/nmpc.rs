@@ -1,5 +1,6 @@
 //! Non-robust NMPC (paper §3.1, eq. 7 with constraints 8-9) on the SQP of [`crate::solver`].
 
+use super::limits::LimitsError;
 use super::ocp::{QpBackend, StructuredSqp};
 use super::prediction::{HorizonInputs, PredictionModel, StepJacobian};
 use super::{ControlOutput, Controller, IntentEstimator, Measurement, StepStatus, TorqueLimits};
@@ -367,6 +368,17 @@ pub struct Nmpc<const N: usize> {
     prev: SVector<f64, N>,
 }
 
+/// Why an [`Nmpc`] could not be built.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum NmpcError {
+    /// Invalid torque limits.
+    #[error(transparent)]
+    Limits(#[from] LimitsError),
+    /// Invalid solver settings or dimensions.
+    #[error(transparent)]
+    Solver(#[from] SolverError),
+}
+
 impl<const N: usize> Nmpc<N> {
     /// A controller for `model` with initial previous torque `t0` (MODEL.md §7: the nominal gravity
     /// torque at the initial state).
@@ -376,7 +388,7 @@ impl<const N: usize> Nmpc<N> {
         intent: IntentEstimator,
         limits: TorqueLimits,
         t0: SVector<f64, N>,
-    ) -> Result<Self, SolverError> {
+    ) -> Result<Self, NmpcError> {
         limits.validate()?;
         Ok(Nmpc {
             core: NmpcCore::new(model, settings)?,

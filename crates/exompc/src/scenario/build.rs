@@ -5,8 +5,8 @@
 use super::RunError;
 use crate::config::{self, ControllerKind, Method, Scenario};
 use crate::control::{
-    Controller, IntentEstimator, MultiStage, MultiStageError, MultiStageOptions, Nmpc,
-    NmpcSettings, PdController, PredictionModel, SafetySettings, Supervisor, TorqueLimits,
+    Controller, IntentEstimator, MultiStage, MultiStageOptions, Nmpc, NmpcSettings, PdController,
+    PredictionModel, SafetySettings, Supervisor, TorqueLimits,
 };
 use crate::estimate::EstimatorOptions;
 use crate::model::{Friction, Link, RobotModel, Straps, WinterFractions};
@@ -306,11 +306,7 @@ where
         intent(s),
         limits(s),
         t0,
-    )
-    .map_err(|e| match e {
-        MultiStageError::Solver(e) => RunError::Solver(e),
-        other => RunError::Build(other.to_string()),
-    })?;
+    )?;
     let ms = match s.controller.method {
         Method::Paper => ms,
         Method::Robust => ms.with_robust(&s.controller.robust, s.uncertainty.filter_window),

@@ -3,12 +3,11 @@
 
 use super::build::{build_supervised, limits, plant_params, uncertainty, Dof, TwoDof};
 use crate::config::{ConfigError, ControllerKind, Scenario};
-use crate::control::{Controller, MonitorEvent, SafetyReport};
+use crate::control::{Controller, MonitorEvent, MultiStageError, NmpcError, SafetyReport};
 use crate::sim::{
     default_schedule, repeat_schedule, run_closed_loop, Metrics, Plant, Recorder, SafetySummary,
     Sensors, SoakStats, StepRecord, Summary,
 };
-use crate::solver::SolverError;
 use nalgebra::SVector;
 use serde::Serialize;
 use std::time::Instant;
@@ -19,12 +18,13 @@ pub enum RunError {
     /// The scenario is invalid.
     #[error(transparent)]
     Config(#[from] ConfigError),
-    /// The solver settings are invalid.
-    #[error("solver settings: {0}")]
-    Solver(#[from] SolverError),
-    /// A controller could not be built.
+    /// The NMPC controller could not be built (invalid limits or solver settings).
     #[error("controller: {0}")]
-    Build(String),
+    Nmpc(#[from] NmpcError),
+    /// The multi-stage controller could not be built (invalid limits, estimator or solver
+    /// settings, or no scenario).
+    #[error("multi-stage controller: {0}")]
+    MultiStage(#[from] MultiStageError),
     /// The simulated plant diverged (its state stopped being finite) at time `t`.
     #[error(
         "the simulated plant diverged at t = {t} s (its state is no longer finite); \
