@@ -77,6 +77,7 @@ pub mod config;
 pub mod control;
 pub mod estimate;
 pub mod model;
+pub mod multistage_scenarios;
 pub mod runtime;
 pub mod sim;
 pub mod solver;

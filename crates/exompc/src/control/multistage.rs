@@ -267,7 +267,9 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     intent: IntentEstimator,
     limits: TorqueLimits,
     prev: SVector<f64, N>,
-    prev_t_int: SVector<f64, N>,
+    /// Filtered strap force of the previous step (each scenario's EKF maps it through its own
+    /// strap geometry).
+    prev_force: SVector<f64, N>,
     started: bool,
     /// Time of the last measurement the EKF bank used.
     last_t: f64,
@@ -329,7 +331,7 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             intent,
             limits,
             prev: limits.admissible(&t0),
-            prev_t_int: zero,
+            prev_force: zero,
             started: false,
             last_t: 0.0,
             robust: None,
@@ -402,7 +404,10 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
             self.bank.resume_at(&m.q, &m.qd);
         } else {
             // A failed filter keeps its state and the probabilities; the controller goes on.
-            let _ = self.bank.step(&y, &self.prev, &self.prev_t_int);
+            let (models, f) = (&self.models, self.prev_force);
+            let _ = self
+                .bank
+                .step_per_scenario(&y, &self.prev, |i| models[i].straps.torque(&f));
         }
         self.last_t = m.t;
         let mut x0 = JointState { q: m.q, qd: m.qd };
@@ -476,7 +481,7 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
         };
         let torque = self.limits.clamp(&prev, &desired);
         self.prev = torque;
-        self.prev_t_int = self.models[0].straps.torque(&mi.force);
+        self.prev_force = mi.force;
         ControlOutput {
             torque,
             status,
@@ -513,13 +518,8 @@ pub fn build_multistage<D, const N: usize, const NA: usize, const NY: usize>(
 where
     D: crate::sim::Dof<N>,
 {
-    use crate::sim::{intent, limits, nmpc_settings, prediction_model};
-    let models: Vec<_> = s
-        .multistage
-        .payloads_kg
-        .iter()
-        .map(|&p| prediction_model::<D, N>(s, p))
-        .collect();
+    use crate::sim::{intent, limits, nmpc_settings};
+    let models = crate::multistage_scenarios::prediction_models::<D, N>(s);
     let ekf = s.ekf;
     let est = EstimatorOptions {
         dt: s.timing.dt,
