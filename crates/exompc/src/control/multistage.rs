@@ -246,8 +246,11 @@ pub struct MultiStageOptions {
 /// with its own model and `d̂_i`; the torque follows eq. 13 (decoupled) or the shared first
 /// increment (coupled), then the hard limits of eqs. 8-9.
 ///
-/// One scenario per candidate payload (docs/MODEL.md §8), each with its own robot model and
-/// EKF disturbance estimate, weighted by the EKF-bank probabilities ([`EkfBank`]).
+/// One scenario per candidate model (docs/MODEL.md §8: by default one per payload; any robot,
+/// payload and strap parameters with `[[multistage.scenarios]]`, see
+/// [`crate::multistage_scenarios`]), each with its own prediction model, EKF (which maps the
+/// measured strap forces through the scenario's own strap geometry) and disturbance estimate,
+/// weighted by the EKF-bank probabilities ([`EkfBank`]).
 ///
 /// Two formulations:
 /// - [`Formulation::Decoupled`] (the paper): each scenario's NMPC of eq. 7 is solved on its own
