@@ -222,6 +222,10 @@ fn warns_about_scenarios_the_estimator_cannot_tell_apart() {
     ]);
     assert!(ms::warnings(&s, 2).is_empty());
     assert!(ms::warnings(&s, 1).is_empty());
+    // The criterion is a property of the models, not of the run's length.
+    let mut short = s.clone();
+    short.timing.duration_2dof_s = 0.05;
+    assert!(ms::warnings(&short, 2).is_empty());
     // An invalid scenario gives no warnings (validation reports it).
     let mut s = s;
     s.multistage.scenarios[0].robot.shank.mass_kg = Some(-1.0);
