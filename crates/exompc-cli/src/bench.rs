@@ -165,6 +165,8 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
                 let mut s = variant(&base, ControllerKind::Msnmpc, formulation);
                 s.controller.np = np;
                 s.controller.nc = nc;
+                // The scaling grid is over payload scenarios (named ones would override it).
+                s.multistage.scenarios.clear();
                 s.multistage.payloads_kg = (0..ns)
                     .map(|i| {
                         if ns == 1 {

@@ -157,6 +157,9 @@ fn schema() -> toml::Table {
         duration_s: 0.0,
         magnitude: 0.0,
     });
+    s.multistage
+        .scenarios
+        .push(exompc::scenario::multistage::ScenarioSpec::every_key());
     match toml::Value::try_from(&s) {
         Ok(toml::Value::Table(t)) => t,
         _ => unreachable!("a Scenario always serialises to a TOML table"),

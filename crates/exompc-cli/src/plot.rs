@@ -570,20 +570,38 @@ impl Run {
     }
 }
 
+/// Legend label of scenario `i` (0-based) with trace key `key`: its name from the summary
+/// (`"0 kg"`, ...), else the name in the column (`mu_<name>`), else `μ<i+1>`.
+fn scenario_label(names: Option<&[String]>, i: usize, key: &str) -> String {
+    match names.and_then(|n| n.get(i)) {
+        Some(name) => name.clone(),
+        None if key.parse::<usize>().is_ok() => format!("μ{key}"),
+        None => key.to_string(),
+    }
+}
+
 fn probability_panel(run: &Run) -> Option<Panel> {
-    let s = run.trace.scenarios();
-    if s == 0 {
+    let keys = run.trace.scenario_keys();
+    if keys.is_empty() {
         return None;
     }
     let t = run.t();
-    let lines = (1..=s)
-        .map(|i| {
+    let names = run.summary.as_ref().and_then(|s| s.scenarios.as_deref());
+    let lines = keys
+        .iter()
+        .enumerate()
+        .map(|(i, key)| {
             let y = run
-                .col(&format!("mu_{i}"))
+                .col(&format!("mu_{key}"))
                 .into_iter()
                 .map(|v| 100.0 * v)
                 .collect();
-            Line::new(format!("μ{i}"), t.clone(), y, SCEN[(i - 1) % SCEN.len()])
+            Line::new(
+                scenario_label(names, i, key),
+                t.clone(),
+                y,
+                SCEN[i % SCEN.len()],
+            )
         })
         .collect();
     Some(
@@ -844,6 +862,7 @@ fn payload_figure(rows: &[Summary]) -> Figure {
         .max()
         .unwrap_or(0);
     if s > 0 {
+        let names = rows.iter().find_map(|r| r.scenarios.as_deref());
         let lines = (0..s)
             .map(|i| {
                 let (x, y) = series("msnmpc", &|r: &Summary| {
@@ -852,7 +871,11 @@ fn payload_figure(rows: &[Summary]) -> Figure {
                         .and_then(|m| m.get(i))
                         .map(|v| 100.0 * v)
                 });
-                Line::new(format!("μ̄{}", i + 1), x, y, SCEN[i % SCEN.len()]).markers()
+                let label = match names.and_then(|n| n.get(i)) {
+                    Some(name) => format!("μ̄ {name}"),
+                    None => format!("μ̄{}", i + 1),
+                };
+                Line::new(label, x, y, SCEN[i % SCEN.len()]).markers()
             })
             .collect();
         let mut p = Panel::time(

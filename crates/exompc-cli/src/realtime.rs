@@ -15,7 +15,7 @@ use exompc::scenario::{build_supervised, limits, plant_params, uncertainty, Dof,
 use exompc::sim::{Metrics, Plant, Recorder, Sensors, StepRecord};
 use exompc_cli::error::CliError;
 use exompc_cli::io;
-use exompc_cli::run::scenario_count;
+use exompc_cli::run::scenario_keys;
 use exompc_cli::trace::CsvTrace;
 use nalgebra::SVector;
 use serde::Serialize;
@@ -240,7 +240,7 @@ fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs) -> Result<(), C
         .map_or(s.control_steps(D::DOF), |d| (d / s.timing.dt) as usize + 16)
         .min(1 << 22);
     let mut lp = ControlLoop::new(sup, settings, capacity);
-    let mut trace = CsvTrace::create(&a.out.join("trace.csv"), N, scenario_count(s))?;
+    let mut trace = CsvTrace::create_with(&a.out.join("trace.csv"), N, &scenario_keys(s))?;
     let stop = stop_flag()?;
     let rt = rt_setup(&a.rt);
     let mut robot = UdpRobot::<N>::connect(a.bind, a.robot)
@@ -530,7 +530,7 @@ fn robot_dof<D: Dof<N>, const N: usize>(
     let sensors = Sensors::new(uncertainty(s), s.uncertainty.filter_window).with_faults(&s.faults);
     let mut robot = VirtualRobot::new(plant, sensors, limits(s), dt, a.watchdog_periods);
     let steps = s.control_steps(D::DOF);
-    let mut trace = CsvTrace::create(&a.out.join("trace.csv"), N, scenario_count(s))?;
+    let mut trace = CsvTrace::create_with(&a.out.join("trace.csv"), N, &scenario_keys(s))?;
     let mut metrics = Metrics::with_capacity(steps.min(1 << 22));
     let stop = stop_flag()?;
     let rt = rt_setup(&a.rt);

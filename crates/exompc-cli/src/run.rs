@@ -5,16 +5,46 @@ use crate::interrupt::StopOnInterrupt;
 use crate::io::write_atomic;
 use crate::trace::CsvTrace;
 use exompc::config::{ControllerKind, Scenario};
+use exompc::scenario::multistage;
 use exompc::scenario::{run_experiment, OneDof, RunError, TwoDof};
 use exompc::sim::{Recorder, Summary};
 use std::path::Path;
 
 /// Number of scenarios the controller of `s` reports.
 pub fn scenario_count(s: &Scenario) -> usize {
+    scenario_keys(s).len()
+}
+
+/// Trace column keys of the scenarios the controller of `s` reports (none for PD and NMPC).
+pub fn scenario_keys(s: &Scenario) -> Vec<String> {
     match s.controller.kind {
-        ControllerKind::Msnmpc => s.multistage.payloads_kg.len(),
-        _ => 0,
+        ControllerKind::Msnmpc => multistage_keys(s),
+        _ => Vec::new(),
     }
+}
+
+/// Trace column keys (`mu_K`, `dist_K_J`) of the multi-stage scenarios of `s`: `1, 2, ...` for
+/// the `payloads_kg` shorthand (the columns tools already read), the names for
+/// `[[multistage.scenarios]]`.
+pub fn multistage_keys(s: &Scenario) -> Vec<String> {
+    if multistage::is_named(s) {
+        multistage::names(s)
+    } else {
+        crate::trace::numbered(multistage::count(s))
+    }
+}
+
+/// One warning line (for stderr) per pair of multi-stage scenarios of `s` that the estimator
+/// cannot tell apart in the `dof`-DOF layout (`exompc::scenario::multistage::warnings`); none
+/// unless the controller is the multi-stage one.
+pub fn scenario_warnings(s: &Scenario, dof: u8) -> Vec<String> {
+    if s.controller.kind != ControllerKind::Msnmpc {
+        return Vec::new();
+    }
+    multistage::warnings(s, usize::from(dof))
+        .iter()
+        .map(|w| format!("warning: {w}"))
+        .collect()
 }
 
 fn run_error(e: RunError) -> CliError {
@@ -30,10 +60,10 @@ fn run_error(e: RunError) -> CliError {
 pub fn run_to_dir(s: &Scenario, dof: u8, out: Option<&Path>) -> Result<Summary, CliError> {
     let n = usize::from(dof);
     let mut trace = match out {
-        Some(dir) => Some(CsvTrace::create(
+        Some(dir) => Some(CsvTrace::create_with(
             &dir.join("trace.csv"),
             n,
-            scenario_count(s),
+            &scenario_keys(s),
         )?),
         None => None,
     };
@@ -98,7 +128,13 @@ pub fn describe(s: &Summary) -> String {
         let ps: Vec<String> = p
             .iter()
             .enumerate()
-            .map(|(i, v)| format!("mu{} {:.2}%", i + 1, 100.0 * v))
+            .map(|(i, v)| {
+                let name = s.scenarios.as_ref().and_then(|n| n.get(i));
+                match name {
+                    Some(name) => format!("{name} {:.2}%", 100.0 * v),
+                    None => format!("mu{} {:.2}%", i + 1, 100.0 * v),
+                }
+            })
             .collect();
         out += &format!("  mean probability  {}\n", ps.join("   "));
     }

@@ -49,6 +49,9 @@ pub(crate) fn run(a: SimulateArgs) -> Result<(), CliError> {
         a.payload,
         a.duration,
     )?;
+    for w in exompc_cli::run::scenario_warnings(&s, a.dof) {
+        eprintln!("{w}");
+    }
     io::ensure_out_dir(&a.out)?;
     let summary = run_to_dir(&s, a.dof, Some(&a.out))?;
     if a.plot {

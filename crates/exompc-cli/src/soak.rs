@@ -68,10 +68,10 @@ pub(crate) fn run(a: SoakArgs) -> Result<(), CliError> {
     let mut trace = match a.trace_every {
         0 => None,
         every => Some(Decimated {
-            trace: CsvTrace::create(
+            trace: CsvTrace::create_with(
                 &out.join("soak_trace.csv"),
                 2,
-                base.multistage.payloads_kg.len(),
+                &exompc_cli::run::multistage_keys(&base),
             )?,
             every,
         }),

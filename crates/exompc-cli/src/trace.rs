@@ -3,8 +3,11 @@
 //!
 //! Columns: `t`; per joint J (`hip`, `knee`; 1-DOF: `knee`) `q_robot_J, qd_robot_J, q_human_J,
 //! qd_human_J, q_desired_J, torque_robot_J, torque_human_J`; per strap S (`thigh`, `shank`;
-//! 1-DOF: `shank`) `force_true_S, force_measured_S`; per scenario i `mu_i` and per scenario and
-//! joint `dist_i_J`; then `status, iterations, step_us`. Units SI (rad, rad/s, N·m, N), time in s.
+//! 1-DOF: `shank`) `force_true_S, force_measured_S`; per scenario `mu_K` and per scenario and
+//! joint `dist_K_J`; then `status, iterations, step_us`. Units SI (rad, rad/s, N·m, N), time in s.
+//! The scenario key `K` is its number `1, 2, ...` for the `multistage.payloads_kg` shorthand
+//! (whose names `"0 kg"`, ... are in `summary.json`) and its name for
+//! `[[multistage.scenarios]]` (e.g. `mu_soft straps`).
 
 use crate::error::CliError;
 use crate::io::AtomicWriter;
@@ -30,8 +33,19 @@ pub fn strap_names(n: usize) -> &'static [&'static str] {
     }
 }
 
-/// Column names of a trace with `n` joints and `scenarios` scenarios.
+/// Column names of a trace with `n` joints and `scenarios` scenarios keyed `1, 2, ...`.
 pub fn header(n: usize, scenarios: usize) -> Vec<String> {
+    header_with(n, &numbered(scenarios))
+}
+
+/// The scenario keys `1, 2, ..., scenarios`.
+pub fn numbered(scenarios: usize) -> Vec<String> {
+    (1..=scenarios).map(|i| i.to_string()).collect()
+}
+
+/// Column names of a trace with `n` joints and one scenario per key of `scenarios` (columns
+/// `mu_K`, `dist_K_J`).
+pub fn header_with(n: usize, scenarios: &[String]) -> Vec<String> {
     let mut h = vec!["t".to_string()];
     for j in joint_names(n) {
         for c in [
@@ -50,10 +64,10 @@ pub fn header(n: usize, scenarios: usize) -> Vec<String> {
         h.push(format!("force_true_{s}"));
         h.push(format!("force_measured_{s}"));
     }
-    for i in 1..=scenarios {
+    for i in scenarios {
         h.push(format!("mu_{i}"));
     }
-    for i in 1..=scenarios {
+    for i in scenarios {
         for j in joint_names(n) {
             h.push(format!("dist_{i}_{j}"));
         }
@@ -74,13 +88,18 @@ impl CsvTrace {
     /// Create `path` (through a temporary file renamed by [`CsvTrace::finish`]) and write the
     /// header for `n` joints and `scenarios` scenarios.
     pub fn create(path: &Path, n: usize, scenarios: usize) -> Result<Self, CliError> {
+        Self::create_with(path, n, &numbered(scenarios))
+    }
+
+    /// [`CsvTrace::create`] with the scenario keys `scenarios` (see [`header_with`]).
+    pub fn create_with(path: &Path, n: usize, scenarios: &[String]) -> Result<Self, CliError> {
         let w = AtomicWriter::create(path)?;
         let mut out = std::io::BufWriter::with_capacity(1 << 16, w);
-        writeln!(out, "{}", header(n, scenarios).join(","))
+        writeln!(out, "{}", header_with(n, scenarios).join(","))
             .map_err(|e| CliError::io(format!("writing {}", path.display()), e))?;
         Ok(CsvTrace {
             out,
-            scenarios,
+            scenarios: scenarios.len(),
             n,
             line: String::with_capacity(512),
         })
@@ -187,6 +206,15 @@ impl TraceTable {
     /// Number of scenarios (probability columns).
     pub fn scenarios(&self) -> usize {
         self.columns.iter().filter(|c| c.starts_with("mu_")).count()
+    }
+
+    /// The scenario keys `K` of the probability columns `mu_K`, in order (`1, 2, ...` or the
+    /// scenario names).
+    pub fn scenario_keys(&self) -> Vec<String> {
+        self.columns
+            .iter()
+            .filter_map(|c| c.strip_prefix("mu_").map(str::to_string))
+            .collect()
     }
 }
 

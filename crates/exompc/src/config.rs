@@ -15,6 +15,8 @@
 use serde::{Deserialize, Deserializer, Serialize};
 use std::fmt;
 
+pub mod scenarios;
+
 // ---------------------------------------------------------------------------------------------
 // Error
 // ---------------------------------------------------------------------------------------------
@@ -689,11 +691,12 @@ pub use crate::estimate::Innovation;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Multistage {
-    /// Payload of each scenario (kg): 1..=32 entries, each in [0, 20]. Default [0, 1, 2].
+    /// Payload of each scenario (kg): 1..=32 entries, each in [0, 20]; a shorthand for
+    /// scenarios named `"0 kg"`, `"1 kg"`, ... with the base robot and straps. Default [0, 1, 2].
     pub payloads_kg: Vec<f64>,
     /// Convergence constant c1 of the probability update (paper eq. 10), > 0. Default 100.
     pub c1: f64,
-    /// Probability floor before renormalisation, in (0, 1/len(payloads_kg)). Default 1e-4.
+    /// Probability floor before renormalisation, in (0, 1/number of scenarios). Default 1e-4.
     pub probability_floor: f64,
     /// `"decoupled"` (paper eq. 13) or `"coupled"` (eq. 12). Default `"decoupled"`.
     pub formulation: Formulation,
@@ -703,6 +706,11 @@ pub struct Multistage {
     pub parallel: bool,
     /// `"standard"` or `"paper"` EKF innovation (paper §3.2). Default `"standard"`.
     pub innovation: Innovation,
+    /// `[[multistage.scenarios]]`: named scenarios, each a partial override of `[robot]` and
+    /// `[straps]` with its payload (see [`scenarios`]); when given they
+    /// replace `payloads_kg` (which must then be left out). Default none.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub scenarios: Vec<scenarios::ScenarioSpec>,
 }
 
 impl Default for Multistage {
@@ -715,6 +723,7 @@ impl Default for Multistage {
             robust_horizon: 1,
             parallel: false,
             innovation: Innovation::Standard,
+            scenarios: Vec::new(),
         }
     }
 }
@@ -947,21 +956,8 @@ impl Scenario {
         )?;
 
         let m = &self.multistage;
-        let n = m.payloads_kg.len();
-        if n == 0 || n > MAX_SCENARIOS {
-            return Err(ConfigError::new(
-                "multistage.payloads_kg",
-                format!("{:?} ({n} entries)", m.payloads_kg),
-                format!("1 to {MAX_SCENARIOS} entries"),
-            ));
-        }
-        for (i, &p) in m.payloads_kg.iter().enumerate() {
-            real(
-                &format!("multistage.payloads_kg[{i}]"),
-                p,
-                R::Closed(0.0, MAX_PAYLOAD_KG),
-            )?;
-        }
+        // `payloads_kg` or `[[multistage.scenarios]]`: count, names, every override's range.
+        let n = scenarios::validate(self)?;
         reals(
             "multistage",
             &[

@@ -207,9 +207,26 @@ impl<const N: usize, const NA: usize, const NY: usize> EkfBank<N, NA, NY> {
         u_prev: &SVector<f64, N>,
         t_int_prev: &SVector<f64, N>,
     ) -> Result<(), EkfError> {
+        self.step_per_scenario(y, u_prev, |_| *t_int_prev)
+    }
+
+    /// [`step`](Self::step) with scenario `i`'s strap torque `t_int_prev(i)`: scenarios whose
+    /// strap geometry differs map the same measured strap forces to different joint torques
+    /// (`Jᵢᵀ F`, docs/MODEL.md §4).
+    pub fn step_per_scenario(
+        &mut self,
+        y: &SVector<f64, NY>,
+        u_prev: &SVector<f64, N>,
+        t_int_prev: impl Fn(usize) -> SVector<f64, N>,
+    ) -> Result<(), EkfError> {
         let mut first_err = None;
-        for (f, ll) in self.filters.iter_mut().zip(self.log_likelihoods.iter_mut()) {
-            match f.step(y, u_prev, t_int_prev) {
+        for (i, (f, ll)) in self
+            .filters
+            .iter_mut()
+            .zip(self.log_likelihoods.iter_mut())
+            .enumerate()
+        {
+            match f.step(y, u_prev, &t_int_prev(i)) {
                 Ok(stats) => *ll = stats.log_likelihood(self.c1),
                 Err(e) => {
                     first_err.get_or_insert(e);

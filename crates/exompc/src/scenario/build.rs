@@ -278,12 +278,7 @@ pub fn build_multistage<D, const N: usize, const NA: usize, const NY: usize>(
 where
     D: Dof<N>,
 {
-    let models: Vec<_> = s
-        .multistage
-        .payloads_kg
-        .iter()
-        .map(|&p| prediction_model::<D, N>(s, p))
-        .collect();
+    let models = super::multistage::prediction_models::<D, N>(s);
     let ekf = s.ekf;
     let est = EstimatorOptions {
         dt: s.timing.dt,

@@ -6,6 +6,7 @@
 //! [`crate::estimate`] and [`crate::sim`]; nothing below it imports it.
 
 mod build;
+pub mod multistage;
 mod run;
 
 pub use build::{

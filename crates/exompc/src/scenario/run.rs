@@ -110,6 +110,9 @@ pub fn run_experiment_report<D: Dof<N>, const N: usize>(
         s.uncertainty.payload_kg,
         s.timing.dt,
     );
+    if s.controller.kind == ControllerKind::Msnmpc {
+        summary.scenarios = Some(crate::config::scenarios::names(s));
+    }
     summary.safety = SafetySummary::from_report(controller.report());
     Ok((summary, controller.report().clone()))
 }

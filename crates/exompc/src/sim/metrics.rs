@@ -71,6 +71,11 @@ pub struct Summary {
     pub delta_max_deg: JointPair,
     /// Time-average of each scenario probability (fraction, 0-1), `null` without scenarios.
     pub mean_probability: Option<Vec<f64>>,
+    /// Names of the multi-stage scenarios, in the order of `mean_probability` (`"0 kg"`, ...
+    /// for the payload shorthand, else the `[[multistage.scenarios]]` names); `null` without
+    /// scenarios.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scenarios: Option<Vec<String>>,
     /// Controller compute time per step (µs).
     pub step_time_us: StepTimeStats,
     /// Steps whose torque violated a limit (must be 0).
@@ -130,6 +135,7 @@ impl Metrics {
             } else {
                 Some(self.prob_sum.iter().map(|s| s / n).collect())
             },
+            scenarios: None,
             step_time_us: StepTimeStats::from_samples(&mut times),
             limit_violations: self.limit_violations,
             solver_failures: self.solver_failures,
