@@ -1,5 +1,6 @@
 //! File input/output for the CLI: scenario loading, atomic writes and output folders.
 
+use crate::config_help::{describe_error, KeyOrigins};
 use crate::error::CliError;
 use exompc::config::{Channel, FaultEvent, FaultKind, Scenario};
 use std::fs::{self, File};
@@ -30,27 +31,43 @@ pub fn default_config_toml() -> Result<String, CliError> {
 /// Unknown keys are rejected with their table path and the closest valid name; `nan`/`inf`
 /// parse as floats so that validation rejects them by field name.
 pub fn load_scenario(path: Option<&Path>) -> Result<Scenario, CliError> {
+    load_scenario_with_origins(path).map(|(s, _)| s)
+}
+
+/// [`load_scenario`], also returning which keys the file set (for messages that say which
+/// value of a conflicting pair the user wrote).
+pub fn load_scenario_with_origins(path: Option<&Path>) -> Result<(Scenario, KeyOrigins), CliError> {
     let Some(path) = path else {
         let s = Scenario::default();
         s.validate()
             .map_err(|e| CliError::Config(format!("default scenario: {e}")))?;
-        return Ok(s);
+        return Ok((s, KeyOrigins::of_file(&toml::Table::new())));
     };
     let shown = path.display();
     let text = fs::read_to_string(path)
         .map_err(|e| CliError::Config(format!("cannot read config file {shown}: {e}")))?;
-    parse_scenario(&text).map_err(|m| CliError::Config(format!("config file {shown}: {m}")))
+    parse_scenario_with_origins(&text)
+        .map_err(|m| CliError::Config(format!("config file {shown}: {m}")))
 }
 
 /// Parses and validates a scenario from TOML text; the error is a one-line message.
 pub fn parse_scenario(text: &str) -> Result<Scenario, String> {
+    parse_scenario_with_origins(text).map(|(s, _)| s)
+}
+
+/// [`parse_scenario`], also returning which keys the text set. A cross-field error names the
+/// key the file set and the one it conflicts with (see [`describe_error`]).
+pub fn parse_scenario_with_origins(text: &str) -> Result<(Scenario, KeyOrigins), String> {
     let table: toml::Table =
         toml::from_str(text).map_err(|e| describe_toml_error(text, &e, "TOML syntax error"))?;
     check_keys(&table, &schema(), "")?;
     let scenario: Scenario =
         toml::from_str(text).map_err(|e| describe_toml_error(text, &e, "invalid scenario"))?;
-    scenario.validate().map_err(|e| e.to_string())?;
-    Ok(scenario)
+    let origins = KeyOrigins::of_file(&table);
+    scenario
+        .validate()
+        .map_err(|e| describe_error(&e, &origins))?;
+    Ok((scenario, origins))
 }
 
 /// Parses a value written on the command line (or passed from Python) as TOML: `0.43`, `5`,
@@ -105,7 +122,14 @@ pub fn set_key(s: &Scenario, key: &str, value: toml::Value) -> Result<Scenario, 
     let scenario: Scenario = toml::Value::Table(tree)
         .try_into()
         .map_err(|e: toml::de::Error| format!("invalid value for {key}: {}", e.message().trim()))?;
-    scenario.validate().map_err(|e| e.to_string())?;
+    let origins = KeyOrigins {
+        file: [key.trim().to_string()].into(),
+        flags: Vec::new(),
+        unset: "current value",
+    };
+    scenario
+        .validate()
+        .map_err(|e| describe_error(&e, &origins))?;
     Ok(scenario)
 }
 

@@ -3,6 +3,7 @@
 //! integration tests).
 #![warn(missing_docs)]
 
+pub mod config_help;
 pub mod envelope;
 pub mod error;
 pub mod interrupt;

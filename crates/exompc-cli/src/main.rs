@@ -92,6 +92,13 @@ impl ConfigOpt {
     pub(crate) fn load(&self) -> Result<Scenario, CliError> {
         io::load_scenario(self.config.as_deref())
     }
+
+    /// [`ConfigOpt::load`], also returning which keys the file set.
+    pub(crate) fn load_with_origins(
+        &self,
+    ) -> Result<(Scenario, exompc_cli::config_help::KeyOrigins), CliError> {
+        io::load_scenario_with_origins(self.config.as_deref())
+    }
 }
 
 fn main() -> ExitCode {

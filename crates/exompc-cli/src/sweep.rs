@@ -2,7 +2,7 @@
 //! each streamed into `DIR/<controller>_<payload>kg/{trace.csv,summary.json}`; then the paper's
 //! Table 2 as `DIR/table2.md` and all summaries as `DIR/sweep.json`.
 
-use crate::simulate::{apply_overrides, FormulationArg};
+use crate::simulate::{apply_overrides_with, FormulationArg};
 use crate::{ConfigOpt, ControllerArg};
 use clap::Args;
 use exompc::config::{ControllerKind, Scenario};
@@ -390,7 +390,7 @@ pub(crate) fn table2(rows: &[Summary]) -> String {
 }
 
 pub(crate) fn run(a: SweepArgs) -> Result<(), CliError> {
-    let mut s = a.config.load()?;
+    let (mut s, origins) = a.config.load_with_origins()?;
     let payloads = parse_payloads(&a.payloads)?;
     let mut controllers: Vec<ControllerArg> = Vec::new();
     for c in a.controllers {
@@ -419,7 +419,15 @@ pub(crate) fn run(a: SweepArgs) -> Result<(), CliError> {
             )));
         }
     }
-    apply_overrides(&mut s, a.dof, None, a.formulation, None, a.duration)?;
+    apply_overrides_with(
+        &mut s,
+        &origins,
+        a.dof,
+        None,
+        a.formulation,
+        None,
+        a.duration,
+    )?;
     io::ensure_out_dir(&a.out)?;
     clear_earlier_results(&a.out, a.force)?;
 
