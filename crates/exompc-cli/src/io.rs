@@ -13,15 +13,18 @@ pub const CONFIG_HEADER: &str = "\
 # exompc scenario: the embedded default, as stated in docs/MODEL.md.
 # Units are SI (m, kg, s, rad, N, N·m). Every key is optional: a file that names only a
 # few keys overrides just those and keeps the defaults for the rest.
-# Optional keys not shown: [controller.sqp] max_time_us = <µs per solve>;
-# fault events as [[faults.events]] tables with kind, channel, start_s, duration_s, magnitude.
+# Above each key: [unit] meaning, allowed values, and where it comes from (docs/MODEL.md §n).
+# One key in full: exompc config --explain KEY (e.g. trajectory.hip_amplitude, robot.thigh).
+# Optional keys are shown commented out (# max_time_us, # [[faults.events]]).
 # Load with: exompc simulate --config FILE
 ";
 
 /// The default scenario as TOML with [`CONFIG_HEADER`] on top (the output of `exompc config`).
+/// Every key carries a comment with its unit, meaning, allowed values and source.
 pub fn default_config_toml() -> Result<String, CliError> {
     let body = toml::to_string_pretty(&Scenario::default())
         .map_err(|e| CliError::Runtime(format!("cannot serialise the default scenario: {e}")))?;
+    let body = crate::config_help::comment_scenario_toml(&body);
     Ok(format!("{CONFIG_HEADER}\n{body}"))
 }
 
@@ -204,34 +207,75 @@ fn join(prefix: &str, key: &str) -> String {
     }
 }
 
+/// Checks that a dotted key or table path (`trajectory.hip_amplitude`, `robot.thigh`,
+/// `faults.events[0].kind`) exists in the scenario schema; an unknown part gets the message of
+/// a config file's unknown key (closest name, and the tables where the key exists).
+pub fn check_key_path(key: &str) -> Result<(), String> {
+    let root = schema_root();
+    let mut table = &root;
+    let mut prefix = String::new();
+    let parts: Vec<&str> = key.split('.').collect();
+    if key.is_empty() || parts.iter().any(|p| p.is_empty()) {
+        return Err(format!(
+            "invalid key `{key}` (expected a dotted path such as trajectory.hip_amplitude)"
+        ));
+    }
+    for (i, part) in parts.iter().enumerate() {
+        let name = part.split('[').next().unwrap_or(part);
+        let Some(node) = table.get(name) else {
+            return Err(unknown_key(name, table, &prefix));
+        };
+        prefix = join(&prefix, name);
+        let node = match node {
+            toml::Value::Array(a) => a.first().unwrap_or(node),
+            other => other,
+        };
+        match node {
+            toml::Value::Table(t) => table = t,
+            _ if i + 1 < parts.len() => {
+                return Err(format!(
+                    "`{prefix}` is a value, not a table: it has no key `{}`",
+                    parts[i + 1]
+                ));
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
+/// The message for a key `key` missing from table `schema` at `prefix`.
+fn unknown_key(key: &str, schema: &toml::Table, prefix: &str) -> String {
+    let names: Vec<&str> = schema.keys().map(String::as_str).collect();
+    let place = if prefix.is_empty() {
+        "at the top level".to_string()
+    } else if prefix.ends_with(']') {
+        format!("in {prefix}")
+    } else {
+        format!("in table [{prefix}]")
+    };
+    let homes = tables_holding(&schema_root(), key, "");
+    // A near miss here (a typo) first, then where the key exists elsewhere.
+    let near = closest(key, &names).filter(|c| homes.is_empty() || levenshtein(key, c) <= 2);
+    let mut hint = near
+        .map(|c| format!("; did you mean `{c}`?"))
+        .unwrap_or_default();
+    if !homes.is_empty() {
+        let list: Vec<String> = homes.iter().map(|t| format!("[{t}]")).collect();
+        hint += &format!("; `{key}` belongs in {}", list.join(" or "));
+    }
+    format!(
+        "unknown key `{key}` {place}{hint} (valid keys: {})",
+        names.join(", ")
+    )
+}
+
 /// Recursively checks that every key of `user` exists in `schema` with a compatible type.
 fn check_keys(user: &toml::Table, schema: &toml::Table, prefix: &str) -> Result<(), String> {
     for (key, value) in user {
         let path = join(prefix, key);
         let Some(expected) = schema.get(key) else {
-            let names: Vec<&str> = schema.keys().map(String::as_str).collect();
-            let place = if prefix.is_empty() {
-                "at the top level".to_string()
-            } else if prefix.ends_with(']') {
-                format!("in {prefix}")
-            } else {
-                format!("in table [{prefix}]")
-            };
-            let homes = tables_holding(&schema_root(), key, "");
-            // A near miss here (a typo) first, then where the key exists elsewhere.
-            let near =
-                closest(key, &names).filter(|c| homes.is_empty() || levenshtein(key, c) <= 2);
-            let mut hint = near
-                .map(|c| format!("; did you mean `{c}`?"))
-                .unwrap_or_default();
-            if !homes.is_empty() {
-                let list: Vec<String> = homes.iter().map(|t| format!("[{t}]")).collect();
-                hint += &format!("; `{key}` belongs in {}", list.join(" or "));
-            }
-            return Err(format!(
-                "unknown key `{key}` {place}{hint} (valid keys: {})",
-                names.join(", ")
-            ));
+            return Err(unknown_key(key, schema, prefix));
         };
         check_value(value, expected, &path)?;
     }

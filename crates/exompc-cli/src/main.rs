@@ -61,7 +61,8 @@ enum Command {
     /// interaction, torque_max, torque_rate_max) and prints {"status":..,"iterations":..,
     /// "kkt_residual":..,"cost":..,"dT":..,"T":..,"q_pred":..,"qd_pred":..}.
     Solve(SolveArgs),
-    /// Print the default scenario as TOML (`exompc config > my.toml`), or check a file.
+    /// Print the default scenario as TOML with every key explained in a comment
+    /// (`exompc config > my.toml`), check a file (`--check`), or explain one key (`--explain`).
     Config(ConfigArgs),
     /// Time the controllers on the default scenario.
     Bench(BenchArgs),
@@ -158,12 +159,22 @@ impl From<ControllerArg> for ControllerKind {
 #[derive(Debug, Args)]
 struct ConfigArgs {
     /// Instead of printing the default, load and validate FILE and report the first problem.
-    #[arg(long, value_name = "FILE")]
+    #[arg(long, value_name = "FILE", conflicts_with = "explain")]
     check: Option<PathBuf>,
+    /// Explain one key (`trajectory.hip_amplitude`) or table (`robot.thigh`): unit, meaning,
+    /// default, allowed values and the docs/MODEL.md section it comes from.
+    #[arg(long, value_name = "KEY")]
+    explain: Option<String>,
 }
 
-/// `exompc config`: print the default scenario, or check a file with `--check FILE`.
+/// `exompc config`: print the default scenario, or check a file with `--check FILE`, or
+/// explain a key with `--explain KEY`.
 fn cmd_config(a: &ConfigArgs) -> Result<(), CliError> {
+    if let Some(key) = &a.explain {
+        let text = exompc_cli::config_help::explain_text(key).map_err(CliError::Usage)?;
+        print!("{text}");
+        return Ok(());
+    }
     if let Some(path) = &a.check {
         io::load_scenario(Some(path))?;
         println!("{}: ok", path.display());

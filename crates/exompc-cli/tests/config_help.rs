@@ -117,3 +117,359 @@ fn cross_field_errors_name_the_key_set_and_the_key_it_conflicts_with() {
         }
     }
 }
+
+use exompc::config::{explain, Allowed, Limit, Scenario, KEYS};
+use std::collections::BTreeSet;
+
+/// The scenario as a TOML tree with the optional keys filled in (a solve time budget and one
+/// fault event), so that every key a file may hold is present.
+fn full_tree() -> toml::Table {
+    let text = "[controller.sqp]\nmax_time_us = 5000\n[[faults.events]]\nkind = \"spike\"\n\
+                channel = \"f1\"\nstart_s = 1.0\nduration_s = 0.1\nmagnitude = 3.0\n";
+    let s = exompc_cli::io::parse_scenario(text).unwrap();
+    match toml::Value::try_from(&s).unwrap() {
+        toml::Value::Table(t) => t,
+        _ => unreachable!(),
+    }
+}
+
+/// Dotted paths of every table and key of `t`; the keys of an array of tables are
+/// `<array>.<key>`.
+fn walk(t: &toml::Table, prefix: &str, out: &mut BTreeSet<String>) {
+    for (k, v) in t {
+        let path = if prefix.is_empty() {
+            k.clone()
+        } else {
+            format!("{prefix}.{k}")
+        };
+        out.insert(path.clone());
+        match v {
+            toml::Value::Table(sub) => walk(sub, &path, out),
+            toml::Value::Array(a) => {
+                if let Some(toml::Value::Table(sub)) = a.first() {
+                    walk(sub, &path, out);
+                }
+            }
+            _ => {}
+        }
+    }
+}
+
+#[test]
+fn every_key_is_explained_and_every_explanation_names_a_key() {
+    let mut keys = BTreeSet::new();
+    walk(&full_tree(), "", &mut keys);
+    assert!(keys.len() > 120, "{}", keys.len());
+    let missing: Vec<&String> = keys.iter().filter(|k| explain(k).is_none()).collect();
+    assert!(
+        missing.is_empty(),
+        "keys without an explanation: {missing:?}"
+    );
+    let unknown: Vec<&str> = KEYS
+        .iter()
+        .map(|d| d.path)
+        .filter(|p| !keys.contains(*p))
+        .collect();
+    assert!(
+        unknown.is_empty(),
+        "explanations of keys that do not exist: {unknown:?}"
+    );
+    let mut seen = BTreeSet::new();
+    for d in KEYS {
+        assert!(seen.insert(d.path), "{} explained twice", d.path);
+        assert!(
+            d.meaning.len() > 8 && d.meaning.ends_with('.'),
+            "{}: {}",
+            d.path,
+            d.meaning
+        );
+        assert!(!d.source.is_empty(), "{}: no source", d.path);
+        let numeric = matches!(
+            d.allowed,
+            Allowed::Real { .. } | Allowed::Int { .. } | Allowed::List { .. }
+        );
+        assert_eq!(numeric, !d.unit.is_empty(), "{}: unit `{}`", d.path, d.unit);
+        for dep in d.allowed.depends_on() {
+            assert!(keys.contains(dep), "{} depends on unknown {dep}", d.path);
+        }
+    }
+}
+
+/// Sets `path` (a dotted key; `faults.events.K` is the key of the one fault event) in `tree`.
+fn set(tree: &mut toml::Table, path: &str, v: toml::Value) {
+    let parts: Vec<&str> = path.split('.').collect();
+    let (last, tables) = parts.split_last().unwrap();
+    let mut node = tree;
+    for p in tables {
+        node = match node.get_mut(*p).unwrap() {
+            toml::Value::Table(t) => t,
+            toml::Value::Array(a) => a[0].as_table_mut().unwrap(),
+            _ => panic!("{path}"),
+        };
+    }
+    node.insert((*last).to_string(), v);
+}
+
+fn get(tree: &toml::Table, path: &str) -> toml::Value {
+    let mut node = toml::Value::Table(tree.clone());
+    for p in path.split('.') {
+        node = node.get(p).unwrap().clone();
+    }
+    node
+}
+
+/// `Ok(())` when the scenario with `path = v` is valid as far as `path` goes (a rule about
+/// another key may still fail); `Err(message)` when `path` itself is rejected.
+fn probe(path: &str, v: toml::Value) -> Result<(), String> {
+    let mut tree = full_tree();
+    set(&mut tree, path, v);
+    let s: Scenario = toml::Value::Table(tree)
+        .try_into()
+        .map_err(|e: toml::de::Error| e.message().to_string())?;
+    // `faults.events.start_s` is reported as `faults.events[0].start_s`.
+    let reported = path.replacen("faults.events.", "faults.events[0].", 1);
+    match s.validate() {
+        Err(e) if e.field == reported || e.field.starts_with(&format!("{reported}[")) => {
+            Err(e.to_string())
+        }
+        _ => Ok(()),
+    }
+}
+
+fn limit(tree: &toml::Table, l: Limit) -> f64 {
+    match l {
+        Limit::Num(v) => v,
+        Limit::Key(k) => {
+            let v = get(tree, k);
+            v.as_float().or(v.as_integer().map(|i| i as f64)).unwrap()
+        }
+        Limit::InverseLen(k) => 1.0 / get(tree, k).as_array().unwrap().len() as f64,
+    }
+}
+
+/// The documented ranges agree with `Scenario::validate`: each end is accepted or rejected as
+/// documented and values just beyond it are rejected; every word of a choice is accepted and
+/// the list is serde's own.
+#[test]
+fn documented_ranges_agree_with_validation() {
+    let tree = full_tree();
+    let f = toml::Value::Float;
+    let beyond = |v: f64, up: bool| {
+        let d = (v.abs() * 1e-6).max(1e-9);
+        if up {
+            v + d
+        } else {
+            v - d
+        }
+    };
+    for d in KEYS {
+        let p = d.path;
+        match d.allowed {
+            Allowed::Real { lo, hi } => {
+                assert!(probe(p, f(f64::NAN)).is_err(), "{p}: NaN accepted");
+                match lo {
+                    Some(e) => {
+                        let v = limit(&tree, e.at);
+                        assert_eq!(probe(p, f(v)).is_ok(), e.inclusive, "{p} = {v} (lower end)");
+                        assert!(probe(p, f(beyond(v, false))).is_err(), "{p} below {v}");
+                    }
+                    None => assert!(probe(p, f(-1e9)).is_ok(), "{p} = -1e9"),
+                }
+                match hi {
+                    Some(e) => {
+                        let v = limit(&tree, e.at);
+                        assert_eq!(probe(p, f(v)).is_ok(), e.inclusive, "{p} = {v} (upper end)");
+                        assert!(probe(p, f(beyond(v, true))).is_err(), "{p} above {v}");
+                    }
+                    None => assert!(probe(p, f(1e9)).is_ok(), "{p} = 1e9"),
+                }
+            }
+            Allowed::Int { lo, hi } => {
+                let i = |v: i64| toml::Value::Integer(v);
+                let hi = limit(&tree, hi) as i64;
+                assert!(probe(p, i(lo as i64)).is_ok(), "{p} = {lo}");
+                assert!(probe(p, i(lo as i64 - 1)).is_err(), "{p} = {lo} - 1");
+                assert!(probe(p, i(hi)).is_ok(), "{p} = {hi}");
+                assert!(probe(p, i(hi + 1)).is_err(), "{p} = {hi} + 1");
+            }
+            Allowed::List {
+                min_len,
+                max_len,
+                lo,
+                hi,
+            } => {
+                let list = |n: usize, v: f64| toml::Value::Array(vec![f(v); n]);
+                assert!(probe(p, list(min_len, lo)).is_ok(), "{p}: {min_len} × {lo}");
+                assert!(probe(p, list(max_len, hi)).is_ok(), "{p}: {max_len} × {hi}");
+                if min_len > 0 {
+                    assert!(
+                        probe(p, list(min_len - 1, lo)).is_err(),
+                        "{p}: {min_len} - 1"
+                    );
+                }
+                assert!(
+                    probe(p, list(max_len + 1, lo)).is_err(),
+                    "{p}: {max_len} + 1"
+                );
+                assert!(
+                    probe(p, list(1, beyond(lo, false))).is_err(),
+                    "{p}: below {lo}"
+                );
+                assert!(
+                    probe(p, list(1, beyond(hi, true))).is_err(),
+                    "{p}: above {hi}"
+                );
+            }
+            Allowed::Choice(words) => {
+                for w in words {
+                    assert!(
+                        probe(p, toml::Value::String(w.to_string())).is_ok(),
+                        "{p} = {w}"
+                    );
+                }
+                let e = probe(p, toml::Value::String("bogus".into())).unwrap_err();
+                let listed: BTreeSet<&str> = e
+                    .split("expected")
+                    .nth(1)
+                    .unwrap_or_else(|| panic!("{p}: {e}"))
+                    .split('`')
+                    .skip(1)
+                    .step_by(2)
+                    .collect();
+                assert_eq!(listed, words.iter().copied().collect(), "{p}: {e}");
+            }
+            Allowed::Bool => {
+                for b in [true, false] {
+                    assert!(probe(p, toml::Value::Boolean(b)).is_ok(), "{p} = {b}");
+                }
+            }
+            Allowed::Table | Allowed::Tables => {
+                assert!(
+                    matches!(get(&tree, p), toml::Value::Table(_) | toml::Value::Array(_)),
+                    "{p}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn config_prints_every_key_with_a_comment_and_parses_back() {
+    let out = exompc(&["config"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8(out.stdout).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    let mut keys = 0;
+    for (i, l) in lines.iter().enumerate() {
+        let is_key = !l.starts_with([' ', '#']) && l.contains(" = ");
+        let is_table = l.starts_with('[');
+        if is_key || is_table {
+            keys += 1;
+            let above = lines[i - 1];
+            assert!(above.starts_with("# "), "no comment above `{l}`");
+            assert!(above.contains("docs/"), "no source above `{l}`: {above}");
+        }
+        if is_key
+            && !l.contains('"')
+            && !l.contains("true")
+            && !l.contains("false")
+            && !l.contains("[]")
+        {
+            assert!(
+                lines[i - 1].starts_with("# ["),
+                "no unit above `{l}`: {}",
+                lines[i - 1]
+            );
+        }
+    }
+    assert!(keys > 120, "{keys}");
+    assert!(text.contains("# [m] Thigh strap distance Ls1 from the hip. Allowed: finite, in (0, robot.thigh.length_m]. (docs/MODEL.md §4)\nls1_m = 0.28"));
+    assert_eq!(
+        exompc_cli::io::parse_scenario(&text).unwrap(),
+        Scenario::default()
+    );
+    // The commented-out optional keys are valid too.
+    let uncommented = text
+        .replace("# max_time_us = 5000", "max_time_us = 5000")
+        .replace("events = []\n", "")
+        .lines()
+        .map(|l| {
+            l.strip_prefix("# [[")
+                .map_or(l.to_string(), |r| format!("[[{r}"))
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let uncommented: String = uncommented
+        .lines()
+        .map(|l| {
+            for k in ["kind", "channel", "start_s", "duration_s", "magnitude"] {
+                if let Some(r) = l.strip_prefix(&format!("# {k} = ")) {
+                    return format!("{k} = {r}");
+                }
+            }
+            l.to_string()
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let s = exompc_cli::io::parse_scenario(&uncommented).expect("optional keys uncommented");
+    assert_eq!(s.controller.sqp.max_time_us, Some(5000));
+    assert_eq!(s.faults.events.len(), 1);
+}
+
+#[test]
+fn explain_prints_unit_meaning_default_range_and_source() {
+    let out = exompc(&["config", "--explain", "trajectory.hip_amplitude"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8(out.stdout).unwrap();
+    for want in [
+        "trajectory.hip_amplitude",
+        "unit     rad",
+        "default  0.3",
+        "allowed  finite, >= 0",
+        "source   docs/MODEL.md §6",
+        "hip swing amplitude",
+    ] {
+        assert!(text.contains(want), "`{want}` not in:\n{text}");
+    }
+    let out = exompc(&["config", "--explain", "straps.ls1_m"]);
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(
+        text.contains("(0, robot.thigh.length_m] (by default robot.thigh.length_m = 0.43)"),
+        "{text}"
+    );
+    // A table: its keys with defaults, units and meanings.
+    let out = exompc(&["config", "--explain", "robot.thigh"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8(out.stdout).unwrap();
+    for want in [
+        "[robot.thigh]",
+        "length_m",
+        "= 0.43 [m]",
+        "mass_kg",
+        "com_m",
+        "inertia_kgm2",
+        "docs/MODEL.md §3",
+    ] {
+        assert!(text.contains(want), "`{want}` not in:\n{text}");
+    }
+    let out = exompc(&["config", "--explain", "faults.events[0].kind"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(String::from_utf8(out.stdout)
+        .unwrap()
+        .contains("\"dropout\""));
+    // Unknown keys get the whole-schema suggestion.
+    for (key, want) in [
+        ("payload_kg", "`payload_kg` belongs in [uncertainty]"),
+        (
+            "robot.mass_kg",
+            "`mass_kg` belongs in [robot.shank] or [robot.thigh]",
+        ),
+        ("trajectory.hip_amplitud", "did you mean `hip_amplitude`"),
+        ("human.height_m.x", "not a table"),
+    ] {
+        let out = exompc(&["config", "--explain", key]);
+        assert_eq!(out.status.code(), Some(2), "{key}");
+        let err = stderr(&out);
+        assert!(err.contains(want), "{key}: {err}");
+    }
+}

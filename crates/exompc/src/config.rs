@@ -15,6 +15,9 @@
 use serde::{Deserialize, Deserializer, Serialize};
 use std::fmt;
 
+mod keys;
+pub use keys::{explain, Allowed, End, KeyDoc, Limit, KEYS};
+
 // ---------------------------------------------------------------------------------------------
 // Error
 // ---------------------------------------------------------------------------------------------
