@@ -4,6 +4,7 @@
 #![warn(missing_docs)]
 
 pub mod config_help;
+pub mod earlier;
 pub mod envelope;
 pub mod error;
 pub mod interrupt;

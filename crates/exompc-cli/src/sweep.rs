@@ -58,6 +58,10 @@ pub(crate) struct SweepArgs {
     /// Also draw the figures into the output folder.
     #[arg(long)]
     plot: bool,
+    /// Exit 3 when the verdict is `degraded` (some run had monitor trips, held torques or
+    /// solver fallbacks), not only 1 when a run `failed`.
+    #[arg(long)]
+    strict: bool,
 }
 
 /// The content of `sweep.json`.
@@ -455,12 +459,7 @@ pub(crate) fn run(a: SweepArgs) -> Result<(), CliError> {
     if !a.json {
         println!("{verdict}");
     }
-    if verdict.is_failed() {
-        return Err(CliError::Runtime(format!(
-            "sweep failed its checks: {verdict}"
-        )));
-    }
-    Ok(())
+    verdict.outcome("sweep", a.strict)
 }
 
 #[cfg(test)]

@@ -11,7 +11,7 @@ fn check(name: &str, toml: &str, extra: &[&str]) -> std::process::Output {
     if extra.is_empty() {
         exompc(&["config", "--check", path.to_str().unwrap()])
     } else {
-        let out = scratch(&format!("{name}.out"));
+        let out = common::fresh_dir(&format!("{name}.out"));
         let mut args = vec![
             "simulate",
             "--config",
@@ -471,5 +471,194 @@ fn explain_prints_unit_meaning_default_range_and_source() {
         assert_eq!(out.status.code(), Some(2), "{key}");
         let err = stderr(&out);
         assert!(err.contains(want), "{key}: {err}");
+    }
+}
+
+/// Entries of `dir` (names), sorted.
+fn entries(dir: &std::path::Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .filter_map(Result::ok)
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn simulate_and_soak_refuse_a_folder_with_earlier_results_unless_forced() {
+    let dir = common::fresh_dir("earlier_simulate");
+    let d = dir.to_str().unwrap();
+    let sim = |extra: &[&str]| {
+        let mut a = vec!["simulate", "--dof", "1", "--controller", "pd", "--out", d];
+        a.extend_from_slice(extra);
+        exompc(&a)
+    };
+    let first = sim(&["--plot", "--duration", "0.2"]);
+    assert!(first.status.success(), "{}", stderr(&first));
+    assert!(dir.join("states.png").is_file());
+    let before = std::fs::read(dir.join("summary.json")).unwrap();
+    let again = sim(&["--duration", "0.2"]);
+    assert_eq!(again.status.code(), Some(2));
+    let err = stderr(&again);
+    assert!(
+        err.contains("already holds results of an earlier run")
+            && err.contains("--force")
+            && err.contains("summary.json")
+            && err.contains("states.png"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read(dir.join("summary.json")).unwrap(),
+        before,
+        "untouched"
+    );
+    // --force replaces exompc's files only: the old figures go (no --plot this time), the
+    // user's own file and a leftover temporary trace of a killed run are handled.
+    std::fs::write(dir.join("notes.txt"), "mine").unwrap();
+    std::fs::write(dir.join(".trace.csv.tmp.99999.0"), "half").unwrap();
+    let forced = sim(&["--force", "--duration", "0.3"]);
+    assert!(forced.status.success(), "{}", stderr(&forced));
+    assert_eq!(entries(&dir), ["notes.txt", "summary.json", "trace.csv"]);
+    let s: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("summary.json")).unwrap()).unwrap();
+    assert!(
+        (s["duration_s"].as_f64().unwrap() - 0.3).abs() < 1e-9,
+        "{s}"
+    );
+
+    let dir = common::fresh_dir("earlier_soak");
+    let d = dir.to_str().unwrap();
+    let soak = |force: bool| {
+        let mut a = vec!["soak", "--hours", "0.0002", "--out", d];
+        if force {
+            a.push("--force");
+        }
+        exompc(&a)
+    };
+    assert!(soak(false).status.success());
+    let again = soak(false);
+    assert_eq!(again.status.code(), Some(2), "{}", stderr(&again));
+    assert!(
+        stderr(&again).contains("earlier soak (soak.json)"),
+        "{}",
+        stderr(&again)
+    );
+    let forced = soak(true);
+    assert!(forced.status.success(), "{}", stderr(&forced));
+    assert_eq!(entries(&dir), ["soak.json"]);
+}
+
+#[test]
+fn strict_makes_a_degraded_run_exit_3() {
+    // 20 kg is far outside the scenarios: the monitors take over (verdict degraded).
+    let run = |strict: bool| {
+        let dir = common::fresh_dir(&format!("strict_{strict}"));
+        let mut a = vec![
+            "simulate",
+            "--dof",
+            "1",
+            "--payload",
+            "20",
+            "--duration",
+            "6",
+            "--out",
+        ];
+        let d = dir.to_str().unwrap().to_string();
+        a.push(&d);
+        if strict {
+            a.push("--strict");
+        }
+        let o = exompc(&a);
+        (o, dir)
+    };
+    let (plain, _) = run(false);
+    assert_eq!(plain.status.code(), Some(0), "{}", stderr(&plain));
+    let stdout = String::from_utf8_lossy(&plain.stdout).into_owned();
+    assert!(stdout.contains("verdict: degraded"), "{stdout}");
+    let (strict, dir) = run(true);
+    assert_eq!(strict.status.code(), Some(3), "{}", stderr(&strict));
+    assert!(
+        stderr(&strict).contains("run degraded (--strict): verdict: degraded"),
+        "{}",
+        stderr(&strict)
+    );
+    assert!(dir.join("summary.json").is_file(), "results are written");
+    // An ok run passes --strict.
+    let dir = common::fresh_dir("strict_ok");
+    let ok = exompc(&[
+        "simulate",
+        "--dof",
+        "1",
+        "--duration",
+        "2",
+        "--strict",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert_eq!(ok.status.code(), Some(0), "{}", stderr(&ok));
+    // sweep and soak take the flag too.
+    let dir = common::fresh_dir("strict_sweep");
+    let sweep = exompc(&[
+        "sweep",
+        "--dof",
+        "1",
+        "--payloads",
+        "20",
+        "--controllers",
+        "msnmpc",
+        "--duration",
+        "6",
+        "--quiet",
+        "--strict",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert_eq!(sweep.status.code(), Some(3), "{}", stderr(&sweep));
+    let dir = common::fresh_dir("strict_soak");
+    let soak = exompc(&[
+        "soak",
+        "--hours",
+        "0.0002",
+        "--strict",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    let code = soak.status.code();
+    let out = String::from_utf8_lossy(&soak.stdout).into_owned();
+    let want = if out.contains("verdict: ok") { 0 } else { 3 };
+    assert_eq!(code, Some(want), "{out}");
+}
+
+#[test]
+fn run_and_virtual_robot_refuse_a_folder_with_earlier_results() {
+    for cmd in ["run", "virtual-robot"] {
+        let dir = common::fresh_dir(&format!("earlier_{cmd}"));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("summary.json"), "{}").unwrap();
+        let mut a = vec![
+            cmd,
+            "--quiet",
+            "--no-mlock",
+            "--rt-priority",
+            "0",
+            "--connect-timeout",
+            "0.2",
+        ];
+        if cmd == "run" {
+            a.extend(["--robot", "127.0.0.1:9"]);
+        }
+        a.extend(["--out", dir.to_str().unwrap()]);
+        let o = exompc(&a);
+        assert_eq!(o.status.code(), Some(2), "{cmd}: {}", stderr(&o));
+        assert!(
+            stderr(&o).contains("earlier run (summary.json)"),
+            "{cmd}: {}",
+            stderr(&o)
+        );
+        assert_eq!(
+            std::fs::read_to_string(dir.join("summary.json")).unwrap(),
+            "{}"
+        );
     }
 }
