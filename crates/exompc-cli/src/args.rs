@@ -4,6 +4,7 @@
 
 use clap::Args;
 use exompc::config::{ControllerKind, Formulation, Scenario};
+use exompc_cli::config_help::{describe_error, KeyOrigins};
 use exompc_cli::error::CliError;
 use exompc_cli::io;
 use exompc_cli::layout::tidy;
@@ -21,6 +22,11 @@ impl ConfigOpt {
     /// Loads and validates the scenario named by `--config` (the default when absent).
     pub(crate) fn load(&self) -> Result<Scenario, CliError> {
         io::load_scenario(self.config.as_deref())
+    }
+
+    /// [`ConfigOpt::load`], also returning which keys the file set.
+    pub(crate) fn load_with_origins(&self) -> Result<(Scenario, KeyOrigins), CliError> {
+        io::load_scenario_with_origins(self.config.as_deref())
     }
 }
 
@@ -85,6 +91,25 @@ pub(crate) fn apply_overrides(
     payload: Option<f64>,
     duration: Option<f64>,
 ) -> Result<(), CliError> {
+    let origins = KeyOrigins {
+        unset: "default or --config",
+        ..KeyOrigins::default()
+    };
+    apply_overrides_with(s, &origins, dof, controller, formulation, payload, duration)
+}
+
+/// [`apply_overrides`] knowing which keys the config file set (`origins`), so that a flag
+/// value conflicting with another key names both and says which one the user set where.
+pub(crate) fn apply_overrides_with(
+    s: &mut Scenario,
+    origins: &KeyOrigins,
+    dof: u8,
+    controller: Option<ControllerArg>,
+    formulation: Option<FormulationArg>,
+    payload: Option<f64>,
+    duration: Option<f64>,
+) -> Result<(), CliError> {
+    let mut origins = origins.clone();
     if let Some(k) = controller {
         s.controller.kind = k.into();
     }
@@ -102,17 +127,21 @@ pub(crate) fn apply_overrides(
     }
     if let Some(p) = payload {
         s.uncertainty.payload_kg = p;
+        origins.set_by_flag("uncertainty.payload_kg", "--payload");
         s.validate()
-            .map_err(|e| CliError::Usage(format!("--payload: {e}")))?;
+            .map_err(|e| CliError::Usage(format!("--payload: {}", describe_error(&e, &origins))))?;
     }
     if let Some(d) = duration {
         if dof == 1 {
             s.timing.duration_1dof_s = d;
+            origins.set_by_flag("timing.duration_1dof_s", "--duration");
         } else {
             s.timing.duration_2dof_s = d;
+            origins.set_by_flag("timing.duration_2dof_s", "--duration");
         }
-        s.validate()
-            .map_err(|e| CliError::Usage(format!("--duration: {e}")))?;
+        s.validate().map_err(|e| {
+            CliError::Usage(format!("--duration: {}", describe_error(&e, &origins)))
+        })?;
     }
     Ok(())
 }

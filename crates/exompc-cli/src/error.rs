@@ -9,6 +9,8 @@ pub const EXIT_USAGE: u8 = 2;
 pub const EXIT_INTERRUPTED: u8 = 130;
 /// Exit code for a runtime failure (I/O error while writing results, solver failure, ...).
 pub const EXIT_FAILURE: u8 = 1;
+/// Exit code of `--strict` runs whose verdict is `degraded` (the results are written).
+pub const EXIT_DEGRADED: u8 = 3;
 
 /// An error reported by the CLI as one `error: ...` line on stderr.
 #[derive(Debug)]
@@ -23,6 +25,8 @@ pub enum CliError {
     Runtime(String),
     /// Stopped by SIGINT/SIGTERM; the message says what was completed (exit 130).
     Interrupted(String),
+    /// A `--strict` run whose verdict is `degraded` (exit 3).
+    Degraded(String),
 }
 
 impl CliError {
@@ -32,6 +36,7 @@ impl CliError {
             CliError::Config(_) | CliError::Usage(_) => EXIT_USAGE,
             CliError::Io(_) | CliError::Runtime(_) => EXIT_FAILURE,
             CliError::Interrupted(_) => EXIT_INTERRUPTED,
+            CliError::Degraded(_) => EXIT_DEGRADED,
         }
     }
 
@@ -48,7 +53,8 @@ impl fmt::Display for CliError {
             | CliError::Usage(m)
             | CliError::Io(m)
             | CliError::Runtime(m)
-            | CliError::Interrupted(m) => f.write_str(m),
+            | CliError::Interrupted(m)
+            | CliError::Degraded(m) => f.write_str(m),
         }
     }
 }

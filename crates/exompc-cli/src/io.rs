@@ -1,5 +1,6 @@
 //! File input/output for the CLI: scenario loading, atomic writes and output folders.
 
+use crate::config_help::{describe_error, KeyOrigins};
 use crate::error::CliError;
 use exompc::config::{Channel, FaultEvent, FaultKind, Scenario};
 use serde::Deserialize;
@@ -15,15 +16,18 @@ pub const CONFIG_HEADER: &str = "\
 # exompc scenario: the embedded default, as stated in docs/MODEL.md.
 # Units are SI (m, kg, s, rad, N, N·m). Every key is optional: a file that names only a
 # few keys overrides just those and keeps the defaults for the rest.
-# Optional keys not shown: [controller.sqp] max_time_us = <µs per solve>;
-# fault events as [[faults.events]] tables with kind, channel, start_s, duration_s, magnitude.
+# Above each key: [unit] meaning, allowed values, and where it comes from (docs/MODEL.md §n).
+# One key in full: exompc config --explain KEY (e.g. trajectory.hip_amplitude, robot.thigh).
+# Optional keys are shown commented out (# max_time_us, # [[faults.events]]).
 # Load with: exompc simulate --config FILE
 ";
 
 /// The default scenario as TOML with [`CONFIG_HEADER`] on top (the output of `exompc config`).
+/// Every key carries a comment with its unit, meaning, allowed values and source.
 pub fn default_config_toml() -> Result<String, CliError> {
     let body = toml::to_string_pretty(&Scenario::default())
         .map_err(|e| CliError::Runtime(format!("cannot serialise the default scenario: {e}")))?;
+    let body = crate::config_help::comment_scenario_toml(&body);
     Ok(format!("{CONFIG_HEADER}\n{body}"))
 }
 
@@ -33,27 +37,43 @@ pub fn default_config_toml() -> Result<String, CliError> {
 /// Unknown keys are rejected with their table path and the closest valid name; `nan`/`inf`
 /// parse as floats so that validation rejects them by field name.
 pub fn load_scenario(path: Option<&Path>) -> Result<Scenario, CliError> {
+    load_scenario_with_origins(path).map(|(s, _)| s)
+}
+
+/// [`load_scenario`], also returning which keys the file set (for messages that say which
+/// value of a conflicting pair the user wrote).
+pub fn load_scenario_with_origins(path: Option<&Path>) -> Result<(Scenario, KeyOrigins), CliError> {
     let Some(path) = path else {
         let s = Scenario::default();
         s.validate()
             .map_err(|e| CliError::Config(format!("default scenario: {e}")))?;
-        return Ok(s);
+        return Ok((s, KeyOrigins::of_file(&toml::Table::new())));
     };
     let shown = path.display();
     let text = fs::read_to_string(path)
         .map_err(|e| CliError::Config(format!("cannot read config file {shown}: {e}")))?;
-    parse_scenario(&text).map_err(|m| CliError::Config(format!("config file {shown}: {m}")))
+    parse_scenario_with_origins(&text)
+        .map_err(|m| CliError::Config(format!("config file {shown}: {m}")))
 }
 
 /// Parses and validates a scenario from TOML text; the error is a one-line message.
 pub fn parse_scenario(text: &str) -> Result<Scenario, String> {
+    parse_scenario_with_origins(text).map(|(s, _)| s)
+}
+
+/// [`parse_scenario`], also returning which keys the text set. A cross-field error names the
+/// key the file set and the one it conflicts with (see [`describe_error`]).
+pub fn parse_scenario_with_origins(text: &str) -> Result<(Scenario, KeyOrigins), String> {
     let table: toml::Table =
         toml::from_str(text).map_err(|e| describe_toml_error(text, &e, "TOML syntax error"))?;
     check_keys(&table, &schema(), "")?;
     let scenario: Scenario =
         toml::from_str(text).map_err(|e| describe_toml_error(text, &e, "invalid scenario"))?;
-    scenario.validate().map_err(|e| e.to_string())?;
-    Ok(scenario)
+    let origins = KeyOrigins::of_file(&table);
+    scenario
+        .validate()
+        .map_err(|e| describe_error(&e, &origins))?;
+    Ok((scenario, origins))
 }
 
 /// Parses a value written on the command line (or passed from Python) as TOML: `0.43`, `5`,
@@ -108,7 +128,14 @@ pub fn set_key(s: &Scenario, key: &str, value: toml::Value) -> Result<Scenario, 
     let scenario: Scenario = toml::Value::Table(tree)
         .try_into()
         .map_err(|e: toml::de::Error| format!("invalid value for {key}: {}", e.message().trim()))?;
-    scenario.validate().map_err(|e| e.to_string())?;
+    let origins = KeyOrigins {
+        file: [key.trim().to_string()].into(),
+        flags: Vec::new(),
+        unset: "current value",
+    };
+    scenario
+        .validate()
+        .map_err(|e| describe_error(&e, &origins))?;
     Ok(scenario)
 }
 
@@ -186,34 +213,75 @@ fn join(prefix: &str, key: &str) -> String {
     }
 }
 
+/// Checks that a dotted key or table path (`trajectory.hip_amplitude`, `robot.thigh`,
+/// `faults.events[0].kind`) exists in the scenario schema; an unknown part gets the message of
+/// a config file's unknown key (closest name, and the tables where the key exists).
+pub fn check_key_path(key: &str) -> Result<(), String> {
+    let root = schema_root();
+    let mut table = &root;
+    let mut prefix = String::new();
+    let parts: Vec<&str> = key.split('.').collect();
+    if key.is_empty() || parts.iter().any(|p| p.is_empty()) {
+        return Err(format!(
+            "invalid key `{key}` (expected a dotted path such as trajectory.hip_amplitude)"
+        ));
+    }
+    for (i, part) in parts.iter().enumerate() {
+        let name = part.split('[').next().unwrap_or(part);
+        let Some(node) = table.get(name) else {
+            return Err(unknown_key(name, table, &prefix));
+        };
+        prefix = join(&prefix, name);
+        let node = match node {
+            toml::Value::Array(a) => a.first().unwrap_or(node),
+            other => other,
+        };
+        match node {
+            toml::Value::Table(t) => table = t,
+            _ if i + 1 < parts.len() => {
+                return Err(format!(
+                    "`{prefix}` is a value, not a table: it has no key `{}`",
+                    parts[i + 1]
+                ));
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
+/// The message for a key `key` missing from table `schema` at `prefix`.
+fn unknown_key(key: &str, schema: &toml::Table, prefix: &str) -> String {
+    let names: Vec<&str> = schema.keys().map(String::as_str).collect();
+    let place = if prefix.is_empty() {
+        "at the top level".to_string()
+    } else if prefix.ends_with(']') {
+        format!("in {prefix}")
+    } else {
+        format!("in table [{prefix}]")
+    };
+    let homes = tables_holding(&schema_root(), key, "");
+    // A near miss here (a typo) first, then where the key exists elsewhere.
+    let near = closest(key, &names).filter(|c| homes.is_empty() || levenshtein(key, c) <= 2);
+    let mut hint = near
+        .map(|c| format!("; did you mean `{c}`?"))
+        .unwrap_or_default();
+    if !homes.is_empty() {
+        let list: Vec<String> = homes.iter().map(|t| format!("[{t}]")).collect();
+        hint += &format!("; `{key}` belongs in {}", list.join(" or "));
+    }
+    format!(
+        "unknown key `{key}` {place}{hint} (valid keys: {})",
+        names.join(", ")
+    )
+}
+
 /// Recursively checks that every key of `user` exists in `schema` with a compatible type.
 fn check_keys(user: &toml::Table, schema: &toml::Table, prefix: &str) -> Result<(), String> {
     for (key, value) in user {
         let path = join(prefix, key);
         let Some(expected) = schema.get(key) else {
-            let names: Vec<&str> = schema.keys().map(String::as_str).collect();
-            let place = if prefix.is_empty() {
-                "at the top level".to_string()
-            } else if prefix.ends_with(']') {
-                format!("in {prefix}")
-            } else {
-                format!("in table [{prefix}]")
-            };
-            let homes = tables_holding(&schema_root(), key, "");
-            // A near miss here (a typo) first, then where the key exists elsewhere.
-            let near =
-                closest(key, &names).filter(|c| homes.is_empty() || levenshtein(key, c) <= 2);
-            let mut hint = near
-                .map(|c| format!("; did you mean `{c}`?"))
-                .unwrap_or_default();
-            if !homes.is_empty() {
-                let list: Vec<String> = homes.iter().map(|t| format!("[{t}]")).collect();
-                hint += &format!("; `{key}` belongs in {}", list.join(" or "));
-            }
-            return Err(format!(
-                "unknown key `{key}` {place}{hint} (valid keys: {})",
-                names.join(", ")
-            ));
+            return Err(unknown_key(key, schema, prefix));
         };
         check_value(value, expected, &path)?;
     }

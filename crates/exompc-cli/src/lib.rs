@@ -3,6 +3,8 @@
 //! integration tests).
 #![warn(missing_docs)]
 
+pub mod config_help;
+pub mod earlier;
 pub mod envelope;
 pub mod error;
 pub mod interrupt;

@@ -1,8 +1,6 @@
 //! `exompc`: command-line front end of the exompc toolkit.
 //!
-//! Exit codes: 0 success, 1 runtime failure, 2 bad input (invalid config value, unknown key,
-//! bad flag). Every error is one `error: ...`
-//! line on stderr.
+//! Exit codes: see [`EXIT_CODES`]. Every error is one `error: ...` line on stderr.
 
 mod args;
 mod bench;
@@ -31,9 +29,27 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use sweep::SweepArgs;
 
+/// The exit codes, shown by `exompc --help` (and in the README).
+const EXIT_CODES: &str = "\
+Exit codes:
+  0    success; a run's verdict is ok or degraded
+  1    a run failed its own checks (verdict failed: limit violation, non-finite value), or a
+       runtime error (I/O, no robot)
+  2    bad input: invalid config value, unknown key, bad or conflicting flags, an output
+       folder holding earlier results (without --force)
+  3    with --strict (simulate, sweep, soak): the verdict is degraded (monitor trips, held
+       torques, solver fallbacks); the results are written
+  130  interrupted by SIGINT/SIGTERM (nothing half-written is left)";
+
 /// Multi-stage robust nonlinear MPC of a lower-limb exoskeleton: simulation and tools.
 #[derive(Debug, Parser)]
-#[command(name = "exompc", version, about, propagate_version = true)]
+#[command(
+    name = "exompc",
+    version,
+    about,
+    propagate_version = true,
+    after_help = EXIT_CODES
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -42,8 +58,10 @@ struct Cli {
 #[derive(Debug, Subcommand)]
 enum Command {
     /// Run one closed-loop simulation and write its traces and metrics.
+    #[command(after_help = EXIT_CODES)]
     Simulate(SimulateArgs),
     /// Run a grid of simulations (controllers × payloads) and write a metrics table.
+    #[command(after_help = EXIT_CODES)]
     Sweep(SweepArgs),
     /// Evaluate the robot/human models at a state (dynamics terms, for checking).
     ///
@@ -62,13 +80,15 @@ enum Command {
     /// interaction, torque_max, torque_rate_max) and prints {"status":..,"iterations":..,
     /// "kkt_residual":..,"cost":..,"dT":..,"T":..,"q_pred":..,"qd_pred":..}.
     Solve(SolveArgs),
-    /// Print the default scenario as TOML (`exompc config > my.toml`), or check a file.
+    /// Print the default scenario as TOML with every key explained in a comment
+    /// (`exompc config > my.toml`), check a file (`--check`), or explain one key (`--explain`).
     Config(ConfigArgs),
     /// Time the controllers on the default scenario.
     Bench(BenchArgs),
     /// Draw the figures (PNG and SVG) of a folder written by `simulate` or `sweep`.
     Plot(PlotArgs),
     /// A long run (1 h by default) with sensor faults, checking limits, NaN and the monitors.
+    #[command(after_help = EXIT_CODES)]
     Soak(SoakArgs),
     /// Drive a robot in real time over UDP (the controller process; see docs/REALTIME.md).
     Run(realtime::RunArgs),
@@ -119,12 +139,22 @@ fn run(cli: Cli) -> Result<(), CliError> {
 #[derive(Debug, Args)]
 struct ConfigArgs {
     /// Instead of printing the default, load and validate FILE and report the first problem.
-    #[arg(long, value_name = "FILE")]
+    #[arg(long, value_name = "FILE", conflicts_with = "explain")]
     check: Option<PathBuf>,
+    /// Explain one key (`trajectory.hip_amplitude`) or table (`robot.thigh`): unit, meaning,
+    /// default, allowed values and the docs/MODEL.md section it comes from.
+    #[arg(long, value_name = "KEY")]
+    explain: Option<String>,
 }
 
-/// `exompc config`: print the default scenario, or check a file with `--check FILE`.
+/// `exompc config`: print the default scenario, or check a file with `--check FILE`, or
+/// explain a key with `--explain KEY`.
 fn cmd_config(a: &ConfigArgs) -> Result<(), CliError> {
+    if let Some(key) = &a.explain {
+        let text = exompc_cli::config_help::explain_text(key).map_err(CliError::Usage)?;
+        print!("{text}");
+        return Ok(());
+    }
     if let Some(path) = &a.check {
         io::load_scenario(Some(path))?;
         println!("{}: ok", path.display());

@@ -188,6 +188,9 @@ pub(crate) struct RunArgs {
     /// Output folder for `trace.csv` and `summary.json`.
     #[arg(long, value_name = "DIR", default_value = "out-run")]
     out: PathBuf,
+    /// Replace the results of an earlier run in the output folder (without it, refused).
+    #[arg(long)]
+    force: bool,
     #[command(flatten)]
     rt: RtOpts,
 }
@@ -217,6 +220,7 @@ pub(crate) fn run(a: RunArgs) -> Result<(), CliError> {
     secs("connect-timeout", a.connect_timeout, 0.0, 1e6)?;
     secs("give-up", a.give_up, 0.0, 1e6)?;
     io::ensure_out_dir(&a.out)?;
+    exompc_cli::earlier::refuse_or_clear(&a.out, exompc_cli::earlier::RUN_FILES, a.force, "run")?;
     match a.dof {
         1 => run_dof::<OneDof, 1>(&s, &a),
         _ => run_dof::<TwoDof, 2>(&s, &a),
@@ -463,6 +467,9 @@ pub(crate) struct VirtualRobotArgs {
     /// Output folder for the robot's `trace.csv` (true states) and `summary.json`.
     #[arg(long, value_name = "DIR", default_value = "out-robot")]
     out: PathBuf,
+    /// Replace the results of an earlier run in the output folder (without it, refused).
+    #[arg(long)]
+    force: bool,
     #[command(flatten)]
     rt: RtOpts,
 }
@@ -510,6 +517,7 @@ pub(crate) fn virtual_robot(a: VirtualRobotArgs) -> Result<(), CliError> {
         .validate()
         .map_err(|e| CliError::Usage(format!("network fault: {e}")))?;
     io::ensure_out_dir(&a.out)?;
+    exompc_cli::earlier::refuse_or_clear(&a.out, exompc_cli::earlier::RUN_FILES, a.force, "run")?;
     match a.dof {
         1 => robot_dof::<OneDof, 1>(&s, &a, faults),
         _ => robot_dof::<TwoDof, 2>(&s, &a, faults),

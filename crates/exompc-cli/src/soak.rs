@@ -30,6 +30,14 @@ pub(crate) struct SoakArgs {
     /// Also write every N-th step to `soak_trace.csv` (0: no trace).
     #[arg(long, value_name = "N", default_value_t = 0)]
     trace_every: usize,
+    /// Replace the results of an earlier soak in the output folder (soak.json,
+    /// soak_trace.csv; nothing else). Without it such a folder is refused.
+    #[arg(long)]
+    force: bool,
+    /// Exit 3 when the verdict is `degraded` (monitor trips, solver fallbacks), not only 1
+    /// when it is `failed`.
+    #[arg(long)]
+    strict: bool,
 }
 
 /// Forwards every `every`-th step to the trace.
@@ -65,6 +73,7 @@ pub(crate) fn run(a: SoakArgs) -> Result<(), CliError> {
         .map_err(|e| CliError::Usage(format!("--hours: {e}")))?;
     let out = a.out.unwrap_or_else(|| PathBuf::from("."));
     io::ensure_out_dir(&out)?;
+    exompc_cli::earlier::refuse_or_clear(&out, exompc_cli::earlier::SOAK_FILES, a.force, "soak")?;
     let mut trace = match a.trace_every {
         0 => None,
         every => Some(Decimated {
@@ -114,11 +123,5 @@ pub(crate) fn run(a: SoakArgs) -> Result<(), CliError> {
     println!("  wrote {}", path.display());
     let verdict = Verdict::of_soak(&report);
     println!("{verdict}");
-    if verdict.is_failed() {
-        return Err(CliError::Runtime(format!(
-            "soak failed: {} limit violations, {} non-finite steps",
-            s.limit_violations, s.nan_count
-        )));
-    }
-    Ok(())
+    verdict.outcome("soak", a.strict)
 }

@@ -4,7 +4,8 @@
 //!   was not finite. The command exits 1 (after writing its results).
 //! * **degraded**: the run completed within its limits, but the safety supervisor took over on
 //!   some steps (monitor trips, torque held on a rejected measurement) or the solver did not
-//!   converge on some steps (fallback torque used). Exit 0; the reasons are listed.
+//!   converge on some steps (fallback torque used). Exit 0, or 3 with `--strict`; the reasons
+//!   are listed.
 //! * **ok**: none of the above.
 
 use exompc::sim::{SafetySummary, Summary};
@@ -192,6 +193,22 @@ impl Verdict {
     /// True for `failed` (the command exits 1).
     pub fn is_failed(&self) -> bool {
         self.level == Level::Failed
+    }
+
+    /// The command's outcome: `failed` → exit 1; `degraded` with `strict` → exit 3
+    /// ([`crate::error::EXIT_DEGRADED`]); otherwise success. `what` names the run (`run`,
+    /// `sweep`, `soak`).
+    pub fn outcome(&self, what: &str, strict: bool) -> Result<(), crate::error::CliError> {
+        use crate::error::CliError;
+        match self.level {
+            Level::Failed => Err(CliError::Runtime(format!(
+                "{what} failed its checks: {self}"
+            ))),
+            Level::Degraded if strict => Err(CliError::Degraded(format!(
+                "{what} degraded (--strict): {self}"
+            ))),
+            _ => Ok(()),
+        }
     }
 }
 

@@ -36,7 +36,7 @@ fn config_prints_default_that_loads_back_identically() {
 fn simulate_with(name: &str, toml: &str) -> Output {
     let path = scratch(name);
     std::fs::write(&path, toml).unwrap();
-    let out = scratch(&format!("{name}.out"));
+    let out = common::fresh_dir(&format!("{name}.out"));
     exompc(&[
         "simulate",
         "--config",

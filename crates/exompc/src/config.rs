@@ -15,7 +15,9 @@
 use serde::{Deserialize, Deserializer, Serialize};
 use std::fmt;
 
+mod keys;
 pub mod scenarios;
+pub use keys::{explain, Allowed, End, KeyDoc, Limit, KEYS};
 
 // ---------------------------------------------------------------------------------------------
 // Error
@@ -23,9 +25,12 @@ pub mod scenarios;
 
 /// A configuration value outside its allowed range.
 ///
-/// Displays as `invalid value for robot.thigh.mass_kg: -1 (allowed: finite, > 0)`.
+/// Displays as `invalid value for robot.thigh.mass_kg: -1 (allowed: finite, > 0)`; when the
+/// range comes from another key (a cross-field rule), the message names that key too:
+/// `invalid value for straps.ls1_m: 0.28 (allowed: finite, in (0, 0.2]): must be <=
+/// robot.thigh.length_m = 0.2 (the thigh strap sits on the robot's thigh link)`.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("invalid value for {field}: {value} (allowed: {allowed})")]
+#[error("invalid value for {field}: {value} (allowed: {allowed}){}", self.depends_on.as_ref().map_or(String::new(), |d| format!(": {d}")))]
 pub struct ConfigError {
     /// Dotted path of the field, e.g. `robot.thigh.mass_kg` or `faults.events[0].start_s`.
     pub field: String,
@@ -33,6 +38,26 @@ pub struct ConfigError {
     pub value: String,
     /// Human-readable description of the allowed values, e.g. `finite, > 0`.
     pub allowed: String,
+    /// For a cross-field rule: the other key the allowed range depends on (`None` for a
+    /// range of its own).
+    pub depends_on: Option<Box<Dependency>>,
+}
+
+/// The other side of a cross-field rule (see [`ConfigError::depends_on`]).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("must be {relation} {key} = {value} ({reason})")]
+pub struct Dependency {
+    /// Dotted path of the other key, e.g. `robot.thigh.length_m`.
+    pub key: String,
+    /// Its value as text.
+    pub value: String,
+    /// How the field must relate to it: `<=`, `<`, `>=`, ...
+    pub relation: String,
+    /// Why, in a few words, e.g. `the thigh strap sits on the robot's thigh link`.
+    pub reason: String,
+    /// What to change, naming both keys, e.g. `set straps.ls1_m <= 0.2 or lengthen
+    /// robot.thigh.length_m`.
+    pub fix: String,
 }
 
 impl ConfigError {
@@ -46,7 +71,56 @@ impl ConfigError {
             field: field.into(),
             value: value.to_string(),
             allowed: allowed.into(),
+            depends_on: None,
         }
+    }
+
+    /// This error, marked as the breach of a cross-field rule: the field must be `relation`
+    /// the other `key` (holding `value`) because of `reason`; `fix` says what to change.
+    pub fn depending_on(
+        mut self,
+        key: impl Into<String>,
+        value: impl fmt::Display,
+        relation: &str,
+        reason: &str,
+        fix: impl Into<String>,
+    ) -> Self {
+        self.depends_on = Some(Box::new(Dependency {
+            key: key.into(),
+            value: value.to_string(),
+            relation: relation.into(),
+            reason: reason.into(),
+            fix: fix.into(),
+        }));
+        self
+    }
+}
+
+/// The other side of a cross-field check: key, value, relation, reason and fix (see
+/// [`Dependency`]).
+struct Other<'a> {
+    key: &'a str,
+    value: String,
+    relation: &'a str,
+    reason: &'a str,
+    fix: String,
+}
+
+/// Marks the error of a range check whose bound is another key's value as a cross-field
+/// breach when `breached` (the bound, not the field's own range, was crossed).
+fn cross(r: Result<(), ConfigError>, breached: bool, o: Other<'_>) -> Result<(), ConfigError> {
+    r.map_err(|e| {
+        let field = e.field.clone();
+        on_field(e, &field, breached, o)
+    })
+}
+
+/// [`cross`] for an error from a group of checks: marks it only if it is about `field`.
+fn on_field(e: ConfigError, field: &str, breached: bool, o: Other<'_>) -> ConfigError {
+    if breached && e.field == field {
+        e.depending_on(o.key, o.value, o.relation, o.reason, o.fix)
+    } else {
+        e
     }
 }
 
@@ -340,13 +414,22 @@ impl RobotLink {
                 ("mass_kg", self.mass_kg, R::Pos),
             ],
         )?;
-        reals(
-            p,
-            &[
-                ("com_m", self.com_m, R::Closed(0.0, self.length_m)),
-                ("inertia_kgm2", self.inertia_kgm2, R::Pos),
-            ],
-        )
+        let com = R::Closed(0.0, self.length_m);
+        cross(
+            real(&format!("{p}.com_m"), self.com_m, com),
+            self.com_m > self.length_m,
+            Other {
+                key: &format!("{p}.length_m"),
+                value: self.length_m.to_string(),
+                relation: "<=",
+                reason: "the centre of mass lies on the link",
+                fix: format!(
+                    "set {p}.com_m <= {} or lengthen {p}.length_m",
+                    self.length_m
+                ),
+            },
+        )?;
+        real(&format!("{p}.inertia_kgm2"), self.inertia_kgm2, R::Pos)
     }
 }
 
@@ -379,12 +462,21 @@ impl Robot {
                 ("viscous_friction", self.viscous_friction, R::NonNeg),
                 ("coulomb_friction", self.coulomb_friction, R::NonNeg),
                 ("coulomb_smoothing", self.coulomb_smoothing, R::Pos),
-                (
-                    "payload_position_m",
-                    self.payload_position_m,
-                    R::Closed(0.0, self.shank.length_m),
-                ),
             ],
+        )?;
+        let (pos, l) = (self.payload_position_m, self.shank.length_m);
+        cross(
+            real("robot.payload_position_m", pos, R::Closed(0.0, l)),
+            pos > l,
+            Other {
+                key: "robot.shank.length_m",
+                value: l.to_string(),
+                relation: "<=",
+                reason: "the payload sits on the robot's shank link",
+                fix: format!(
+                    "set robot.payload_position_m <= {l} or lengthen robot.shank.length_m"
+                ),
+            },
         )
     }
 }
@@ -802,19 +894,25 @@ impl Scenario {
         self.robot.validate()?;
 
         let s = &self.straps;
+        for (name, v, link, l) in [
+            ("ls1_m", s.ls1_m, "thigh", self.robot.thigh.length_m),
+            ("ls2_m", s.ls2_m, "shank", self.robot.shank.length_m),
+        ] {
+            cross(
+                real(&format!("straps.{name}"), v, R::OpenClosed(0.0, l)),
+                v > l,
+                Other {
+                    key: &format!("robot.{link}.length_m"),
+                    value: l.to_string(),
+                    relation: "<=",
+                    reason: &format!("the {link} strap sits on the robot's {link} link"),
+                    fix: format!("set straps.{name} <= {l} or lengthen robot.{link}.length_m"),
+                },
+            )?;
+        }
         reals(
             "straps",
             &[
-                (
-                    "ls1_m",
-                    s.ls1_m,
-                    R::OpenClosed(0.0, self.robot.thigh.length_m),
-                ),
-                (
-                    "ls2_m",
-                    s.ls2_m,
-                    R::OpenClosed(0.0, self.robot.shank.length_m),
-                ),
                 ("stiffness", s.stiffness, R::Pos),
                 ("damping", s.damping, R::NonNeg),
             ],
@@ -857,7 +955,17 @@ impl Scenario {
                 ("one_dof_amplitude", t.one_dof_amplitude, R::NonNeg),
                 ("one_dof_frequency_hz", t.one_dof_frequency_hz, R::Pos),
             ],
-        )?;
+        )
+        .map_err(|e| {
+            let (swing, base) = (t.frequency_swing_hz, t.base_frequency_hz);
+            on_field(e, "trajectory.frequency_swing_hz", swing >= base, Other {
+                key: "trajectory.base_frequency_hz",
+                value: base.to_string(),
+                relation: "<",
+                reason: "the gait frequency base ± swing stays above 0",
+                fix: format!("set trajectory.frequency_swing_hz < {base} or raise trajectory.base_frequency_hz"),
+            })
+        })?;
 
         let tm = &self.timing;
         real("timing.dt", tm.dt, R::OpenClosed(0.0, 1.0))?;
@@ -874,27 +982,60 @@ impl Scenario {
                 ("duration_2dof_s", tm.duration_2dof_s, R::Closed(tm.dt, 1e6)),
                 ("duration_1dof_s", tm.duration_1dof_s, R::Closed(tm.dt, 1e6)),
             ],
-        )?;
+        )
+        .map_err(|e| {
+            let short = e.value.parse::<f64>().is_ok_and(|d| d < tm.dt);
+            let field = e.field.clone();
+            on_field(
+                e,
+                &field,
+                short,
+                Other {
+                    key: "timing.dt",
+                    value: tm.dt.to_string(),
+                    relation: ">=",
+                    reason: "a run is at least one control period",
+                    fix: format!("set {field} >= {} or shorten timing.dt", tm.dt),
+                },
+            )
+        })?;
         for (name, d) in [
             ("timing.duration_2dof_s", tm.duration_2dof_s),
             ("timing.duration_1dof_s", tm.duration_1dof_s),
         ] {
             if d / tm.dt > MAX_CONTROL_STEPS as f64 {
+                let most = MAX_CONTROL_STEPS as f64 * tm.dt;
                 return Err(ConfigError::new(
                     name,
                     d,
                     format!(
-                        "at most {MAX_CONTROL_STEPS} control steps, i.e. <= {} s at timing.dt = {} s",
-                        MAX_CONTROL_STEPS as f64 * tm.dt,
+                        "at most {MAX_CONTROL_STEPS} control steps, i.e. <= {most} s at timing.dt = {} s",
                         tm.dt
                     ),
+                )
+                .depending_on(
+                    "timing.dt",
+                    tm.dt,
+                    &format!("<= {MAX_CONTROL_STEPS} ×"),
+                    "a run has at most that many control steps",
+                    format!("set {name} <= {most} or lengthen timing.dt"),
                 ));
             }
         }
 
         let c = &self.controller;
         int("controller.np", c.np, 1, 200)?;
-        int("controller.nc", c.nc, 1, c.np)?;
+        cross(
+            int("controller.nc", c.nc, 1, c.np),
+            c.nc > c.np,
+            Other {
+                key: "controller.np",
+                value: c.np.to_string(),
+                relation: "<=",
+                reason: "the control horizon lies within the prediction horizon",
+                fix: format!("set controller.nc <= {} or raise controller.np", c.np),
+            },
+        )?;
         reals(
             "controller",
             &[
@@ -968,8 +1109,39 @@ impl Scenario {
                     R::Open(0.0, 1.0 / n as f64),
                 ),
             ],
+        )
+        .map_err(|e| {
+            let high = m.probability_floor >= 1.0 / n as f64;
+            on_field(
+                e,
+                "multistage.probability_floor",
+                high,
+                Other {
+                    key: "multistage.payloads_kg",
+                    value: format!("{:?} ({n} scenarios)", m.payloads_kg),
+                    relation: "< 1 / the number of entries of",
+                    reason: "the floored probabilities must still sum to 1",
+                    fix: format!(
+                    "set multistage.probability_floor < {} or list fewer multistage.payloads_kg",
+                    1.0 / n as f64
+                ),
+                },
+            )
+        })?;
+        cross(
+            int("multistage.robust_horizon", m.robust_horizon, 1, c.nc),
+            m.robust_horizon > c.nc,
+            Other {
+                key: "controller.nc",
+                value: c.nc.to_string(),
+                relation: "<=",
+                reason: "the shared moves lie within the control horizon",
+                fix: format!(
+                    "set multistage.robust_horizon <= {} or raise controller.nc",
+                    c.nc
+                ),
+            },
         )?;
-        int("multistage.robust_horizon", m.robust_horizon, 1, c.nc)?;
 
         let e = &self.ekf;
         reals(

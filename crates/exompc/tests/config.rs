@@ -455,3 +455,75 @@ fn boundary_values_are_accepted() {
     s.faults.events = vec![spike()];
     s.validate().expect("boundary values are valid");
 }
+
+/// Each cross-field rule: the mutation breaks `field` through the bound set by `other`, and the
+/// error names both (issue 15); a breach of the field's own range names no other key.
+#[test]
+fn cross_field_rules_name_both_keys() {
+    let cases: &[(&str, &str, Mutation)] = &[
+        ("robot.thigh.com_m", "robot.thigh.length_m", |s| {
+            s.robot.thigh.length_m = 0.1
+        }),
+        ("robot.shank.com_m", "robot.shank.length_m", |s| {
+            s.robot.shank.com_m = 0.5
+        }),
+        ("robot.payload_position_m", "robot.shank.length_m", |s| {
+            s.robot.payload_position_m = 0.5
+        }),
+        ("straps.ls1_m", "robot.thigh.length_m", |s| {
+            s.robot.thigh.length_m = 0.25
+        }),
+        ("straps.ls2_m", "robot.shank.length_m", |s| {
+            s.straps.ls2_m = 0.5
+        }),
+        (
+            "trajectory.frequency_swing_hz",
+            "trajectory.base_frequency_hz",
+            |s| s.trajectory.base_frequency_hz = 0.2,
+        ),
+        ("timing.duration_2dof_s", "timing.dt", |s| {
+            s.timing.duration_2dof_s = 0.005
+        }),
+        ("timing.duration_1dof_s", "timing.dt", |s| {
+            s.timing.duration_1dof_s = 2e5;
+            s.timing.dt = 1e-4
+        }),
+        ("controller.nc", "controller.np", |s| s.controller.np = 2),
+        ("multistage.robust_horizon", "controller.nc", |s| {
+            s.multistage.robust_horizon = 4
+        }),
+        (
+            "multistage.probability_floor",
+            "multistage.payloads_kg",
+            |s| s.multistage.probability_floor = 0.4,
+        ),
+    ];
+    for (field, other, mutate) in cases {
+        let mut s = Scenario::default();
+        mutate(&mut s);
+        let e = s.validate().expect_err(field);
+        assert_eq!(e.field, *field, "{e}");
+        let d = e
+            .depends_on
+            .as_ref()
+            .unwrap_or_else(|| panic!("{field}: {e}"));
+        assert_eq!(d.key, *other, "{e}");
+        let msg = e.to_string();
+        assert!(msg.contains(field) && msg.contains(other), "{msg}");
+        assert!(d.fix.contains(field) && d.fix.contains(other), "{}", d.fix);
+    }
+    // Own-range breaches of the same fields name no other key.
+    for mutate in [
+        (|s: &mut Scenario| s.straps.ls1_m = 0.0) as Mutation,
+        |s| s.robot.thigh.com_m = -0.1,
+        |s| s.controller.nc = 0,
+        |s| s.multistage.probability_floor = 0.0,
+        |s| s.trajectory.frequency_swing_hz = -0.1,
+        |s| s.timing.duration_2dof_s = f64::NAN,
+    ] {
+        let mut s = Scenario::default();
+        mutate(&mut s);
+        let e = s.validate().unwrap_err();
+        assert_eq!(e.depends_on, None, "{e}");
+    }
+}

@@ -1,0 +1,271 @@
+//! Config help for people: where each key's value came from (a cross-field error names the
+//! key the user set and the one it conflicts with), the commented default scenario of
+//! `exompc config`, and `exompc config --explain KEY`.
+
+use exompc::config::ConfigError;
+use std::collections::BTreeSet;
+
+/// Where the keys of a scenario got their values: the config file and command-line flags.
+#[derive(Debug, Clone, Default)]
+pub struct KeyOrigins {
+    /// Dotted keys the config file sets (`robot.thigh.length_m`, `faults.events`).
+    pub file: BTreeSet<String>,
+    /// Keys set by a command-line flag, with the flag (`timing.duration_2dof_s`, `--duration`).
+    pub flags: Vec<(String, String)>,
+    /// Label of a key set by neither (`default`, or `current value` for an edited scenario).
+    pub unset: &'static str,
+}
+
+impl KeyOrigins {
+    /// Origins of a config file's keys (`table` is the parsed file); the rest are defaults.
+    pub fn of_file(table: &toml::Table) -> Self {
+        let mut file = BTreeSet::new();
+        collect_keys(table, "", &mut file);
+        KeyOrigins {
+            file,
+            flags: Vec::new(),
+            unset: "default",
+        }
+    }
+
+    /// Records that `flag` set `key` (a later flag on the same key wins).
+    pub fn set_by_flag(&mut self, key: &str, flag: &str) {
+        self.flags.retain(|(k, _)| k != key);
+        self.flags.push((key.to_string(), flag.to_string()));
+    }
+
+    /// How to label the value of `key`: `your setting`, `set by --duration`, `default`.
+    pub fn label(&self, key: &str) -> String {
+        if let Some((_, flag)) = self.flags.iter().find(|(k, _)| k == key) {
+            return format!("set by {flag}");
+        }
+        // `faults.events[0].start_s` is set when the file has `faults.events`; an indexed
+        // key `multistage.payloads_kg[1]` when it has `multistage.payloads_kg`.
+        let mut k = key.to_string();
+        loop {
+            if self.file.contains(&k) {
+                return "your setting".into();
+            }
+            match k.rfind(['.', '[']) {
+                Some(i) => k.truncate(i),
+                None => return self.unset.into(),
+            }
+        }
+    }
+
+    /// True when the user set `key` (in the file or by a flag).
+    pub fn is_set(&self, key: &str) -> bool {
+        self.label(key) != self.unset
+    }
+}
+
+/// Dotted paths of the leaf keys of `t` (arrays, including arrays of tables, count as leaves).
+fn collect_keys(t: &toml::Table, prefix: &str, out: &mut BTreeSet<String>) {
+    for (k, v) in t {
+        let path = if prefix.is_empty() {
+            k.clone()
+        } else {
+            format!("{prefix}.{k}")
+        };
+        match v {
+            toml::Value::Table(sub) => collect_keys(sub, &path, out),
+            _ => {
+                out.insert(path);
+            }
+        }
+    }
+}
+
+/// A validation error as one line that says where each value came from. For a cross-field
+/// rule it leads with the key the user set and names the one it conflicts with:
+/// `conflicting values: robot.thigh.length_m = 0.2 (your setting) and straps.ls1_m = 0.28
+/// (default): straps.ls1_m must be <= robot.thigh.length_m (the thigh strap sits on the
+/// robot's thigh link); set straps.ls1_m <= 0.2 or lengthen robot.thigh.length_m`.
+pub fn describe_error(e: &ConfigError, origins: &KeyOrigins) -> String {
+    let Some(d) = &e.depends_on else {
+        return e.to_string();
+    };
+    let mine = (&e.field, &e.value, origins.label(&e.field));
+    let other = (&d.key, &d.value, origins.label(&d.key));
+    // Lead with what the user set; the field first when both or neither are set.
+    let (first, second) = if origins.is_set(&d.key) && !origins.is_set(&e.field) {
+        (other, mine)
+    } else {
+        (mine, other)
+    };
+    format!(
+        "conflicting values: {} = {} ({}) and {} = {} ({}): {} must be {} {} ({}); {}",
+        first.0,
+        first.1,
+        first.2,
+        second.0,
+        second.1,
+        second.2,
+        e.field,
+        d.relation,
+        d.key,
+        d.reason,
+        d.fix
+    )
+}
+
+/// Adds a `# ...` comment line (unit, meaning, allowed values, source) above every table
+/// header and every `key = value` line of `toml` (a serialised scenario), and the optional
+/// keys that are absent as commented-out examples. The result parses to the same scenario.
+pub fn comment_scenario_toml(toml: &str) -> String {
+    let mut out = String::with_capacity(toml.len() * 4);
+    let mut table = String::new();
+    let comment = |out: &mut String, path: &str| {
+        if let Some(doc) = exompc::config::explain(path) {
+            out.push_str("# ");
+            out.push_str(&doc.comment());
+            out.push('\n');
+        }
+    };
+    // Commented-out examples of the optional keys, written at the end of their table.
+    let optional = |out: &mut String, table: &str| {
+        if table == "controller.sqp" && !toml.contains("max_time_us") {
+            comment(out, "controller.sqp.max_time_us");
+            out.push_str("# max_time_us = 5000\n");
+        }
+        if table == "faults" && toml.contains("events = []") {
+            out.push_str(
+                "# An event (replace `events = []` above by one [[faults.events]] table per event):\n",
+            );
+            out.push_str("# [[faults.events]]\n");
+            for (key, example) in [
+                ("kind", "\"spike\""),
+                ("channel", "\"f1\""),
+                ("start_s", "5.0"),
+                ("duration_s", "0.1"),
+                ("magnitude", "30.0"),
+            ] {
+                if let Some(doc) = exompc::config::explain(&format!("faults.events.{key}")) {
+                    out.push_str(&format!("# {key} = {example}    # {}\n", doc.comment()));
+                }
+            }
+        }
+    };
+    for line in toml.lines() {
+        let t = line.trim();
+        if t.starts_with('[') && !line.starts_with(' ') {
+            let name = t.trim_matches(|c| c == '[' || c == ']').trim();
+            // The previous table ends here (a blank line was already written before us).
+            if out.ends_with("\n\n") {
+                out.pop();
+                optional(&mut out, &table);
+                out.push('\n');
+            }
+            table = name.to_string();
+            comment(&mut out, &table);
+        } else if let Some((key, _)) = line.split_once(" = ") {
+            let key = key.trim();
+            if !line.starts_with(' ') && !key.is_empty() && !key.contains(['#', '"']) {
+                let path = if table.is_empty() {
+                    key.to_string()
+                } else {
+                    format!("{table}.{key}")
+                };
+                comment(&mut out, &path);
+            }
+        }
+        out.push_str(line);
+        out.push('\n');
+    }
+    optional(&mut out, &table);
+    out
+}
+
+/// The text of `exompc config --explain KEY`: unit, meaning, default, allowed range and
+/// source of a key, or of a table and each of its keys. `Err` for an unknown key, with the
+/// whole-schema suggestion of a config file's unknown key.
+pub fn explain_text(key: &str) -> Result<String, String> {
+    use exompc::config::{Scenario, KEYS};
+    let key = key.trim();
+    crate::io::check_key_path(key)?;
+    let doc = exompc::config::explain(key)
+        .ok_or_else(|| format!("`{key}` is a key of the scenario but has no explanation"))?;
+    let defaults = Scenario::default();
+    let default_of = |path: &str| -> String {
+        if path.starts_with("faults.events.") {
+            // Per event: `magnitude` is optional, the others are required in each table.
+            return if path.ends_with(".magnitude") {
+                "0".into()
+            } else {
+                "none (required in each event)".into()
+            };
+        }
+        match crate::io::get_key(&defaults, path) {
+            Ok(Some(v)) => v.to_string(),
+            Ok(None) => "absent".into(),
+            Err(_) => "-".into(),
+        }
+    };
+    let mut s = String::new();
+    if doc.is_table() {
+        let header = if matches!(doc.allowed, exompc::config::Allowed::Tables) {
+            format!("[[{}]]", doc.path)
+        } else {
+            format!("[{}]", doc.path)
+        };
+        s += &format!(
+            "{header}\n  meaning  {}\n  source   {}\n  keys\n",
+            doc.meaning, doc.source
+        );
+        let prefix = format!("{}.", doc.path);
+        let children: Vec<_> = KEYS
+            .iter()
+            .filter(|k| {
+                k.path
+                    .strip_prefix(&prefix)
+                    .is_some_and(|rest| !rest.contains('.'))
+            })
+            .collect();
+        let width = children
+            .iter()
+            .map(|k| k.path.len() - prefix.len())
+            .max()
+            .unwrap_or(0);
+        for c in children {
+            let name = &c.path[prefix.len()..];
+            if c.is_table() {
+                s += &format!("    {name:<width$}  table: {}\n", c.meaning);
+            } else {
+                let unit = if c.unit.is_empty() {
+                    String::new()
+                } else {
+                    format!(" [{}]", c.unit)
+                };
+                s += &format!(
+                    "    {name:<width$}  = {}{unit}  {}\n",
+                    default_of(c.path),
+                    c.meaning
+                );
+            }
+        }
+        s += &format!("  (exompc config --explain {}.KEY for one key)\n", doc.path);
+        return Ok(s);
+    }
+    let unit = if doc.unit.is_empty() { "-" } else { doc.unit };
+    let mut allowed = doc.allowed.describe();
+    let deps = doc.allowed.depends_on();
+    if !deps.is_empty() {
+        let vals: Vec<String> = deps
+            .iter()
+            .map(|d| format!("{d} = {}", default_of(d)))
+            .collect();
+        allowed += &format!(" (by default {})", vals.join(", "));
+    }
+    let table = match doc.path.rsplit_once('.').map_or("", |(t, _)| t) {
+        "faults.events" => "[[faults.events]]".to_string(),
+        t => format!("[{t}]"),
+    };
+    s += &format!(
+        "{}  (in {table})\n  meaning  {}\n  unit     {unit}\n  default  {}\n  allowed  {allowed}\n  source   {}\n",
+        doc.path,
+        doc.meaning,
+        default_of(doc.path),
+        doc.source
+    );
+    Ok(s)
+}
