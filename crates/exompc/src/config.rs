@@ -841,6 +841,10 @@ pub enum MonitorResponse {
     Hold,
     /// Ramp the torque to zero within the rate limit.
     RampToZero,
+    /// Switch to the transparent fallback controller (`control::Transparent`: the robot's own
+    /// gravity, friction, most of its inertia and the estimated payload compensated, no intent
+    /// feed-forward), within the rate limit; `ramp_to_zero` while a sensor channel is silent.
+    Fallback,
 }
 
 /// `[monitors]`: runtime safety monitors.
@@ -856,7 +860,8 @@ pub struct Monitors {
     pub force_max_n: f64,
     /// Trip when a channel has delivered no valid sample for this long (s), > 0. Default 0.05.
     pub sensor_timeout_s: f64,
-    /// Response when tripped (`"hold"` or `"ramp_to_zero"`). Default `"ramp_to_zero"`.
+    /// Response when tripped (`"hold"`, `"ramp_to_zero"` or `"fallback"`, the transparent
+    /// fallback controller). Default `"fallback"`.
     pub response: MonitorResponse,
     /// Oscillation monitor: trip when the RMS of a measured strap force's content above
     /// `oscillation_cutoff_hz` over the last `oscillation_window_s` exceeds this (N), > 0.
@@ -881,7 +886,7 @@ impl Default for Monitors {
             tracking_error_max_rad: 0.35,
             force_max_n: 70.0,
             sensor_timeout_s: 0.05,
-            response: MonitorResponse::RampToZero,
+            response: MonitorResponse::Fallback,
             oscillation_force_rms_n: 8.0,
             oscillation_torque_rms_nm: 10.0,
             oscillation_cutoff_hz: 3.0,

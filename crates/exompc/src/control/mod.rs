@@ -20,6 +20,7 @@
 //! [`crate::sim::build_controller`] and [`crate::sim::build_supervised`] build them from a
 //! [`crate::config::Scenario`]; `docs/MODEL.md` §8 gives the equations and default values.
 
+mod fallback;
 mod lag;
 mod limits;
 mod multistage;
@@ -30,6 +31,7 @@ mod prediction;
 mod robust;
 mod safety;
 
+pub use fallback::{FallbackSettings, Transparent};
 pub use lag::{ForceLag, HfShareDetector};
 pub use limits::TorqueLimits;
 pub use multistage::{
@@ -42,7 +44,7 @@ pub use prediction::{HorizonInputs, Interaction, PredictionModel, StepJacobian};
 pub use robust::{FilterAware, Method, RobustSettings};
 pub use safety::{
     MonitorAction, MonitorEvent, MonitorKind, OscillationDetector, SafetyReport, SafetySettings,
-    StrapAngleEstimate, Supervisor,
+    StrapAngleEstimate, Supervisor, OSCILLATION_MIN_HALF_CYCLES,
 };
 
 use nalgebra::SVector;

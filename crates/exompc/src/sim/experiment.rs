@@ -9,10 +9,10 @@ use super::plant::{robot_model, Plant, PlantParams};
 use super::trajectory::{KneeTrajectory, SwingTrajectory, Trajectory};
 use super::uncertainty::Uncertainty;
 use super::Sensors;
-use crate::config::{self, ConfigError, ControllerKind, Scenario};
+use crate::config::{self, ConfigError, ControllerKind, MonitorResponse, Scenario};
 use crate::control::{
-    Controller, IntentEstimator, Nmpc, NmpcSettings, PdController, PredictionModel, SafetyReport,
-    SafetySettings, Supervisor, TorqueLimits,
+    Controller, FallbackSettings, IntentEstimator, Nmpc, NmpcSettings, PdController,
+    PredictionModel, SafetyReport, SafetySettings, Supervisor, TorqueLimits, Transparent,
 };
 use crate::model::{Friction, Link, RobotModel, Straps, WinterFractions};
 use crate::solver::{SolverError, SqpSettings};
@@ -286,16 +286,35 @@ pub fn build_controller<D: Dof<N>, const N: usize>(
     })
 }
 
+/// The transparent fallback controller of scenario `s` (the supervisor's `fallback` response):
+/// the bare robot and the robot with 1 kg at `robot.payload_position_m`, the straps, and the
+/// known measurement filter window.
+pub fn fallback<D: Dof<N>, const N: usize>(s: &Scenario) -> Transparent<N> {
+    Transparent::new(
+        scenario_robot::<D, N>(s, 0.0),
+        scenario_robot::<D, N>(s, 1.0),
+        &D::straps(s),
+        s.timing.dt,
+        s.uncertainty.filter_window,
+        FallbackSettings::default(),
+    )
+}
+
 /// The controller `kind` of scenario `s` wrapped in the safety [`Supervisor`]
 /// (plausibility checks and the `[monitors]` of `s`).
 pub fn build_supervised<D: Dof<N>, const N: usize>(
     s: &Scenario,
     kind: ControllerKind,
 ) -> Result<Supervisor<N, Box<dyn Controller<N>>>, RunError> {
-    Ok(Supervisor::new(
+    let sup = Supervisor::new(
         build_controller::<D, N>(s, kind)?,
         SafetySettings::from_scenario(s),
-    ))
+    );
+    Ok(if s.monitors.response == MonitorResponse::Fallback {
+        sup.with_fallback(fallback::<D, N>(s))
+    } else {
+        sup
+    })
 }
 
 /// Run the closed loop of scenario `s` with controller `s.controller.kind` in layout `D` for

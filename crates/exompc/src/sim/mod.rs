@@ -18,7 +18,7 @@ mod uncertainty;
 
 pub use closed_loop::{run_closed_loop, Recorder, StepRecord, TraceLog, TraceRow};
 pub use experiment::{
-    build_controller, build_supervised, initial_torque, intent, limits, nmpc_settings,
+    build_controller, build_supervised, fallback, initial_torque, intent, limits, nmpc_settings,
     plant_params, prediction_model, run_experiment, run_experiment_report, scenario_robot,
     uncertainty, Dof, OneDof, RunError, TwoDof,
 };
