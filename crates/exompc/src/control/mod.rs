@@ -21,6 +21,7 @@
 //! [`crate::config::Scenario`]; `docs/MODEL.md` §8 gives the equations and default values.
 
 mod fallback;
+mod highpass;
 mod lag;
 mod limits;
 mod multistage;
@@ -32,6 +33,7 @@ mod robust;
 mod safety;
 
 pub use fallback::{FallbackSettings, Transparent};
+pub use highpass::HighPass;
 pub use lag::{ForceLag, HfShareDetector};
 pub use limits::TorqueLimits;
 pub use multistage::{

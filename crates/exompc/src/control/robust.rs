@@ -52,7 +52,7 @@ pub struct RobustSettings {
     /// Averaging time (s) of the oscillation detector, in (0, 10]. Default 0.25.
     pub oscillation_window_s: f64,
     /// Share of the strap-force power above the cut-off that counts as oscillation, in
-    /// (0, 1). Default 0.1.
+    /// (0, 1). Default 0.4.
     pub oscillation_fraction: f64,
     /// Smallest RMS (N) of the high-passed strap forces that counts as oscillation, >= 0.
     /// Default 2.
@@ -71,7 +71,7 @@ impl Default for RobustSettings {
             filter_aware: FilterAware::OnOscillation,
             oscillation_cutoff_hz: 3.0,
             oscillation_window_s: 0.25,
-            oscillation_fraction: 0.1,
+            oscillation_fraction: 0.4,
             oscillation_min_force_n: 2.0,
             human_bandwidth_hz: 3.0,
             release_s: 0.0,

@@ -1,5 +1,6 @@
 //! Runtime safety supervision around any controller: see [`Supervisor`].
 
+use super::highpass::HighPass;
 use super::{ControlOutput, Controller, Measurement, StepStatus, TorqueLimits, Transparent};
 use crate::config::{MonitorResponse, Monitors, Scenario};
 use nalgebra::{SMatrix, SVector};
@@ -99,20 +100,17 @@ const OSCILLATION: [usize; 2] = [3, 4];
 pub const OSCILLATION_MIN_HALF_CYCLES: u32 = 3;
 
 /// Sliding-window RMS of a signal's content above a cutoff frequency, per channel: a
-/// second-order Butterworth high-pass (bilinear transform with pre-warping, so that
+/// second-order Butterworth high-pass (`control::HighPass`, shared with the robust method's
+/// `HfShareDetector`; bilinear transform with pre-warping, so that
 /// `|H(f)|² = 1 / (1 + (tan(π f_c dt) / tan(π f dt))⁴)` exactly) followed by the mean square
 /// of its output over the last `window` samples, kept in a ring buffer allocated once.
 #[derive(Clone, Debug)]
 pub struct OscillationDetector<const N: usize> {
-    b: [f64; 3],
-    a: [f64; 2],
-    x: [SVector<f64, N>; 2],
-    y: [SVector<f64, N>; 2],
+    hp: HighPass<N>,
     ring: Vec<SVector<f64, N>>,
     pos: usize,
     filled: usize,
     sum: SVector<f64, N>,
-    started: bool,
     /// Hysteresis band of the half-cycle count (0: counting off).
     band: f64,
     /// Per channel: sign (+1 / −1 / 0 = none yet) of the last excursion beyond `±band`.
@@ -127,30 +125,17 @@ impl<const N: usize> OscillationDetector<N> {
     /// sample). Out-of-range values are brought into range: the cutoff into (0, Nyquist).
     pub fn new(cutoff_hz: f64, dt: f64, window_s: f64) -> Self {
         let dt = if dt.is_finite() && dt > 0.0 { dt } else { 0.01 };
-        let nyquist = 0.5 / dt;
-        let fc = if cutoff_hz.is_finite() {
-            cutoff_hz.clamp(1e-6 * nyquist, 0.999 * nyquist)
-        } else {
-            0.3 * nyquist
-        };
-        let k = (std::f64::consts::PI * fc * dt).tan();
-        let r2 = std::f64::consts::SQRT_2;
-        let norm = 1.0 / (1.0 + r2 * k + k * k);
         let w = if window_s.is_finite() {
             ((window_s / dt).round() as usize).clamp(1, 1 << 20)
         } else {
             1
         };
         OscillationDetector {
-            b: [norm, -2.0 * norm, norm],
-            a: [2.0 * (k * k - 1.0) * norm, (1.0 - r2 * k + k * k) * norm],
-            x: [SVector::zeros(); 2],
-            y: [SVector::zeros(); 2],
+            hp: HighPass::new(cutoff_hz, dt),
             ring: vec![SVector::zeros(); w],
             pos: 0,
             filled: 0,
             sum: SVector::zeros(),
-            started: false,
             band: 0.0,
             side: SVector::zeros(),
             turns: vec![SVector::zeros(); w],
@@ -185,16 +170,7 @@ impl<const N: usize> OscillationDetector<N> {
         if !v.iter().all(|x| x.is_finite()) {
             return self.rms_max();
         }
-        if !self.started {
-            // Start as if the first value had always been there (no step response).
-            self.x = [*v, *v];
-            self.started = true;
-        }
-        let [b0, b1, b2] = self.b;
-        let [a1, a2] = self.a;
-        let y = v * b0 + self.x[0] * b1 + self.x[1] * b2 - self.y[0] * a1 - self.y[1] * a2;
-        self.x = [*v, self.x[0]];
-        self.y = [y, self.y[0]];
+        let y = self.hp.push(v);
         let sq = y.component_mul(&y);
         let w = self.ring.len();
         let mut turn = SVector::<f64, N>::zeros();
