@@ -151,7 +151,7 @@ fn default_matches_spec_values() {
         (0.35, 70.0)
     );
     assert_eq!(s.monitors.sensor_timeout_s, 0.05);
-    assert_eq!(s.monitors.response, MonitorResponse::RampToZero);
+    assert_eq!(s.monitors.response, MonitorResponse::Fallback);
 }
 
 #[test]

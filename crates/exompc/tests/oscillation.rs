@@ -3,8 +3,11 @@
 //! angle estimate, a provoked limit cycle that must trip the monitor within 1 s, and the
 //! default scenario that must trip nothing.
 
-use exompc::config::{ControllerKind, Scenario};
-use exompc::control::{MonitorAction, MonitorKind, OscillationDetector, StrapAngleEstimate};
+use exompc::config::{ControllerKind, MonitorResponse, Scenario};
+use exompc::control::{
+    Controller, Measurement, MonitorAction, MonitorKind, OscillationDetector, SafetySettings,
+    StrapAngleEstimate, Supervisor, OSCILLATION_MIN_HALF_CYCLES,
+};
 use exompc::model::Straps;
 use exompc::scenario::{run_experiment_report, TwoDof};
 use exompc::sim::TraceLog;
@@ -139,30 +142,134 @@ fn default_scenario_trips_no_monitor() {
     }
 }
 
-/// Issue acceptance: the response to the provoked limit cycle brings the RMS strap force of
-/// the 2 s after the trip below 10 N. FAILS today with either response: `ramp_to_zero`
-/// (default) gives 32.4 / 48.5 N (thigh / shank), `hold` 31.7 / 62.0 N — at zero or held
-/// torque the person carries the robot and the 2 kg at the ankle through the straps. A
-/// response that meets it needs a controller that is stable there (the robust-controller
-/// work); a rate-derated torque (rate limit × 0.2 … × 0.003) measured 36-57 / 37-56 N.
-#[test]
-#[ignore = "acceptance not met by hold / ramp_to_zero: 32 / 49 N after the trip (see doc)"]
-fn provoked_limit_cycle_response_brings_the_force_below_10_n() {
-    let (_, rep, log) = run(&provoked());
+/// RMS strap forces (thigh, shank) of the 2 s after the first oscillation trip, and its time.
+fn rms_after_trip(s: &Scenario) -> (f64, [f64; 2]) {
+    let (_, rep, log) = run(s);
     let t = first_oscillation_trip(&rep).expect("no oscillation trip");
     let after: Vec<_> = log
         .rows
         .iter()
         .filter(|r| r.t > t && r.t <= t + 2.0)
         .collect();
-    for i in 0..2 {
-        let rms = (after.iter().map(|r| r.force_true[i].powi(2)).sum::<f64>() / after.len() as f64)
-            .sqrt();
+    let rms = |i: usize| {
+        (after.iter().map(|r| r.force_true[i].powi(2)).sum::<f64>() / after.len() as f64).sqrt()
+    };
+    (t, [rms(0), rms(1)])
+}
+
+/// Issue acceptance: the response to the provoked limit cycle brings the RMS strap force of
+/// the 2 s after the trip below 10 N. NOT met: the `fallback` response (default) gives
+/// 6.3 / 16.3 N (thigh / shank) — the shank strap (lever 0.16 m) still carries 15 % of the
+/// inertia of the shank with 2 kg at the ankle; `ramp_to_zero` 32.4 / 48.5 N, `hold`
+/// 31.7 / 62.0 N. See `fallback_response_calms_the_provoked_limit_cycle` for what is met.
+#[test]
+#[ignore = "acceptance not met: fallback 6.3 / 16.3 N after the trip (ramp_to_zero 32 / 49 N)"]
+fn provoked_limit_cycle_response_brings_the_force_below_10_n() {
+    let (t, rms) = rms_after_trip(&provoked());
+    for (i, r) in rms.iter().enumerate() {
         assert!(
-            rms < 10.0,
-            "strap {i}: RMS {rms:.2} N in the 2 s after the trip at {t} s"
+            *r < 10.0,
+            "strap {i}: RMS {r:.2} N in the 2 s after the trip at {t} s"
         );
     }
+}
+
+/// The transparent fallback (the default response) against ramping to zero on the provoked
+/// limit cycle: the monitor trips within 1 s, the fallback's payload estimate finds the 2 kg,
+/// and the RMS strap forces of the 2 s after the trip are at most half of `ramp_to_zero`'s
+/// (measured 6.3 / 16.3 N against 32.4 / 48.5 N).
+#[test]
+fn fallback_response_calms_the_provoked_limit_cycle() {
+    let fb = provoked();
+    assert_eq!(fb.monitors.response, MonitorResponse::Fallback);
+    let mut rz = provoked();
+    rz.monitors.response = MonitorResponse::RampToZero;
+    let ((t_fb, fb_rms), (_, rz_rms)) = rayon::join(|| rms_after_trip(&fb), || rms_after_trip(&rz));
+    assert!(t_fb <= 1.0, "first oscillation trip at {t_fb} s");
+    for i in 0..2 {
+        assert!(
+            fb_rms[i] < 0.5 * rz_rms[i],
+            "strap {i}: fallback {fb_rms:?} N vs ramp_to_zero {rz_rms:?} N"
+        );
+    }
+    // The fallback's payload estimate, replaying the run's measurements and applied torques.
+    let mut log = TraceLog::<2>::default();
+    exompc::scenario::run_experiment_report::<TwoDof, 2>(&fb, &mut [&mut log]).unwrap();
+    let mut est = exompc::scenario::fallback::<TwoDof, 2>(&fb);
+    let mut prev = log.rows[0].torque_robot;
+    for r in &log.rows {
+        let m = Measurement {
+            t: r.t,
+            q: r.robot.q,
+            qd: r.robot.qd,
+            force: r.force_measured,
+        };
+        est.observe(&m, &prev);
+        prev = r.torque_robot;
+    }
+    let m = est.payload_estimate();
+    assert!((m - 2.0).abs() < 0.1, "payload estimate {m} kg");
+}
+
+/// A supervisor around a PD controller, fed strap forces `force(t)` at rest; returns the
+/// first force-oscillation trip time.
+fn force_oscillation_trip(force: impl Fn(f64) -> [f64; 2], seconds: f64) -> Option<f64> {
+    let s = Scenario::default();
+    let inner = exompc::build_controller::<TwoDof, 2>(&s, ControllerKind::Pd).unwrap();
+    let mut sup = Supervisor::new(inner, SafetySettings::from_scenario(&s));
+    let n = (seconds / s.timing.dt).round() as usize;
+    for k in 0..n {
+        let t = k as f64 * s.timing.dt;
+        // The encoders move a little every step (a fresh sample, no sensor timeout).
+        let q = SVector::from([0.1 + 1e-4 * (k % 7) as f64, -0.2]);
+        sup.step(&Measurement {
+            t,
+            q,
+            qd: SVector::from([1e-3 * (k % 5) as f64, 1e-3 * (k % 3) as f64]),
+            force: SVector::from(force(t)),
+        });
+    }
+    sup.report()
+        .events
+        .iter()
+        .find(|e| e.action == MonitorAction::Trip && e.monitor == MonitorKind::ForceOscillation)
+        .map(|e| e.t)
+}
+
+/// A single jolt of the strap force (a 60 N pulse of 0.1 s, or a 45 N step) does not trip the
+/// force-oscillation monitor, although its high-passed RMS over the window exceeds the 8 N
+/// threshold; a 4 Hz oscillation of the same size trips it within 1 s.
+#[test]
+fn a_jolt_does_not_trip_the_force_oscillation_monitor_a_4_hz_limit_cycle_does() {
+    let pulse = |t: f64| [if (1.0..1.1).contains(&t) { 60.0 } else { 0.0 }, 0.0];
+    let step = |t: f64| [0.0, if t >= 1.0 { 45.0 } else { 0.0 }];
+    // The RMS alone would trip on both (so the test can fail).
+    for f in [&pulse as &dyn Fn(f64) -> [f64; 2], &step] {
+        let mut d = OscillationDetector::<2>::new(3.0, 0.01, 0.5).with_hysteresis(8.0);
+        let mut peak: f64 = 0.0;
+        let mut cycles: f64 = 0.0;
+        for k in 0..300 {
+            d.push(&SVector::from(f(k as f64 * 0.01)));
+            peak = peak.max(d.rms_max());
+            cycles = cycles.max(d.half_cycles().max());
+            assert!(!d.is_oscillating(8.0, OSCILLATION_MIN_HALF_CYCLES));
+        }
+        assert!(peak > 8.0, "jolt RMS {peak}");
+        assert!(cycles < f64::from(OSCILLATION_MIN_HALF_CYCLES), "{cycles}");
+        assert_eq!(force_oscillation_trip(f, 3.0), None);
+    }
+    let osc = |t: f64| {
+        let a = if t >= 1.0 { 20.0 } else { 0.0 };
+        [
+            a * (2.0 * PI * 4.0 * t).sin(),
+            0.5 * a * (2.0 * PI * 4.0 * t).cos(),
+        ]
+    };
+    let t = force_oscillation_trip(osc, 3.0).expect("4 Hz oscillation did not trip");
+    assert!(
+        t > 1.0 && t <= 2.0,
+        "tripped at {t} s (oscillation from 1 s)"
+    );
 }
 
 #[test]

@@ -13,6 +13,7 @@
 //! the filter's delay, the delay that turns the high-gain force loop of eqs. 5-6 into a limit
 //! cycle when the prediction model is accurate and the leg heavy.
 
+use super::highpass::HighPass;
 use super::Measurement;
 use crate::model::Straps;
 use nalgebra::SVector;
@@ -115,16 +116,15 @@ impl<const N: usize> ForceLag<N> {
 }
 
 /// Detects an interaction oscillation in the filtered strap forces: the share of their power
-/// above `cutoff_hz` (two cascaded first-order high-pass filters), averaged exponentially over
+/// above `cutoff_hz` (the second-order Butterworth [`HighPass`] that the supervisor's
+/// `OscillationDetector` uses too), averaged exponentially over
 /// `window_s`, exceeds `fraction` while the high-frequency RMS exceeds `min_force_n`.
 #[derive(Clone, Copy, Debug)]
 pub struct HfShareDetector<const N: usize> {
-    alpha: f64,
+    hp: HighPass<N>,
     beta: f64,
     fraction: f64,
     min_power: f64,
-    lp1: SVector<f64, N>,
-    lp2: SVector<f64, N>,
     hp_power: f64,
     total_power: f64,
     started: bool,
@@ -134,12 +134,10 @@ impl<const N: usize> HfShareDetector<N> {
     /// A detector at period `dt` (s); arguments as in the type documentation.
     pub fn new(dt: f64, cutoff_hz: f64, window_s: f64, fraction: f64, min_force_n: f64) -> Self {
         HfShareDetector {
-            alpha: 1.0 - (-2.0 * std::f64::consts::PI * cutoff_hz * dt).exp(),
+            hp: HighPass::new(cutoff_hz, dt),
             beta: (dt / window_s).min(1.0),
             fraction,
             min_power: min_force_n * min_force_n,
-            lp1: SVector::zeros(),
-            lp2: SVector::zeros(),
             hp_power: 0.0,
             total_power: 0.0,
             started: false,
@@ -156,15 +154,10 @@ impl<const N: usize> HfShareDetector<N> {
     /// Feed one filtered force sample; returns true while an oscillation is detected.
     pub fn push(&mut self, f: &SVector<f64, N>) -> bool {
         if !self.started {
-            self.lp1 = *f;
-            self.lp2 = SVector::zeros();
+            self.hp.reset();
             self.started = true;
         }
-        // hp1 = f − lowpass(f); hp2 = hp1 − lowpass(hp1).
-        self.lp1 += (f - self.lp1) * self.alpha;
-        let hp1 = f - self.lp1;
-        self.lp2 += (hp1 - self.lp2) * self.alpha;
-        let hp2 = hp1 - self.lp2;
+        let hp2 = self.hp.push(f);
         self.hp_power += (hp2.norm_squared() - self.hp_power) * self.beta;
         self.total_power += (f.norm_squared() - self.total_power) * self.beta;
         self.detected()

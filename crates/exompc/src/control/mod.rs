@@ -20,6 +20,8 @@
 //! [`crate::scenario::build_controller`] and [`crate::scenario::build_supervised`] build them from a
 //! [`crate::config::Scenario`]; `docs/MODEL.md` §8 gives the equations and default values.
 
+mod fallback;
+mod highpass;
 mod lag;
 mod limits;
 mod multistage;
@@ -30,6 +32,8 @@ mod prediction;
 mod robust;
 mod safety;
 
+pub use fallback::{FallbackSettings, Transparent};
+pub use highpass::HighPass;
 pub use lag::{ForceLag, HfShareDetector};
 pub use limits::{LimitsError, TorqueLimits};
 pub use multistage::{CoupledProblem, Formulation, MultiStage, MultiStageError, MultiStageOptions};
@@ -40,7 +44,7 @@ pub use prediction::{HorizonInputs, Interaction, PredictionModel, StepJacobian};
 pub use robust::{FilterAware, Method, RobustSettings};
 pub use safety::{
     MonitorAction, MonitorEvent, MonitorKind, MonitorResponse, Monitors, OscillationDetector,
-    SafetyReport, SafetySettings, StrapAngleEstimate, Supervisor,
+    SafetyReport, SafetySettings, StrapAngleEstimate, Supervisor, OSCILLATION_MIN_HALF_CYCLES,
 };
 
 use nalgebra::SVector;

@@ -47,15 +47,15 @@ pub struct RobustSettings {
     /// `"off"`, `"on_oscillation"` or `"always"`. Default `"on_oscillation"`.
     pub filter_aware: FilterAware,
     /// Cut-off (Hz) above which filtered strap-force power counts as oscillation, > 0 (one
-    /// at or above the Nyquist frequency `1/(2·timing.dt)` sees almost nothing). Default 3.
+    /// at or above the Nyquist frequency `1/(2·timing.dt)` sees almost nothing). Default 2.5.
     pub oscillation_cutoff_hz: f64,
     /// Averaging time (s) of the oscillation detector, in (0, 10]. Default 0.25.
     pub oscillation_window_s: f64,
     /// Share of the strap-force power above the cut-off that counts as oscillation, in
-    /// (0, 1). Default 0.1.
+    /// (0, 1). Default 0.4.
     pub oscillation_fraction: f64,
     /// Smallest RMS (N) of the high-passed strap forces that counts as oscillation, >= 0.
-    /// Default 2.
+    /// Default 1.5.
     pub oscillation_min_force_n: f64,
     /// Bandwidth (Hz) of the human's motion in the Smith predictor: the human's acceleration
     /// is taken as the robot's low-passed at this frequency, > 0. Default 3.
@@ -69,10 +69,10 @@ impl Default for RobustSettings {
     fn default() -> Self {
         RobustSettings {
             filter_aware: FilterAware::OnOscillation,
-            oscillation_cutoff_hz: 3.0,
+            oscillation_cutoff_hz: 2.5,
             oscillation_window_s: 0.25,
-            oscillation_fraction: 0.1,
-            oscillation_min_force_n: 2.0,
+            oscillation_fraction: 0.4,
+            oscillation_min_force_n: 1.5,
             human_bandwidth_hz: 3.0,
             release_s: 0.0,
         }

@@ -1,6 +1,7 @@
 //! Runtime safety supervision around any controller: see [`Supervisor`].
 
-use super::{ControlOutput, Controller, Measurement, StepStatus, TorqueLimits};
+use super::highpass::HighPass;
+use super::{ControlOutput, Controller, Measurement, StepStatus, TorqueLimits, Transparent};
 use nalgebra::{SMatrix, SVector};
 use serde::{Deserialize, Serialize};
 
@@ -52,6 +53,10 @@ pub enum MonitorResponse {
     Hold,
     /// Ramp the torque to zero within the rate limit.
     RampToZero,
+    /// Switch to the transparent fallback controller ([`Transparent`]: the robot's own
+    /// gravity, friction, most of its inertia and the estimated payload compensated, no intent
+    /// feed-forward), within the rate limit; `ramp_to_zero` while a sensor channel is silent.
+    Fallback,
 }
 
 /// `[monitors]`: runtime safety monitors.
@@ -67,7 +72,8 @@ pub struct Monitors {
     pub force_max_n: f64,
     /// Trip when a channel has delivered no valid sample for this long (s), > 0. Default 0.05.
     pub sensor_timeout_s: f64,
-    /// Response when tripped (`"hold"` or `"ramp_to_zero"`). Default `"ramp_to_zero"`.
+    /// Response when tripped (`"hold"`, `"ramp_to_zero"` or `"fallback"`, the transparent
+    /// fallback controller). Default `"fallback"`.
     pub response: MonitorResponse,
     /// Oscillation monitor: trip when the RMS of a measured strap force's content above
     /// `oscillation_cutoff_hz` over the last `oscillation_window_s` exceeds this (N), > 0.
@@ -92,7 +98,7 @@ impl Default for Monitors {
             tracking_error_max_rad: 0.35,
             force_max_n: 70.0,
             sensor_timeout_s: 0.05,
-            response: MonitorResponse::RampToZero,
+            response: MonitorResponse::Fallback,
             oscillation_force_rms_n: 8.0,
             oscillation_torque_rms_nm: 10.0,
             oscillation_cutoff_hz: 3.0,
@@ -129,21 +135,30 @@ const MONITORS: [MonitorKind; 5] = [
 /// Indices of the oscillation monitors in [`MONITORS`].
 const OSCILLATION: [usize; 2] = [3, 4];
 
+/// Half-cycles beyond the hysteresis band (the RMS threshold) an oscillation monitor needs in
+/// its window, besides the RMS: one and a half periods, so that a single jolt (whose high-pass
+/// response swings at most twice beyond the band) does not trip it.
+pub const OSCILLATION_MIN_HALF_CYCLES: u32 = 3;
+
 /// Sliding-window RMS of a signal's content above a cutoff frequency, per channel: a
-/// second-order Butterworth high-pass (bilinear transform with pre-warping, so that
+/// second-order Butterworth high-pass (`control::HighPass`, shared with the robust method's
+/// `HfShareDetector`; bilinear transform with pre-warping, so that
 /// `|H(f)|² = 1 / (1 + (tan(π f_c dt) / tan(π f dt))⁴)` exactly) followed by the mean square
 /// of its output over the last `window` samples, kept in a ring buffer allocated once.
 #[derive(Clone, Debug)]
 pub struct OscillationDetector<const N: usize> {
-    b: [f64; 3],
-    a: [f64; 2],
-    x: [SVector<f64, N>; 2],
-    y: [SVector<f64, N>; 2],
+    hp: HighPass<N>,
     ring: Vec<SVector<f64, N>>,
     pos: usize,
     filled: usize,
     sum: SVector<f64, N>,
-    started: bool,
+    /// Hysteresis band of the half-cycle count (0: counting off).
+    band: f64,
+    /// Per channel: sign (+1 / −1 / 0 = none yet) of the last excursion beyond `±band`.
+    side: SVector<f64, N>,
+    /// Per sample: 1 where the channel completed a half-cycle (ring aligned with `ring`).
+    turns: Vec<SVector<f64, N>>,
+    turn_sum: SVector<f64, N>,
 }
 
 impl<const N: usize> OscillationDetector<N> {
@@ -151,31 +166,38 @@ impl<const N: usize> OscillationDetector<N> {
     /// sample). Out-of-range values are brought into range: the cutoff into (0, Nyquist).
     pub fn new(cutoff_hz: f64, dt: f64, window_s: f64) -> Self {
         let dt = if dt.is_finite() && dt > 0.0 { dt } else { 0.01 };
-        let nyquist = 0.5 / dt;
-        let fc = if cutoff_hz.is_finite() {
-            cutoff_hz.clamp(1e-6 * nyquist, 0.999 * nyquist)
-        } else {
-            0.3 * nyquist
-        };
-        let k = (std::f64::consts::PI * fc * dt).tan();
-        let r2 = std::f64::consts::SQRT_2;
-        let norm = 1.0 / (1.0 + r2 * k + k * k);
         let w = if window_s.is_finite() {
             ((window_s / dt).round() as usize).clamp(1, 1 << 20)
         } else {
             1
         };
         OscillationDetector {
-            b: [norm, -2.0 * norm, norm],
-            a: [2.0 * (k * k - 1.0) * norm, (1.0 - r2 * k + k * k) * norm],
-            x: [SVector::zeros(); 2],
-            y: [SVector::zeros(); 2],
+            hp: HighPass::new(cutoff_hz, dt),
             ring: vec![SVector::zeros(); w],
             pos: 0,
             filled: 0,
             sum: SVector::zeros(),
-            started: false,
+            band: 0.0,
+            side: SVector::zeros(),
+            turns: vec![SVector::zeros(); w],
+            turn_sum: SVector::zeros(),
         }
+    }
+
+    /// Also count half-cycles: a half-cycle is completed each time the high-passed signal
+    /// swings from beyond `−band` to beyond `+band` or back (hysteresis, so noise around zero
+    /// does not count). [`OscillationDetector::half_cycles`] gives the count over the window.
+    /// A limit cycle completes two per period; a single jolt (a step or a pulse, whose
+    /// high-pass response rings out within about one period of the cutoff) at most two or three.
+    pub fn with_hysteresis(mut self, band: f64) -> Self {
+        self.band = if band.is_finite() { band.max(0.0) } else { 0.0 };
+        self
+    }
+
+    /// Per-channel number of half-cycles beyond the hysteresis band over the window (0 when
+    /// the band is 0).
+    pub fn half_cycles(&self) -> SVector<f64, N> {
+        self.turn_sum.map(|s| s.max(0.0).round())
     }
 
     /// Window length (samples).
@@ -189,18 +211,29 @@ impl<const N: usize> OscillationDetector<N> {
         if !v.iter().all(|x| x.is_finite()) {
             return self.rms_max();
         }
-        if !self.started {
-            // Start as if the first value had always been there (no step response).
-            self.x = [*v, *v];
-            self.started = true;
-        }
-        let [b0, b1, b2] = self.b;
-        let [a1, a2] = self.a;
-        let y = v * b0 + self.x[0] * b1 + self.x[1] * b2 - self.y[0] * a1 - self.y[1] * a2;
-        self.x = [*v, self.x[0]];
-        self.y = [y, self.y[0]];
+        let y = self.hp.push(v);
         let sq = y.component_mul(&y);
         let w = self.ring.len();
+        let mut turn = SVector::<f64, N>::zeros();
+        if self.band > 0.0 {
+            for j in 0..N {
+                let side = if y[j] > self.band {
+                    1.0
+                } else if y[j] < -self.band {
+                    -1.0
+                } else {
+                    0.0
+                };
+                if side != 0.0 && side != self.side[j] {
+                    if self.side[j] != 0.0 {
+                        turn[j] = 1.0;
+                    }
+                    self.side[j] = side;
+                }
+            }
+        }
+        self.turn_sum += turn - self.turns[self.pos];
+        self.turns[self.pos] = turn;
         self.sum += sq - self.ring[self.pos];
         self.ring[self.pos] = sq;
         self.pos = (self.pos + 1) % w;
@@ -208,6 +241,7 @@ impl<const N: usize> OscillationDetector<N> {
         if self.pos == 0 {
             // Re-sum once per window against rounding drift (amortised O(1)).
             self.sum = self.ring.iter().fold(SVector::zeros(), |a, b| a + b);
+            self.turn_sum = self.turns.iter().fold(SVector::zeros(), |a, b| a + b);
         }
         self.rms_max()
     }
@@ -221,6 +255,16 @@ impl<const N: usize> OscillationDetector<N> {
     /// Largest channel RMS.
     pub fn rms_max(&self) -> f64 {
         self.rms().iter().copied().fold(0.0, f64::max)
+    }
+
+    /// True when some channel is *sustained* above `threshold`: its RMS over the window
+    /// exceeds it and it completed at least `min_half_cycles` half-cycles beyond the hysteresis
+    /// band (with counting off, the RMS alone decides).
+    pub fn is_oscillating(&self, threshold: f64, min_half_cycles: u32) -> bool {
+        let (rms, cycles) = (self.rms(), self.half_cycles());
+        (0..N).any(|j| {
+            rms[j] > threshold && (self.band <= 0.0 || cycles[j] >= f64::from(min_half_cycles))
+        })
     }
 }
 
@@ -353,7 +397,10 @@ pub struct SafetyReport {
 ///   second-order Butterworth high-pass at `oscillation_cutoff_hz` (3 Hz: the gait lives
 ///   below, the delay-driven limit cycles near 4 Hz above); the RMS of its output over the
 ///   last `oscillation_window_s` ([`OscillationDetector`], a ring buffer) above
-///   `oscillation_force_rms_n` / `oscillation_torque_rms_nm` trips the oscillation monitor.
+///   `oscillation_force_rms_n` / `oscillation_torque_rms_nm` trips the oscillation monitor;
+///   for the forces only when *sustained* (the high-passed force swung across `±threshold`
+///   at least [`OSCILLATION_MIN_HALF_CYCLES`] times in the window), so that a single jolt
+///   from the person does not trip it.
 ///   It applies the configured `response` like the other monitors and clears after
 ///   `oscillation_clear_s` (2 s) without oscillation, so that a limit cycle does not restart
 ///   at once.
@@ -379,6 +426,7 @@ pub struct Supervisor<const N: usize, C> {
     angle: StrapAngleEstimate<N>,
     force_osc: OscillationDetector<N>,
     torque_osc: OscillationDetector<N>,
+    fallback: Option<Transparent<N>>,
     report: SafetyReport,
 }
 
@@ -388,14 +436,18 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         let cap = settings.max_events;
         let prev = settings.limits.admissible(&inner.previous_torque());
         let mo = &settings.monitors;
-        let detector = || {
+        let detector = |band: f64| {
             OscillationDetector::new(
                 mo.oscillation_cutoff_hz,
                 settings.dt,
                 mo.oscillation_window_s,
             )
+            .with_hysteresis(band)
         };
-        let (force_osc, torque_osc) = (detector(), detector());
+        // Strap forces see jolts from the person (a stumble, a bump): count half-cycles. The
+        // commanded torque is the controller's own, rate-limited output: its RMS alone trips.
+        let force_osc = detector(mo.oscillation_force_rms_n);
+        let torque_osc = detector(0.0);
         let angle = StrapAngleEstimate::new(
             &settings.strap_levers_m,
             settings.strap_stiffness,
@@ -415,6 +467,7 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             angle,
             force_osc,
             torque_osc,
+            fallback: None,
             report: SafetyReport {
                 events: Vec::with_capacity(cap),
                 ..Default::default()
@@ -422,6 +475,19 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         };
         sup.inner.set_previous_torque(prev);
         sup
+    }
+
+    /// Use `fallback` for the `fallback` monitor response (without one, that response ramps
+    /// the torque to zero). It observes every valid measurement, so its payload estimate is
+    /// ready when a monitor trips.
+    pub fn with_fallback(mut self, fallback: Transparent<N>) -> Self {
+        self.fallback = Some(fallback);
+        self
+    }
+
+    /// The fallback controller, if any.
+    pub fn fallback(&self) -> Option<&Transparent<N>> {
+        self.fallback.as_ref()
     }
 
     /// The wrapped controller.
@@ -509,8 +575,10 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             track > mo.tracking_error_max_rad,
             force > mo.force_max_n,
             silent > mo.sensor_timeout_s + 1e-9,
-            force_osc > mo.oscillation_force_rms_n,
-            torque_osc > mo.oscillation_torque_rms_nm,
+            self.force_osc
+                .is_oscillating(mo.oscillation_force_rms_n, OSCILLATION_MIN_HALF_CYCLES),
+            self.torque_osc
+                .is_oscillating(mo.oscillation_torque_rms_nm, OSCILLATION_MIN_HALF_CYCLES),
         ];
         let clear_after = [
             self.s.clear_after_s,
@@ -566,9 +634,17 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         self.update_monitors(m, silent, now);
         let tripped = self.is_tripped();
         let prev = self.prev;
-        let response = match self.s.monitors.response {
-            MonitorResponse::Hold => prev,
-            MonitorResponse::RampToZero => SVector::zeros(),
+        if valid {
+            if let Some(fb) = self.fallback.as_mut() {
+                fb.observe(m, &prev);
+            }
+        }
+        // The fallback needs fresh sensors: ramp to zero while a channel is silent.
+        let silent_channel = self.tripped[2] || !valid;
+        let response = match (self.s.monitors.response, &self.fallback) {
+            (MonitorResponse::Hold, _) => prev,
+            (MonitorResponse::Fallback, Some(fb)) if !silent_channel => fb.torque(),
+            (MonitorResponse::RampToZero | MonitorResponse::Fallback, _) => SVector::zeros(),
         };
         let (desired, mut status, iterations) = if valid {
             // The inner controller keeps estimating while a monitor holds the output.

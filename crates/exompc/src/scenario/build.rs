@@ -3,10 +3,11 @@
 //! or the 1-DOF knee ([`OneDof`], hip locked) variant.
 
 use super::RunError;
-use crate::config::{self, ControllerKind, Method, Scenario};
+use crate::config::{self, ControllerKind, Method, MonitorResponse, Scenario};
 use crate::control::{
-    Controller, IntentEstimator, MultiStage, MultiStageOptions, Nmpc, NmpcSettings, PdController,
-    PredictionModel, SafetySettings, Supervisor, TorqueLimits,
+    Controller, FallbackSettings, IntentEstimator, MultiStage, MultiStageOptions, Nmpc,
+    NmpcSettings, PdController, PredictionModel, SafetySettings, Supervisor, TorqueLimits,
+    Transparent,
 };
 use crate::estimate::EstimatorOptions;
 use crate::model::{Friction, Link, RobotModel, Straps, WinterFractions};
@@ -258,16 +259,35 @@ pub fn build_controller<D: Dof<N>, const N: usize>(
     })
 }
 
+/// The transparent fallback controller of scenario `s` (the supervisor's `fallback` response):
+/// the bare robot and the robot with 1 kg at `robot.payload_position_m`, the straps, and the
+/// known measurement filter window.
+pub fn fallback<D: Dof<N>, const N: usize>(s: &Scenario) -> Transparent<N> {
+    Transparent::new(
+        scenario_robot::<D, N>(s, 0.0),
+        scenario_robot::<D, N>(s, 1.0),
+        &D::straps(s),
+        s.timing.dt,
+        s.uncertainty.filter_window,
+        FallbackSettings::default(),
+    )
+}
+
 /// The controller `kind` of scenario `s` wrapped in the safety [`Supervisor`]
 /// (plausibility checks and the `[monitors]` of `s`).
 pub fn build_supervised<D: Dof<N>, const N: usize>(
     s: &Scenario,
     kind: ControllerKind,
 ) -> Result<Supervisor<N, Box<dyn Controller<N>>>, RunError> {
-    Ok(Supervisor::new(
+    let sup = Supervisor::new(
         build_controller::<D, N>(s, kind)?,
         SafetySettings::from_scenario(s),
-    ))
+    );
+    Ok(if s.monitors.response == MonitorResponse::Fallback {
+        sup.with_fallback(fallback::<D, N>(s))
+    } else {
+        sup
+    })
 }
 
 /// Build the multi-stage controller of scenario `s` for layout `D`.

@@ -10,7 +10,7 @@ pub mod multistage;
 mod run;
 
 pub use build::{
-    build_controller, build_multistage, build_supervised, initial_torque, intent, limits,
+    build_controller, build_multistage, build_supervised, fallback, initial_torque, intent, limits,
     nmpc_settings, plant_params, prediction_model, scenario_robot, uncertainty, Dof, OneDof,
     TwoDof,
 };
