@@ -324,7 +324,10 @@ impl<const N: usize> NmpcCore<N> {
         };
         if !matches!(
             self.info.status,
-            SqpStatus::Converged | SqpStatus::MaxIterations | SqpStatus::MaxTime
+            SqpStatus::Converged
+                | SqpStatus::MaxIterations
+                | SqpStatus::MaxTime
+                | SqpStatus::RealTimeIteration
         ) {
             // Forget a failed plan so the next warm start is clean.
             self.z.fill(0.0);
@@ -356,7 +359,7 @@ impl<const N: usize> NmpcCore<N> {
 /// Map a solver status to the step status and whether its iterate may be applied.
 pub fn classify(status: SqpStatus) -> (StepStatus, bool) {
     match status {
-        SqpStatus::Converged => (StepStatus::Ok, true),
+        SqpStatus::Converged | SqpStatus::RealTimeIteration => (StepStatus::Ok, true),
         SqpStatus::MaxIterations => (StepStatus::MaxIterations, true),
         SqpStatus::MaxTime => (StepStatus::MaxTime, true),
         _ => (StepStatus::SolverFailed, false),

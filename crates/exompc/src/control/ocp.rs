@@ -87,6 +87,9 @@ struct StageWork<const N: usize> {
     /// trial linearisations).
     grad: Vec<f64>,
     costate: Vec<f64>,
+    /// Backward recursion `V_j = Q_j + A_{j+1}ᵀ V_{j+1} A_{j+1}` (two `nx × nx` blocks and a
+    /// product buffer) for the diagonal of the condensed Gauss–Newton Hessian.
+    gram: Vec<f64>,
     rl: f64,
     ru: f64,
     tmax: f64,
@@ -123,6 +126,7 @@ impl<const N: usize> StructuredSqp<N> {
                 dz: DVector::zeros(nc * N),
                 grad: vec![0.0; len],
                 costate: vec![0.0; 2 * nx],
+                gram: vec![0.0; 3 * nx * nx],
                 rl: 0.0,
                 ru: 0.0,
                 tmax: 0.0,
@@ -171,9 +175,66 @@ impl<const N: usize> StageWork<N> {
         }
     }
 
-    /// `R = (r_t + δ) I` with `δ` as in the dense path, the increment weight as Hessian scale.
-    fn gauss_newton_input_weight(&self) -> f64 {
-        self.r_t + self.hessian_regularization * (1.0 + self.r_t)
+    /// `R = (r_t + δ) I` with the regularisation of the dense path,
+    /// `δ = hessian_regularization · (1 + max diag JᵀJ)`, so both back-ends solve the same QP.
+    fn gauss_newton_input_weight(&mut self) -> f64 {
+        self.r_t + self.hessian_regularization * (1.0 + self.max_condensed_diagonal())
+    }
+
+    /// Largest diagonal entry of the condensed Gauss–Newton Hessian `JᵀJ` at the current
+    /// linearisation: for input `a` of stage `i`, `(B_iᵀ V_i B_i)_aa + r_t` with
+    /// `V_{Np−1} = Q_{Np−1}`, `V_j = Q_j + A_{j+1}ᵀ V_{j+1} A_{j+1}` (`O(Np·nx³)`).
+    fn max_condensed_diagonal(&mut self) -> f64 {
+        let nx = 3 * N;
+        let nn = nx * nx;
+        let (np, nc) = (self.np, self.nc);
+        let (v, rest) = self.gram.split_at_mut(nn);
+        let (next, tmp) = rest.split_at_mut(nn);
+        let mut maxdiag = self.r_t;
+        for j in (0..np).rev() {
+            // v = Q_j + A_{j+1}ᵀ next A_{j+1} (column-major nx × nx blocks).
+            v.copy_from_slice(&self.qp.q[j * nn..(j + 1) * nn]);
+            if j + 1 < np {
+                let a = &self.qp.a[(j + 1) * nn..(j + 2) * nn];
+                // tmp = next · A
+                for c in 0..nx {
+                    for r in 0..nx {
+                        let mut acc = 0.0;
+                        for t in 0..nx {
+                            acc += next[t * nx + r] * a[c * nx + t];
+                        }
+                        tmp[c * nx + r] = acc;
+                    }
+                }
+                // v += Aᵀ tmp
+                for c in 0..nx {
+                    for r in 0..nx {
+                        let mut acc = 0.0;
+                        for t in 0..nx {
+                            acc += a[r * nx + t] * tmp[c * nx + t];
+                        }
+                        v[c * nx + r] += acc;
+                    }
+                }
+            }
+            if j < nc {
+                let b = &self.qp.b[j * nx * N..(j + 1) * nx * N];
+                for i in 0..N {
+                    let col = &b[i * nx..(i + 1) * nx];
+                    let mut d = 0.0;
+                    for c in 0..nx {
+                        let mut vb = 0.0;
+                        for r in 0..nx {
+                            vb += v[c * nx + r] * col[r];
+                        }
+                        d += col[c] * vb;
+                    }
+                    maxdiag = maxdiag.max(d + self.r_t);
+                }
+            }
+            next.copy_from_slice(v);
+        }
+        maxdiag
     }
     /// Simulates from `problem.x0` with increments `z`; with `jac`, fills the QP's dynamics
     /// matrices and gradient. Writes the cumulative torques into `torques_trial` and returns the
@@ -354,7 +415,6 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
         w.rl = -rate;
         w.ru = rate;
         w.tmax = tmax;
-        w.set_input_weight(w.gauss_newton_input_weight());
         Ok(())
     }
 
@@ -402,7 +462,6 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
         let qi = w.qp.solve();
         let n = w.nc * N;
         w.dz.as_mut_slice().copy_from_slice(&w.qp.solution()[..n]);
-        w.set_input_weight(w.gauss_newton_input_weight());
         qi
     }
 
@@ -421,6 +480,8 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
     fn solve_qp(&mut self, z: &DVector<f64>) -> QpInfo {
         // Gauss–Newton: Q, R fixed, dynamics and gradient from the last accepted linearisation.
         let w = &mut *self.w;
+        let r = w.gauss_newton_input_weight();
+        w.set_input_weight(r);
         w.qp.g.copy_from_slice(&w.grad);
         w.shift_bounds(z);
         let qi = w.qp.solve();

@@ -1,6 +1,7 @@
 //! The SQP engine shared by every QP back-end: one solve is a fixed sequence of named steps
 //! (input checks → feasibility projection → first linearisation → per iteration: Hessian model
-//! and QP → termination test → line search → termination test), as OpEn's engine reads.
+//! and QP → termination test → line search → termination test), as OpEn's engine reads. With
+//! `real_time_iteration` the first iteration ends after the QP with the full step.
 //!
 //! A back-end ([`SqpSteps`]) says how the problem is evaluated and linearised, how the QP of one
 //! iteration is built and solved, and how the KKT residual of the nonlinear problem is measured:
@@ -108,6 +109,11 @@ fn run<B: SqpSteps + ?Sized>(
         // KKT at the current point with the fresh multipliers.
         if terminated(b, s, z, info) {
             return SqpStatus::Converged;
+        }
+        if s.real_time_iteration {
+            *z += b.step();
+            b.clamp(z);
+            return SqpStatus::RealTimeIteration;
         }
         b.before_line_search();
         cost = match line_search(b, s, cost, z_trial, z) {

@@ -90,6 +90,12 @@ pub struct SqpSettings {
     pub max_time: Option<Duration>,
     /// Settings of the inner QP solver (see [`QpSettings`]). Default `QpSettings::default()`.
     pub qp: QpSettings,
+    /// Real-time iteration (Diehl's RTI scheme): when the KKT test fails at the warm start,
+    /// take the full step of one QP (clamped into the box; it satisfies the linear rows) and
+    /// stop with [`SqpStatus::RealTimeIteration`] — one linearisation and one QP per solve, no
+    /// line search. Meant for a controller whose warm start is the shifted previous solution,
+    /// so the iterate is refined from period to period. Default `false`.
+    pub real_time_iteration: bool,
 }
 
 impl Default for SqpSettings {
@@ -105,6 +111,7 @@ impl Default for SqpSettings {
             hessian: HessianModel::StructuredSecant,
             max_time: None,
             qp: QpSettings::default(),
+            real_time_iteration: false,
         }
     }
 }
@@ -188,6 +195,10 @@ pub enum SqpStatus {
     /// The line search found no sufficient decrease (or the QP step was not a descent
     /// direction) although the KKT test failed; `z` is the last feasible iterate.
     LineSearchFailed,
+    /// `real_time_iteration` is set and the one full QP step was taken (the KKT test failed at
+    /// the warm start); `z` is feasible. `cost`, `kkt_residual` and the residuals refer to the
+    /// warm start.
+    RealTimeIteration,
     /// `z`, the constraints or the problem dimensions differ from those given to
     /// [`Sqp::new`] (a programming error); `z` is unchanged.
     DimensionMismatch,
