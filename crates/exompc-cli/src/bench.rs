@@ -95,6 +95,8 @@ struct ScalingRow {
     stats: LoopStats,
     /// The structured (Riccati) QP path, same case, same run (decoupled scenarios only).
     structured: Option<LoopStats>,
+    /// The structured path with one real-time iteration per step (`rti = true`), same run.
+    rti: Option<LoopStats>,
 }
 
 /// Runs the benchmark and prints the report (`--json`: one JSON object on stdout).
@@ -186,16 +188,24 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
                     steps.min(CASE_STEPS),
                     Some(CASE_BUDGET),
                 )?;
-                let structured = if formulation == Formulation::Decoupled {
+                let (structured, rti) = if formulation == Formulation::Decoupled {
                     s.controller.sqp.qp = QpBackend::Structured;
-                    Some(closed_loop(
+                    let full = closed_loop(
                         &s,
                         ControllerKind::Msnmpc,
                         steps.min(CASE_STEPS),
                         Some(CASE_BUDGET),
-                    )?)
+                    )?;
+                    s.controller.sqp.rti = true;
+                    let rti = closed_loop(
+                        &s,
+                        ControllerKind::Msnmpc,
+                        steps.min(CASE_STEPS),
+                        Some(CASE_BUDGET),
+                    )?;
+                    (Some(full), Some(rti))
                 } else {
-                    None
+                    (None, None)
                 };
                 rows.push(ScalingRow {
                     np,
@@ -204,6 +214,7 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
                     formulation: name,
                     stats,
                     structured,
+                    rti,
                 });
             }
         }
@@ -235,6 +246,13 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
                     "iterations_mean": r.stats.iterations_mean,
                     "steps": r.stats.steps,
                     "structured": r.structured.as_ref().map(|st| json!({
+                        "p50_us": st.step.p50,
+                        "p99_us": st.step.p99,
+                        "mean_us": st.step.mean,
+                        "iterations_mean": st.iterations_mean,
+                        "steps": st.steps,
+                    })),
+                    "structured_rti": r.rti.as_ref().map(|st| json!({
                         "p50_us": st.step.p50,
                         "p99_us": st.step.p99,
                         "mean_us": st.step.mean,
@@ -286,10 +304,11 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
         "dense = condensed QP (scenario's Hessian model), structured = Riccati QP (Gauss-Newton);"
     );
     println!(
-        "ratio = dense p50 / structured p50, per-iteration ratio = (p50/iters) dense / structured"
+        "ratio = dense p50 / structured p50, per-iteration ratio = (p50/iters) dense / structured;"
     );
+    println!("rti p50 = structured with one real-time iteration per step (rti = true)");
     println!(
-        "{:<10} {:>4} {:>4} {:>4} {:>11} {:>7} {:>11} {:>7} {:>7} {:>9} {:>6}",
+        "{:<10} {:>4} {:>4} {:>4} {:>11} {:>7} {:>11} {:>7} {:>7} {:>9} {:>9} {:>6}",
         "form",
         "Np",
         "Nc",
@@ -300,6 +319,7 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
         "iters",
         "ratio",
         "per-iter",
+        "rti p50",
         "steps"
     );
     for r in &rows {
@@ -316,8 +336,12 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
             ),
             None => ("-".into(), "-".into(), "-".into(), "-".into()),
         };
+        let rti_p50 = r
+            .rti
+            .as_ref()
+            .map_or("-".into(), |l| format!("{:.1}", l.step.p50));
         println!(
-            "{:<10} {:>4} {:>4} {:>4} {:>11.1} {:>7.2} {:>11} {:>7} {:>7} {:>9} {:>6}",
+            "{:<10} {:>4} {:>4} {:>4} {:>11.1} {:>7.2} {:>11} {:>7} {:>7} {:>9} {:>9} {:>6}",
             r.formulation,
             r.np,
             r.nc,
@@ -328,6 +352,7 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
             sit,
             ratio,
             per_iter,
+            rti_p50,
             r.stats.steps
         );
     }

@@ -107,7 +107,10 @@ pub(crate) fn run(a: SolveArgs) -> Result<(), CliError> {
     };
     println!("{out}");
     match status {
-        SqpStatus::Converged | SqpStatus::MaxIterations | SqpStatus::MaxTime => Ok(()),
+        SqpStatus::Converged
+        | SqpStatus::MaxIterations
+        | SqpStatus::MaxTime
+        | SqpStatus::RealTimeIteration => Ok(()),
         other => Err(CliError::Runtime(format!(
             "the solver did not find a usable solution ({})",
             status_name(other)
@@ -152,6 +155,7 @@ fn status_name(s: SqpStatus) -> &'static str {
         SqpStatus::Converged => "converged",
         SqpStatus::MaxIterations => "max_iterations",
         SqpStatus::MaxTime => "max_time",
+        SqpStatus::RealTimeIteration => "real_time_iteration",
         SqpStatus::QpFailed => "qp_failed",
         SqpStatus::Infeasible => "infeasible",
         SqpStatus::NonFiniteInput => "non_finite_input",

@@ -1,5 +1,6 @@
 //! `[controller.sqp] qp`: the three values load, a wrong one is rejected with a message naming
-//! the allowed values, and an absent key keeps the default (`auto`).
+//! the allowed values, and an absent key keeps the default (`auto`). `rti`: loads, reaches the
+//! solver settings, defaults to `false`.
 
 use exompc::config::Scenario;
 use exompc::control::QpBackend;
@@ -24,4 +25,15 @@ fn qp_backend_key_round_trips_and_rejects_unknown_values() {
         err.contains("dense") && err.contains("structured") && err.contains("auto"),
         "{err}"
     );
+}
+
+#[test]
+fn rti_key_loads_and_reaches_the_solver_settings() {
+    let s = Scenario::default();
+    assert!(!s.controller.sqp.rti);
+    assert!(!exompc::scenario::nmpc_settings(&s).sqp.real_time_iteration);
+    let t = set_key(&s, "controller.sqp.rti", parse_value("true")).unwrap();
+    assert!(t.controller.sqp.rti);
+    assert!(exompc::scenario::nmpc_settings(&t).sqp.real_time_iteration);
+    assert!(set_key(&s, "controller.sqp.rti", parse_value("\"yes\"")).is_err());
 }

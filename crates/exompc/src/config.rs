@@ -741,6 +741,10 @@ pub struct Sqp {
     /// the horizon stages, Gauss-Newton Hessian) or `"auto"` (structured when joints·nc ≥ 16).
     /// Default `"auto"`.
     pub qp: crate::control::QpBackend,
+    /// Real-time iteration: one SQP iteration (one linearisation, one QP, full step) per
+    /// control period from the shifted previous solution, instead of iterating to the KKT
+    /// tolerance. Default `false`.
+    pub rti: bool,
 }
 
 impl Default for Sqp {
@@ -751,6 +755,7 @@ impl Default for Sqp {
             max_time_us: None,
             hessian: crate::solver::HessianModel::StructuredSecant,
             qp: crate::control::QpBackend::Auto,
+            rti: false,
         }
     }
 }

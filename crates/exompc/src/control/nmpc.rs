@@ -243,16 +243,23 @@ impl<const N: usize> LeastSquares for NmpcProblem<N> {
     }
 }
 
+/// The SQP of one scenario, with the QP back-end the settings' [`QpBackend`] resolves to (only
+/// that one is allocated).
+#[derive(Clone, Debug)]
+enum CoreSolver<const N: usize> {
+    /// Condensed dense SQP and its constraint rows.
+    Dense(Box<(Sqp, Constraints)>),
+    /// Multiple-shooting SQP with the Riccati QP.
+    Structured(Box<StructuredSqp<N>>),
+}
+
 /// Solver state of one scenario's NMPC: problem, SQP workspace, constraints and warm start.
 /// Allocates only in [`NmpcCore::new`].
 #[derive(Clone, Debug)]
 pub struct NmpcCore<const N: usize> {
     /// The problem (model and per-step data).
     pub problem: NmpcProblem<N>,
-    sqp: Sqp,
-    /// The structured solver, when the settings' [`QpBackend`] resolves to it.
-    structured: Option<Box<StructuredSqp<N>>>,
-    constraints: Constraints,
+    solver: CoreSolver<N>,
     z: DVector<f64>,
     /// Info of the last solve.
     pub info: SqpInfo,
@@ -264,16 +271,17 @@ impl<const N: usize> NmpcCore<N> {
         let problem = NmpcProblem::new(model, settings);
         let n = problem.num_vars();
         let m = problem.num_residuals();
-        let sqp = Sqp::new(n, m, n, settings.sqp)?;
+        let solver = if settings.qp.is_structured(n) {
+            CoreSolver::Structured(Box::new(StructuredSqp::new(settings)?))
+        } else {
+            CoreSolver::Dense(Box::new((
+                Sqp::new(n, m, n, settings.sqp)?,
+                Constraints::unbounded(n, n),
+            )))
+        };
         Ok(NmpcCore {
             problem,
-            sqp,
-            structured: if settings.qp.is_structured(n) {
-                Some(Box::new(StructuredSqp::new(settings)?))
-            } else {
-                None
-            },
-            constraints: Constraints::unbounded(n, n),
+            solver,
             z: DVector::zeros(n),
             info: SqpInfo {
                 status: SqpStatus::Converged,
@@ -299,10 +307,6 @@ impl<const N: usize> NmpcCore<N> {
         self.problem.x0 = x0;
         self.problem.t_prev = t_prev;
         self.problem.inputs = inputs;
-        if self.structured.is_none() {
-            self.problem
-                .write_constraints(limits, &mut self.constraints);
-        }
         // Warm start: shift the previous increments by one step, last one zero.
         let n = self.z.len();
         for k in 0..n {
@@ -311,15 +315,20 @@ impl<const N: usize> NmpcCore<N> {
         if !self.z.iter().all(|v| v.is_finite()) {
             self.z.fill(0.0);
         }
-        self.info = match self.structured.as_deref_mut() {
-            Some(st) => st.solve(&self.problem, limits, &mut self.z),
-            None => self
-                .sqp
-                .solve(&mut self.problem, &self.constraints, &mut self.z),
+        self.info = match &mut self.solver {
+            CoreSolver::Structured(st) => st.solve(&self.problem, limits, &mut self.z),
+            CoreSolver::Dense(dense) => {
+                let (sqp, constraints) = &mut **dense;
+                self.problem.write_constraints(limits, constraints);
+                sqp.solve(&mut self.problem, constraints, &mut self.z)
+            }
         };
         if !matches!(
             self.info.status,
-            SqpStatus::Converged | SqpStatus::MaxIterations | SqpStatus::MaxTime
+            SqpStatus::Converged
+                | SqpStatus::MaxIterations
+                | SqpStatus::MaxTime
+                | SqpStatus::RealTimeIteration
         ) {
             // Forget a failed plan so the next warm start is clean.
             self.z.fill(0.0);
@@ -339,7 +348,7 @@ impl<const N: usize> NmpcCore<N> {
 
     /// Whether the structured (Riccati) QP path is in use.
     pub fn is_structured(&self) -> bool {
-        self.structured.is_some()
+        matches!(self.solver, CoreSolver::Structured(_))
     }
 
     /// Reset the warm start.
@@ -351,7 +360,7 @@ impl<const N: usize> NmpcCore<N> {
 /// Map a solver status to the step status and whether its iterate may be applied.
 pub fn classify(status: SqpStatus) -> (StepStatus, bool) {
     match status {
-        SqpStatus::Converged => (StepStatus::Ok, true),
+        SqpStatus::Converged | SqpStatus::RealTimeIteration => (StepStatus::Ok, true),
         SqpStatus::MaxIterations => (StepStatus::MaxIterations, true),
         SqpStatus::MaxTime => (StepStatus::MaxTime, true),
         _ => (StepStatus::SolverFailed, false),

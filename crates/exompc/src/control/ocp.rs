@@ -17,13 +17,12 @@
 //! The structured path always uses the Gauss–Newton Hessian: the structured secant `S` of the
 //! dense path is a dense matrix in the condensed variables and would destroy the stage structure.
 
-use std::time::Instant;
-
 use super::nmpc::{NmpcProblem, NmpcSettings};
 use super::prediction::StepJacobian;
 use super::TorqueLimits;
 use crate::model::JointState;
-use crate::solver::{QpStatus, RiccatiQp, SolverError, SqpInfo, SqpSettings, SqpStatus};
+use crate::solver::engine::{self, finite_or_inf, BoundCheck, SqpSteps};
+use crate::solver::{QpInfo, RiccatiQp, SolverError, SqpInfo, SqpSettings, SqpStatus};
 use nalgebra::DVector;
 use serde::{Deserialize, Serialize};
 
@@ -57,28 +56,40 @@ impl QpBackend {
     }
 }
 
-/// Gauss–Newton SQP over the multiple-shooting form of eq. 7 with the Riccati QP. Same
-/// termination tests, line search and warm-start projection as [`crate::solver::Sqp`] (whose
-/// iterates it reproduces with `HessianModel::GaussNewton`), but every iteration costs
+/// Gauss–Newton SQP over the multiple-shooting form of eq. 7 with the Riccati QP. It runs the
+/// same SQP engine as [`crate::solver::Sqp`] (input checks, warm-start projection, Armijo line
+/// search, KKT termination; `solver/engine.rs`) with a stage-structured back-end, and so
+/// reproduces the dense iterates with `HessianModel::GaussNewton`, but every iteration costs
 /// `O(Np·N³)` instead of `O((N·Nc)³ + Np·(N·Nc)²)`. All workspace is allocated in
 /// [`StructuredSqp::new`]; [`StructuredSqp::solve`] allocates nothing and never panics.
 #[derive(Clone, Debug)]
 pub struct StructuredSqp<const N: usize> {
+    settings: SqpSettings,
+    z_trial: DVector<f64>,
+    w: StageWork<N>,
+}
+
+/// Workspace of the stage-structured back-end.
+#[derive(Clone, Debug)]
+struct StageWork<const N: usize> {
     np: usize,
     nc: usize,
     r_d: f64,
     r_t: f64,
-    settings: SqpSettings,
+    hessian_regularization: f64,
     qp: RiccatiQp,
     /// `T` part of `x_1..x_Nc` (the cumulative torques) at the current iterate.
     torques: Vec<f64>,
     torques_trial: Vec<f64>,
+    /// The decision-variable part of the last QP step.
     dz: DVector<f64>,
-    z_trial: DVector<f64>,
     /// Gradient of the cost in trajectory layout at the current point (`qp.g` is overwritten by
     /// trial linearisations).
     grad: Vec<f64>,
     costate: Vec<f64>,
+    /// Backward recursion `V_j = Q_j + A_{j+1}ᵀ V_{j+1} A_{j+1}` (two `nx × nx` blocks and a
+    /// product buffer) for the diagonal of the condensed Gauss–Newton Hessian.
+    gram: Vec<f64>,
     rl: f64,
     ru: f64,
     tmax: f64,
@@ -101,29 +112,130 @@ impl<const N: usize> StructuredSqp<N> {
         }
         let len = qp.len();
         Ok(Self {
-            np,
-            nc,
-            r_d: s.r_d,
-            r_t: s.r_t,
             settings: s.sqp,
-            qp,
-            torques: vec![0.0; nc * N],
-            torques_trial: vec![0.0; nc * N],
-            dz: DVector::zeros(nc * N),
             z_trial: DVector::zeros(nc * N),
-            grad: vec![0.0; len],
-            costate: vec![0.0; 2 * nx],
-            rl: 0.0,
-            ru: 0.0,
-            tmax: 0.0,
+            w: StageWork {
+                np,
+                nc,
+                r_d: s.r_d,
+                r_t: s.r_t,
+                hessian_regularization: s.sqp.hessian_regularization,
+                qp,
+                torques: vec![0.0; nc * N],
+                torques_trial: vec![0.0; nc * N],
+                dz: DVector::zeros(nc * N),
+                grad: vec![0.0; len],
+                costate: vec![0.0; 2 * nx],
+                gram: vec![0.0; 3 * nx * nx],
+                rl: 0.0,
+                ru: 0.0,
+                tmax: 0.0,
+            },
         })
     }
 
     /// The QP solver (its last solution and multipliers).
     pub fn qp(&self) -> &RiccatiQp {
-        &self.qp
+        &self.w.qp
     }
 
+    /// Solves eq. 7 for `problem` (its `x0`, `t_prev`, `inputs`) under `limits` from the warm
+    /// start `z` (overwritten with the result). Statuses as in [`crate::solver::Sqp::solve`].
+    pub fn solve(
+        &mut self,
+        problem: &NmpcProblem<N>,
+        limits: &TorqueLimits,
+        z: &mut DVector<f64>,
+    ) -> SqpInfo {
+        let mut steps = StageSteps {
+            w: &mut self.w,
+            problem,
+            limits,
+        };
+        engine::solve(&mut steps, &self.settings, &mut self.z_trial, z)
+    }
+}
+
+/// The stage-structured back-end of the engine for one solve.
+struct StageSteps<'a, const N: usize> {
+    w: &'a mut StageWork<N>,
+    problem: &'a NmpcProblem<N>,
+    limits: &'a TorqueLimits,
+}
+
+impl<const N: usize> StageWork<N> {
+    /// Writes `R = diag(r)` into every input stage of the QP.
+    fn set_input_weight(&mut self, r: f64) {
+        for j in 0..self.nc {
+            let rj = &mut self.qp.r[j * N * N..(j + 1) * N * N];
+            rj.fill(0.0);
+            for a in 0..N {
+                rj[a * N + a] = r;
+            }
+        }
+    }
+
+    /// `R = (r_t + δ) I` with the regularisation of the dense path,
+    /// `δ = hessian_regularization · (1 + max diag JᵀJ)`, so both back-ends solve the same QP.
+    fn gauss_newton_input_weight(&mut self) -> f64 {
+        self.r_t + self.hessian_regularization * (1.0 + self.max_condensed_diagonal())
+    }
+
+    /// Largest diagonal entry of the condensed Gauss–Newton Hessian `JᵀJ` at the current
+    /// linearisation: for input `a` of stage `i`, `(B_iᵀ V_i B_i)_aa + r_t` with
+    /// `V_{Np−1} = Q_{Np−1}`, `V_j = Q_j + A_{j+1}ᵀ V_{j+1} A_{j+1}` (`O(Np·nx³)`).
+    fn max_condensed_diagonal(&mut self) -> f64 {
+        let nx = 3 * N;
+        let nn = nx * nx;
+        let (np, nc) = (self.np, self.nc);
+        let (v, rest) = self.gram.split_at_mut(nn);
+        let (next, tmp) = rest.split_at_mut(nn);
+        let mut maxdiag = self.r_t;
+        for j in (0..np).rev() {
+            // v = Q_j + A_{j+1}ᵀ next A_{j+1} (column-major nx × nx blocks).
+            v.copy_from_slice(&self.qp.q[j * nn..(j + 1) * nn]);
+            if j + 1 < np {
+                let a = &self.qp.a[(j + 1) * nn..(j + 2) * nn];
+                // tmp = next · A
+                for c in 0..nx {
+                    for r in 0..nx {
+                        let mut acc = 0.0;
+                        for t in 0..nx {
+                            acc += next[t * nx + r] * a[c * nx + t];
+                        }
+                        tmp[c * nx + r] = acc;
+                    }
+                }
+                // v += Aᵀ tmp
+                for c in 0..nx {
+                    for r in 0..nx {
+                        let mut acc = 0.0;
+                        for t in 0..nx {
+                            acc += a[r * nx + t] * tmp[c * nx + t];
+                        }
+                        v[c * nx + r] += acc;
+                    }
+                }
+            }
+            if j < nc {
+                let b = &self.qp.b[j * nx * N..(j + 1) * nx * N];
+                for i in 0..N {
+                    let col = &b[i * nx..(i + 1) * nx];
+                    let mut d = 0.0;
+                    for c in 0..nx {
+                        let mut vb = 0.0;
+                        for r in 0..nx {
+                            vb += v[c * nx + r] * col[r];
+                        }
+                        d += col[c] * vb;
+                    }
+                    maxdiag = maxdiag.max(d + self.r_t);
+                }
+            }
+            next.copy_from_slice(v);
+        }
+        maxdiag
+    }
     /// Simulates from `problem.x0` with increments `z`; with `jac`, fills the QP's dynamics
     /// matrices and gradient. Writes the cumulative torques into `torques_trial` and returns the
     /// cost `½‖r‖²` (non-finite when anything is).
@@ -264,252 +376,135 @@ impl<const N: usize> StructuredSqp<N> {
             }
             next.copy_from_slice(mu);
         }
-        let mut viol: f64 = 0.0;
-        let mut comp: f64 = 0.0;
-        let mut check = |lo: f64, hi: f64, l: f64| {
-            viol = viol.max(lo).max(hi);
-            if l < 0.0 {
-                comp = comp.max(-l * (-lo).max(0.0));
-            } else if l > 0.0 {
-                comp = comp.max(l * (-hi).max(0.0));
-            }
-        };
+        let mut check = BoundCheck::default();
         for k in 0..off {
-            check(self.rl - z[k], z[k] - self.ru, mult[k]);
+            check.add(self.rl - z[k], z[k] - self.ru, mult[k]);
         }
         for j in 0..nc {
             for a in 0..N {
                 let t = self.torques[j * N + a];
-                check(
+                check.add(
                     -self.tmax - t,
                     t - self.tmax,
                     mult[off + j * nx + 2 * N + a],
                 );
             }
         }
-        let k = stat.max(viol).max(comp);
-        (if k.is_nan() { f64::INFINITY } else { k }, viol)
+        let k = stat.max(check.violation).max(check.complementarity);
+        (finite_or_inf(k), check.violation)
     }
+}
 
-    /// Solves eq. 7 for `problem` (its `x0`, `t_prev`, `inputs`) under `limits` from the warm
-    /// start `z` (overwritten with the result). Statuses as in [`crate::solver::Sqp::solve`].
-    pub fn solve(
-        &mut self,
-        problem: &NmpcProblem<N>,
-        limits: &TorqueLimits,
-        z: &mut DVector<f64>,
-    ) -> SqpInfo {
-        let start = Instant::now();
-        let mut info = SqpInfo {
-            status: SqpStatus::MaxIterations,
-            iterations: 0,
-            qp_iterations: 0,
-            cost: f64::NAN,
-            kkt_residual: f64::INFINITY,
-            solve_time: std::time::Duration::ZERO,
-        };
-        info.status = self.solve_inner(problem, limits, z, &mut info, start);
-        info.solve_time = start.elapsed();
-        info
-    }
-
-    fn solve_inner(
-        &mut self,
-        problem: &NmpcProblem<N>,
-        limits: &TorqueLimits,
-        z: &mut DVector<f64>,
-        info: &mut SqpInfo,
-        start: Instant,
-    ) -> SqpStatus {
-        let nx = 3 * N;
-        let (np, nc) = (self.np, self.nc);
-        let n = nc * N;
-        if z.len() != n || problem.np() != np || problem.nc() != nc {
-            return SqpStatus::DimensionMismatch;
+impl<const N: usize> SqpSteps for StageSteps<'_, N> {
+    fn check_inputs(&mut self, z: &DVector<f64>) -> Result<(), SqpStatus> {
+        let w = &mut *self.w;
+        let p = self.problem;
+        if z.len() != w.nc * N || p.np() != w.np || p.nc() != w.nc {
+            return Err(SqpStatus::DimensionMismatch);
         }
         if !z.iter().all(|v| v.is_finite()) {
-            return SqpStatus::NonFiniteInput;
+            return Err(SqpStatus::NonFiniteInput);
         }
-        let (rate, tmax) = (limits.rate, limits.max);
-        if rate.is_nan() || tmax.is_nan() || problem.t_prev.iter().any(|v| v.is_nan()) {
-            return SqpStatus::NonFiniteInput;
+        let (rate, tmax) = (self.limits.rate, self.limits.max);
+        if rate.is_nan() || tmax.is_nan() || p.t_prev.iter().any(|v| v.is_nan()) {
+            return Err(SqpStatus::NonFiniteInput);
         }
         if !(rate >= 0.0 && rate.is_finite() && tmax >= 0.0 && tmax.is_finite()) {
-            return SqpStatus::Infeasible;
+            return Err(SqpStatus::Infeasible);
         }
-        self.rl = -rate;
-        self.ru = rate;
-        self.tmax = tmax;
-        let s = self.settings;
-        // R = (r_t + δ) I, δ as in the dense path with the increment weight as the Hessian scale.
-        let rdiag = self.r_t + s.hessian_regularization * (1.0 + self.r_t);
-        for j in 0..nc {
-            let rj = &mut self.qp.r[j * N * N..(j + 1) * N * N];
-            rj.fill(0.0);
-            for a in 0..N {
-                rj[a * N + a] = rdiag;
-            }
-        }
+        w.rl = -rate;
+        w.ru = rate;
+        w.tmax = tmax;
+        Ok(())
+    }
 
-        // Warm start: clamp into the box; if a cumulative bound is still violated, project the
-        // original point (min ½|d|² with the same QP, dynamics reduced to T_{j} = T_{j−1} + u_j).
-        self.z_trial.copy_from(z);
+    fn clamp(&self, z: &mut DVector<f64>) {
         for v in z.iter_mut() {
-            *v = v.max(self.rl).min(self.ru);
+            *v = v.max(self.w.rl).min(self.w.ru);
         }
-        let cum_viol = |z: &DVector<f64>, t: &mut [f64]| {
-            let mut acc = problem.t_prev;
-            let mut viol: f64 = 0.0;
-            for j in 0..nc {
-                for a in 0..N {
-                    acc[a] += z[j * N + a];
-                    t[j * N + a] = acc[a];
-                    viol = viol.max(acc[a].abs() - tmax);
-                }
-            }
-            viol
-        };
-        if cum_viol(z, &mut self.torques) > 0.1 * s.feasibility_tolerance {
-            z.copy_from(&self.z_trial);
-            cum_viol(z, &mut self.torques);
-            self.qp.a.fill(0.0);
-            self.qp.b.fill(0.0);
-            for j in 0..np {
-                let aj = &mut self.qp.a[j * nx * nx..(j + 1) * nx * nx];
-                for a in 0..N {
-                    aj[(2 * N + a) * nx + 2 * N + a] = 1.0;
-                }
-            }
-            for j in 0..nc {
-                let bj = &mut self.qp.b[j * nx * N..(j + 1) * nx * N];
-                let rj = &mut self.qp.r[j * N * N..(j + 1) * N * N];
-                for a in 0..N {
-                    bj[a * nx + 2 * N + a] = 1.0;
-                    rj[a * N + a] = 1.0;
-                }
-            }
-            self.qp.g.fill(0.0);
-            self.shift_bounds(z);
-            let qi = self.qp.solve();
-            info.qp_iterations += qi.iterations;
-            match qi.status {
-                QpStatus::Solved => {}
-                QpStatus::Infeasible => {
-                    z.copy_from(&self.z_trial);
-                    return SqpStatus::Infeasible;
-                }
-                _ => {
-                    z.copy_from(&self.z_trial);
-                    return SqpStatus::QpFailed;
-                }
-            }
-            for k in 0..n {
-                z[k] = (z[k] + self.qp.solution()[k]).max(self.rl).min(self.ru);
-            }
-            for j in 0..nc {
-                let rj = &mut self.qp.r[j * N * N..(j + 1) * N * N];
-                for a in 0..N {
-                    rj[a * N + a] = rdiag;
-                }
-            }
-        }
+    }
 
-        let mut cost = self.evaluate(problem, z.as_slice(), true);
-        if !cost.is_finite() {
-            return SqpStatus::NonFiniteInput;
+    fn general_violation(&mut self, z: &DVector<f64>) -> f64 {
+        let w = &mut *self.w;
+        let mut acc = self.problem.t_prev;
+        let mut viol: f64 = 0.0;
+        for j in 0..w.nc {
+            for a in 0..N {
+                acc[a] += z[j * N + a];
+                w.torques[j * N + a] = acc[a];
+                viol = viol.max(acc[a].abs() - w.tmax);
+            }
         }
-        self.torques.copy_from_slice(&self.torques_trial);
-        self.grad.copy_from_slice(&self.qp.g);
-        info.cost = cost;
+        viol
+    }
 
-        for it in 0..s.max_iterations {
-            if it > 0 {
-                if let Some(tmax) = s.max_time {
-                    if start.elapsed() > tmax {
-                        return SqpStatus::MaxTime;
-                    }
-                }
-            }
-            self.qp.g.copy_from_slice(&self.grad);
-            self.shift_bounds(z);
-            let qi = self.qp.solve();
-            info.qp_iterations += qi.iterations;
-            info.iterations = it + 1;
-            match qi.status {
-                QpStatus::Solved => {}
-                QpStatus::NonFiniteInput => return SqpStatus::NonFiniteInput,
-                _ => return SqpStatus::QpFailed,
-            }
-            let (kkt, viol) = self.kkt(z);
-            info.kkt_residual = kkt;
-            if kkt <= s.kkt_tolerance && viol <= s.feasibility_tolerance {
-                return SqpStatus::Converged;
-            }
-            // Armijo backtracking on ½‖r(z + α d)‖²; slope gᵀd over the whole trajectory.
-            let slack = 1e3 * f64::EPSILON * cost;
-            let slope: f64 = self
-                .grad
-                .iter()
-                .zip(self.qp.solution())
-                .map(|(g, d)| g * d)
-                .sum();
-            if slope.is_nan() || slope >= slack {
-                return SqpStatus::LineSearchFailed;
-            }
-            let slope = slope.min(0.0);
-            self.dz
-                .as_mut_slice()
-                .copy_from_slice(&self.qp.solution()[..n]);
-            let mut alpha = 1.0;
-            let mut accepted = false;
-            let mut have_jac = false;
-            let mut any_finite = false;
-            let mut c_trial = f64::NAN;
-            for ls in 0..=s.max_line_search_steps {
-                self.z_trial.copy_from(z);
-                self.z_trial.axpy(alpha, &self.dz, 1.0);
-                for v in self.z_trial.iter_mut() {
-                    *v = v.max(self.rl).min(self.ru);
-                }
-                let zt = std::mem::replace(&mut self.z_trial, DVector::zeros(0));
-                c_trial = self.evaluate(problem, zt.as_slice(), ls == 0);
-                self.z_trial = zt;
-                if c_trial.is_finite() {
-                    any_finite = true;
-                    if c_trial <= cost + s.armijo_constant * alpha * slope + slack {
-                        accepted = true;
-                        have_jac = ls == 0;
-                        break;
-                    }
-                }
-                alpha *= s.backtracking_factor;
-            }
-            if !accepted {
-                return if any_finite {
-                    SqpStatus::LineSearchFailed
-                } else {
-                    SqpStatus::NonFiniteInput
-                };
-            }
-            if !have_jac {
-                let zt = std::mem::replace(&mut self.z_trial, DVector::zeros(0));
-                c_trial = self.evaluate(problem, zt.as_slice(), true);
-                self.z_trial = zt;
-                if !c_trial.is_finite() {
-                    return SqpStatus::NonFiniteInput;
-                }
-            }
-            z.copy_from(&self.z_trial);
-            self.torques.copy_from_slice(&self.torques_trial);
-            self.grad.copy_from_slice(&self.qp.g);
-            cost = c_trial;
-            info.cost = cost;
-            let (kkt, viol) = self.kkt(z);
-            info.kkt_residual = kkt;
-            if kkt <= s.kkt_tolerance && viol <= s.feasibility_tolerance {
-                return SqpStatus::Converged;
+    fn projection_qp(&mut self, z: &DVector<f64>) -> QpInfo {
+        // min ½|d|² with the same QP: dynamics reduced to T_j = T_{j−1} + u_j, Q = 0 on T.
+        let w = &mut *self.w;
+        let nx = 3 * N;
+        w.qp.a.fill(0.0);
+        w.qp.b.fill(0.0);
+        for j in 0..w.np {
+            let aj = &mut w.qp.a[j * nx * nx..(j + 1) * nx * nx];
+            for a in 0..N {
+                aj[(2 * N + a) * nx + 2 * N + a] = 1.0;
             }
         }
-        SqpStatus::MaxIterations
+        for j in 0..w.nc {
+            let bj = &mut w.qp.b[j * nx * N..(j + 1) * nx * N];
+            for a in 0..N {
+                bj[a * nx + 2 * N + a] = 1.0;
+            }
+        }
+        w.set_input_weight(1.0);
+        w.qp.g.fill(0.0);
+        w.shift_bounds(z);
+        let qi = w.qp.solve();
+        let n = w.nc * N;
+        w.dz.as_mut_slice().copy_from_slice(&w.qp.solution()[..n]);
+        qi
+    }
+
+    fn evaluate(&mut self, z: &DVector<f64>, jacobian: bool) -> f64 {
+        self.w.evaluate(self.problem, z.as_slice(), jacobian)
+    }
+
+    fn accept(&mut self, _z_old: Option<&DVector<f64>>, _z_new: &DVector<f64>) -> bool {
+        // `evaluate` returns a non-finite cost when any linearisation entry is non-finite.
+        let w = &mut *self.w;
+        w.torques.copy_from_slice(&w.torques_trial);
+        w.grad.copy_from_slice(&w.qp.g);
+        true
+    }
+
+    fn solve_qp(&mut self, z: &DVector<f64>) -> QpInfo {
+        // Gauss–Newton: Q, R fixed, dynamics and gradient from the last accepted linearisation.
+        let w = &mut *self.w;
+        let r = w.gauss_newton_input_weight();
+        w.set_input_weight(r);
+        w.qp.g.copy_from_slice(&w.grad);
+        w.shift_bounds(z);
+        let qi = w.qp.solve();
+        let n = w.nc * N;
+        w.dz.as_mut_slice().copy_from_slice(&w.qp.solution()[..n]);
+        qi
+    }
+
+    fn step(&self) -> &DVector<f64> {
+        &self.w.dz
+    }
+
+    fn slope(&self) -> f64 {
+        // gᵀd over the whole trajectory (states are linear in the increments along the step).
+        self.w
+            .grad
+            .iter()
+            .zip(self.w.qp.solution())
+            .map(|(g, d)| g * d)
+            .sum()
+    }
+
+    fn kkt(&mut self, z: &DVector<f64>) -> (f64, f64) {
+        self.w.kkt(z)
     }
 }

@@ -205,6 +205,7 @@ pub fn nmpc_settings(s: &Scenario) -> NmpcSettings {
             kkt_tolerance: c.sqp.kkt_tolerance,
             max_time: c.sqp.max_time_us.map(Duration::from_micros),
             hessian: c.sqp.hessian,
+            real_time_iteration: c.sqp.rti,
             ..SqpSettings::default()
         },
         qp: c.sqp.qp,

@@ -12,6 +12,7 @@
 //! never panics. Not converging is reported through a status enum, never as an error;
 //! [`SolverError`] is only returned for invalid settings or dimensions at construction time.
 
+pub(crate) mod engine;
 pub mod qp;
 pub mod riccati;
 pub mod sqp;

@@ -7,10 +7,11 @@
 //! This is the form of the NMPC problem of the paper (Aliyari & Vossoughi, eq. 7, with the input
 //! and torque constraints of eqs. 8–9 written as box and linear rows).
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use nalgebra::{DMatrix, DVector};
 
+use super::engine::{self, finite_or_inf, BoundCheck, SqpSteps};
 use super::qp::{DenseQp, QpInfo, QpSettings, QpStatus};
 use super::{check_range, SolverError};
 
@@ -89,6 +90,12 @@ pub struct SqpSettings {
     pub max_time: Option<Duration>,
     /// Settings of the inner QP solver (see [`QpSettings`]). Default `QpSettings::default()`.
     pub qp: QpSettings,
+    /// Real-time iteration (Diehl's RTI scheme): when the KKT test fails at the warm start,
+    /// take the full step of one QP (clamped into the box; it satisfies the linear rows) and
+    /// stop with [`SqpStatus::RealTimeIteration`] — one linearisation and one QP per solve, no
+    /// line search. Meant for a controller whose warm start is the shifted previous solution,
+    /// so the iterate is refined from period to period. Default `false`.
+    pub real_time_iteration: bool,
 }
 
 impl Default for SqpSettings {
@@ -104,6 +111,7 @@ impl Default for SqpSettings {
             hessian: HessianModel::StructuredSecant,
             max_time: None,
             qp: QpSettings::default(),
+            real_time_iteration: false,
         }
     }
 }
@@ -187,6 +195,10 @@ pub enum SqpStatus {
     /// The line search found no sufficient decrease (or the QP step was not a descent
     /// direction) although the KKT test failed; `z` is the last feasible iterate.
     LineSearchFailed,
+    /// `real_time_iteration` is set and the one full QP step was taken (the KKT test failed at
+    /// the warm start); `z` is feasible. `cost`, `kkt_residual` and the residuals refer to the
+    /// warm start.
+    RealTimeIteration,
     /// `z`, the constraints or the problem dimensions differ from those given to
     /// [`Sqp::new`] (a programming error); `z` is unchanged.
     DimensionMismatch,
@@ -219,10 +231,21 @@ pub struct SqpInfo {
 /// QP with `H = I`), so every iterate is feasible. Termination uses the KKT residual of the
 /// nonlinear problem computed from the exact gradient `Jᵀr` and the QP multipliers.
 ///
+/// The steps are those of the shared SQP engine (`solver/engine.rs`): input checks,
+/// feasibility projection, Hessian model, QP, termination test, line search.
+///
 /// All work vectors are allocated by [`Sqp::new`]; [`Sqp::solve`] allocates nothing and never
 /// panics. Not converging is a status ([`SqpStatus`]), never an error.
 #[derive(Debug, Clone)]
 pub struct Sqp {
+    settings: SqpSettings,
+    z_trial: DVector<f64>,
+    w: DenseWork,
+}
+
+/// Workspace of the dense back-end.
+#[derive(Debug, Clone)]
+struct DenseWork {
     n: usize,
     m: usize,
     p: usize,
@@ -234,7 +257,6 @@ pub struct Sqp {
     hess: DMatrix<f64>,
     grad: DVector<f64>,
     dz: DVector<f64>,
-    z_trial: DVector<f64>,
     /// Step-space bounds for the QP.
     dlb: DVector<f64>,
     dub: DVector<f64>,
@@ -245,8 +267,9 @@ pub struct Sqp {
     work: DVector<f64>,
     /// Per Jacobian column: the row range `[first, last)` holding its nonzeros.
     nz: Vec<(usize, usize)>,
-    /// Structured secant correction `S` and its update buffers.
+    /// Structured secant correction `S`, whether it is in use, and its update buffers.
     secant: DMatrix<f64>,
+    secant_active: bool,
     jac_prev: DMatrix<f64>,
     grad_prev: DVector<f64>,
     sec_s: DVector<f64>,
@@ -270,34 +293,38 @@ impl Sqp {
             });
         }
         Ok(Self {
-            n,
-            m,
-            p,
             settings,
-            qp: DenseQp::with_settings(n, p, settings.qp)?,
-            r: DVector::zeros(m),
-            r_trial: DVector::zeros(m),
-            jac: DMatrix::zeros(m, n),
-            hess: DMatrix::zeros(n, n),
-            grad: DVector::zeros(n),
-            dz: DVector::zeros(n),
             z_trial: DVector::zeros(n),
-            dlb: DVector::zeros(n),
-            dub: DVector::zeros(n),
-            dbl: DVector::zeros(p),
-            dbu: DVector::zeros(p),
-            az: DVector::zeros(p),
-            work: DVector::zeros(n),
-            nz: vec![(0, 0); n],
-            secant: DMatrix::zeros(n, n),
-            jac_prev: DMatrix::zeros(m, n),
-            grad_prev: DVector::zeros(n),
-            sec_s: DVector::zeros(n),
-            sec_y: DVector::zeros(n),
-            sec_w: DVector::zeros(n),
-            kkt_stationarity: f64::INFINITY,
-            kkt_violation: f64::INFINITY,
-            kkt_complementarity: f64::INFINITY,
+            w: DenseWork {
+                n,
+                m,
+                p,
+                settings,
+                qp: DenseQp::with_settings(n, p, settings.qp)?,
+                r: DVector::zeros(m),
+                r_trial: DVector::zeros(m),
+                jac: DMatrix::zeros(m, n),
+                hess: DMatrix::zeros(n, n),
+                grad: DVector::zeros(n),
+                dz: DVector::zeros(n),
+                dlb: DVector::zeros(n),
+                dub: DVector::zeros(n),
+                dbl: DVector::zeros(p),
+                dbu: DVector::zeros(p),
+                az: DVector::zeros(p),
+                work: DVector::zeros(n),
+                nz: vec![(0, 0); n],
+                secant: DMatrix::zeros(n, n),
+                secant_active: false,
+                jac_prev: DMatrix::zeros(m, n),
+                grad_prev: DVector::zeros(n),
+                sec_s: DVector::zeros(n),
+                sec_y: DVector::zeros(n),
+                sec_w: DVector::zeros(n),
+                kkt_stationarity: f64::INFINITY,
+                kkt_violation: f64::INFINITY,
+                kkt_complementarity: f64::INFINITY,
+            },
         })
     }
 
@@ -309,39 +336,40 @@ impl Sqp {
     /// Replaces the settings after validating them.
     pub fn set_settings(&mut self, settings: SqpSettings) -> Result<(), SolverError> {
         settings.validate()?;
-        self.qp.set_settings(settings.qp)?;
+        self.w.qp.set_settings(settings.qp)?;
         self.settings = settings;
+        self.w.settings = settings;
         Ok(())
     }
 
     /// Box multipliers of the last QP subproblem (sign convention of
     /// [`DenseQp::multipliers_box`]: `Jᵀr + λ_box + Aᵀλ_gen ≈ 0` at a KKT point).
     pub fn multipliers_box(&self) -> &DVector<f64> {
-        self.qp.multipliers_box()
+        self.w.qp.multipliers_box()
     }
 
     /// General-row multipliers of the last QP subproblem.
     pub fn multipliers_general(&self) -> &DVector<f64> {
-        self.qp.multipliers_general()
+        self.w.qp.multipliers_general()
     }
 
     /// Residuals `r(z)` at the returned iterate (valid after a solve that evaluated them).
     pub fn residuals(&self) -> &DVector<f64> {
-        &self.r
+        &self.w.r
     }
 
     /// Gradient `Jᵀr` of the cost at the returned iterate (valid when the last KKT residual is
     /// finite).
     pub fn gradient(&self) -> &DVector<f64> {
-        &self.grad
+        &self.w.grad
     }
 
     /// Components of the last KKT residual: (stationarity, primal violation, complementarity).
     pub fn kkt_components(&self) -> (f64, f64, f64) {
         (
-            self.kkt_stationarity,
-            self.kkt_violation,
-            self.kkt_complementarity,
+            self.w.kkt_stationarity,
+            self.w.kkt_violation,
+            self.w.kkt_complementarity,
         )
     }
 
@@ -354,35 +382,33 @@ impl Sqp {
         cons: &Constraints,
         z: &mut DVector<f64>,
     ) -> SqpInfo {
-        let start = Instant::now();
-        let mut info = SqpInfo {
-            status: SqpStatus::DimensionMismatch,
-            iterations: 0,
-            qp_iterations: 0,
-            cost: f64::NAN,
-            kkt_residual: f64::INFINITY,
-            solve_time: Duration::ZERO,
+        self.w.kkt_stationarity = f64::INFINITY;
+        self.w.kkt_violation = f64::INFINITY;
+        self.w.kkt_complementarity = f64::INFINITY;
+        let mut steps = DenseSteps {
+            w: &mut self.w,
+            problem,
+            cons,
         };
-        self.kkt_stationarity = f64::INFINITY;
-        self.kkt_violation = f64::INFINITY;
-        self.kkt_complementarity = f64::INFINITY;
-        info.status = self.run(problem, cons, z, &mut info, start);
-        info.solve_time = start.elapsed();
-        info
+        engine::solve(&mut steps, &self.settings, &mut self.z_trial, z)
     }
+}
 
-    fn run<P: LeastSquares + ?Sized>(
-        &mut self,
-        problem: &mut P,
-        cons: &Constraints,
-        z: &mut DVector<f64>,
-        info: &mut SqpInfo,
-        start: Instant,
-    ) -> SqpStatus {
-        let (n, m, p) = (self.n, self.m, self.p);
+/// The dense back-end of the engine for one solve: the condensed problem, its constraints and
+/// the workspace.
+struct DenseSteps<'a, P: ?Sized> {
+    w: &'a mut DenseWork,
+    problem: &'a mut P,
+    cons: &'a Constraints,
+}
+
+impl<P: LeastSquares + ?Sized> SqpSteps for DenseSteps<'_, P> {
+    fn check_inputs(&mut self, z: &DVector<f64>) -> Result<(), SqpStatus> {
+        let (w, cons) = (&mut *self.w, self.cons);
+        let (n, m, p) = (w.n, w.m, w.p);
         if z.len() != n
-            || problem.num_vars() != n
-            || problem.num_residuals() != m
+            || self.problem.num_vars() != n
+            || self.problem.num_residuals() != m
             || cons.zl.len() != n
             || cons.zu.len() != n
             || cons.a.nrows() != p
@@ -390,10 +416,10 @@ impl Sqp {
             || cons.bl.len() != p
             || cons.bu.len() != p
         {
-            return SqpStatus::DimensionMismatch;
+            return Err(SqpStatus::DimensionMismatch);
         }
         if !z.iter().all(|v| v.is_finite()) || !cons.a.iter().all(|v| v.is_finite()) {
-            return SqpStatus::NonFiniteInput;
+            return Err(SqpStatus::NonFiniteInput);
         }
         for (l, u) in cons
             .zl
@@ -402,227 +428,157 @@ impl Sqp {
             .chain(cons.bl.iter().zip(cons.bu.iter()))
         {
             if l.is_nan() || u.is_nan() {
-                return SqpStatus::NonFiniteInput;
+                return Err(SqpStatus::NonFiniteInput);
             }
             if *l > *u || *l == f64::INFINITY || *u == f64::NEG_INFINITY {
-                return SqpStatus::Infeasible;
+                return Err(SqpStatus::Infeasible);
             }
         }
-        let s = self.settings;
-
-        // Make the warm start feasible: clamping is the exact projection onto the box; if the
-        // clamped point still violates a general row, project the original point with a QP.
-        self.z_trial.copy_from(z);
-        clamp(z, &cons.zl, &cons.zu);
-        if p > 0 {
-            self.az.gemv(1.0, &cons.a, z, 0.0);
+        // Each solve starts from S = 0 (its first step is the Gauss–Newton step).
+        w.secant_active = false;
+        if w.settings.hessian == HessianModel::StructuredSecant {
+            w.secant.fill(0.0);
         }
-        if row_violation(&self.az, &cons.bl, &cons.bu) > 0.1 * s.feasibility_tolerance {
-            // Euclidean projection: min ½|d|² s.t. constraints on z + d.
-            z.copy_from(&self.z_trial);
-            if p > 0 {
-                self.az.gemv(1.0, &cons.a, z, 0.0);
-            }
-            self.hess.fill_with_identity();
-            self.grad.fill(0.0);
-            self.shift_bounds(cons, z);
-            let qi = self.solve_step_qp(cons);
-            info.qp_iterations += qi.iterations;
-            match qi.status {
-                QpStatus::Solved => {}
-                QpStatus::Infeasible => {
-                    z.copy_from(&self.z_trial);
-                    return SqpStatus::Infeasible;
-                }
-                _ => {
-                    z.copy_from(&self.z_trial);
-                    return SqpStatus::QpFailed;
-                }
-            }
-            *z += &self.dz;
-            clamp(z, &cons.zl, &cons.zu);
-            if p > 0 {
-                self.az.gemv(1.0, &cons.a, z, 0.0);
-            }
-        }
-
-        // Residuals and Jacobian at the (feasible) start.
-        if !problem.residuals_jacobian(z.as_slice(), self.r.as_mut_slice(), &mut self.jac)
-            || !self.r.iter().all(|v| v.is_finite())
-        {
-            return SqpStatus::NonFiniteInput;
-        }
-        let mut cost = 0.5 * self.r.norm_squared();
-        self.grad.gemv_tr(1.0, &self.jac, &self.r, 0.0);
-        // g = Jᵀr is NaN/∞ whenever J (or r) has a non-finite entry.
-        if !cost.is_finite() || !self.grad.iter().all(|v| v.is_finite()) {
-            return SqpStatus::NonFiniteInput;
-        }
-        info.cost = cost;
-
-        let mut status = SqpStatus::MaxIterations;
-        let secant = s.hessian == HessianModel::StructuredSecant;
-        let mut secant_active = false;
-        if secant {
-            self.secant.fill(0.0);
-        }
-        for it in 0..s.max_iterations {
-            if it > 0 {
-                if let Some(tmax) = s.max_time {
-                    if start.elapsed() > tmax {
-                        status = SqpStatus::MaxTime;
-                        break;
-                    }
-                }
-            }
-            // Gauss–Newton Hessian JᵀJ + δI (lower triangle via column dots, then mirrored),
-            // each dot restricted to the rows where both columns can be nonzero (condensed
-            // NMPC Jacobians are block lower triangular, scenario trees block sparse).
-            for j in 0..n {
-                let col = &self.jac.as_slice()[j * m..(j + 1) * m];
-                let first = col.iter().position(|v| *v != 0.0).unwrap_or(m);
-                let last = col.iter().rposition(|v| *v != 0.0).map_or(0, |l| l + 1);
-                self.nz[j] = (first, last.max(first));
-            }
-            let mut maxdiag: f64 = 0.0;
-            let js = self.jac.as_slice();
-            for j in 0..n {
-                let (fj, lj) = self.nz[j];
-                let cj = &js[j * m..(j + 1) * m];
-                for i in j..n {
-                    let (fi, li) = self.nz[i];
-                    let (lo, hi) = (fi.max(fj), li.min(lj));
-                    let v = if lo < hi {
-                        dot(&js[i * m + lo..i * m + hi], &cj[lo..hi])
-                    } else {
-                        0.0
-                    };
-                    self.hess[(i, j)] = v;
-                    self.hess[(j, i)] = v;
-                }
-                maxdiag = maxdiag.max(self.hess[(j, j)]);
-            }
-            let delta = s.hessian_regularization * (1.0 + maxdiag);
-            for j in 0..n {
-                self.hess[(j, j)] += delta;
-            }
-            self.shift_bounds(cons, z);
-            if secant_active {
-                self.hess += &self.secant;
-            }
-            let mut qi = self.solve_step_qp(cons);
-            if secant_active && qi.status == QpStatus::NumericalError {
-                // JᵀJ + S not positive definite: drop S, take the Gauss–Newton step.
-                self.hess -= &self.secant;
-                self.secant.fill(0.0);
-                secant_active = false;
-                info.qp_iterations += qi.iterations;
-                qi = self.solve_step_qp(cons);
-            }
-            info.qp_iterations += qi.iterations;
-            info.iterations = it + 1;
-            match qi.status {
-                QpStatus::Solved => {}
-                QpStatus::NonFiniteInput => return SqpStatus::NonFiniteInput,
-                _ => return SqpStatus::QpFailed,
-            }
-            // KKT at the current point with the fresh multipliers.
-            let kkt = self.kkt(cons, z);
-            info.kkt_residual = kkt;
-            if kkt <= s.kkt_tolerance && self.kkt_violation <= s.feasibility_tolerance {
-                return SqpStatus::Converged;
-            }
-            // Armijo backtracking on φ(α) = ½‖r(z + α d)‖².
-            // Allow for rounding noise in evaluating ½‖r‖² so that tiny steps near a KKT point
-            // (predicted decrease below the noise level) are not rejected.
-            let slack = 1e3 * f64::EPSILON * cost;
-            let slope = self.grad.dot(&self.dz);
-            if slope.is_nan() || slope >= slack {
-                return SqpStatus::LineSearchFailed;
-            }
-            let slope = slope.min(0.0);
-            if secant {
-                self.jac_prev.copy_from(&self.jac);
-                self.grad_prev.copy_from(&self.grad);
-            }
-            let mut alpha = 1.0;
-            let mut accepted = false;
-            let mut have_jac = false;
-            let mut any_finite = false;
-            for ls in 0..=s.max_line_search_steps {
-                self.z_trial.copy_from(z);
-                self.z_trial.axpy(alpha, &self.dz, 1.0);
-                clamp(&mut self.z_trial, &cons.zl, &cons.zu);
-                let ok = if ls == 0 {
-                    // The full step is usually accepted: evaluate the Jacobian right away.
-                    problem.residuals_jacobian(
-                        self.z_trial.as_slice(),
-                        self.r_trial.as_mut_slice(),
-                        &mut self.jac,
-                    )
-                } else {
-                    problem.residuals(self.z_trial.as_slice(), self.r_trial.as_mut_slice())
-                };
-                let c_trial = 0.5 * self.r_trial.norm_squared();
-                if ok && c_trial.is_finite() {
-                    any_finite = true;
-                    if c_trial <= cost + s.armijo_constant * alpha * slope + slack {
-                        accepted = true;
-                        have_jac = ls == 0;
-                        break;
-                    }
-                }
-                alpha *= s.backtracking_factor;
-            }
-            if !accepted {
-                return if any_finite {
-                    SqpStatus::LineSearchFailed
-                } else {
-                    SqpStatus::NonFiniteInput
-                };
-            }
-            if !have_jac
-                && !problem.residuals_jacobian(
-                    self.z_trial.as_slice(),
-                    self.r_trial.as_mut_slice(),
-                    &mut self.jac,
-                )
-            {
-                return SqpStatus::NonFiniteInput;
-            }
-            let c_new = 0.5 * self.r_trial.norm_squared();
-            self.grad.gemv_tr(1.0, &self.jac, &self.r_trial, 0.0);
-            if !c_new.is_finite() || !self.grad.iter().all(|v| v.is_finite()) {
-                return SqpStatus::NonFiniteInput;
-            }
-            if secant {
-                secant_active = self.update_secant(z) || secant_active;
-            }
-            // Accept the step.
-            z.copy_from(&self.z_trial);
-            std::mem::swap(&mut self.r, &mut self.r_trial);
-            cost = c_new;
-            info.cost = cost;
-            if p > 0 {
-                self.az.gemv(1.0, &cons.a, z, 0.0);
-            }
-            // KKT at the new point with the last multipliers (exact for linear residuals after a
-            // full step; avoids one QP per solve near convergence).
-            let kkt = self.kkt(cons, z);
-            info.kkt_residual = kkt;
-            if kkt <= s.kkt_tolerance && self.kkt_violation <= s.feasibility_tolerance {
-                return SqpStatus::Converged;
-            }
-        }
-        status
+        Ok(())
     }
 
-    /// Dennis–Gay–Welsch update of the structured secant `S` for the step `z → z_trial`, with
+    fn clamp(&self, z: &mut DVector<f64>) {
+        clamp(z, &self.cons.zl, &self.cons.zu);
+    }
+
+    fn general_violation(&mut self, z: &DVector<f64>) -> f64 {
+        if self.w.p > 0 {
+            self.w.az.gemv(1.0, &self.cons.a, z, 0.0);
+        }
+        row_violation(&self.w.az, &self.cons.bl, &self.cons.bu)
+    }
+
+    fn projection_qp(&mut self, z: &DVector<f64>) -> QpInfo {
+        self.w.hess.fill_with_identity();
+        self.w.grad.fill(0.0);
+        self.w.shift_bounds(self.cons, z);
+        self.w.solve_step_qp(self.cons)
+    }
+
+    fn evaluate(&mut self, z: &DVector<f64>, jacobian: bool) -> f64 {
+        let w = &mut *self.w;
+        let ok = if jacobian {
+            self.problem
+                .residuals_jacobian(z.as_slice(), w.r_trial.as_mut_slice(), &mut w.jac)
+        } else {
+            self.problem
+                .residuals(z.as_slice(), w.r_trial.as_mut_slice())
+        };
+        if ok {
+            0.5 * w.r_trial.norm_squared()
+        } else {
+            f64::NAN
+        }
+    }
+
+    fn accept(&mut self, z_old: Option<&DVector<f64>>, z_new: &DVector<f64>) -> bool {
+        let w = &mut *self.w;
+        w.grad.gemv_tr(1.0, &w.jac, &w.r_trial, 0.0);
+        // g = Jᵀr is NaN/∞ whenever J (or r) has a non-finite entry.
+        if !w.grad.iter().all(|v| v.is_finite()) {
+            return false;
+        }
+        if let Some(z_old) = z_old {
+            if w.settings.hessian == HessianModel::StructuredSecant {
+                w.secant_active = w.update_secant(z_old, z_new) || w.secant_active;
+            }
+            if w.p > 0 {
+                w.az.gemv(1.0, &self.cons.a, z_new, 0.0);
+            }
+        }
+        std::mem::swap(&mut w.r, &mut w.r_trial);
+        true
+    }
+
+    fn solve_qp(&mut self, z: &DVector<f64>) -> QpInfo {
+        let w = &mut *self.w;
+        w.gauss_newton_hessian();
+        w.shift_bounds(self.cons, z);
+        if w.secant_active {
+            w.hess += &w.secant;
+        }
+        let qi = w.solve_step_qp(self.cons);
+        if w.secant_active && qi.status == QpStatus::NumericalError {
+            // JᵀJ + S not positive definite: drop S, take the Gauss–Newton step.
+            w.hess -= &w.secant;
+            w.secant.fill(0.0);
+            w.secant_active = false;
+            let mut retry = w.solve_step_qp(self.cons);
+            retry.iterations += qi.iterations;
+            return retry;
+        }
+        qi
+    }
+
+    fn step(&self) -> &DVector<f64> {
+        &self.w.dz
+    }
+
+    fn slope(&self) -> f64 {
+        self.w.grad.dot(&self.w.dz)
+    }
+
+    fn before_line_search(&mut self) {
+        let w = &mut *self.w;
+        if w.settings.hessian == HessianModel::StructuredSecant {
+            w.jac_prev.copy_from(&w.jac);
+            w.grad_prev.copy_from(&w.grad);
+        }
+    }
+
+    fn kkt(&mut self, z: &DVector<f64>) -> (f64, f64) {
+        let k = self.w.kkt(self.cons, z);
+        (k, self.w.kkt_violation)
+    }
+}
+
+impl DenseWork {
+    /// Gauss–Newton Hessian `JᵀJ + δI` (lower triangle via column dots, then mirrored), each
+    /// dot restricted to the rows where both columns can be nonzero (condensed NMPC Jacobians
+    /// are block lower triangular, scenario trees block sparse).
+    fn gauss_newton_hessian(&mut self) {
+        let (n, m) = (self.n, self.m);
+        for j in 0..n {
+            let col = &self.jac.as_slice()[j * m..(j + 1) * m];
+            let first = col.iter().position(|v| *v != 0.0).unwrap_or(m);
+            let last = col.iter().rposition(|v| *v != 0.0).map_or(0, |l| l + 1);
+            self.nz[j] = (first, last.max(first));
+        }
+        let mut maxdiag: f64 = 0.0;
+        let js = self.jac.as_slice();
+        for j in 0..n {
+            let (fj, lj) = self.nz[j];
+            let cj = &js[j * m..(j + 1) * m];
+            for i in j..n {
+                let (fi, li) = self.nz[i];
+                let (lo, hi) = (fi.max(fj), li.min(lj));
+                let v = if lo < hi {
+                    dot(&js[i * m + lo..i * m + hi], &cj[lo..hi])
+                } else {
+                    0.0
+                };
+                self.hess[(i, j)] = v;
+                self.hess[(j, i)] = v;
+            }
+            maxdiag = maxdiag.max(self.hess[(j, j)]);
+        }
+        let delta = self.settings.hessian_regularization * (1.0 + maxdiag);
+        for j in 0..n {
+            self.hess[(j, j)] += delta;
+        }
+    }
+
+    /// Dennis–Gay–Welsch update of the structured secant `S` for the step `z → z_new`, with
     /// `self.grad`, `self.jac`, `self.r_trial` at the new point and `grad_prev`, `jac_prev` at
     /// the old one. Returns whether `S` was updated (skipped when `yᵀs ≤ 0`).
-    fn update_secant(&mut self, z: &DVector<f64>) -> bool {
+    fn update_secant(&mut self, z: &DVector<f64>, z_new: &DVector<f64>) -> bool {
         // s = z₊ − z, y = g₊ − g, y♯ = g₊ − J_prevᵀ r₊ = (J₊ − J)ᵀ r₊.
-        self.sec_s.copy_from(&self.z_trial);
+        self.sec_s.copy_from(z_new);
         self.sec_s -= z;
         self.sec_y.copy_from(&self.grad);
         self.sec_y -= &self.grad_prev;
@@ -699,37 +655,17 @@ impl Sqp {
             self.work.gemv_tr(1.0, &cons.a, lg, 1.0);
         }
         let stat = self.work.amax();
-        let mut viol: f64 = 0.0;
-        let mut comp: f64 = 0.0;
+        let mut check = BoundCheck::default();
         for i in 0..self.n {
-            let (lo, hi) = (cons.zl[i] - z[i], z[i] - cons.zu[i]);
-            viol = viol.max(lo).max(hi);
-            let l = lb[i];
-            if l < 0.0 {
-                comp = comp.max(-l * (-lo).max(0.0));
-            } else if l > 0.0 {
-                comp = comp.max(l * (-hi).max(0.0));
-            }
+            check.add(cons.zl[i] - z[i], z[i] - cons.zu[i], lb[i]);
         }
         for j in 0..self.p {
-            let (lo, hi) = (cons.bl[j] - self.az[j], self.az[j] - cons.bu[j]);
-            viol = viol.max(lo).max(hi);
-            let l = lg[j];
-            if l < 0.0 {
-                comp = comp.max(-l * (-lo).max(0.0));
-            } else if l > 0.0 {
-                comp = comp.max(l * (-hi).max(0.0));
-            }
+            check.add(cons.bl[j] - self.az[j], self.az[j] - cons.bu[j], lg[j]);
         }
         self.kkt_stationarity = stat;
-        self.kkt_violation = viol;
-        self.kkt_complementarity = comp;
-        let k = stat.max(viol).max(comp);
-        if k.is_nan() {
-            f64::INFINITY
-        } else {
-            k
-        }
+        self.kkt_violation = check.violation;
+        self.kkt_complementarity = check.complementarity;
+        finite_or_inf(stat.max(check.violation).max(check.complementarity))
     }
 }
 

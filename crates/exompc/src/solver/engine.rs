@@ -1,0 +1,274 @@
+//! The SQP engine shared by every QP back-end: one solve is a fixed sequence of named steps
+//! (input checks → feasibility projection → first linearisation → per iteration: Hessian model
+//! and QP → termination test → line search → termination test), as OpEn's engine reads. With
+//! `real_time_iteration` the first iteration ends after the QP with the full step.
+//!
+//! A back-end ([`SqpSteps`]) says how the problem is evaluated and linearised, how the QP of one
+//! iteration is built and solved, and how the KKT residual of the nonlinear problem is measured:
+//! the dense condensed form ([`super::Sqp`] with [`super::DenseQp`]) and the multiple-shooting
+//! stage form (`control::ocp::StructuredSqp` with [`super::RiccatiQp`]) run the same engine, so
+//! warm-start projection, Armijo line search and termination are written once.
+
+use std::time::{Duration, Instant};
+
+use nalgebra::DVector;
+
+use super::qp::{QpInfo, QpStatus};
+use super::sqp::{SqpInfo, SqpSettings, SqpStatus};
+
+/// What an SQP back-end provides to [`solve`]. Every method allocates nothing and never panics.
+pub(crate) trait SqpSteps {
+    /// Checks dimensions and finiteness of the warm start `z` and the constraint data (crossed
+    /// bounds are `Infeasible`), and prepares the per-solve data.
+    fn check_inputs(&mut self, z: &DVector<f64>) -> Result<(), SqpStatus>;
+    /// Clamps `z` into the box constraints (the exact projection onto the box).
+    fn clamp(&self, z: &mut DVector<f64>);
+    /// Largest violation of the non-box constraints at `z`; caches what the step bounds and the
+    /// KKT test need at `z` (`A z`, cumulative torques).
+    fn general_violation(&mut self, z: &DVector<f64>) -> f64;
+    /// Solves the Euclidean projection QP `min ½|d|²` s.t. the constraints on `z + d` (with the
+    /// data cached by [`Self::general_violation`] at `z`); `d` in [`Self::step`].
+    fn projection_qp(&mut self, z: &DVector<f64>) -> QpInfo;
+    /// Evaluates the cost `½‖r(z)‖²` into the trial buffers, with the linearisation at `z` when
+    /// `jacobian`; a non-finite value when anything evaluated is non-finite.
+    fn evaluate(&mut self, z: &DVector<f64>, jacobian: bool) -> f64;
+    /// Makes the last evaluation (which included the linearisation, at `z_new`) the current
+    /// point: gradient, cached constraint data and the Hessian model update from `z_old` (`None`
+    /// for the first point). Returns `false` when the gradient is non-finite.
+    fn accept(&mut self, z_old: Option<&DVector<f64>>, z_new: &DVector<f64>) -> bool;
+    /// Builds the Hessian model at the current point and solves the step QP (bounds shifted to
+    /// `z`); the step in [`Self::step`], iterations summed over any retry.
+    fn solve_qp(&mut self, z: &DVector<f64>) -> QpInfo;
+    /// The last QP step in the decision variables.
+    fn step(&self) -> &DVector<f64>;
+    /// Directional derivative `∇φᵀd` of the cost along the last QP step.
+    fn slope(&self) -> f64;
+    /// Called once per iteration between a QP that did not terminate and the line search.
+    fn before_line_search(&mut self) {}
+    /// KKT residual of the nonlinear problem at `z` (current point) with the last QP
+    /// multipliers: `(max(stationarity, violation, complementarity), violation)`; `∞` for NaN.
+    fn kkt(&mut self, z: &DVector<f64>) -> (f64, f64);
+}
+
+/// Runs the engine on `steps` from the warm start `z` (overwritten with the result); `z_trial`
+/// is a work vector of the same length. Times the solve and fills [`SqpInfo`].
+pub(crate) fn solve<B: SqpSteps + ?Sized>(
+    steps: &mut B,
+    s: &SqpSettings,
+    z_trial: &mut DVector<f64>,
+    z: &mut DVector<f64>,
+) -> SqpInfo {
+    let start = Instant::now();
+    let mut info = SqpInfo {
+        status: SqpStatus::DimensionMismatch,
+        iterations: 0,
+        qp_iterations: 0,
+        cost: f64::NAN,
+        kkt_residual: f64::INFINITY,
+        solve_time: Duration::ZERO,
+    };
+    info.status = run(steps, s, z_trial, z, &mut info, start);
+    info.solve_time = start.elapsed();
+    info
+}
+
+fn run<B: SqpSteps + ?Sized>(
+    b: &mut B,
+    s: &SqpSettings,
+    z_trial: &mut DVector<f64>,
+    z: &mut DVector<f64>,
+    info: &mut SqpInfo,
+    start: Instant,
+) -> SqpStatus {
+    if z_trial.len() != z.len() {
+        return SqpStatus::DimensionMismatch;
+    }
+    if let Err(status) = b.check_inputs(z) {
+        return status;
+    }
+    if let Err(status) = project_feasible(b, s, z_trial, z, info) {
+        return status;
+    }
+    let mut cost = b.evaluate(z, true);
+    if !cost.is_finite() || !b.accept(None, z) {
+        return SqpStatus::NonFiniteInput;
+    }
+    info.cost = cost;
+    for it in 0..s.max_iterations {
+        if it > 0 && out_of_time(s, start) {
+            return SqpStatus::MaxTime;
+        }
+        let qi = b.solve_qp(z);
+        info.qp_iterations += qi.iterations;
+        info.iterations = it + 1;
+        match qi.status {
+            QpStatus::Solved => {}
+            QpStatus::NonFiniteInput => return SqpStatus::NonFiniteInput,
+            _ => return SqpStatus::QpFailed,
+        }
+        // KKT at the current point with the fresh multipliers.
+        if terminated(b, s, z, info) {
+            return SqpStatus::Converged;
+        }
+        if s.real_time_iteration {
+            *z += b.step();
+            b.clamp(z);
+            return SqpStatus::RealTimeIteration;
+        }
+        b.before_line_search();
+        cost = match line_search(b, s, cost, z_trial, z) {
+            Ok(c) => c,
+            Err(status) => return status,
+        };
+        info.cost = cost;
+        // KKT at the new point with the last multipliers (exact for linear residuals after a
+        // full step; avoids one QP per solve near convergence).
+        if terminated(b, s, z, info) {
+            return SqpStatus::Converged;
+        }
+    }
+    SqpStatus::MaxIterations
+}
+
+/// Whether the wall-clock budget of the solve is spent.
+fn out_of_time(s: &SqpSettings, start: Instant) -> bool {
+    s.max_time.is_some_and(|t| start.elapsed() > t)
+}
+
+/// Feasibility projection of the warm start: clamping is the exact projection onto the box; if
+/// the clamped point still violates a general constraint, the original point is projected with
+/// the back-end's projection QP. On failure `z` is restored.
+fn project_feasible<B: SqpSteps + ?Sized>(
+    b: &mut B,
+    s: &SqpSettings,
+    z_orig: &mut DVector<f64>,
+    z: &mut DVector<f64>,
+    info: &mut SqpInfo,
+) -> Result<(), SqpStatus> {
+    z_orig.copy_from(z);
+    b.clamp(z);
+    if b.general_violation(z) <= 0.1 * s.feasibility_tolerance {
+        return Ok(());
+    }
+    z.copy_from(z_orig);
+    b.general_violation(z);
+    let qi = b.projection_qp(z);
+    info.qp_iterations += qi.iterations;
+    match qi.status {
+        QpStatus::Solved => {}
+        QpStatus::Infeasible => {
+            z.copy_from(z_orig);
+            return Err(SqpStatus::Infeasible);
+        }
+        _ => {
+            z.copy_from(z_orig);
+            return Err(SqpStatus::QpFailed);
+        }
+    }
+    *z += b.step();
+    b.clamp(z);
+    b.general_violation(z);
+    Ok(())
+}
+
+/// Termination test: KKT residual within `kkt_tolerance` and violation within
+/// `feasibility_tolerance`; records the residual in `info`.
+fn terminated<B: SqpSteps + ?Sized>(
+    b: &mut B,
+    s: &SqpSettings,
+    z: &DVector<f64>,
+    info: &mut SqpInfo,
+) -> bool {
+    let (kkt, viol) = b.kkt(z);
+    info.kkt_residual = kkt;
+    kkt <= s.kkt_tolerance && viol <= s.feasibility_tolerance
+}
+
+/// Armijo backtracking on `φ(α) = ½‖r(z + α d)‖²` (trial points clamped into the box); the full
+/// step is evaluated with its linearisation right away (it is usually accepted). On success the
+/// accepted point is the new `z` (linearised, accepted by the back-end) and its cost returned.
+fn line_search<B: SqpSteps + ?Sized>(
+    b: &mut B,
+    s: &SqpSettings,
+    cost: f64,
+    z_trial: &mut DVector<f64>,
+    z: &mut DVector<f64>,
+) -> Result<f64, SqpStatus> {
+    // Allow for rounding noise in evaluating ½‖r‖² so that tiny steps near a KKT point
+    // (predicted decrease below the noise level) are not rejected.
+    let slack = 1e3 * f64::EPSILON * cost;
+    let slope = b.slope();
+    if slope.is_nan() || slope >= slack {
+        return Err(SqpStatus::LineSearchFailed);
+    }
+    let slope = slope.min(0.0);
+    let mut alpha = 1.0;
+    let mut accepted = None;
+    let mut any_finite = false;
+    for ls in 0..=s.max_line_search_steps {
+        z_trial.copy_from(z);
+        z_trial.axpy(alpha, b.step(), 1.0);
+        b.clamp(z_trial);
+        let c_trial = b.evaluate(z_trial, ls == 0);
+        if c_trial.is_finite() {
+            any_finite = true;
+            if c_trial <= cost + s.armijo_constant * alpha * slope + slack {
+                accepted = Some((c_trial, ls == 0));
+                break;
+            }
+        }
+        alpha *= s.backtracking_factor;
+    }
+    let Some((mut c_new, have_jacobian)) = accepted else {
+        return Err(if any_finite {
+            SqpStatus::LineSearchFailed
+        } else {
+            SqpStatus::NonFiniteInput
+        });
+    };
+    if !have_jacobian {
+        c_new = b.evaluate(z_trial, true);
+        if !c_new.is_finite() {
+            return Err(SqpStatus::NonFiniteInput);
+        }
+    }
+    if !b.accept(Some(z), z_trial) {
+        return Err(SqpStatus::NonFiniteInput);
+    }
+    z.copy_from(z_trial);
+    Ok(c_new)
+}
+
+/// Running maxima of the primal violation and complementarity of bound pairs, for the KKT
+/// tests of the back-ends.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct BoundCheck {
+    /// Largest violation `max(lo, hi)` seen.
+    pub violation: f64,
+    /// Largest complementarity product `|λ|·slack` seen.
+    pub complementarity: f64,
+}
+
+impl BoundCheck {
+    /// Adds the bound pair with gaps `lo = l − v`, `hi = v − u` and multiplier `λ` (negative on
+    /// the lower bound, positive on the upper one).
+    #[inline]
+    pub fn add(&mut self, lo: f64, hi: f64, l: f64) {
+        self.violation = self.violation.max(lo).max(hi);
+        if l < 0.0 {
+            self.complementarity = self.complementarity.max(-l * (-lo).max(0.0));
+        } else if l > 0.0 {
+            self.complementarity = self.complementarity.max(l * (-hi).max(0.0));
+        }
+    }
+}
+
+/// `k`, or `∞` when `k` is NaN.
+#[inline]
+pub(crate) fn finite_or_inf(k: f64) -> f64 {
+    if k.is_nan() {
+        f64::INFINITY
+    } else {
+        k
+    }
+}
