@@ -2,8 +2,10 @@
 //! `--formulation`, `--payloads`, the scenario overrides). Command modules import this module
 //! and the `exompc_cli` library, never each other.
 
+use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::Args;
 use exompc::config::{ControllerKind, Formulation, Scenario};
+use exompc::scenario::{controller_by_name, controller_info, CONTROLLERS};
 use exompc_cli::error::CliError;
 use exompc_cli::io;
 use exompc_cli::layout::tidy;
@@ -24,31 +26,24 @@ impl ConfigOpt {
     }
 }
 
-/// Controller choice on the command line (mirrors [`ControllerKind`]).
-#[derive(Debug, Clone, Copy, clap::ValueEnum)]
-pub(crate) enum ControllerArg {
-    Pd,
-    Nmpc,
-    Msnmpc,
-}
-
-impl From<ControllerArg> for ControllerKind {
-    fn from(c: ControllerArg) -> Self {
-        match c {
-            ControllerArg::Pd => ControllerKind::Pd,
-            ControllerArg::Nmpc => ControllerKind::Nmpc,
-            ControllerArg::Msnmpc => ControllerKind::Msnmpc,
-        }
-    }
+/// Parser of `--controller` / `--controllers` values: the names of the library's controller
+/// registry ([`CONTROLLERS`]), each with its description in `--help`.
+pub(crate) fn controller_parser() -> impl TypedValueParser<Value = ControllerKind> {
+    PossibleValuesParser::new(
+        CONTROLLERS
+            .iter()
+            .map(|c| PossibleValue::new(c.name).help(c.description)),
+    )
+    .try_map(|name| {
+        controller_by_name(&name)
+            .map(|c| c.kind)
+            .ok_or_else(|| format!("unknown controller `{name}`"))
+    })
 }
 
 /// Command-line name of a controller (also its folder prefix and `Summary::controller`).
-pub(crate) fn controller_name(c: ControllerArg) -> &'static str {
-    match c {
-        ControllerArg::Pd => "pd",
-        ControllerArg::Nmpc => "nmpc",
-        ControllerArg::Msnmpc => "msnmpc",
-    }
+pub(crate) fn controller_name(c: ControllerKind) -> &'static str {
+    controller_info(c).name
 }
 
 /// Formulation choice on the command line.
@@ -80,16 +75,16 @@ pub(crate) fn formulation_name(f: FormulationArg) -> &'static str {
 pub(crate) fn apply_overrides(
     s: &mut Scenario,
     dof: u8,
-    controller: Option<ControllerArg>,
+    controller: Option<ControllerKind>,
     formulation: Option<FormulationArg>,
     payload: Option<f64>,
     duration: Option<f64>,
 ) -> Result<(), CliError> {
     if let Some(k) = controller {
-        s.controller.kind = k.into();
+        s.controller.kind = k;
     }
     if let (Some(f), Some(k)) = (formulation, controller) {
-        if !matches!(k, ControllerArg::Msnmpc) {
+        if k != ControllerKind::Msnmpc {
             return Err(CliError::Usage(format!(
                 "--formulation {} applies to --controller msnmpc only, not --controller {}",
                 formulation_name(f),
