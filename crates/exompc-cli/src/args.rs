@@ -2,8 +2,10 @@
 //! `--formulation`, `--payloads`, the scenario overrides). Command modules import this module
 //! and the `exompc_cli` library, never each other.
 
+use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::Args;
 use exompc::config::{ControllerKind, Formulation, Scenario};
+use exompc::scenario::{controller_by_name, controller_info, CONTROLLERS};
 use exompc_cli::config_help::{describe_error, KeyOrigins};
 use exompc_cli::error::CliError;
 use exompc_cli::io;
@@ -30,31 +32,24 @@ impl ConfigOpt {
     }
 }
 
-/// Controller choice on the command line (mirrors [`ControllerKind`]).
-#[derive(Debug, Clone, Copy, clap::ValueEnum)]
-pub(crate) enum ControllerArg {
-    Pd,
-    Nmpc,
-    Msnmpc,
-}
-
-impl From<ControllerArg> for ControllerKind {
-    fn from(c: ControllerArg) -> Self {
-        match c {
-            ControllerArg::Pd => ControllerKind::Pd,
-            ControllerArg::Nmpc => ControllerKind::Nmpc,
-            ControllerArg::Msnmpc => ControllerKind::Msnmpc,
-        }
-    }
+/// Parser of `--controller` / `--controllers` values: the names of the library's controller
+/// registry ([`CONTROLLERS`]), each with its description in `--help`.
+pub(crate) fn controller_parser() -> impl TypedValueParser<Value = ControllerKind> {
+    PossibleValuesParser::new(
+        CONTROLLERS
+            .iter()
+            .map(|c| PossibleValue::new(c.name).help(c.description)),
+    )
+    .try_map(|name| {
+        controller_by_name(&name)
+            .map(|c| c.kind)
+            .ok_or_else(|| format!("unknown controller `{name}`"))
+    })
 }
 
 /// Command-line name of a controller (also its folder prefix and `Summary::controller`).
-pub(crate) fn controller_name(c: ControllerArg) -> &'static str {
-    match c {
-        ControllerArg::Pd => "pd",
-        ControllerArg::Nmpc => "nmpc",
-        ControllerArg::Msnmpc => "msnmpc",
-    }
+pub(crate) fn controller_name(c: ControllerKind) -> &'static str {
+    controller_info(c).name
 }
 
 /// Formulation choice on the command line.
@@ -86,7 +81,7 @@ pub(crate) fn formulation_name(f: FormulationArg) -> &'static str {
 pub(crate) fn apply_overrides(
     s: &mut Scenario,
     dof: u8,
-    controller: Option<ControllerArg>,
+    controller: Option<ControllerKind>,
     formulation: Option<FormulationArg>,
     payload: Option<f64>,
     duration: Option<f64>,
@@ -104,17 +99,17 @@ pub(crate) fn apply_overrides_with(
     s: &mut Scenario,
     origins: &KeyOrigins,
     dof: u8,
-    controller: Option<ControllerArg>,
+    controller: Option<ControllerKind>,
     formulation: Option<FormulationArg>,
     payload: Option<f64>,
     duration: Option<f64>,
 ) -> Result<(), CliError> {
     let mut origins = origins.clone();
     if let Some(k) = controller {
-        s.controller.kind = k.into();
+        s.controller.kind = k;
     }
     if let (Some(f), Some(k)) = (formulation, controller) {
-        if !matches!(k, ControllerArg::Msnmpc) {
+        if k != ControllerKind::Msnmpc {
             return Err(CliError::Usage(format!(
                 "--formulation {} applies to --controller msnmpc only, not --controller {}",
                 formulation_name(f),

@@ -54,12 +54,15 @@ pub struct Grid {
 
 /// Controller kind from its command-line name.
 pub fn controller_kind(name: &str) -> Result<ControllerKind, CliError> {
-    match name {
-        "nmpc" => Ok(ControllerKind::Nmpc),
-        "msnmpc" => Ok(ControllerKind::Msnmpc),
-        "pd" => Ok(ControllerKind::Pd),
-        other => Err(CliError::Usage(format!(
-            "unknown controller `{other}` (allowed: nmpc, msnmpc, pd)"
+    match exompc::scenario::controller_by_name(name) {
+        Some(c) => Ok(c.kind),
+        None => Err(CliError::Usage(format!(
+            "unknown controller `{name}` (allowed: {})",
+            exompc::scenario::CONTROLLERS
+                .iter()
+                .map(|c| c.name)
+                .collect::<Vec<_>>()
+                .join(", ")
         ))),
     }
 }

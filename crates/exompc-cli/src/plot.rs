@@ -7,6 +7,7 @@
 //! `step_time_<p>kg`: Figs. 3-5 / 7-8), at no load (`compare_0kg`: Fig. 6) and the
 //! payload-sweep figure `payload_sweep` (RMS strap forces and mean probabilities vs payload).
 
+use exompc::scenario::controller_by_name;
 use exompc::sim::Summary;
 use exompc_cli::error::CliError;
 use exompc_cli::io;
@@ -36,21 +37,17 @@ const SCEN: [RGBColor; 6] = [
     RGBColor(23, 190, 207),
 ];
 
+/// Controller colours, indexed by `ControllerInfo::colour` of the registry.
+const CONTROLLER_COLOURS: [RGBColor; 3] = [MS, NM, PD_C];
+
 fn ctrl_color(c: &str) -> RGBColor {
-    match c {
-        "msnmpc" => MS,
-        "nmpc" => NM,
-        _ => PD_C,
-    }
+    controller_by_name(c).map_or(PD_C, |i| {
+        CONTROLLER_COLOURS[i.colour % CONTROLLER_COLOURS.len()]
+    })
 }
 
 fn ctrl_label(c: &str) -> &'static str {
-    match c {
-        "msnmpc" => "MS-NMPC",
-        "nmpc" => "NMPC",
-        "pd" => "PD",
-        _ => "controller",
-    }
+    controller_by_name(c).map_or("controller", |i| i.label)
 }
 
 /// Registers the embedded DejaVu Sans font once (no system font library needed).

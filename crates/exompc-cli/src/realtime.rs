@@ -2,8 +2,9 @@
 //! process): the real-time loop over the UDP link of `exompc::runtime` (see
 //! `docs/REALTIME.md`).
 
-use crate::args::{ConfigOpt, ControllerArg};
+use crate::args::ConfigOpt;
 use clap::Args;
+use exompc::config::ControllerKind;
 use exompc::config::Scenario;
 use exompc::control::{Controller, StepStatus};
 use exompc::runtime::frame::status_from_code;
@@ -161,8 +162,8 @@ pub(crate) struct RunArgs {
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=2))]
     dof: u8,
     /// Override `controller.kind`.
-    #[arg(long, value_enum)]
-    controller: Option<ControllerArg>,
+    #[arg(long, value_parser = crate::args::controller_parser())]
+    controller: Option<ControllerKind>,
     /// The robot's address.
     #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:7300")]
     robot: SocketAddr,

@@ -1,8 +1,9 @@
 //! `exompc simulate`: one closed-loop run of the scenario; writes `trace.csv` and
 //! `summary.json` into `--out` (default `out/`) and prints a short summary.
 
-use crate::args::{apply_overrides_with, ConfigOpt, ControllerArg, FormulationArg};
+use crate::args::{apply_overrides_with, ConfigOpt, FormulationArg};
 use clap::Args;
+use exompc::config::ControllerKind;
 use exompc_cli::error::CliError;
 use exompc_cli::io;
 use exompc_cli::run::{describe, run_to_dir};
@@ -17,8 +18,8 @@ pub(crate) struct SimulateArgs {
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=2))]
     pub(crate) dof: u8,
     /// Override `controller.kind`.
-    #[arg(long, value_enum)]
-    pub(crate) controller: Option<ControllerArg>,
+    #[arg(long, value_parser = crate::args::controller_parser())]
+    pub(crate) controller: Option<ControllerKind>,
     /// Override `multistage.formulation` (msnmpc only).
     #[arg(long, value_enum)]
     pub(crate) formulation: Option<FormulationArg>,

@@ -2,10 +2,10 @@
 //! each streamed into `DIR/<controller>_<payload>kg/{trace.csv,summary.json}`; then the paper's
 //! Table 2 as `DIR/table2.md` and all summaries as `DIR/sweep.json`.
 
+use crate::args::ConfigOpt;
 use crate::args::{
     apply_overrides_with, controller_name, formulation_name, parse_payloads, FormulationArg,
 };
-use crate::args::{ConfigOpt, ControllerArg};
 use clap::Args;
 use exompc::config::{ControllerKind, Scenario};
 use exompc::sim::Summary;
@@ -33,8 +33,8 @@ pub(crate) struct SweepArgs {
     )]
     payloads: String,
     /// Controllers to compare, comma-separated.
-    #[arg(long, value_enum, value_delimiter = ',', default_value = "nmpc,msnmpc")]
-    controllers: Vec<ControllerArg>,
+    #[arg(long, value_parser = crate::args::controller_parser(), value_delimiter = ',', default_value = "nmpc,msnmpc")]
+    controllers: Vec<ControllerKind>,
     /// Experiment: 1 (knee only, hip locked) or 2 (hip and knee).
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=2))]
     dof: u8,
@@ -86,7 +86,7 @@ fn run_grid(
     base: &Scenario,
     dof: u8,
     payloads: &[f64],
-    controllers: &[ControllerArg],
+    controllers: &[ControllerKind],
     out: &Path,
     quiet: bool,
 ) -> Result<Vec<Summary>, CliError> {
@@ -94,7 +94,7 @@ fn run_grid(
     for &p in payloads {
         for &c in controllers {
             let mut s = base.clone();
-            s.controller.kind = ControllerKind::from(c);
+            s.controller.kind = c;
             s.uncertainty.payload_kg = p;
             s.validate()
                 .map_err(|e| CliError::Usage(format!("--payloads: {p} kg: {e}")))?;
@@ -300,7 +300,7 @@ pub(crate) fn table2(rows: &[Summary]) -> String {
 pub(crate) fn run(a: SweepArgs) -> Result<(), CliError> {
     let (mut s, origins) = a.config.load_with_origins()?;
     let payloads = parse_payloads(&a.payloads)?;
-    let mut controllers: Vec<ControllerArg> = Vec::new();
+    let mut controllers: Vec<ControllerKind> = Vec::new();
     for c in a.controllers {
         if controllers
             .iter()
@@ -319,7 +319,7 @@ pub(crate) fn run(a: SweepArgs) -> Result<(), CliError> {
     if let Some(f) = a.formulation {
         if !controllers
             .iter()
-            .any(|c| matches!(c, ControllerArg::Msnmpc))
+            .any(|c| matches!(c, ControllerKind::Msnmpc))
         {
             return Err(CliError::Usage(format!(
                 "--formulation {} applies to msnmpc, which --controllers does not list",

@@ -31,7 +31,8 @@
 //!
 //! [`sim`] simulates the coupled human-robot system under the paper's uncertainties (payload,
 //! mass perturbation, disturbance, sensor noise and filtering) and computes the paper's
-//! metrics; [`config`] holds the scenario, whose [`Default`] is the paper's simulation study.
+//! metrics; [`config`] holds the scenario, whose [`Default`] is the paper's simulation study;
+//! [`scenario`] builds controllers and plants from it and runs experiments.
 //!
 //! # One control step
 //!
@@ -70,7 +71,9 @@
 //!
 //! From the bottom up: [`model`] (the dynamics) and [`solver`] (the optimiser), [`estimate`]
 //! (the EKF bank), [`control`] (the controllers and the safety supervisor), [`sim`] (the
-//! simulated plant and closed loop) and [`config`] (the scenario). The most used items are
+//! simulated plant and closed loop), [`runtime`] (the real-time loop), [`config`] (the
+//! scenario description) and [`scenario`] (builders, the controller registry, experiments).
+//! Imports run only from a later module to an earlier one. The most used items are
 //! re-exported at the crate root; their module paths work as well.
 #![warn(missing_docs)]
 

@@ -2,6 +2,7 @@
 //! simulation study from a [`Scenario`](crate::config::Scenario): the 2-DOF swing ([`TwoDof`])
 //! or the 1-DOF knee ([`OneDof`], hip locked) variant.
 
+use super::registry::{controller_info, Builder, ControllerInfo};
 use super::RunError;
 use crate::config::{self, ControllerKind, Method, MonitorResponse, Scenario};
 use crate::control::{
@@ -50,8 +51,8 @@ pub trait Dof<const N: usize> {
     fn straps(s: &Scenario) -> Straps<N>;
     /// The human's desired trajectory.
     fn trajectory(s: &Scenario) -> Self::Traj;
-    /// Builds the multi-stage controller (needs the EKF's augmented dimensions).
-    fn multistage(s: &Scenario, t0: SVector<f64, N>) -> Result<Box<dyn Controller<N>>, RunError>;
+    /// The builder of controller `c` for this layout (see [`CONTROLLERS`](super::CONTROLLERS)).
+    fn builder(c: &ControllerInfo) -> Builder<N>;
 }
 
 /// The 2-DOF hip-knee experiment (paper §4.1, MODEL.md §6).
@@ -94,8 +95,8 @@ impl Dof<2> for TwoDof {
             knee_phase: t.knee_phase,
         }
     }
-    fn multistage(s: &Scenario, t0: SVector<f64, 2>) -> Result<Box<dyn Controller<2>>, RunError> {
-        build_multistage::<Self, 2, 6, 4>(s, t0)
+    fn builder(c: &ControllerInfo) -> Builder<2> {
+        c.build_2dof
     }
 }
 
@@ -116,8 +117,8 @@ impl Dof<1> for OneDof {
             frequency_hz: s.trajectory.one_dof_frequency_hz,
         }
     }
-    fn multistage(s: &Scenario, t0: SVector<f64, 1>) -> Result<Box<dyn Controller<1>>, RunError> {
-        build_multistage::<Self, 1, 3, 2>(s, t0)
+    fn builder(c: &ControllerInfo) -> Builder<1> {
+        c.build_1dof
     }
 }
 
@@ -234,30 +235,43 @@ pub fn initial_torque<D: Dof<N>, const N: usize>(s: &Scenario) -> SVector<f64, N
     scenario_robot::<D, N>(s, 0.0).chain.gravity_torque(&q0)
 }
 
-/// The controller `kind` for scenario `s`.
+/// The controller `kind` for scenario `s`, built by its [`CONTROLLERS`](super::CONTROLLERS)
+/// entry.
 pub fn build_controller<D: Dof<N>, const N: usize>(
     s: &Scenario,
     kind: ControllerKind,
 ) -> Result<Box<dyn Controller<N>>, RunError> {
     let t0 = initial_torque::<D, N>(s);
-    Ok(match kind {
-        ControllerKind::Pd => Box::new(PdController::new(
-            scenario_robot::<D, N>(s, 0.0),
-            intent(s),
-            limits(s),
-            s.controller.pd.kp,
-            s.controller.pd.kd,
-            t0,
-        )),
-        ControllerKind::Nmpc => Box::new(Nmpc::new(
-            prediction_model::<D, N>(s, 0.0),
-            &nmpc_settings(s),
-            intent(s),
-            limits(s),
-            t0,
-        )?),
-        ControllerKind::Msnmpc => D::multistage(s, t0)?,
-    })
+    D::builder(controller_info(kind))(s, t0)
+}
+
+/// The PD baseline of scenario `s` (`[controller.pd]` gains), previous torque `t0`.
+pub fn build_pd<D: Dof<N>, const N: usize>(
+    s: &Scenario,
+    t0: SVector<f64, N>,
+) -> Result<Box<dyn Controller<N>>, RunError> {
+    Ok(Box::new(PdController::new(
+        scenario_robot::<D, N>(s, 0.0),
+        intent(s),
+        limits(s),
+        s.controller.pd.kp,
+        s.controller.pd.kd,
+        t0,
+    )))
+}
+
+/// The plain NMPC of scenario `s` on the nominal (0 kg) model, previous torque `t0`.
+pub fn build_nmpc<D: Dof<N>, const N: usize>(
+    s: &Scenario,
+    t0: SVector<f64, N>,
+) -> Result<Box<dyn Controller<N>>, RunError> {
+    Ok(Box::new(Nmpc::new(
+        prediction_model::<D, N>(s, 0.0),
+        &nmpc_settings(s),
+        intent(s),
+        limits(s),
+        t0,
+    )?))
 }
 
 /// The transparent fallback controller of scenario `s` (the supervisor's `fallback` response):

@@ -7,13 +7,15 @@
 
 mod build;
 pub mod multistage;
+mod registry;
 mod run;
 
 pub use build::{
-    build_controller, build_multistage, build_supervised, fallback, initial_torque, intent, limits,
-    nmpc_settings, plant_params, prediction_model, scenario_robot, uncertainty, Dof, OneDof,
-    TwoDof,
+    build_controller, build_multistage, build_nmpc, build_pd, build_supervised, fallback,
+    initial_torque, intent, limits, nmpc_settings, plant_params, prediction_model, scenario_robot,
+    uncertainty, Dof, OneDof, TwoDof,
 };
+pub use registry::{controller_by_name, controller_info, Builder, ControllerInfo, CONTROLLERS};
 pub use run::{
     run_experiment, run_experiment_report, run_soak, soak_scenario, RunError, SoakReport,
 };
