@@ -7,6 +7,7 @@ pub mod config_help;
 pub mod earlier;
 pub mod envelope;
 pub mod error;
+pub mod explain;
 pub mod interrupt;
 pub mod io;
 pub mod layout;

@@ -151,7 +151,7 @@ struct ConfigArgs {
 /// explain a key with `--explain KEY`.
 fn cmd_config(a: &ConfigArgs) -> Result<(), CliError> {
     if let Some(key) = &a.explain {
-        let text = exompc_cli::config_help::explain_text(key).map_err(CliError::Usage)?;
+        let text = exompc_cli::explain::explain_text(key).map_err(CliError::Usage)?;
         print!("{text}");
         return Ok(());
     }
