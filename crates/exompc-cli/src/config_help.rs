@@ -128,6 +128,23 @@ pub fn comment_scenario_toml(toml: &str) -> String {
             comment(out, "controller.sqp.max_time_us");
             out.push_str("# max_time_us = 5000\n");
         }
+        if table == "multistage" && !toml.contains("[[multistage.scenarios]]") {
+            out.push_str(
+                "# Named scenarios instead of the payload list (leave payloads_kg out; one \
+                 [[multistage.scenarios]] table each, docs/SCENARIOS.md):\n",
+            );
+            out.push_str("# [[multistage.scenarios]]\n");
+            for (key, example) in [
+                ("name", "\"soft straps\""),
+                ("payload_kg", "1.0"),
+                ("straps.stiffness", "600.0"),
+                ("robot.shank.mass_kg", "2.0"),
+            ] {
+                if let Some(doc) = exompc::config::explain(&format!("multistage.scenarios.{key}")) {
+                    out.push_str(&format!("# {key} = {example}    # {}\n", doc.comment()));
+                }
+            }
+        }
         if table == "faults" && toml.contains("events = []") {
             out.push_str(
                 "# An event (replace `events = []` above by one [[faults.events]] table per event):\n",

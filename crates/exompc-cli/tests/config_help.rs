@@ -133,6 +133,25 @@ fn full_tree() -> toml::Table {
     }
 }
 
+/// [`full_tree`] with one `[[multistage.scenarios]]` table holding every key of a scenario
+/// override (set to the base values), so that the scenario keys can be walked and probed.
+fn scenario_tree() -> toml::Table {
+    let mut t = full_tree();
+    let spec = toml::Value::try_from(exompc::config::scenarios::ScenarioSpec::every_key()).unwrap();
+    let ms = t.get_mut("multistage").unwrap().as_table_mut().unwrap();
+    ms.insert("scenarios".into(), toml::Value::Array(vec![spec]));
+    t
+}
+
+/// The tree a key is probed in: [`scenario_tree`] for the scenario-override keys.
+fn tree_for(path: &str) -> toml::Table {
+    if path.starts_with("multistage.scenarios") {
+        scenario_tree()
+    } else {
+        full_tree()
+    }
+}
+
 /// Dotted paths of every table and key of `t`; the keys of an array of tables are
 /// `<array>.<key>`.
 fn walk(t: &toml::Table, prefix: &str, out: &mut BTreeSet<String>) {
@@ -158,7 +177,7 @@ fn walk(t: &toml::Table, prefix: &str, out: &mut BTreeSet<String>) {
 #[test]
 fn every_key_is_explained_and_every_explanation_names_a_key() {
     let mut keys = BTreeSet::new();
-    walk(&full_tree(), "", &mut keys);
+    walk(&scenario_tree(), "", &mut keys);
     assert!(keys.len() > 120, "{}", keys.len());
     let missing: Vec<&String> = keys.iter().filter(|k| explain(k).is_none()).collect();
     assert!(
@@ -213,6 +232,9 @@ fn set(tree: &mut toml::Table, path: &str, v: toml::Value) {
 fn get(tree: &toml::Table, path: &str) -> toml::Value {
     let mut node = toml::Value::Table(tree.clone());
     for p in path.split('.') {
+        if let toml::Value::Array(a) = &node {
+            node = a[0].clone();
+        }
         node = node.get(p).unwrap().clone();
     }
     node
@@ -221,13 +243,15 @@ fn get(tree: &toml::Table, path: &str) -> toml::Value {
 /// `Ok(())` when the scenario with `path = v` is valid as far as `path` goes (a rule about
 /// another key may still fail); `Err(message)` when `path` itself is rejected.
 fn probe(path: &str, v: toml::Value) -> Result<(), String> {
-    let mut tree = full_tree();
+    let mut tree = tree_for(path);
     set(&mut tree, path, v);
     let s: Scenario = toml::Value::Table(tree)
         .try_into()
         .map_err(|e: toml::de::Error| e.message().to_string())?;
     // `faults.events.start_s` is reported as `faults.events[0].start_s`.
-    let reported = path.replacen("faults.events.", "faults.events[0].", 1);
+    let reported = path
+        .replacen("faults.events.", "faults.events[0].", 1)
+        .replacen("multistage.scenarios.", "multistage.scenarios[0].", 1);
     match s.validate() {
         Err(e) if e.field == reported || e.field.starts_with(&format!("{reported}[")) => {
             Err(e.to_string())
@@ -252,7 +276,6 @@ fn limit(tree: &toml::Table, l: Limit) -> f64 {
 /// the list is serde's own.
 #[test]
 fn documented_ranges_agree_with_validation() {
-    let tree = full_tree();
     let f = toml::Value::Float;
     let beyond = |v: f64, up: bool| {
         let d = (v.abs() * 1e-6).max(1e-9);
@@ -264,6 +287,7 @@ fn documented_ranges_agree_with_validation() {
     };
     for d in KEYS {
         let p = d.path;
+        let tree = tree_for(p);
         match d.allowed {
             Allowed::Real { lo, hi } => {
                 assert!(probe(p, f(f64::NAN)).is_err(), "{p}: NaN accepted");
@@ -337,6 +361,17 @@ fn documented_ranges_agree_with_validation() {
                     .step_by(2)
                     .collect();
                 assert_eq!(listed, words.iter().copied().collect(), "{p}: {e}");
+            }
+            Allowed::Name(n) => {
+                let text = |t: &str| toml::Value::String(t.to_string());
+                assert!(probe(p, text("a name")).is_ok(), "{p} = a name");
+                assert!(
+                    probe(p, text(&"x".repeat(n))).is_ok(),
+                    "{p}: {n} characters"
+                );
+                for bad in ["", " lead", "a,b", "q\"t", &"x".repeat(n + 1)] {
+                    assert!(probe(p, text(bad)).is_err(), "{p} = {bad:?} accepted");
+                }
             }
             Allowed::Bool => {
                 for b in [true, false] {

@@ -7,7 +7,7 @@
 //!
 //! [`Scenario::validate`]: super::Scenario::validate
 
-use super::{MAX_CONTROL_STEPS, MAX_PAYLOAD_KG, MAX_SCENARIOS};
+use super::{scenarios, MAX_CONTROL_STEPS, MAX_PAYLOAD_KG, MAX_SCENARIOS};
 use std::fmt::Write as _;
 
 /// One end of an allowed real or integer range: a number or another key's value.
@@ -76,6 +76,9 @@ pub enum Allowed {
     Choice(&'static [&'static str]),
     /// `true` or `false`.
     Bool,
+    /// A name (a TOML string): non-empty, at most this many characters, no commas, quotes or
+    /// control characters, no leading or trailing space, unique among its tables.
+    Name(usize),
 }
 
 impl Allowed {
@@ -128,6 +131,9 @@ impl Allowed {
                 }
             }
             Allowed::Bool => "true or false".into(),
+            Allowed::Name(n) => format!(
+                "a unique name of 1 to {n} characters, without commas, quotes or leading/trailing spaces"
+            ),
         }
     }
 
@@ -276,6 +282,7 @@ const ROB: &str = "docs/ROBUSTNESS-controller.md, Settings";
 const REL1: &str = "docs/RELIABILITY.md §1";
 const REL2: &str = "docs/RELIABILITY.md §2";
 const PERF: &str = "docs/PERFORMANCE.md";
+const M8S: &str = "docs/SCENARIOS.md, docs/MODEL.md §8";
 
 /// Every key and table of a scenario file, in file order.
 pub const KEYS: &[KeyDoc] = &[
@@ -389,6 +396,29 @@ pub const KEYS: &[KeyDoc] = &[
     k("multistage.robust_horizon", "steps", Allowed::Int { lo: 1, hi: Limit::Key("controller.nc") }, M8X, "Leading control moves shared by all scenarios (coupled formulation)."),
     k("multistage.parallel", "", Allowed::Bool, PERF, "Solve the scenarios in parallel threads."),
     k("multistage.innovation", "", Allowed::Choice(&["standard", "paper"]), M8X, "EKF innovation used for the probabilities: the standard one or the paper's."),
+    table("multistage.scenarios", M8S, "Named scenarios, each a [[multistage.scenarios]] table overriding parts of [robot] and [straps]; they replace payloads_kg. None by default."),
+    k("multistage.scenarios.name", "", Allowed::Name(scenarios::MAX_NAME_LEN), M8S, "Name of the scenario in trace columns, legends and summaries."),
+    k("multistage.scenarios.payload_kg", "kg", real(closed(0.0), Some(End { at: Limit::Num(MAX_PAYLOAD_KG), inclusive: true })), M8S, "Payload the scenario's robot model carries at robot.payload_position_m; absent: 0."),
+    table("multistage.scenarios.robot", M8S, "Override of [robot] in this scenario's model; absent keys keep the base values."),
+    k("multistage.scenarios.robot.viscous_friction", "N·m·s", NONNEG, M8S, "Viscous friction kf1 of this scenario's model."),
+    k("multistage.scenarios.robot.coulomb_friction", "N·m", NONNEG, M8S, "Coulomb friction kf2 of this scenario's model."),
+    k("multistage.scenarios.robot.coulomb_smoothing", "rad/s", POS, M8S, "Coulomb smoothing width of this scenario's model."),
+    k("multistage.scenarios.robot.payload_position_m", "m", real(closed(0.0), key_closed("multistage.scenarios.robot.shank.length_m")), M8S, "Payload position on the shank in this scenario's model."),
+    table("multistage.scenarios.robot.thigh", M8S, "Override of [robot.thigh] in this scenario's model."),
+    k("multistage.scenarios.robot.thigh.length_m", "m", POS, M8S, "Thigh link length of this scenario's model."),
+    k("multistage.scenarios.robot.thigh.mass_kg", "kg", POS, M8S, "Thigh link mass of this scenario's model."),
+    k("multistage.scenarios.robot.thigh.com_m", "m", real(closed(0.0), key_closed("multistage.scenarios.robot.thigh.length_m")), M8S, "Thigh COM distance from the hip in this scenario's model."),
+    k("multistage.scenarios.robot.thigh.inertia_kgm2", "kg·m²", POS, M8S, "Thigh inertia about its COM in this scenario's model."),
+    table("multistage.scenarios.robot.shank", M8S, "Override of [robot.shank] in this scenario's model."),
+    k("multistage.scenarios.robot.shank.length_m", "m", POS, M8S, "Shank link length of this scenario's model."),
+    k("multistage.scenarios.robot.shank.mass_kg", "kg", POS, M8S, "Shank link mass of this scenario's model."),
+    k("multistage.scenarios.robot.shank.com_m", "m", real(closed(0.0), key_closed("multistage.scenarios.robot.shank.length_m")), M8S, "Shank COM distance from the knee in this scenario's model."),
+    k("multistage.scenarios.robot.shank.inertia_kgm2", "kg·m²", POS, M8S, "Shank inertia about its COM in this scenario's model."),
+    table("multistage.scenarios.straps", M8S, "Override of [straps] in this scenario's model."),
+    k("multistage.scenarios.straps.ls1_m", "m", real(open(0.0), key_closed("multistage.scenarios.robot.thigh.length_m")), M8S, "Thigh strap distance from the hip in this scenario's model."),
+    k("multistage.scenarios.straps.ls2_m", "m", real(open(0.0), key_closed("multistage.scenarios.robot.shank.length_m")), M8S, "Shank strap distance from the knee in this scenario's model."),
+    k("multistage.scenarios.straps.stiffness", "N/m", POS, M8S, "Strap stiffness of this scenario's model."),
+    k("multistage.scenarios.straps.damping", "N·s/m", NONNEG, M8S, "Strap damping of this scenario's model."),
     // [ekf]
     table("ekf", M8, "Covariances of each scenario's EKF on [q, qd, d]."),
     k("ekf.q_angle", "rad²", POS, M8, "Process noise variance of each joint angle per step."),
