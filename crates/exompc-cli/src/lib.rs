@@ -5,6 +5,7 @@
 
 pub mod envelope;
 pub mod error;
+pub mod gait;
 pub mod interrupt;
 pub mod io;
 pub mod run;

@@ -6,6 +6,7 @@
 
 mod bench;
 mod envelope_cmd;
+mod gait_cmd;
 mod model_cmd;
 mod plot;
 mod realtime;
@@ -77,6 +78,9 @@ enum Command {
     /// run (stable / limit cycle / growing / saturating), judge MS-NMPC against NMPC per cell,
     /// write envelope.json, envelope.md and a heat map (see docs/ROBUSTNESS.md).
     Envelope(EnvelopeArgs),
+    /// Recorded gaits: `exompc gait export --out F.csv` samples the desired motion to a CSV
+    /// that `[trajectory] kind = "recorded"` or `--gait F.csv` replays (see README).
+    Gait(gait_cmd::GaitArgs),
 }
 
 /// `--config FILE`, shared by the subcommands that run a scenario.
@@ -85,12 +89,20 @@ pub(crate) struct ConfigOpt {
     /// Scenario TOML file applied on top of the default scenario (see `exompc config`).
     #[arg(long, value_name = "FILE")]
     pub(crate) config: Option<PathBuf>,
+    /// Replay a recorded gait: CSV of time and joint angles (t_s,hip_rad,knee_rad or _deg
+    /// columns) as the human's desired motion; sets [trajectory] kind = "recorded", file = FILE.
+    #[arg(long, value_name = "FILE.csv")]
+    pub(crate) gait: Option<PathBuf>,
 }
 
 impl ConfigOpt {
     /// Loads and validates the scenario named by `--config` (the default when absent).
     pub(crate) fn load(&self) -> Result<Scenario, CliError> {
-        io::load_scenario(self.config.as_deref())
+        let mut s = io::load_scenario(self.config.as_deref())?;
+        if let Some(g) = &self.gait {
+            exompc_cli::gait::use_gait(&mut s, g)?;
+        }
+        Ok(s)
     }
 }
 
@@ -127,6 +139,7 @@ fn run(cli: Cli) -> Result<(), CliError> {
         Command::Run(a) => realtime::run(a),
         Command::VirtualRobot(a) => realtime::virtual_robot(a),
         Command::Envelope(a) => envelope_cmd::run(a),
+        Command::Gait(a) => gait_cmd::run(a),
     }
 }
 

@@ -3,6 +3,7 @@
 //! ([`OneDof`], hip locked) variant.
 
 use super::closed_loop::{run_closed_loop, Recorder, StepRecord};
+use super::gait::GaitTrajectory;
 use super::human::HumanLeg;
 use super::metrics::{Metrics, Summary};
 use super::plant::{robot_model, Plant, PlantParams};
@@ -90,7 +91,7 @@ pub struct TwoDof;
 pub struct OneDof;
 
 impl Dof<2> for TwoDof {
-    type Traj = SwingTrajectory;
+    type Traj = GaitTrajectory<SwingTrajectory, 2>;
     fn robot_links(s: &Scenario) -> [Link; 2] {
         [link(&s.robot.thigh), link(&s.robot.shank)]
     }
@@ -105,21 +106,8 @@ impl Dof<2> for TwoDof {
             s.straps.damping,
         )
     }
-    fn trajectory(s: &Scenario) -> SwingTrajectory {
-        let t = &s.trajectory;
-        SwingTrajectory {
-            base_frequency_hz: t.base_frequency_hz,
-            frequency_swing_hz: t.frequency_swing_hz,
-            frequency_period_s: t.frequency_period_s,
-            hip_offset: t.hip_offset,
-            hip_amplitude: t.hip_amplitude,
-            hip_amplitude_swing: t.hip_amplitude_swing,
-            hip_amplitude_period_s: t.hip_amplitude_period_s,
-            knee_amplitude: t.knee_amplitude,
-            knee_amplitude_swing: t.knee_amplitude_swing,
-            knee_amplitude_period_s: t.knee_amplitude_period_s,
-            knee_phase: t.knee_phase,
-        }
+    fn trajectory(s: &Scenario) -> GaitTrajectory<SwingTrajectory, 2> {
+        s.trajectory.two_dof()
     }
     fn multistage(s: &Scenario, t0: SVector<f64, 2>) -> Result<Box<dyn Controller<2>>, RunError> {
         crate::control::build_multistage::<Self, 2, 6, 4>(s, t0)
@@ -127,7 +115,7 @@ impl Dof<2> for TwoDof {
 }
 
 impl Dof<1> for OneDof {
-    type Traj = KneeTrajectory;
+    type Traj = GaitTrajectory<KneeTrajectory, 1>;
     fn robot_links(s: &Scenario) -> [Link; 1] {
         [link(&s.robot.shank)]
     }
@@ -137,11 +125,8 @@ impl Dof<1> for OneDof {
     fn straps(s: &Scenario) -> Straps<1> {
         Straps::one_dof(s.straps.ls2_m, s.straps.stiffness, s.straps.damping)
     }
-    fn trajectory(s: &Scenario) -> KneeTrajectory {
-        KneeTrajectory {
-            amplitude: s.trajectory.one_dof_amplitude,
-            frequency_hz: s.trajectory.one_dof_frequency_hz,
-        }
+    fn trajectory(s: &Scenario) -> GaitTrajectory<KneeTrajectory, 1> {
+        s.trajectory.one_dof()
     }
     fn multistage(s: &Scenario, t0: SVector<f64, 1>) -> Result<Box<dyn Controller<1>>, RunError> {
         crate::control::build_multistage::<Self, 1, 3, 2>(s, t0)
@@ -336,6 +321,7 @@ pub fn run_experiment_report<D: Dof<N>, const N: usize>(
     recorders: &mut [&mut dyn Recorder<N>],
 ) -> Result<(Summary, SafetyReport), RunError> {
     s.validate()?;
+    s.check_trajectory(D::DOF)?;
     let mut controller = build_supervised::<D, N>(s, s.controller.kind)?;
     let mut plant = Plant::new(plant_params::<D, N>(s), D::trajectory(s));
     let mut sensors =
