@@ -18,17 +18,26 @@ pub(crate) struct ConfigOpt {
     /// Scenario TOML file applied on top of the default scenario (see `exompc config`).
     #[arg(long, value_name = "FILE")]
     pub(crate) config: Option<PathBuf>,
+    /// Replay a recorded gait: CSV of time and joint angles (t_s,hip_rad,knee_rad or _deg
+    /// columns) as the human's desired motion; sets [trajectory] kind = "recorded", file = FILE.
+    #[arg(long, value_name = "FILE.csv")]
+    pub(crate) gait: Option<PathBuf>,
 }
 
 impl ConfigOpt {
-    /// Loads and validates the scenario named by `--config` (the default when absent).
+    /// Loads and validates the scenario named by `--config` (the default when absent), with
+    /// the recorded gait of `--gait`.
     pub(crate) fn load(&self) -> Result<Scenario, CliError> {
-        io::load_scenario(self.config.as_deref())
+        self.load_with_origins().map(|(s, _)| s)
     }
 
     /// [`ConfigOpt::load`], also returning which keys the file set.
     pub(crate) fn load_with_origins(&self) -> Result<(Scenario, KeyOrigins), CliError> {
-        io::load_scenario_with_origins(self.config.as_deref())
+        let (mut s, origins) = io::load_scenario_with_origins(self.config.as_deref())?;
+        if let Some(g) = &self.gait {
+            exompc_cli::gait::use_gait(&mut s, g)?;
+        }
+        Ok((s, origins))
     }
 }
 

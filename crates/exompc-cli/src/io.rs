@@ -52,23 +52,39 @@ pub fn load_scenario_with_origins(path: Option<&Path>) -> Result<(Scenario, KeyO
     let shown = path.display();
     let text = fs::read_to_string(path)
         .map_err(|e| CliError::Config(format!("cannot read config file {shown}: {e}")))?;
-    parse_scenario_with_origins(&text)
+    let base = path.parent().unwrap_or(Path::new(""));
+    parse_scenario_with_origins_in(&text, base)
         .map_err(|m| CliError::Config(format!("config file {shown}: {m}")))
 }
 
-/// Parses and validates a scenario from TOML text; the error is a one-line message.
+/// Parses and validates a scenario from TOML text; the error is a one-line message. A recorded
+/// gait (`[trajectory] file`) is read relative to the working directory.
 pub fn parse_scenario(text: &str) -> Result<Scenario, String> {
     parse_scenario_with_origins(text).map(|(s, _)| s)
+}
+
+/// [`parse_scenario`], reading a recorded gait relative to the folder `base`.
+pub fn parse_scenario_in(text: &str, base: &Path) -> Result<Scenario, String> {
+    parse_scenario_with_origins_in(text, base).map(|(s, _)| s)
 }
 
 /// [`parse_scenario`], also returning which keys the text set. A cross-field error names the
 /// key the file set and the one it conflicts with (see [`describe_error`]).
 pub fn parse_scenario_with_origins(text: &str) -> Result<(Scenario, KeyOrigins), String> {
+    parse_scenario_with_origins_in(text, Path::new(""))
+}
+
+/// [`parse_scenario_with_origins`], reading a recorded gait relative to the folder `base`.
+pub fn parse_scenario_with_origins_in(
+    text: &str,
+    base: &Path,
+) -> Result<(Scenario, KeyOrigins), String> {
     let table: toml::Table =
         toml::from_str(text).map_err(|e| describe_toml_error(text, &e, "TOML syntax error"))?;
     check_keys(&table, &schema(), "")?;
-    let scenario: Scenario =
+    let mut scenario: Scenario =
         toml::from_str(text).map_err(|e| describe_toml_error(text, &e, "invalid scenario"))?;
+    crate::gait::attach_recording(&mut scenario, base).map_err(|e| e.to_string())?;
     let origins = KeyOrigins::of_file(&table);
     scenario
         .validate()
@@ -125,9 +141,16 @@ pub fn set_key(s: &Scenario, key: &str, value: toml::Value) -> Result<Scenario, 
         };
     }
     node.insert((*last).to_string(), value);
-    let scenario: Scenario = toml::Value::Table(tree)
+    let mut scenario: Scenario = toml::Value::Table(tree)
         .try_into()
         .map_err(|e: toml::de::Error| format!("invalid value for {key}: {}", e.message().trim()))?;
+    // The loaded recording is not part of the TOML: keep it, or load a newly named file
+    // (relative to the working directory).
+    if scenario.trajectory.file == s.trajectory.file {
+        scenario.trajectory.recording = s.trajectory.recording.clone();
+    } else {
+        crate::gait::attach_recording(&mut scenario, Path::new("")).map_err(|e| e.to_string())?;
+    }
     let origins = KeyOrigins {
         file: [key.trim().to_string()].into(),
         flags: Vec::new(),
@@ -177,6 +200,7 @@ pub fn get_key(s: &Scenario, key: &str) -> Result<Option<toml::Value>, String> {
 fn schema() -> toml::Table {
     let mut s = Scenario::default();
     s.controller.sqp.max_time_us = Some(1);
+    s.trajectory.file = Some(PathBuf::from("gait.csv"));
     s.faults.events.push(FaultEvent {
         kind: FaultKind::Spike,
         channel: Channel::F1,

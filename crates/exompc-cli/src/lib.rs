@@ -8,6 +8,7 @@ pub mod earlier;
 pub mod envelope;
 pub mod error;
 pub mod explain;
+pub mod gait;
 pub mod interrupt;
 pub mod io;
 pub mod layout;

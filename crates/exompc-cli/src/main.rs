@@ -5,6 +5,7 @@
 mod args;
 mod bench;
 mod envelope_cmd;
+mod gait_cmd;
 mod model_cmd;
 mod plot;
 mod plot_cmd;
@@ -98,6 +99,9 @@ enum Command {
     /// run (stable / limit cycle / growing / saturating), judge MS-NMPC against NMPC per cell,
     /// write envelope.json, envelope.md and a heat map (see docs/ROBUSTNESS.md).
     Envelope(EnvelopeArgs),
+    /// Recorded gaits: `exompc gait export --out F.csv` samples the desired motion to a CSV
+    /// that `[trajectory] kind = "recorded"` or `--gait F.csv` replays (see README).
+    Gait(gait_cmd::GaitArgs),
 }
 
 fn main() -> ExitCode {
@@ -133,6 +137,7 @@ fn run(cli: Cli) -> Result<(), CliError> {
         Command::Run(a) => realtime::run(a),
         Command::VirtualRobot(a) => realtime::virtual_robot(a),
         Command::Envelope(a) => envelope_cmd::run(a),
+        Command::Gait(a) => gait_cmd::run(a),
     }
 }
 

@@ -535,6 +535,8 @@ fn robot_dof<D: Dof<N>, const N: usize>(
         Some(ms) => secs("command-wait-ms", ms * 1e-3, 0.0, dt)?,
         None => Duration::from_secs_f64(0.8 * dt),
     };
+    s.check_trajectory(D::DOF)
+        .map_err(|e| CliError::Config(e.to_string()))?;
     let plant = Plant::new(plant_params::<D, N>(s), D::trajectory(s));
     let sensors = Sensors::new(uncertainty(s), s.uncertainty.filter_window).with_faults(&s.faults);
     let mut robot = VirtualRobot::new(plant, sensors, limits(s), dt, a.watchdog_periods);

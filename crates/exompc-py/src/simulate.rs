@@ -4,8 +4,8 @@ use crate::convert::{array, status_code, vector};
 use crate::scenario::PyScenario;
 use crate::{ConfigError, RunError};
 use exompc::config::Scenario;
-use exompc::sim::{KneeTrajectory, Plant, Recorder, Sensors, StepRecord, Summary, SwingTrajectory, Trajectory};
 use exompc::scenario::{plant_params, run_experiment, uncertainty, Dof, OneDof, TwoDof};
+use exompc::sim::{Plant, Recorder, Sensors, StepRecord, Summary, Trajectory};
 use exompc_cli::io::{parse_value, set_key};
 use numpy::{PyArray1, PyArrayMethods};
 use pyo3::prelude::*;
@@ -269,8 +269,8 @@ pub fn run_many<'py>(
 /// The plant and sensors of one layout (one lives per `Simulator`; the size gap is harmless).
 #[allow(clippy::large_enum_variant)]
 enum Loop {
-    One(Plant<1, KneeTrajectory>, Sensors<1>),
-    Two(Plant<2, SwingTrajectory>, Sensors<2>),
+    One(Plant<1, <OneDof as Dof<1>>::Traj>, Sensors<1>),
+    Two(Plant<2, <TwoDof as Dof<2>>::Traj>, Sensors<2>),
 }
 
 /// `(t, q, qd, force)` as returned by `Simulator.measure`.

@@ -139,8 +139,6 @@ enum R {
     OpenClosed(f64, f64),
     /// `(a, b)`.
     Open(f64, f64),
-    /// `[a, b)`.
-    ClosedOpen(f64, f64),
 }
 
 impl R {
@@ -153,7 +151,6 @@ impl R {
                 R::Closed(a, b) => a <= v && v <= b,
                 R::OpenClosed(a, b) => a < v && v <= b,
                 R::Open(a, b) => a < v && v < b,
-                R::ClosedOpen(a, b) => a <= v && v < b,
             }
     }
 
@@ -165,7 +162,6 @@ impl R {
             R::Closed(a, b) => format!("finite, in [{a}, {b}]"),
             R::OpenClosed(a, b) => format!("finite, in ({a}, {b}]"),
             R::Open(a, b) => format!("finite, in ({a}, {b})"),
-            R::ClosedOpen(a, b) => format!("finite, in [{a}, {b})"),
         }
     }
 }
@@ -556,61 +552,14 @@ impl Default for Uncertainty {
 // [trajectory]
 // ---------------------------------------------------------------------------------------------
 
-/// `[trajectory]`: the human's desired trajectory (MODEL.md §6).
-///
-/// 2-DOF: `f(t) = base + swing sin(2 pi t / period)`, `a_h(t) = hip_amplitude +
-/// hip_amplitude_swing sin(2 pi t / hip_amplitude_period_s)`, likewise `a_k`,
-/// `q_d1 = hip_offset + a_h sin(phi)`, `q_d2 = -a_k (1 - cos(phi - knee_phase)) / 2`.
-/// 1-DOF: `q_d2(t) = -one_dof_amplitude (1 - cos(2 pi one_dof_frequency_hz t))`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Trajectory {
-    /// Mean gait frequency (Hz), > 0. Default 0.8.
-    pub base_frequency_hz: f64,
-    /// Frequency swing amplitude (Hz), in [0, base_frequency_hz). Default 0.2.
-    pub frequency_swing_hz: f64,
-    /// Period of the frequency variation (s), > 0. Default 15.
-    pub frequency_period_s: f64,
-    /// Hip angle offset (rad), finite. Default 0.10.
-    pub hip_offset: f64,
-    /// Mean hip amplitude (rad), >= 0. Default 0.30.
-    pub hip_amplitude: f64,
-    /// Hip amplitude swing (rad), >= 0. Default 0.05.
-    pub hip_amplitude_swing: f64,
-    /// Period of the hip amplitude variation (s), > 0. Default 10.
-    pub hip_amplitude_period_s: f64,
-    /// Mean knee amplitude (rad), >= 0. Default 1.00.
-    pub knee_amplitude: f64,
-    /// Knee amplitude swing (rad), >= 0. Default 0.15.
-    pub knee_amplitude_swing: f64,
-    /// Period of the knee amplitude variation (s), > 0. Default 7.
-    pub knee_amplitude_period_s: f64,
-    /// Knee phase lag relative to the hip (rad), finite. Default pi/3 = 1.0471975511965976.
-    pub knee_phase: f64,
-    /// 1-DOF knee amplitude (rad), >= 0. Default 0.6.
-    pub one_dof_amplitude: f64,
-    /// 1-DOF knee frequency (Hz), > 0. Default 0.5.
-    pub one_dof_frequency_hz: f64,
-}
+/// `[trajectory]`: the human's desired motion (MODEL.md §6), parametric or recorded; defined
+/// with its keys, ranges and `validate` in [`crate::sim::Gait`].
+pub use crate::sim::Gait as Trajectory;
+pub use crate::sim::GaitKind as TrajectoryKind;
 
-impl Default for Trajectory {
-    fn default() -> Self {
-        Self {
-            base_frequency_hz: 0.8,
-            frequency_swing_hz: 0.2,
-            frequency_period_s: 15.0,
-            hip_offset: 0.10,
-            hip_amplitude: 0.30,
-            hip_amplitude_swing: 0.05,
-            hip_amplitude_period_s: 10.0,
-            knee_amplitude: 1.00,
-            knee_amplitude_swing: 0.15,
-            knee_amplitude_period_s: 7.0,
-            knee_phase: std::f64::consts::PI / 3.0, // 1.0471975511965976, as in MODEL.md §6
-            one_dof_amplitude: 0.6,
-            one_dof_frequency_hz: 0.5,
-        }
-    }
+/// A `[trajectory]` error as a scenario error: the key gets its table path (`trajectory.`).
+fn in_trajectory(e: crate::sim::InvalidField) -> ConfigError {
+    ConfigError::new(format!("trajectory.{}", e.field), e.value, e.allowed)
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -935,42 +884,20 @@ impl Scenario {
         )?;
         int("uncertainty.filter_window", u.filter_window, 1, 100)?;
 
-        let t = &self.trajectory;
-        reals(
-            "trajectory",
-            &[("base_frequency_hz", t.base_frequency_hz, R::Pos)],
-        )?;
-        reals(
-            "trajectory",
-            &[
-                (
-                    "frequency_swing_hz",
-                    t.frequency_swing_hz,
-                    R::ClosedOpen(0.0, t.base_frequency_hz),
-                ),
-                ("frequency_period_s", t.frequency_period_s, R::Pos),
-                ("hip_offset", t.hip_offset, R::Any),
-                ("hip_amplitude", t.hip_amplitude, R::NonNeg),
-                ("hip_amplitude_swing", t.hip_amplitude_swing, R::NonNeg),
-                ("hip_amplitude_period_s", t.hip_amplitude_period_s, R::Pos),
-                ("knee_amplitude", t.knee_amplitude, R::NonNeg),
-                ("knee_amplitude_swing", t.knee_amplitude_swing, R::NonNeg),
-                ("knee_amplitude_period_s", t.knee_amplitude_period_s, R::Pos),
-                ("knee_phase", t.knee_phase, R::Any),
-                ("one_dof_amplitude", t.one_dof_amplitude, R::NonNeg),
-                ("one_dof_frequency_hz", t.one_dof_frequency_hz, R::Pos),
-            ],
-        )
-        .map_err(|e| {
-            let (swing, base) = (t.frequency_swing_hz, t.base_frequency_hz);
-            on_field(e, "trajectory.frequency_swing_hz", swing >= base, Other {
-                key: "trajectory.base_frequency_hz",
-                value: base.to_string(),
-                relation: "<",
-                reason: "the gait frequency base ± swing stays above 0",
-                fix: format!("set trajectory.frequency_swing_hz < {base} or raise trajectory.base_frequency_hz"),
-            })
-        })?;
+        let sw = &self.trajectory.swing;
+        let (swing, base) = (sw.frequency_swing_hz, sw.base_frequency_hz);
+        self.trajectory
+            .validate()
+            .map_err(in_trajectory)
+            .map_err(|e| {
+                on_field(e, "trajectory.frequency_swing_hz", swing >= base, Other {
+                    key: "trajectory.base_frequency_hz",
+                    value: base.to_string(),
+                    relation: "<",
+                    reason: "the gait frequency base ± swing stays above 0",
+                    fix: format!("set trajectory.frequency_swing_hz < {base} or raise trajectory.base_frequency_hz"),
+                })
+            })?;
 
         let tm = &self.timing;
         real("timing.dt", tm.dt, R::OpenClosed(0.0, 1.0))?;
@@ -1215,6 +1142,20 @@ impl Scenario {
         } else {
             self.timing.duration_2dof_s
         }
+    }
+
+    /// Checks that `[trajectory]` can drive the `dof`-DOF run of [`Scenario::duration_s`]
+    /// (a recording needs a hip column for 2 DOF and must last the run or loop; see
+    /// [`crate::sim::Gait::check_run`]).
+    pub fn check_trajectory(&self, dof: usize) -> Result<(), ConfigError> {
+        let key = if dof == 1 {
+            "timing.duration_1dof_s"
+        } else {
+            "timing.duration_2dof_s"
+        };
+        self.trajectory
+            .check_run(dof, self.duration_s(dof), key)
+            .map_err(in_trajectory)
     }
 
     /// Number of control steps N of the `dof`-DOF run, `round(duration / dt)` (MODEL.md §7, §8a).

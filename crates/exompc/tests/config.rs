@@ -64,7 +64,7 @@ fn default_matches_spec_values() {
     assert_eq!(s.uncertainty.noise_frequency, 100.0);
     assert_eq!(s.uncertainty.filter_window, 5);
     // MODEL.md §6
-    let t = &s.trajectory;
+    let t = &s.trajectory.swing;
     assert_eq!(
         (
             t.base_frequency_hz,
@@ -91,7 +91,8 @@ fn default_matches_spec_values() {
         (1.00, 0.15, 7.0)
     );
     assert_eq!(t.knee_phase, 1.0471975511965976);
-    assert_eq!((t.one_dof_amplitude, t.one_dof_frequency_hz), (0.6, 0.5));
+    let k = &s.trajectory.knee;
+    assert_eq!((k.amplitude, k.frequency_hz), (0.6, 0.5));
     // MODEL.md §7
     assert_eq!(s.timing.dt, 0.01);
     assert_eq!(
@@ -288,34 +289,34 @@ const RULES: &[(&str, Mutation)] = &[
         s.uncertainty.filter_window = 101
     }),
     ("trajectory.base_frequency_hz", |s| {
-        s.trajectory.base_frequency_hz = 0.0
+        s.trajectory.swing.base_frequency_hz = 0.0
     }),
     ("trajectory.frequency_swing_hz", |s| {
-        s.trajectory.frequency_swing_hz = 0.8
+        s.trajectory.swing.frequency_swing_hz = 0.8
     }),
     ("trajectory.frequency_period_s", |s| {
-        s.trajectory.frequency_period_s = 0.0
+        s.trajectory.swing.frequency_period_s = 0.0
     }),
     ("trajectory.hip_offset", |s| {
-        s.trajectory.hip_offset = f64::NAN
+        s.trajectory.swing.hip_offset = f64::NAN
     }),
     ("trajectory.hip_amplitude", |s| {
-        s.trajectory.hip_amplitude = -0.3
+        s.trajectory.swing.hip_amplitude = -0.3
     }),
     ("trajectory.knee_amplitude_swing", |s| {
-        s.trajectory.knee_amplitude_swing = -0.1
+        s.trajectory.swing.knee_amplitude_swing = -0.1
     }),
     ("trajectory.knee_amplitude_period_s", |s| {
-        s.trajectory.knee_amplitude_period_s = 0.0
+        s.trajectory.swing.knee_amplitude_period_s = 0.0
     }),
     ("trajectory.knee_phase", |s| {
-        s.trajectory.knee_phase = f64::INFINITY
+        s.trajectory.swing.knee_phase = f64::INFINITY
     }),
     ("trajectory.one_dof_amplitude", |s| {
-        s.trajectory.one_dof_amplitude = f64::NAN
+        s.trajectory.knee.amplitude = f64::NAN
     }),
     ("trajectory.one_dof_frequency_hz", |s| {
-        s.trajectory.one_dof_frequency_hz = -0.5
+        s.trajectory.knee.frequency_hz = -0.5
     }),
     ("timing.dt", |s| s.timing.dt = 0.0),
     ("timing.dt", |s| s.timing.dt = 2.0),
@@ -479,7 +480,7 @@ fn cross_field_rules_name_both_keys() {
         (
             "trajectory.frequency_swing_hz",
             "trajectory.base_frequency_hz",
-            |s| s.trajectory.base_frequency_hz = 0.2,
+            |s| s.trajectory.swing.base_frequency_hz = 0.2,
         ),
         ("timing.duration_2dof_s", "timing.dt", |s| {
             s.timing.duration_2dof_s = 0.005
@@ -518,7 +519,7 @@ fn cross_field_rules_name_both_keys() {
         |s| s.robot.thigh.com_m = -0.1,
         |s| s.controller.nc = 0,
         |s| s.multistage.probability_floor = 0.0,
-        |s| s.trajectory.frequency_swing_hz = -0.1,
+        |s| s.trajectory.swing.frequency_swing_hz = -0.1,
         |s| s.timing.duration_2dof_s = f64::NAN,
     ] {
         let mut s = Scenario::default();

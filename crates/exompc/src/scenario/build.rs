@@ -13,7 +13,8 @@ use crate::control::{
 use crate::estimate::EstimatorOptions;
 use crate::model::{Friction, Link, RobotModel, Straps, WinterFractions};
 use crate::sim::{
-    robot_model, HumanLeg, KneeTrajectory, PlantParams, SwingTrajectory, Trajectory, Uncertainty,
+    robot_model, GaitTrajectory, HumanLeg, KneeTrajectory, PlantParams, SwingTrajectory,
+    Trajectory, Uncertainty,
 };
 use crate::solver::SqpSettings;
 use nalgebra::SVector;
@@ -64,7 +65,7 @@ pub struct TwoDof;
 pub struct OneDof;
 
 impl Dof<2> for TwoDof {
-    type Traj = SwingTrajectory;
+    type Traj = GaitTrajectory<SwingTrajectory, 2>;
     fn robot_links(s: &Scenario) -> [Link; 2] {
         [link(&s.robot.thigh), link(&s.robot.shank)]
     }
@@ -79,21 +80,8 @@ impl Dof<2> for TwoDof {
             s.straps.damping,
         )
     }
-    fn trajectory(s: &Scenario) -> SwingTrajectory {
-        let t = &s.trajectory;
-        SwingTrajectory {
-            base_frequency_hz: t.base_frequency_hz,
-            frequency_swing_hz: t.frequency_swing_hz,
-            frequency_period_s: t.frequency_period_s,
-            hip_offset: t.hip_offset,
-            hip_amplitude: t.hip_amplitude,
-            hip_amplitude_swing: t.hip_amplitude_swing,
-            hip_amplitude_period_s: t.hip_amplitude_period_s,
-            knee_amplitude: t.knee_amplitude,
-            knee_amplitude_swing: t.knee_amplitude_swing,
-            knee_amplitude_period_s: t.knee_amplitude_period_s,
-            knee_phase: t.knee_phase,
-        }
+    fn trajectory(s: &Scenario) -> GaitTrajectory<SwingTrajectory, 2> {
+        s.trajectory.two_dof()
     }
     fn builder(c: &ControllerInfo) -> Builder<2> {
         c.build_2dof
@@ -101,7 +89,7 @@ impl Dof<2> for TwoDof {
 }
 
 impl Dof<1> for OneDof {
-    type Traj = KneeTrajectory;
+    type Traj = GaitTrajectory<KneeTrajectory, 1>;
     fn robot_links(s: &Scenario) -> [Link; 1] {
         [link(&s.robot.shank)]
     }
@@ -111,11 +99,8 @@ impl Dof<1> for OneDof {
     fn straps(s: &Scenario) -> Straps<1> {
         Straps::one_dof(s.straps.ls2_m, s.straps.stiffness, s.straps.damping)
     }
-    fn trajectory(s: &Scenario) -> KneeTrajectory {
-        KneeTrajectory {
-            amplitude: s.trajectory.one_dof_amplitude,
-            frequency_hz: s.trajectory.one_dof_frequency_hz,
-        }
+    fn trajectory(s: &Scenario) -> GaitTrajectory<KneeTrajectory, 1> {
+        s.trajectory.one_dof()
     }
     fn builder(c: &ControllerInfo) -> Builder<1> {
         c.build_1dof

@@ -77,6 +77,7 @@ pub fn run_experiment_report<D: Dof<N>, const N: usize>(
     recorders: &mut [&mut dyn Recorder<N>],
 ) -> Result<(Summary, SafetyReport), RunError> {
     s.validate()?;
+    s.check_trajectory(D::DOF)?;
     let mut controller = build_supervised::<D, N>(s, s.controller.kind)?;
     let mut plant = Plant::new(plant_params::<D, N>(s), D::trajectory(s));
     let mut sensors =

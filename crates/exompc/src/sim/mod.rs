@@ -6,11 +6,13 @@
 
 mod closed_loop;
 mod faults;
+mod gait;
 mod human;
 mod metrics;
 mod plant;
 mod safety_summary;
 mod sensors;
+mod spline;
 mod stability;
 mod trajectory;
 mod uncertainty;
@@ -20,11 +22,16 @@ pub use faults::{
     channel_index, default_schedule, repeat_schedule, Channel, FaultEvent, FaultInjector,
     FaultKind, Faults, SoakStats,
 };
+pub use gait::{
+    Gait, GaitKind, GaitRecording, GaitTrajectory, InvalidField, RecordedTrajectory,
+    RecordingColumn, RecordingError,
+};
 pub use human::{HumanBrain, HumanLeg};
 pub use metrics::{Metrics, StepTimeStats, Summary};
 pub use plant::{robot_model, Plant, PlantParams, PlantState};
 pub use safety_summary::{MonitorTally, SafetySummary};
 pub use sensors::MovingAverage;
+pub use spline::{CubicSpline, SplineEnds};
 pub use stability::{
     cell_verdict, classify, classify_run, high_frequency_fraction, rms, CellVerdict, RunClass,
     RunStability, StabilityCriteria, StrapStability,

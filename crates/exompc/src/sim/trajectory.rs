@@ -1,6 +1,7 @@
 //! The human's desired joint trajectories (MODEL.md §6), with exact time derivatives obtained by
 //! second-order dual numbers (`num_dual::second_derivative`).
 
+use super::gait::{check, InvalidField, Range};
 use crate::model::Real;
 use nalgebra::SVector;
 use num_dual::{second_derivative, Dual2};
@@ -28,7 +29,12 @@ pub trait Trajectory<const N: usize> {
 }
 
 /// Swing-like hip/knee trajectory of variable frequency and amplitude (MODEL.md §6, 2-DOF).
+///
+/// Its fields are the parametric keys of the scenario's `[trajectory]` table (see
+/// [`Gait`](super::Gait), which embeds this struct); [`SwingTrajectory::validate`] states their
+/// ranges.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct SwingTrajectory {
     /// Mean frequency (Hz), spec 0.8.
     pub base_frequency_hz: f64,
@@ -72,6 +78,30 @@ impl Default for SwingTrajectory {
     }
 }
 
+impl SwingTrajectory {
+    /// Checks every field: finite, periods and the base frequency `> 0`, amplitudes `>= 0`,
+    /// `frequency_swing_hz` in `[0, base_frequency_hz)` (so the frequency stays positive).
+    /// The error names the field as in the `[trajectory]` table (`hip_amplitude`).
+    pub fn validate(&self) -> Result<(), InvalidField> {
+        use Range::*;
+        check("base_frequency_hz", self.base_frequency_hz, Pos)?;
+        check(
+            "frequency_swing_hz",
+            self.frequency_swing_hz,
+            ClosedOpen(0.0, self.base_frequency_hz),
+        )?;
+        check("frequency_period_s", self.frequency_period_s, Pos)?;
+        check("hip_offset", self.hip_offset, Any)?;
+        check("hip_amplitude", self.hip_amplitude, NonNeg)?;
+        check("hip_amplitude_swing", self.hip_amplitude_swing, NonNeg)?;
+        check("hip_amplitude_period_s", self.hip_amplitude_period_s, Pos)?;
+        check("knee_amplitude", self.knee_amplitude, NonNeg)?;
+        check("knee_amplitude_swing", self.knee_amplitude_swing, NonNeg)?;
+        check("knee_amplitude_period_s", self.knee_amplitude_period_s, Pos)?;
+        check("knee_phase", self.knee_phase, Any)
+    }
+}
+
 impl Trajectory<2> for SwingTrajectory {
     /// `q_d1 = offset + a_h(t) sin φ(t)`, `q_d2 = −a_k(t) (1 − cos(φ(t) − phase)) / 2` with
     /// `φ(t) = 2π (f0 t + fs Tf/(2π) (1 − cos(2π t / Tf)))` (MODEL.md §6).
@@ -91,11 +121,17 @@ impl Trajectory<2> for SwingTrajectory {
 }
 
 /// 1-DOF knee trajectory `q_d(t) = −A (1 − cos(2π f t))` (MODEL.md §6, paper §4.2).
+///
+/// In the scenario's `[trajectory]` table its fields are the keys `one_dof_amplitude` and
+/// `one_dof_frequency_hz` (see [`Gait`](super::Gait)).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct KneeTrajectory {
-    /// Amplitude `A` (rad), spec 0.6.
+    /// Amplitude `A` (rad), >= 0; spec 0.6.
+    #[serde(rename = "one_dof_amplitude")]
     pub amplitude: f64,
-    /// Frequency `f` (Hz), spec 0.5.
+    /// Frequency `f` (Hz), > 0; spec 0.5.
+    #[serde(rename = "one_dof_frequency_hz")]
     pub frequency_hz: f64,
 }
 
@@ -105,6 +141,14 @@ impl Default for KneeTrajectory {
             amplitude: 0.6,
             frequency_hz: 0.5,
         }
+    }
+}
+
+impl KneeTrajectory {
+    /// Checks `one_dof_amplitude` (finite, `>= 0`) and `one_dof_frequency_hz` (finite, `> 0`).
+    pub fn validate(&self) -> Result<(), InvalidField> {
+        check("one_dof_amplitude", self.amplitude, Range::NonNeg)?;
+        check("one_dof_frequency_hz", self.frequency_hz, Range::Pos)
     }
 }
 
