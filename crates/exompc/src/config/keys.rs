@@ -76,6 +76,8 @@ pub enum Allowed {
     Choice(&'static [&'static str]),
     /// `true` or `false`.
     Bool,
+    /// A file path (a TOML string), relative to the config file's folder.
+    Path,
     /// A name (a TOML string): non-empty, at most this many characters, no commas, quotes or
     /// control characters, no leading or trailing space, unique among its tables.
     Name(usize),
@@ -131,6 +133,7 @@ impl Allowed {
                 }
             }
             Allowed::Bool => "true or false".into(),
+            Allowed::Path => "a file path (relative to the config file's folder)".into(),
             Allowed::Name(n) => format!(
                 "a unique name of 1 to {n} characters, without commas, quotes or leading/trailing spaces"
             ),
@@ -337,6 +340,8 @@ pub const KEYS: &[KeyDoc] = &[
     k("uncertainty.filter_window", "samples", int(1, 100), M5, "Moving-average window on the measured velocities and forces."),
     // [trajectory]
     table("trajectory", M6, "The human's desired motion."),
+    k("trajectory.kind", "", Allowed::Choice(&["parametric", "sine", "recorded"]), M6, "The human's desired motion: the paper's parametric swing (also spelled sine), or joint angles recorded in a CSV file (trajectory.file)."),
+    k("trajectory.file", "", Allowed::Path, "README, Your own gait data; docs/MODEL.md §6", "CSV of time and joint angles (t_s,hip_rad,knee_rad or _deg columns) replayed when kind = \"recorded\", relative to the config file's folder; optional."),
     k("trajectory.base_frequency_hz", "Hz", POS, M6, "Mean gait frequency of the 2-DOF swing."),
     k("trajectory.frequency_swing_hz", "Hz", real(closed(0.0), Some(End { at: Limit::Key("trajectory.base_frequency_hz"), inclusive: false })), M6, "Amplitude of the gait-frequency variation."),
     k("trajectory.frequency_period_s", "s", POS, M6, "Period of the gait-frequency variation."),
@@ -374,6 +379,7 @@ pub const KEYS: &[KeyDoc] = &[
     k("controller.sqp.max_iterations", "iterations", int(1, 1000), M8, "Most SQP iterations per solve."),
     k("controller.sqp.kkt_tolerance", "-", real(open(0.0), closed(1.0)), M8, "KKT residual at which a solve counts as converged."),
     k("controller.sqp.max_time_us", "µs", int(1, 10_000_000), M8, "Optional wall-clock budget per solve; absent (the default) = no budget."),
+    k("controller.sqp.rti", "", Allowed::Bool, PERF, "Real-time iteration: one linearisation and one QP per control period from the shifted previous solution, instead of iterating to the KKT tolerance."),
     k("controller.sqp.hessian", "", Allowed::Choice(&["gauss_newton", "structured_secant"]), PERF, "Hessian model of the QP subproblems: Gauss-Newton, or Gauss-Newton plus a structured secant term."),
     k("controller.sqp.qp", "", Allowed::Choice(&["dense", "structured", "auto"]), PERF, "QP solver: condensed dense, Riccati over the stages, or auto (structured when joints·nc >= 16)."),
     table("controller.pd", M8X, "Gains of the baseline PD controller (controller.kind = \"pd\")."),
@@ -443,7 +449,7 @@ pub const KEYS: &[KeyDoc] = &[
     k("monitors.tracking_error_max_rad", "rad", POS, REL2, "Trip when the human-robot angle error estimated from the strap forces exceeds this."),
     k("monitors.force_max_n", "N", POS, REL2, "Trip when a measured strap force exceeds this."),
     k("monitors.sensor_timeout_s", "s", POS, REL2, "Trip when a channel has delivered no valid sample for this long."),
-    k("monitors.response", "", Allowed::Choice(&["hold", "ramp_to_zero"]), REL2, "What a tripped monitor does: hold the last safe torque or ramp to zero at the rate limit."),
+    k("monitors.response", "", Allowed::Choice(&["hold", "ramp_to_zero", "fallback"]), REL2, "What a tripped monitor does: hold the last safe torque, ramp to zero at the rate limit, or hand over to the transparent fallback controller (gravity, friction, inertia and payload compensated)."),
     k("monitors.oscillation_force_rms_n", "N", POS, REL2, "Oscillation monitor: trip when a strap force's RMS above the cut-off exceeds this."),
     k("monitors.oscillation_torque_rms_nm", "N·m", POS, REL2, "Oscillation monitor: the same on the commanded joint torques."),
     k("monitors.oscillation_cutoff_hz", "Hz", POS, REL2, "Oscillation monitor high-pass cut-off (taken just below Nyquist if above it)."),
