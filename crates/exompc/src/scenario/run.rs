@@ -42,7 +42,7 @@ pub enum RunError {
 /// Run the closed loop of scenario `s` with controller `s.controller.kind` in layout `D` for
 /// `s.duration_s(D::DOF)`, feeding every step to `recorders`; returns the summary (paper
 /// Table 2 metrics). The sensors inject the `[faults]` of `s`; the controller runs under the
-/// safety [`Supervisor`] (see [`run_experiment_report`] for its event log).
+/// safety [`Supervisor`](crate::control::Supervisor) (see [`run_experiment_report`] for its event log).
 pub fn run_experiment<D: Dof<N>, const N: usize>(
     s: &Scenario,
     recorders: &mut [&mut dyn Recorder<N>],
