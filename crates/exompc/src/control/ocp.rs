@@ -87,8 +87,8 @@ struct StageWork<const N: usize> {
     /// trial linearisations).
     grad: Vec<f64>,
     costate: Vec<f64>,
-    /// Backward recursion `V_j = Q_j + A_{j+1}ᵀ V_{j+1} A_{j+1}` (two `nx × nx` blocks and a
-    /// product buffer) for the diagonal of the condensed Gauss–Newton Hessian.
+    /// Backward recursion `V_j = Q_j + A_{j+1}ᵀ V_{j+1} A_{j+1}` (`nx × nx`, with `2N × 2N`
+    /// and `2N × N` products) for the diagonal of the condensed Gauss–Newton Hessian.
     gram: Vec<f64>,
     rl: f64,
     ru: f64,
@@ -126,7 +126,7 @@ impl<const N: usize> StructuredSqp<N> {
                 dz: DVector::zeros(nc * N),
                 grad: vec![0.0; len],
                 costate: vec![0.0; 2 * nx],
-                gram: vec![0.0; 3 * nx * nx],
+                gram: vec![0.0; nx * nx + 6 * N * N],
                 rl: 0.0,
                 ru: 0.0,
                 tmax: 0.0,
@@ -183,38 +183,74 @@ impl<const N: usize> StageWork<N> {
 
     /// Largest diagonal entry of the condensed Gauss–Newton Hessian `JᵀJ` at the current
     /// linearisation: for input `a` of stage `i`, `(B_iᵀ V_i B_i)_aa + r_t` with
-    /// `V_{Np−1} = Q_{Np−1}`, `V_j = Q_j + A_{j+1}ᵀ V_{j+1} A_{j+1}` (`O(Np·nx³)`).
+    /// `V_{Np−1} = Q_{Np−1}`, `V_j = Q_j + A_{j+1}ᵀ V_{j+1} A_{j+1}` (`O(Np·nx³)`). `A` has the
+    /// block form `[[F, G], [0, I]]` (`F` on `(q, qd)`, `G = Φ_u`, the held torque), so with
+    /// `V = [[V11, V12], [V12ᵀ, V22]]`: `AᵀVA = [[FᵀV11F, FᵀX], [XᵀF, GᵀX + V12ᵀG + V22]]`,
+    /// `X = V11 G + V12`.
     fn max_condensed_diagonal(&mut self) -> f64 {
         let nx = 3 * N;
+        let s2 = 2 * N;
         let nn = nx * nx;
         let (np, nc) = (self.np, self.nc);
         let (v, rest) = self.gram.split_at_mut(nn);
-        let (next, tmp) = rest.split_at_mut(nn);
+        let (w, x) = rest.split_at_mut(s2 * s2);
         let mut maxdiag = self.r_t;
+        v.copy_from_slice(&self.qp.q[(np - 1) * nn..np * nn]);
         for j in (0..np).rev() {
-            // v = Q_j + A_{j+1}ᵀ next A_{j+1} (column-major nx × nx blocks).
-            v.copy_from_slice(&self.qp.q[j * nn..(j + 1) * nn]);
             if j + 1 < np {
+                // Column-major blocks: F(r, c) = a[c·nx + r], G(r, k) = a[(s2 + k)·nx + r].
                 let a = &self.qp.a[(j + 1) * nn..(j + 2) * nn];
-                // tmp = next · A
-                for c in 0..nx {
-                    for r in 0..nx {
+                for c in 0..s2 {
+                    for r in 0..s2 {
                         let mut acc = 0.0;
-                        for t in 0..nx {
-                            acc += next[t * nx + r] * a[c * nx + t];
+                        for t in 0..s2 {
+                            acc += v[t * nx + r] * a[c * nx + t];
                         }
-                        tmp[c * nx + r] = acc;
+                        w[c * s2 + r] = acc;
                     }
                 }
-                // v += Aᵀ tmp
-                for c in 0..nx {
-                    for r in 0..nx {
-                        let mut acc = 0.0;
-                        for t in 0..nx {
-                            acc += a[r * nx + t] * tmp[c * nx + t];
+                for k in 0..N {
+                    for r in 0..s2 {
+                        let mut acc = v[(s2 + k) * nx + r];
+                        for t in 0..s2 {
+                            acc += v[t * nx + r] * a[(s2 + k) * nx + t];
                         }
-                        v[c * nx + r] += acc;
+                        x[k * s2 + r] = acc;
                     }
+                }
+                // V22 ← GᵀX + V12ᵀG + V22 (uses the old V12).
+                for l in 0..N {
+                    for k in 0..N {
+                        let mut acc = v[(s2 + l) * nx + s2 + k];
+                        for t in 0..s2 {
+                            acc += a[(s2 + k) * nx + t] * x[l * s2 + t]
+                                + v[(s2 + k) * nx + t] * a[(s2 + l) * nx + t];
+                        }
+                        v[(s2 + l) * nx + s2 + k] = acc;
+                    }
+                }
+                // V12 ← FᵀX (and its mirror V21), V11 ← FᵀW.
+                for k in 0..N {
+                    for r in 0..s2 {
+                        let mut acc = 0.0;
+                        for t in 0..s2 {
+                            acc += a[r * nx + t] * x[k * s2 + t];
+                        }
+                        v[(s2 + k) * nx + r] = acc;
+                        v[r * nx + s2 + k] = acc;
+                    }
+                }
+                for c in 0..s2 {
+                    for r in 0..s2 {
+                        let mut acc = 0.0;
+                        for t in 0..s2 {
+                            acc += a[r * nx + t] * w[c * s2 + t];
+                        }
+                        v[c * nx + r] = acc;
+                    }
+                }
+                for (vi, qi) in v.iter_mut().zip(&self.qp.q[j * nn..(j + 1) * nn]) {
+                    *vi += qi;
                 }
             }
             if j < nc {
@@ -232,7 +268,6 @@ impl<const N: usize> StageWork<N> {
                     maxdiag = maxdiag.max(d + self.r_t);
                 }
             }
-            next.copy_from_slice(v);
         }
         maxdiag
     }
