@@ -309,3 +309,29 @@ fn degrees_loops_and_config_relative_paths_work() {
     let o = exompc(&["config", "--check", cfg.to_str().unwrap()]);
     assert!(o.status.success(), "{}", stderr(&o));
 }
+
+#[test]
+fn the_trajectory_table_rejects_unknown_keys_through_serde_alone() {
+    // Without the CLI's key check: the library type itself denies unknown keys (the flattened
+    // parametric keys included) and reads the flat table.
+    use exompc::config::{Scenario, TrajectoryKind};
+    let bad = toml::from_str::<Scenario>("[trajectory]\nhip_amplitud = 0.3\n");
+    assert!(bad.unwrap_err().to_string().contains("hip_amplitud"));
+    let s: Scenario = toml::from_str(
+        "[trajectory]\nkind = \"sine\"\nhip_amplitude = 0.25\none_dof_amplitude = 0.5\n",
+    )
+    .unwrap();
+    assert_eq!(s.trajectory.kind, TrajectoryKind::Parametric);
+    assert_eq!(
+        (
+            s.trajectory.swing.hip_amplitude,
+            s.trajectory.knee.amplitude
+        ),
+        (0.25, 0.5)
+    );
+    assert_eq!(s.trajectory.swing.knee_amplitude, 1.0);
+    // Serialised flat, as the table is written.
+    let text = toml::to_string(&s).unwrap();
+    assert!(text.contains("hip_amplitude = 0.25") && text.contains("one_dof_amplitude = 0.5"));
+    assert_eq!(toml::from_str::<Scenario>(&text).unwrap(), s);
+}
