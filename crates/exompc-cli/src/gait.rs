@@ -1,5 +1,5 @@
 //! Recorded gaits as CSV files: reading them into the library's
-//! [`GaitRecording`](exompc::sim::GaitRecording) (with errors naming file, line and column) and
+//! [`GaitRecording`] (with errors naming file, line and column) and
 //! writing sampled trajectories (`exompc gait export`).
 //!
 //! Format: a header naming the columns with their units, then one sample per line; lines

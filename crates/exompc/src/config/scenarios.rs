@@ -19,14 +19,14 @@
 //! ```
 //!
 //! Each scenario's prediction model and EKF model are the base model with its override applied
-//! ([`resolve`], [`prediction_models`]); the controller and the estimator receive plain model
-//! parameter sets ([`PredictionModel`]), never these configuration types. The payload list is
+//! ([`resolve`], [`prediction_models`](crate::scenario::multistage::prediction_models)); the controller and the estimator receive plain model
+//! parameter sets ([`PredictionModel`](crate::control::PredictionModel)), never these configuration types. The payload list is
 //! a shorthand: `payloads_kg = [0, 1, 2]` gives scenarios named `"0 kg"`, `"1 kg"`, `"2 kg"`
 //! with the base robot and straps (exactly the models of the paper's set-up).
 //!
 //! [`validate`] checks every override with the ranges of the base tables and reports the field
-//! as `multistage.scenarios[2].straps.stiffness`. [`warnings`] lists pairs of scenarios the EKF
-//! bank cannot tell apart (see [`ScenarioWarning`] for the criterion).
+//! as `multistage.scenarios[2].straps.stiffness`. [`warnings`](crate::scenario::multistage::warnings) lists pairs of scenarios the EKF
+//! bank cannot tell apart (see [`ScenarioWarning`](crate::scenario::multistage::ScenarioWarning) for the criterion).
 
 use super::{ConfigError, Robot, RobotLink, Scenario, Straps, MAX_PAYLOAD_KG, MAX_SCENARIOS};
 use serde::{Deserialize, Serialize};
