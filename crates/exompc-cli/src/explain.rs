@@ -22,6 +22,18 @@ pub fn explain_text(key: &str) -> Result<String, String> {
                 "none (required in each event)".into()
             };
         }
+        if let Some(key) = path.strip_prefix("multistage.scenarios.") {
+            // Per scenario: `name` is required, `payload_kg` defaults to 0, an override key to
+            // the base table's value.
+            return match key {
+                "name" => "none (required in each scenario)".into(),
+                "payload_kg" => "0".into(),
+                _ => match crate::io::get_key(&defaults, key) {
+                    Ok(Some(v)) => format!("the base {key} ({v})"),
+                    _ => "the base table's value".into(),
+                },
+            };
+        }
         match crate::io::get_key(&defaults, path) {
             Ok(Some(v)) => v.to_string(),
             Ok(None) => "absent".into(),

@@ -526,6 +526,17 @@ fn explain_prints_unit_meaning_default_range_and_source() {
         let err = stderr(&out);
         assert!(err.contains(want), "{key}: {err}");
     }
+    let out = exompc(&[
+        "config",
+        "--explain",
+        "multistage.scenarios[1].straps.stiffness",
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(
+        text.contains("default  the base straps.stiffness (937.5)"),
+        "{text}"
+    );
 }
 
 /// Entries of `dir` (names), sorted.
