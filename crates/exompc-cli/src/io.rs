@@ -63,11 +63,6 @@ pub fn parse_scenario(text: &str) -> Result<Scenario, String> {
     parse_scenario_with_origins(text).map(|(s, _)| s)
 }
 
-/// [`parse_scenario`], reading a recorded gait relative to the folder `base`.
-pub fn parse_scenario_in(text: &str, base: &Path) -> Result<Scenario, String> {
-    parse_scenario_with_origins_in(text, base).map(|(s, _)| s)
-}
-
 /// [`parse_scenario`], also returning which keys the text set. A cross-field error names the
 /// key the file set and the one it conflicts with (see [`describe_error`]).
 pub fn parse_scenario_with_origins(text: &str) -> Result<(Scenario, KeyOrigins), String> {
