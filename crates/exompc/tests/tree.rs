@@ -11,8 +11,20 @@
 mod common;
 
 use common::Rng;
-use exompc::solver::{DenseQp, QpSettings, QpStatus, TreeQp};
-use nalgebra::{DMatrix, DVector};
+use exompc::config::{ControllerKind, Formulation, Scenario};
+use exompc::control::{
+    horizon_inputs, CoupledProblem, Measurement, QpBackend, TorqueLimits, TreeSqp,
+};
+use exompc::model::JointState;
+use exompc::scenario::{
+    build_controller, intent, limits, nmpc_settings, plant_params, prediction_model, uncertainty,
+    Dof, OneDof, TwoDof,
+};
+use exompc::sim::{Plant, Sensors};
+use exompc::solver::{
+    Constraints, DenseQp, HessianModel, LeastSquares, QpSettings, QpStatus, Sqp, SqpStatus, TreeQp,
+};
+use nalgebra::{DMatrix, DVector, SVector};
 
 /// A random tree QP and its condensed dense form.
 struct Instance {
@@ -232,4 +244,202 @@ fn tree_qp_matches_dense_qp_on_random_tree_qps() {
     }
     eprintln!("active bounds over all cases: {total_active}");
     assert!(total_active > 35, "too few active bounds: {total_active}");
+}
+
+/// Random coupled instances (`ns` payload scenarios, horizon `n`, robust horizon `nr`) for a
+/// `D`-DOF scenario, half built to hit the limits: the tree SQP against the dense coupled SQP
+/// (Gauss–Newton), both from a zero warm start. Returns (active rate bounds, active cumulative
+/// bounds) at the solutions.
+fn compare_coupled<D: Dof<N>, const N: usize>(
+    n: usize,
+    nr: usize,
+    ns: usize,
+    seed: u64,
+) -> (usize, usize) {
+    let mut s = Scenario::default();
+    s.controller.np = n;
+    s.controller.nc = n;
+    let mut st = nmpc_settings(&s);
+    st.sqp.hessian = HessianModel::GaussNewton;
+    st.sqp.max_iterations = 200;
+    let models: Vec<_> = (0..ns)
+        .map(|i| prediction_model::<D, N>(&s, 3.0 * i as f64 / ns as f64))
+        .collect();
+    let lim: TorqueLimits = limits(&s);
+    let int = intent(&s);
+    let mut prob = CoupledProblem::new(&models, &st, nr);
+    let nv = prob.num_vars();
+    let p = ns * N * n;
+    let mut dense = Sqp::new(nv, prob.num_residuals(), p, st.sqp).unwrap();
+    let mut cons = Constraints::unbounded(nv, p);
+    let mut scratch = Constraints::unbounded(N * n, N * n);
+    let mut tree = TreeSqp::<N>::new(&st, nr, ns).unwrap();
+    assert_eq!(tree.num_vars(), nv);
+    let mut rng = Rng::new(seed);
+    let (mut rate_active, mut cum_active, mut stalled) = (0, 0, 0);
+    for k in 0..16 {
+        let hard = k % 2 == 1;
+        let q = SVector::<f64, N>::from_fn(|_, _| rng.uniform(-1.0, 1.0));
+        let qd = SVector::<f64, N>::from_fn(|_, _| rng.uniform(-3.0, 3.0));
+        let span = if hard { 200.0 } else { 20.0 };
+        let force = SVector::<f64, N>::from_fn(|_, _| rng.uniform(-span, span));
+        let t_prev = SVector::<f64, N>::from_fn(|_, _| {
+            if hard && k % 4 == 1 {
+                if rng.uniform(0.0, 1.0) < 0.5 {
+                    rng.uniform(25.0, 30.0)
+                } else {
+                    rng.uniform(-30.0, -25.0)
+                }
+            } else {
+                rng.uniform(-30.0, 30.0)
+            }
+        });
+        let m = Measurement {
+            t: 0.0,
+            q,
+            qd,
+            force,
+        };
+        let inputs: Vec<_> = models
+            .iter()
+            .map(|model| {
+                let d = SVector::<f64, N>::from_fn(|_, _| rng.uniform(-2.0, 2.0));
+                horizon_inputs(&int, model, &m, d)
+            })
+            .collect();
+        // Probabilities, one of them at the floor on some instances.
+        let mut w: Vec<f64> = (0..ns).map(|_| rng.uniform(0.05, 1.0)).collect();
+        if k % 3 == 0 {
+            w[k % ns] = 1e-4;
+        }
+        let sum: f64 = w.iter().sum();
+        w.iter_mut().for_each(|v| *v /= sum);
+        let x0 = JointState { q, qd };
+        prob.set_step(x0, t_prev, &inputs, &w);
+        prob.write_constraints(&lim, &mut cons, &mut scratch);
+        let mut za = DVector::zeros(nv);
+        let mut zb = DVector::zeros(nv);
+        let a = dense.solve(&mut prob, &cons, &mut za);
+        let b = tree.solve(prob.scenarios(), prob.weights(), &lim, &mut zb);
+        let diff = (&za - &zb).amax();
+        if a.status != SqpStatus::Converged || b.status != SqpStatus::Converged {
+            eprintln!(
+                "{N}-DOF n={n} nr={nr} S={ns} case {k}: {:?}/{:?} after {}/{} iterations, \
+                 |Δz| = {diff:e}",
+                a.status, b.status, a.iterations, b.iterations
+            );
+            stalled += 1;
+            continue;
+        }
+        assert_eq!(
+            a.iterations, b.iterations,
+            "{N}-DOF n={n} nr={nr} S={ns} case {k}"
+        );
+        assert!(
+            diff <= 1e-8,
+            "{N}-DOF n={n} nr={nr} S={ns} case {k}: |z_dense − z_tree| = {diff:e}"
+        );
+        for v in za.iter() {
+            if (v.abs() - lim.rate).abs() < 1e-9 {
+                rate_active += 1;
+            }
+        }
+        let sh = N * nr;
+        let pr = N * (n - nr);
+        for i in 0..ns {
+            let mut acc = t_prev;
+            for j in 0..n {
+                for c in 0..N {
+                    let idx = if j < nr {
+                        j * N + c
+                    } else {
+                        sh + i * pr + (j - nr) * N + c
+                    };
+                    acc[c] += za[idx];
+                    if (acc[c].abs() - lim.max).abs() < 1e-9 {
+                        cum_active += 1;
+                    }
+                }
+            }
+        }
+    }
+    assert!(
+        stalled <= 2,
+        "{N}-DOF n={n} nr={nr} S={ns}: {stalled} of 16 solves did not converge"
+    );
+    (rate_active, cum_active)
+}
+
+#[test]
+fn tree_sqp_equals_dense_coupled_gauss_newton_on_random_instances() {
+    let (mut rate, mut cum) = (0, 0);
+    for (c, &(n, nr, ns)) in [(3, 1, 3), (6, 3, 3), (10, 1, 4), (12, 4, 3), (20, 2, 2)]
+        .iter()
+        .enumerate()
+    {
+        let (r, k) = compare_coupled::<TwoDof, 2>(n, nr, ns, 300 + c as u64);
+        rate += r;
+        cum += k;
+        let (r, k) = compare_coupled::<OneDof, 1>(n, nr, ns, 400 + c as u64);
+        rate += r;
+        cum += k;
+    }
+    eprintln!("active rate bounds {rate}, active cumulative bounds {cum}");
+    assert!(rate > 10, "rate bounds never active: {rate}");
+    assert!(cum > 10, "cumulative bounds never active: {cum}");
+}
+
+/// Closed loop of the default 2-DOF scenario, coupled multi-stage NMPC with horizon `n` and
+/// robust horizon `nr`, structured and dense (Gauss–Newton) each in its own loop: the largest
+/// torque difference over `steps` steps.
+fn coupled_closed_loop_diff(n: usize, nr: usize, steps: usize) -> f64 {
+    let mut s = Scenario::default();
+    s.controller.np = n;
+    s.controller.nc = n;
+    s.controller.sqp.hessian = HessianModel::GaussNewton;
+    s.controller.sqp.max_iterations = 1000;
+    s.controller.sqp.kkt_tolerance = 1e-10;
+    s.multistage.formulation = Formulation::Coupled;
+    s.multistage.robust_horizon = nr;
+    let run = |qp: QpBackend| {
+        let mut sc = s.clone();
+        sc.controller.sqp.qp = qp;
+        let mut c = build_controller::<TwoDof, 2>(&sc, ControllerKind::Msnmpc).unwrap();
+        let mut plant = Plant::new(plant_params::<TwoDof, 2>(&sc), TwoDof::trajectory(&sc));
+        let mut sensors = Sensors::new(uncertainty(&sc), sc.uncertainty.filter_window);
+        let mut out = vec![];
+        for _ in 0..steps {
+            let st = *plant.state();
+            let f = plant.strap_force();
+            let (_, meas) = sensors.read(plant.time(), &st.robot.q, &st.robot.qd, &f);
+            let o = c.step(&meas);
+            out.push((o.torque, o.iterations, o.status));
+            plant.step(&o.torque);
+        }
+        out
+    };
+    let a = run(QpBackend::Dense);
+    let b = run(QpBackend::Structured);
+    for (k, (x, y)) in a.iter().zip(&b).enumerate() {
+        if (x.0 - y.0).amax() > 1e-9 {
+            eprintln!(
+                "step {k}: {:?} {} {:?} / {:?} {} {:?}",
+                x.0, x.1, x.2, y.0, y.1, y.2
+            );
+            break;
+        }
+    }
+    a.iter()
+        .zip(&b)
+        .map(|(x, y)| (x.0 - y.0).amax())
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn coupled_structured_closed_loops_equal_dense() {
+    for (n, nr, tol) in [(3, 1, 1e-8), (10, 1, 1e-8), (10, 3, 1e-8)] {
+        let d = coupled_closed_loop_diff(n, nr, 300);
+        eprintln!("coupled n={n} nr={nr}: max |ΔT| = {d:e}");
+        assert!(d <= tol, "coupled n={n} nr={nr}: max |ΔT| = {d:e}");
+    }
 }

@@ -2,6 +2,7 @@
 
 use super::limits::LimitsError;
 use super::nmpc::{classify, horizon_inputs, NmpcCore, NmpcProblem, NmpcSettings};
+use super::ocp_tree::{tree_is_structured, TreeSqp};
 use super::prediction::{HorizonInputs, PredictionModel};
 use super::robust::{RobustSettings, RobustState};
 use super::{ControlOutput, Controller, IntentEstimator, Measurement, StepStatus, TorqueLimits};
@@ -37,7 +38,10 @@ pub struct CoupledProblem<const N: usize> {
 }
 
 impl<const N: usize> CoupledProblem<N> {
-    fn new(models: &[PredictionModel<N>], s: &NmpcSettings, robust_horizon: usize) -> Self {
+    /// The tree of one scenario per model with the horizon and weights of `s`, sharing the
+    /// first `robust_horizon` increments (clamped to `1..=Nc`); equal weights until
+    /// [`Self::set_step`].
+    pub fn new(models: &[PredictionModel<N>], s: &NmpcSettings, robust_horizon: usize) -> Self {
         let scenarios: Vec<NmpcProblem<N>> =
             models.iter().map(|m| NmpcProblem::new(*m, s)).collect();
         let (m1, n1) = (scenarios[0].num_residuals(), scenarios[0].num_vars());
@@ -50,6 +54,39 @@ impl<const N: usize> CoupledProblem<N> {
             jaci: DMatrix::zeros(m1, n1),
             scenarios,
         }
+    }
+
+    /// Sets every scenario's initial state `x0`, previous torque `t_prev` and its horizon
+    /// inputs, and the scenario probabilities `weights` (`μ_i` of eq. 12), for one solve.
+    /// `inputs` and `weights` hold one entry per scenario (extra entries are ignored).
+    pub fn set_step(
+        &mut self,
+        x0: JointState<f64, N>,
+        t_prev: SVector<f64, N>,
+        inputs: &[HorizonInputs<N>],
+        weights: &[f64],
+    ) {
+        for ((sc, inp), (w, wi)) in self
+            .scenarios
+            .iter_mut()
+            .zip(inputs)
+            .zip(self.weights.iter_mut().zip(weights))
+        {
+            sc.x0 = x0;
+            sc.t_prev = t_prev;
+            sc.inputs = *inp;
+            *w = *wi;
+        }
+    }
+
+    /// The scenarios' eq.-7 problems.
+    pub fn scenarios(&self) -> &[NmpcProblem<N>] {
+        &self.scenarios
+    }
+
+    /// The scenario probabilities `μ_i`.
+    pub fn weights(&self) -> &[f64] {
+        &self.weights
     }
 
     /// Number of shared decision variables `N·Nr`.
@@ -69,7 +106,10 @@ impl<const N: usize> CoupledProblem<N> {
         out[sh..].copy_from_slice(&z[sh + i * pr..sh + (i + 1) * pr]);
     }
 
-    fn write_constraints(
+    /// Constraints of eqs. 8-9 of every scenario in the coupled variables: `|dT| ≤ ΔT_max`
+    /// (box) and each scenario's cumulative torque rows; `scratch` holds one scenario's
+    /// constraints (`N·Nc` variables and rows).
+    pub fn write_constraints(
         &self,
         limits: &TorqueLimits,
         c: &mut Constraints,
@@ -153,13 +193,21 @@ impl<const N: usize> LeastSquares for CoupledProblem<N> {
     }
 }
 
+/// The coupled SQP with the QP back-end `[controller.sqp] qp` resolves to for the tree
+/// ([`super::ocp_tree::tree_is_structured`]); only that one is allocated.
+#[derive(Clone, Debug)]
+enum CoupledSolver<const N: usize> {
+    /// Condensed dense SQP, its constraint rows and a one-scenario scratch.
+    Dense(Box<(Sqp, Constraints, Constraints)>),
+    /// Multiple-shooting tree SQP with the block-arrowhead QP.
+    Tree(Box<TreeSqp<N>>),
+}
+
 /// Solver state of the coupled formulation.
 #[derive(Clone, Debug)]
 struct CoupledCore<const N: usize> {
     problem: CoupledProblem<N>,
-    sqp: Sqp,
-    constraints: Constraints,
-    scratch: Constraints,
+    solver: CoupledSolver<N>,
     z: DVector<f64>,
     zi: Vec<f64>,
     shared: Vec<f64>,
@@ -173,12 +221,18 @@ impl<const N: usize> CoupledCore<N> {
     ) -> Result<Self, SolverError> {
         let problem = CoupledProblem::new(models, s, robust_horizon);
         let n = problem.num_vars();
-        let p = models.len() * N * s.nc;
-        let sqp = Sqp::new(n, problem.num_residuals(), p, s.sqp)?;
+        let solver = if tree_is_structured(s.qp, n) {
+            CoupledSolver::Tree(Box::new(TreeSqp::new(s, problem.nr, models.len())?))
+        } else {
+            let p = models.len() * N * s.nc;
+            CoupledSolver::Dense(Box::new((
+                Sqp::new(n, problem.num_residuals(), p, s.sqp)?,
+                Constraints::unbounded(n, p),
+                Constraints::unbounded(N * s.nc, N * s.nc),
+            )))
+        };
         Ok(CoupledCore {
-            sqp,
-            constraints: Constraints::unbounded(n, p),
-            scratch: Constraints::unbounded(N * s.nc, N * s.nc),
+            solver,
             z: DVector::zeros(n),
             zi: vec![0.0; N * s.nc],
             shared: vec![0.0; problem.shared()],
@@ -218,17 +272,20 @@ impl<const N: usize> CoupledCore<N> {
         if !self.z.iter().all(|v| v.is_finite()) {
             self.z.fill(0.0);
         }
-        for (i, sc) in self.problem.scenarios.iter_mut().enumerate() {
-            sc.x0 = x0;
-            sc.t_prev = t_prev;
-            sc.inputs = inputs[i];
-        }
-        self.problem.weights.copy_from_slice(weights);
-        self.problem
-            .write_constraints(limits, &mut self.constraints, &mut self.scratch);
-        let info = self
-            .sqp
-            .solve(&mut self.problem, &self.constraints, &mut self.z);
+        self.problem.set_step(x0, t_prev, inputs, weights);
+        let info = match &mut self.solver {
+            CoupledSolver::Tree(tree) => tree.solve(
+                &self.problem.scenarios,
+                &self.problem.weights,
+                limits,
+                &mut self.z,
+            ),
+            CoupledSolver::Dense(dense) => {
+                let (sqp, constraints, scratch) = &mut **dense;
+                self.problem.write_constraints(limits, constraints, scratch);
+                sqp.solve(&mut self.problem, constraints, &mut self.z)
+            }
+        };
         if !classify(info.status).1 {
             self.z.fill(0.0);
         }
@@ -364,6 +421,13 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     /// The current coupled decision vector (coupled formulation only).
     pub fn coupled_solution(&self) -> Option<&DVector<f64>> {
         self.coupled.as_ref().map(|c| &c.z)
+    }
+
+    /// Whether the coupled formulation uses the structured tree QP (`None` when decoupled).
+    pub fn coupled_is_structured(&self) -> Option<bool> {
+        self.coupled
+            .as_ref()
+            .map(|c| matches!(c.solver, CoupledSolver::Tree(_)))
     }
 
     fn hold(&self, status: StepStatus) -> ControlOutput<N> {
