@@ -101,8 +101,22 @@ impl<const N: usize> ForceLag<N> {
         m: &Measurement<N>,
         qd_now: &SVector<f64, N>,
     ) -> SVector<f64, N> {
+        match self.relative_motion(m, qd_now) {
+            Some((dq, dqd)) => m.force - straps.force(&dq, &dqd),
+            None => m.force,
+        }
+    }
+
+    /// The strap stretch and stretch rate `(Δq, Δqd)` whose force the Smith predictor removes,
+    /// `F̂(k) = F̄(k) − F(Δq, Δqd)` ([`predicted_force`](Self::predicted_force) for any strap
+    /// model, the force being linear in them); `None` before the first angles.
+    pub fn relative_motion(
+        &self,
+        m: &Measurement<N>,
+        qd_now: &SVector<f64, N>,
+    ) -> Option<(SVector<f64, N>, SVector<f64, N>)> {
         if self.len == 0 {
-            return m.force;
+            return None;
         }
         let (q_mean, tau) = self.mean();
         let w = self.len as f64;
@@ -111,7 +125,7 @@ impl<const N: usize> ForceLag<N> {
         let c2 = self.dt * self.dt * (w - 1.0) * (2.0 * w - 1.0) / 12.0;
         let dq_h = m.qd * tau + self.acc * (tau * tau - c2);
         let dqd_h = self.acc * tau;
-        m.force - straps.force(&(m.q - q_mean - dq_h), &(qd_now - m.qd - dqd_h))
+        Some((m.q - q_mean - dq_h, qd_now - m.qd - dqd_h))
     }
 }
 

@@ -333,7 +333,10 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     intent: IntentEstimator,
     limits: TorqueLimits,
     prev: SVector<f64, N>,
-    prev_t_int: SVector<f64, N>,
+    /// Strap force of the previous step as each scenario saw it (the filtered measurement, or
+    /// in the robust filter-aware mode its own Smith prediction); scenario `i`'s EKF maps it
+    /// through its own strap geometry (`Jᵢᵀ F`, docs/MODEL.md §4).
+    prev_force: Vec<SVector<f64, N>>,
     started: bool,
     /// Time of the last measurement the EKF bank used.
     last_t: f64,
@@ -394,7 +397,7 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             intent,
             limits,
             prev: limits.admissible(&t0),
-            prev_t_int: zero,
+            prev_force: vec![zero; s],
             started: false,
             last_t: 0.0,
             robust: None,
@@ -477,13 +480,18 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
             self.bank.resume_at(&m.q, &m.qd);
         } else {
             // A failed filter keeps its state and the probabilities; the controller goes on.
-            let _ = self.bank.step(&y, &self.prev, &self.prev_t_int);
+            let (models, forces) = (&self.models, &self.prev_force);
+            let _ = self
+                .bank
+                .step_per_scenario(&y, &self.prev, |i| models[i].straps.torque(&forces[i]));
         }
         self.last_t = m.t;
         let mut x0 = JointState { q: m.q, qd: m.qd };
         // The measurement the intent estimate and the EKF's strap torque use: the filtered one,
-        // or in the robust filter-aware mode the lag-free velocity and Smith-predicted force.
+        // or in the robust filter-aware mode the lag-free velocity and each scenario's
+        // Smith-predicted force (its own strap model removes the robot's own force change).
         let mut mi = *m;
+        let mut stretch = None;
         if let Some(r) = self.robust.as_mut() {
             if r.observe(m, gap) {
                 let p = self.bank.probabilities();
@@ -494,11 +502,15 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
                 if qd.iter().all(|v| v.is_finite()) {
                     x0.qd = qd;
                     mi.qd = qd;
-                    mi.force = r.predicted_force(&self.models[0].straps, m, &qd);
+                    stretch = r.relative_motion(m, &qd);
                 }
             }
         }
         for i in 0..self.models.len() {
+            if let Some((dq, dqd)) = &stretch {
+                mi.force = m.force - self.models[i].straps.force(dq, dqd);
+            }
+            self.prev_force[i] = mi.force;
             self.dist[i] = self.bank.disturbance(i);
             self.inputs[i] = horizon_inputs(&self.intent, &self.models[i], &mi, self.dist[i]);
         }
@@ -551,7 +563,6 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
         };
         let torque = self.limits.clamp(&prev, &desired);
         self.prev = torque;
-        self.prev_t_int = self.models[0].straps.torque(&mi.force);
         ControlOutput {
             torque,
             status,

@@ -12,7 +12,6 @@
 
 use super::lag::{ForceLag, HfShareDetector};
 use super::Measurement;
-use crate::model::Straps;
 use nalgebra::SVector;
 use serde::{Deserialize, Serialize};
 
@@ -133,15 +132,16 @@ impl<const N: usize> RobustState<N> {
         self.engaged
     }
 
-    /// The Smith-predicted strap force ([`ForceLag::predicted_force`]) for the lag-free
-    /// velocity `qd_now`.
-    pub(crate) fn predicted_force(
+    /// Record the lag-free velocity `qd_now` of this period and return the strap stretch and
+    /// its rate whose force the Smith predictor removes ([`ForceLag::relative_motion`]); each
+    /// scenario's predicted force is `F̄ − F(Δq, Δqd)` with its own strap model
+    /// ([`ForceLag::predicted_force`]).
+    pub(crate) fn relative_motion(
         &mut self,
-        straps: &Straps<N>,
         m: &Measurement<N>,
         qd_now: &SVector<f64, N>,
-    ) -> SVector<f64, N> {
+    ) -> Option<(SVector<f64, N>, SVector<f64, N>)> {
         self.lag.push_velocity(qd_now);
-        self.lag.predicted_force(straps, m, qd_now)
+        self.lag.relative_motion(m, qd_now)
     }
 }
