@@ -1,5 +1,5 @@
-//! Closed-loop control steps of the 2-DOF decoupled multi-stage NMPC for one horizon, scenario
-//! count and QP backend, for instruction counts per step under callgrind (docs/PERFORMANCE.md):
+//! Closed-loop control steps of the 2-DOF multi-stage NMPC (decoupled, or coupled with a fifth
+//! argument `coupled`) for one horizon, scenario count and QP backend, for instruction counts per step under callgrind (docs/PERFORMANCE.md):
 //!
 //! ```text
 //! cargo build --release --example qp_steps
@@ -8,7 +8,8 @@
 //! ```
 //!
 //! Arguments: `Np = Nc`, scenarios, `dense | structured`, steps (after 20 warm-up steps, which
-//! also run under the toggle; subtract a run with fewer steps for a per-step figure).
+//! also run under the toggle; subtract a run with fewer steps for a per-step figure), and
+//! optionally `decoupled | coupled` (default decoupled).
 
 use exompc::config::{ControllerKind, Formulation, Scenario};
 use exompc::control::QpBackend;
@@ -26,12 +27,17 @@ fn main() {
         other => panic!("backend `{other}`: dense or structured"),
     };
     let steps: usize = arg(4, "100").parse().expect("steps");
+    let formulation = match arg(5, "decoupled").as_str() {
+        "decoupled" => Formulation::Decoupled,
+        "coupled" => Formulation::Coupled,
+        other => panic!("formulation `{other}`: decoupled or coupled"),
+    };
     let mut s = Scenario::default();
     s.controller.kind = ControllerKind::Msnmpc;
     s.controller.np = n;
     s.controller.nc = n;
     s.controller.sqp.qp = qp;
-    s.multistage.formulation = Formulation::Decoupled;
+    s.multistage.formulation = formulation;
     s.multistage.parallel = false;
     s.multistage.payloads_kg = (0..ns)
         .map(|i| {
@@ -58,8 +64,9 @@ fn main() {
         plant.step(&o.torque);
     }
     println!(
-        "Np=Nc={n} scenarios={ns} qp={:?} steps={steps} SQP iterations/step={:.2}",
+        "Np=Nc={n} scenarios={ns} qp={:?} {:?} steps={steps} SQP iterations/step={:.2}",
         qp,
+        formulation,
         iters as f64 / steps as f64
     );
 }

@@ -687,7 +687,9 @@ pub struct Sqp {
     /// `"structured_secant"`.
     pub hessian: crate::solver::HessianModel,
     /// QP solver of the SQP: `"dense"` (condensed, the oracle), `"structured"` (Riccati over
-    /// the horizon stages, Gauss-Newton Hessian) or `"auto"` (structured when joints·nc ≥ 16).
+    /// the horizon stages, Gauss-Newton Hessian; the coupled formulation: the block-arrowhead
+    /// scenario tree) or `"auto"` (structured when joints·nc ≥ 16; coupled: when the tree's
+    /// decision variables joints·(Nr + S·(Nc − Nr)) ≥ 16).
     /// Default `"auto"`.
     pub qp: crate::control::QpBackend,
     /// Real-time iteration: one SQP iteration (one linearisation, one QP, full step) per

@@ -74,6 +74,17 @@ fn control_steps_do_not_allocate() {
         0,
         "msnmpc (decoupled, structured QP) allocates"
     );
+    // The coupled scenario tree with the block-arrowhead QP, robust horizon 1 and 3.
+    s.multistage.formulation = Formulation::Coupled;
+    for nr in [1, 3] {
+        s.multistage.robust_horizon = nr;
+        assert_eq!(
+            count_steps(&s, ControllerKind::Msnmpc),
+            0,
+            "msnmpc (coupled, structured QP, robust horizon {nr}) allocates"
+        );
+    }
+    s.multistage.robust_horizon = 1;
     s.controller.sqp.qp = exompc::control::QpBackend::Auto;
     s.controller.np = 3;
     s.controller.nc = 3;
