@@ -389,10 +389,10 @@ fn tree_sqp_equals_dense_coupled_gauss_newton_on_random_instances() {
     assert!(cum > 10, "cumulative bounds never active: {cum}");
 }
 
-/// Closed loop of the default 2-DOF scenario, coupled multi-stage NMPC with horizon `n` and
+/// Closed loop of the default `D`-DOF scenario, coupled multi-stage NMPC with horizon `n` and
 /// robust horizon `nr`, structured and dense (Gauss–Newton) each in its own loop: the largest
 /// torque difference over `steps` steps.
-fn coupled_closed_loop_diff(n: usize, nr: usize, steps: usize) -> f64 {
+fn coupled_closed_loop_diff<D: Dof<N>, const N: usize>(n: usize, nr: usize, steps: usize) -> f64 {
     let mut s = Scenario::default();
     s.controller.np = n;
     s.controller.nc = n;
@@ -404,8 +404,8 @@ fn coupled_closed_loop_diff(n: usize, nr: usize, steps: usize) -> f64 {
     let run = |qp: QpBackend| {
         let mut sc = s.clone();
         sc.controller.sqp.qp = qp;
-        let mut c = build_controller::<TwoDof, 2>(&sc, ControllerKind::Msnmpc).unwrap();
-        let mut plant = Plant::new(plant_params::<TwoDof, 2>(&sc), TwoDof::trajectory(&sc));
+        let mut c = build_controller::<D, N>(&sc, ControllerKind::Msnmpc).unwrap();
+        let mut plant = Plant::new(plant_params::<D, N>(&sc), D::trajectory(&sc));
         let mut sensors = Sensors::new(uncertainty(&sc), sc.uncertainty.filter_window);
         let mut out = vec![];
         for _ in 0..steps {
@@ -437,9 +437,14 @@ fn coupled_closed_loop_diff(n: usize, nr: usize, steps: usize) -> f64 {
 
 #[test]
 fn coupled_structured_closed_loops_equal_dense() {
-    for (n, nr, tol) in [(3, 1, 1e-8), (10, 1, 1e-8), (10, 3, 1e-8)] {
-        let d = coupled_closed_loop_diff(n, nr, 300);
-        eprintln!("coupled n={n} nr={nr}: max |ΔT| = {d:e}");
-        assert!(d <= tol, "coupled n={n} nr={nr}: max |ΔT| = {d:e}");
+    for (n, nr) in [(3, 1), (10, 1), (10, 3)] {
+        let d = coupled_closed_loop_diff::<TwoDof, 2>(n, nr, 300);
+        eprintln!("2-DOF coupled n={n} nr={nr}: max |ΔT| = {d:e}");
+        assert!(d <= 1e-8, "2-DOF coupled n={n} nr={nr}: max |ΔT| = {d:e}");
+    }
+    for (n, nr) in [(10, 1), (10, 4)] {
+        let d = coupled_closed_loop_diff::<OneDof, 1>(n, nr, 300);
+        eprintln!("1-DOF coupled n={n} nr={nr}: max |ΔT| = {d:e}");
+        assert!(d <= 1e-8, "1-DOF coupled n={n} nr={nr}: max |ΔT| = {d:e}");
     }
 }

@@ -234,9 +234,18 @@ impl TreeQp {
     /// shared input the sum over the scenarios plus `R̄_j`. Uses the factor workspace (call
     /// before [`Self::solve`]); `O(S·Np·nx³)`.
     pub fn max_condensed_diagonal(&mut self) -> f64 {
-        let (nx, nu, np, nc, nr) = (self.nx, self.nu, self.np, self.nc, self.nr);
+        match (self.nx, self.nu) {
+            (3, 1) => self.max_condensed_diagonal_dims(3, 1),
+            (6, 2) => self.max_condensed_diagonal_dims(6, 2),
+            (nx, nu) => self.max_condensed_diagonal_dims(nx, nu),
+        }
+    }
+
+    #[inline(always)]
+    fn max_condensed_diagonal_dims(&mut self, nx: usize, nu: usize) -> f64 {
+        let (np, nc, nr) = (self.np, self.nc, self.nr);
         let n2 = nx * nx;
-        let mut maxd = f64::NEG_INFINITY;
+        let mut maxd: f64 = 0.0;
         // Shared diagonal accumulated in `ev`.
         for j in 0..nr {
             for k in 0..nu {
@@ -263,12 +272,13 @@ impl TreeQp {
                     }
                     let qj = &self.q[ab + j * n2..ab + (j + 1) * n2];
                     for c in 0..nx {
-                        for r in 0..nx {
+                        for r in 0..=c {
                             let mut s = qj[c * nx + r];
                             for t in 0..nx {
                                 s += a[r * nx + t] * self.pa[c * nx + t];
                             }
                             v[c * nx + r] = s;
+                            v[r * nx + c] = s;
                         }
                     }
                 }
