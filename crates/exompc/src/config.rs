@@ -794,7 +794,7 @@ pub use crate::sim::{Channel, FaultEvent, FaultKind, Faults};
 // [monitors]
 // ---------------------------------------------------------------------------------------------
 
-pub use crate::control::{MonitorResponse, Monitors};
+pub use crate::control::{FallbackSettings, MonitorResponse, Monitors};
 
 // ---------------------------------------------------------------------------------------------
 // Scenario
@@ -1133,7 +1133,10 @@ impl Scenario {
                     R::Closed(0.0, 1e6),
                 ),
             ],
-        )
+        )?;
+        mo.fallback.validate().map_err(|e| {
+            ConfigError::new(format!("monitors.fallback.{}", e.field), e.value, e.allowed)
+        })
     }
 
     /// Run length (s) of the `dof`-DOF experiment: `duration_1dof_s` for `dof == 1`,

@@ -284,6 +284,7 @@ const M8X: &str = "docs/MODEL.md §8, What exompc adds";
 const ROB: &str = "docs/ROBUSTNESS-controller.md, Settings";
 const REL1: &str = "docs/RELIABILITY.md §1";
 const REL2: &str = "docs/RELIABILITY.md §2";
+const FALLBACK: &str = "docs/ROBUSTNESS.md §5";
 const PERF: &str = "docs/PERFORMANCE.md";
 const M8S: &str = "docs/SCENARIOS.md, docs/MODEL.md §8";
 
@@ -455,6 +456,13 @@ pub const KEYS: &[KeyDoc] = &[
     k("monitors.oscillation_cutoff_hz", "Hz", POS, REL2, "Oscillation monitor high-pass cut-off (taken just below Nyquist if above it)."),
     k("monitors.oscillation_window_s", "s", real(open(0.0), closed(10.0)), REL2, "Oscillation monitor sliding window."),
     k("monitors.oscillation_clear_s", "s", real(closed(0.0), closed(1e6)), REL2, "A tripped oscillation monitor clears after its condition has been absent this long."),
+    table("monitors.fallback", FALLBACK, "The transparent fallback controller of response = \"fallback\": the robot's inverse dynamics along the predicted human motion."),
+    k("monitors.fallback.inertia_share", "-", real(closed(0.0), closed(1.0)), FALLBACK, "Share of the robot's inertia compensated along the predicted human acceleration."),
+    k("monitors.fallback.acceleration_cutoff_hz", "Hz", POS, FALLBACK, "Low-pass cut-off of the encoder acceleration in the robot's velocity estimate (Coriolis, friction)."),
+    k("monitors.fallback.estimate_memory_s", "s", POS, FALLBACK, "Memory of the payload estimate's exponentially weighted least squares."),
+    k("monitors.fallback.max_payload_kg", "kg", real(closed(0.0), closed(20.0)), FALLBACK, "The payload estimate is kept in [0, this]."),
+    k("monitors.fallback.human_window", "samples", int(4, 100), FALLBACK, "Human-angle estimates in the cubic least-squares fit that predicts the human's acceleration."),
+    k("monitors.fallback.human_prediction_s", "s", real(closed(0.0), closed(0.1)), FALLBACK, "How far ahead of the newest human-angle estimate (one period old) the fit is evaluated."),
 ];
 
 /// Meaning of the run-length keys (they also allow at most [`MAX_CONTROL_STEPS`] steps).

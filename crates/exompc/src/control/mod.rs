@@ -33,7 +33,7 @@ mod prediction;
 mod robust;
 mod safety;
 
-pub use fallback::{FallbackSettings, Transparent};
+pub use fallback::{FallbackSettings, FallbackSettingsError, Transparent};
 pub use highpass::HighPass;
 pub use lag::{ForceLag, HfShareDetector};
 pub use limits::{LimitsError, TorqueLimits};

@@ -1,7 +1,9 @@
 //! Runtime safety supervision around any controller: see [`Supervisor`].
 
 use super::highpass::HighPass;
-use super::{ControlOutput, Controller, Measurement, StepStatus, TorqueLimits, Transparent};
+use super::{
+    ControlOutput, Controller, FallbackSettings, Measurement, StepStatus, TorqueLimits, Transparent,
+};
 use nalgebra::{SMatrix, SVector};
 use serde::{Deserialize, Serialize};
 
@@ -90,6 +92,8 @@ pub struct Monitors {
     /// has been absent this long (s), in [0, 1e6]: longer than the other monitors' 0.1 s so
     /// that a limit cycle does not restart at once. Default 2.
     pub oscillation_clear_s: f64,
+    /// `[monitors.fallback]`: the transparent fallback controller of `response = "fallback"`.
+    pub fallback: FallbackSettings,
 }
 
 impl Default for Monitors {
@@ -104,6 +108,7 @@ impl Default for Monitors {
             oscillation_cutoff_hz: 3.0,
             oscillation_window_s: 0.5,
             oscillation_clear_s: 2.0,
+            fallback: FallbackSettings::default(),
         }
     }
 }

@@ -6,9 +6,8 @@ use super::registry::{controller_info, Builder, ControllerInfo};
 use super::RunError;
 use crate::config::{self, ControllerKind, Method, MonitorResponse, Scenario};
 use crate::control::{
-    Controller, FallbackSettings, IntentEstimator, MultiStage, MultiStageOptions, Nmpc,
-    NmpcSettings, PdController, PredictionModel, SafetySettings, Supervisor, TorqueLimits,
-    Transparent,
+    Controller, IntentEstimator, MultiStage, MultiStageOptions, Nmpc, NmpcSettings, PdController,
+    PredictionModel, SafetySettings, Supervisor, TorqueLimits, Transparent,
 };
 use crate::estimate::EstimatorOptions;
 use crate::model::{Friction, Link, RobotModel, Straps, WinterFractions};
@@ -269,7 +268,7 @@ pub fn fallback<D: Dof<N>, const N: usize>(s: &Scenario) -> Transparent<N> {
         &D::straps(s),
         s.timing.dt,
         s.uncertainty.filter_window,
-        FallbackSettings::default(),
+        s.monitors.fallback,
     )
 }
 
