@@ -213,14 +213,14 @@ fn main() {
     let mut jobs = Vec::new();
     for (ci, (_, dof, kv)) in cells().iter().enumerate() {
         for &p in &payloads {
-            for kind in [ControllerKind::Msnmpc, ControllerKind::Nmpc] {
+            for kind in [ControllerKind::MSNMPC, ControllerKind::NMPC] {
                 let mut all = global.clone();
-                if kind == ControllerKind::Msnmpc {
+                if kind == ControllerKind::MSNMPC {
                     all.extend(ms_only.iter().cloned());
                 }
                 all.extend(kv.iter().map(|(k, v)| (k.to_string(), v.to_string())));
                 all.push(("uncertainty.payload_kg".into(), format!("{p:.1}")));
-                let k = if kind == ControllerKind::Nmpc {
+                let k = if kind == ControllerKind::NMPC {
                     "nmpc"
                 } else {
                     "msnmpc"
@@ -254,7 +254,7 @@ fn main() {
                     .map(|r| r.3.clone())
                     .unwrap()
             };
-            let (ms, nm) = (get(ControllerKind::Msnmpc), get(ControllerKind::Nmpc));
+            let (ms, nm) = (get(ControllerKind::MSNMPC), get(ControllerKind::NMPC));
             total += 1;
             match (&ms, &nm) {
                 (Ok(m), Ok(n)) => {

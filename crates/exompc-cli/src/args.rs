@@ -5,7 +5,7 @@
 use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::Args;
 use exompc::config::{ControllerKind, Formulation, Scenario};
-use exompc::scenario::{controller_by_name, controller_info, CONTROLLERS};
+use exompc::scenario::{controller_info, controllers};
 use exompc_cli::config_help::{describe_error, KeyOrigins};
 use exompc_cli::error::CliError;
 use exompc_cli::io;
@@ -42,23 +42,29 @@ impl ConfigOpt {
 }
 
 /// Parser of `--controller` / `--controllers` values: the names of the library's controller
-/// registry ([`CONTROLLERS`]), each with its description in `--help`.
+/// registry ([`controllers`]), each with its description in `--help`.
 pub(crate) fn controller_parser() -> impl TypedValueParser<Value = ControllerKind> {
     PossibleValuesParser::new(
-        CONTROLLERS
-            .iter()
-            .map(|c| PossibleValue::new(c.name).help(c.description)),
+        controllers()
+            .into_iter()
+            .map(|c| PossibleValue::new(c.name()).help(c.description)),
     )
-    .try_map(|name| {
-        controller_by_name(&name)
-            .map(|c| c.kind)
-            .ok_or_else(|| format!("unknown controller `{name}`"))
-    })
+    .try_map(|name| ControllerKind::new(&name).map_err(|e| e.to_string()))
 }
 
-/// Command-line name of a controller (also its folder prefix and `Summary::controller`).
-pub(crate) fn controller_name(c: ControllerKind) -> &'static str {
-    controller_info(c).name
+/// Whether controller `c` blends the multi-stage scenarios (takes `--formulation`).
+pub(crate) fn is_multistage(c: ControllerKind) -> bool {
+    controller_info(c).is_ok_and(|i| i.multistage)
+}
+
+/// The registered multi-stage controllers' names (`msnmpc`), for messages.
+pub(crate) fn multistage_names() -> String {
+    controllers()
+        .iter()
+        .filter(|c| c.multistage)
+        .map(|c| c.name())
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// Formulation choice on the command line.
@@ -118,11 +124,11 @@ pub(crate) fn apply_overrides_with(
         s.controller.kind = k;
     }
     if let (Some(f), Some(k)) = (formulation, controller) {
-        if k != ControllerKind::Msnmpc {
+        if !is_multistage(k) {
             return Err(CliError::Usage(format!(
-                "--formulation {} applies to --controller msnmpc only, not --controller {}",
+                "--formulation {} applies to --controller {} only, not --controller {k}",
                 formulation_name(f),
-                controller_name(k)
+                multistage_names()
             )));
         }
     }

@@ -129,20 +129,20 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
         .max(steps as f64 * base.timing.dt);
 
     let nmpc = closed_loop(
-        &variant(&base, ControllerKind::Nmpc, Formulation::Decoupled),
-        ControllerKind::Nmpc,
+        &variant(&base, ControllerKind::NMPC, Formulation::Decoupled),
+        ControllerKind::NMPC,
         steps,
         None,
     )?;
     let ms = closed_loop(
-        &variant(&base, ControllerKind::Msnmpc, Formulation::Decoupled),
-        ControllerKind::Msnmpc,
+        &variant(&base, ControllerKind::MSNMPC, Formulation::Decoupled),
+        ControllerKind::MSNMPC,
         steps,
         None,
     )?;
     let msc = closed_loop(
-        &variant(&base, ControllerKind::Msnmpc, Formulation::Coupled),
-        ControllerKind::Msnmpc,
+        &variant(&base, ControllerKind::MSNMPC, Formulation::Coupled),
+        ControllerKind::MSNMPC,
         steps,
         None,
     )?;
@@ -165,7 +165,7 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
     ] {
         for &(np, nc, ns) in &cases {
             {
-                let mut s = variant(&base, ControllerKind::Msnmpc, formulation);
+                let mut s = variant(&base, ControllerKind::MSNMPC, formulation);
                 s.controller.np = np;
                 s.controller.nc = nc;
                 // The scaling grid is over payload scenarios (named ones would override it).
@@ -185,7 +185,7 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
                 s.controller.sqp.qp = QpBackend::Dense;
                 let stats = closed_loop(
                     &s,
-                    ControllerKind::Msnmpc,
+                    ControllerKind::MSNMPC,
                     steps.min(CASE_STEPS),
                     Some(CASE_BUDGET),
                 )?;
@@ -193,14 +193,14 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
                     s.controller.sqp.qp = QpBackend::Structured;
                     let full = closed_loop(
                         &s,
-                        ControllerKind::Msnmpc,
+                        ControllerKind::MSNMPC,
                         steps.min(CASE_STEPS),
                         Some(CASE_BUDGET),
                     )?;
                     s.controller.sqp.rti = true;
                     let rti = closed_loop(
                         &s,
-                        ControllerKind::Msnmpc,
+                        ControllerKind::MSNMPC,
                         steps.min(CASE_STEPS),
                         Some(CASE_BUDGET),
                     )?;

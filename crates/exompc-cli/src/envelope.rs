@@ -58,9 +58,9 @@ pub fn controller_kind(name: &str) -> Result<ControllerKind, CliError> {
         Some(c) => Ok(c.kind),
         None => Err(CliError::Usage(format!(
             "unknown controller `{name}` (allowed: {})",
-            exompc::scenario::CONTROLLERS
+            exompc::scenario::controllers()
                 .iter()
-                .map(|c| c.name)
+                .map(|c| c.name())
                 .collect::<Vec<_>>()
                 .join(", ")
         ))),

@@ -4,6 +4,7 @@
 
 use crate::args::parse_payloads;
 use crate::args::ConfigOpt;
+use clap::builder::TypedValueParser as _;
 use clap::Args;
 use exompc::sim::StabilityCriteria;
 use exompc_cli::envelope::{class_counts, markdown, scan, Envelope, Grid};
@@ -29,7 +30,7 @@ pub(crate) struct EnvelopeArgs {
     #[arg(long, value_name = "LIST", allow_hyphen_values = true)]
     payloads: Option<String>,
     /// Controllers, comma-separated (overrides the grid's; default nmpc,msnmpc).
-    #[arg(long, value_delimiter = ',', value_parser = ["nmpc", "msnmpc", "pd"])]
+    #[arg(long, value_delimiter = ',', value_parser = crate::args::controller_parser().map(|k| k.to_string()))]
     controllers: Vec<String>,
     /// Experiment of the `--set` cells: 1 (knee) or 2 (hip and knee).
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=2))]

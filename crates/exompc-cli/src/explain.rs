@@ -87,6 +87,13 @@ pub fn explain_text(key: &str) -> Result<String, String> {
     }
     let unit = if doc.unit.is_empty() { "-" } else { doc.unit };
     let mut allowed = doc.allowed.describe();
+    if doc.allowed == exompc::config::Allowed::Controller {
+        let names: Vec<String> = exompc::scenario::controllers()
+            .iter()
+            .map(|c| format!("\"{}\" ({})", c.kind, c.description))
+            .collect();
+        allowed += &format!(": {}", names.join(", "));
+    }
     let deps = doc.allowed.depends_on();
     if !deps.is_empty() {
         let vals: Vec<String> = deps

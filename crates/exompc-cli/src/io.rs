@@ -45,7 +45,7 @@ pub fn load_scenario(path: Option<&Path>) -> Result<Scenario, CliError> {
 pub fn load_scenario_with_origins(path: Option<&Path>) -> Result<(Scenario, KeyOrigins), CliError> {
     let Some(path) = path else {
         let s = Scenario::default();
-        s.validate()
+        exompc::scenario::validate(&s)
             .map_err(|e| CliError::Config(format!("default scenario: {e}")))?;
         return Ok((s, KeyOrigins::of_file(&toml::Table::new())));
     };
@@ -81,9 +81,7 @@ pub fn parse_scenario_with_origins_in(
         toml::from_str(text).map_err(|e| describe_toml_error(text, &e, "invalid scenario"))?;
     crate::gait::attach_recording(&mut scenario, base).map_err(|e| e.to_string())?;
     let origins = KeyOrigins::of_file(&table);
-    scenario
-        .validate()
-        .map_err(|e| describe_error(&e, &origins))?;
+    exompc::scenario::validate(&scenario).map_err(|e| describe_error(&e, &origins))?;
     Ok((scenario, origins))
 }
 
@@ -151,9 +149,7 @@ pub fn set_key(s: &Scenario, key: &str, value: toml::Value) -> Result<Scenario, 
         flags: Vec::new(),
         unset: "current value",
     };
-    scenario
-        .validate()
-        .map_err(|e| describe_error(&e, &origins))?;
+    exompc::scenario::validate(&scenario).map_err(|e| describe_error(&e, &origins))?;
     Ok(scenario)
 }
 

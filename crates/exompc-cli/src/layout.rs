@@ -26,3 +26,26 @@ pub fn tidy(v: f64) -> f64 {
 pub fn run_dir_name(controller: &str, payload: f64) -> String {
     format!("{controller}_{}kg", tidy(payload))
 }
+
+/// The controllers of `rows` in the order tables and figures show them: the registry's order
+/// ([`exompc::scenario::controllers`]), then names the registry does not know (results of
+/// another process's registered controllers) in the order they first appear.
+pub fn controller_order(rows: &[Summary]) -> Vec<String> {
+    let mut out: Vec<String> = exompc::scenario::controllers()
+        .iter()
+        .map(|c| c.name().to_string())
+        .filter(|n| rows.iter().any(|r| &r.controller == n))
+        .collect();
+    for r in rows {
+        if !out.contains(&r.controller) {
+            out.push(r.controller.clone());
+        }
+    }
+    out
+}
+
+/// The legend label of controller `name` (its registry label; the name itself if the
+/// registry does not know it).
+pub fn controller_label(name: &str) -> String {
+    exompc::scenario::controller_by_name(name).map_or_else(|| name.to_string(), |c| c.label.into())
+}

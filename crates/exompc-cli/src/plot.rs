@@ -37,8 +37,15 @@ const SCEN: [RGBColor; 6] = [
     RGBColor(23, 190, 207),
 ];
 
-/// Controller colours, indexed by `ControllerInfo::colour` of the registry.
-const CONTROLLER_COLOURS: [RGBColor; 3] = [MS, NM, PD_C];
+/// Controller colours, indexed by `ControllerInfo::colour` of the registry (modulo the length).
+const CONTROLLER_COLOURS: [RGBColor; 6] = [
+    MS,
+    NM,
+    PD_C,
+    RGBColor(255, 127, 14),
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+];
 
 fn ctrl_color(c: &str) -> RGBColor {
     controller_by_name(c).map_or(PD_C, |i| {
@@ -814,12 +821,7 @@ type Metric = fn(&Summary) -> Option<f64>;
 /// RMS strap forces and mean scenario probabilities against the payload.
 fn payload_figure(rows: &[Summary]) -> Figure {
     let dof = rows.first().map_or(2, |r| r.dof);
-    let mut ctrls: Vec<&str> = Vec::new();
-    for c in ["msnmpc", "nmpc", "pd"] {
-        if rows.iter().any(|r| r.controller == c) {
-            ctrls.push(c);
-        }
-    }
+    let ctrls = exompc_cli::layout::controller_order(rows);
     let series = |c: &str, f: &dyn Fn(&Summary) -> Option<f64>| -> (Vec<f64>, Vec<f64>) {
         let mut pts: Vec<(f64, f64)> = rows
             .iter()
@@ -858,11 +860,19 @@ fn payload_figure(rows: &[Summary]) -> Figure {
         .filter_map(|r| r.mean_probability.as_ref().map(Vec::len))
         .max()
         .unwrap_or(0);
+    // The probabilities of the first controller (in table order) that reports them.
+    let multistage = ctrls
+        .iter()
+        .find(|c| {
+            rows.iter()
+                .any(|r| &r.controller == *c && r.mean_probability.is_some())
+        })
+        .map_or("", |c| c.as_str());
     if s > 0 {
         let names = rows.iter().find_map(|r| r.scenarios.as_deref());
         let lines = (0..s)
             .map(|i| {
-                let (x, y) = series("msnmpc", &|r: &Summary| {
+                let (x, y) = series(multistage, &|r: &Summary| {
                     r.mean_probability
                         .as_ref()
                         .and_then(|m| m.get(i))
@@ -876,7 +886,7 @@ fn payload_figure(rows: &[Summary]) -> Figure {
             })
             .collect();
         let mut p = Panel::time(
-            "MS-NMPC: mean scenario probabilities",
+            format!("{}: mean scenario probabilities", ctrl_label(multistage)),
             "mean probability (%)",
             lines,
         )
@@ -905,7 +915,8 @@ fn draw_sweep_dir(dir: &Path) -> Result<Vec<PathBuf>, CliError> {
     let mut files = save(&payload_figure(&rows), dir, "payload_sweep")?;
     let load_at = |p: f64| -> Result<Vec<Run>, CliError> {
         let mut runs = Vec::new();
-        for c in ["nmpc", "msnmpc", "pd"] {
+        for c in exompc_cli::layout::controller_order(&rows) {
+            let c = c.as_str();
             if rows.iter().any(|r| r.controller == c && r.payload_kg == p) {
                 let d = dir.join(run_dir_name(c, p));
                 if d.join("trace.csv").is_file() {
@@ -923,9 +934,10 @@ fn draw_sweep_dir(dir: &Path) -> Result<Vec<PathBuf>, CliError> {
     if !runs.is_empty() {
         let tag = run_dir_name("", pmax);
         let tag = tag.trim_start_matches('_');
+        // The states figure of the first controller with scenarios (MS-NMPC), else the first.
         let main = runs
             .iter()
-            .find(|r| r.controller == "msnmpc")
+            .find(|r| r.trace.scenarios() > 0)
             .unwrap_or(&runs[0]);
         files.extend(save(
             &states_figure(main),

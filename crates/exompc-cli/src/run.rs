@@ -4,7 +4,7 @@ use crate::error::CliError;
 use crate::interrupt::StopOnInterrupt;
 use crate::io::write_atomic;
 use crate::trace::CsvTrace;
-use exompc::config::{ControllerKind, Scenario};
+use exompc::config::Scenario;
 use exompc::scenario::multistage;
 use exompc::scenario::{run_experiment, OneDof, RunError, TwoDof};
 use exompc::sim::{Recorder, Summary};
@@ -15,11 +15,13 @@ pub fn scenario_count(s: &Scenario) -> usize {
     scenario_keys(s).len()
 }
 
-/// Trace column keys of the scenarios the controller of `s` reports (none for PD and NMPC).
+/// Trace column keys of the scenarios the controller of `s` reports (none unless it is a
+/// multi-stage controller).
 pub fn scenario_keys(s: &Scenario) -> Vec<String> {
-    match s.controller.kind {
-        ControllerKind::Msnmpc => multistage_keys(s),
-        _ => Vec::new(),
+    if is_multistage(s) {
+        multistage_keys(s)
+    } else {
+        Vec::new()
     }
 }
 
@@ -38,13 +40,18 @@ pub fn multistage_keys(s: &Scenario) -> Vec<String> {
 /// cannot tell apart in the `dof`-DOF layout (`exompc::scenario::multistage::warnings`); none
 /// unless the controller is the multi-stage one.
 pub fn scenario_warnings(s: &Scenario, dof: u8) -> Vec<String> {
-    if s.controller.kind != ControllerKind::Msnmpc {
+    if !is_multistage(s) {
         return Vec::new();
     }
     multistage::warnings(s, usize::from(dof))
         .iter()
         .map(|w| format!("warning: {w}"))
         .collect()
+}
+
+/// Whether the controller of `s` blends the multi-stage scenarios (its registry entry says so).
+fn is_multistage(s: &Scenario) -> bool {
+    exompc::scenario::controller_info(s.controller.kind).is_ok_and(|c| c.multistage)
 }
 
 fn run_error(e: RunError) -> CliError {

@@ -4,7 +4,8 @@
 
 use crate::args::ConfigOpt;
 use crate::args::{
-    apply_overrides_with, controller_name, formulation_name, parse_payloads, FormulationArg,
+    apply_overrides_with, formulation_name, is_multistage, multistage_names, parse_payloads,
+    FormulationArg,
 };
 use clap::Args;
 use exompc::config::{ControllerKind, Scenario};
@@ -98,7 +99,7 @@ fn run_grid(
             s.uncertainty.payload_kg = p;
             s.validate()
                 .map_err(|e| CliError::Usage(format!("--payloads: {p} kg: {e}")))?;
-            let dir = out.join(run_dir_name(controller_name(c), p));
+            let dir = out.join(run_dir_name(c.as_str(), p));
             jobs.push((s, dir));
         }
     }
@@ -230,17 +231,8 @@ pub(crate) fn table2(rows: &[Summary]) -> String {
             payloads.push(r.payload_kg);
         }
     }
-    let order = ["msnmpc", "nmpc", "pd"];
-    let label = |c: &str| match c {
-        "msnmpc" => "MS-NMPC",
-        "nmpc" => "NMPC",
-        _ => "PD",
-    };
-    let ctrls: Vec<&str> = order
-        .iter()
-        .copied()
-        .filter(|c| rows.iter().any(|r| r.controller == *c))
-        .collect();
+    let label = |c: &str| exompc_cli::layout::controller_label(c);
+    let ctrls = exompc_cli::layout::controller_order(rows);
     let find = |p: f64, c: &str| rows.iter().find(|r| r.payload_kg == p && r.controller == c);
     let scenarios = rows
         .iter()
@@ -302,13 +294,9 @@ pub(crate) fn run(a: SweepArgs) -> Result<(), CliError> {
     let payloads = parse_payloads(&a.payloads)?;
     let mut controllers: Vec<ControllerKind> = Vec::new();
     for c in a.controllers {
-        if controllers
-            .iter()
-            .any(|d| controller_name(*d) == controller_name(c))
-        {
+        if controllers.contains(&c) {
             return Err(CliError::Usage(format!(
-                "--controllers: {} is listed twice",
-                controller_name(c)
+                "--controllers: {c} is listed twice"
             )));
         }
         controllers.push(c);
@@ -317,13 +305,11 @@ pub(crate) fn run(a: SweepArgs) -> Result<(), CliError> {
         return Err(CliError::Usage("--controllers: empty list".into()));
     }
     if let Some(f) = a.formulation {
-        if !controllers
-            .iter()
-            .any(|c| matches!(c, ControllerKind::Msnmpc))
-        {
+        if !controllers.iter().any(|c| is_multistage(*c)) {
             return Err(CliError::Usage(format!(
-                "--formulation {} applies to msnmpc, which --controllers does not list",
-                formulation_name(f)
+                "--formulation {} applies to {}, which --controllers does not list",
+                formulation_name(f),
+                multistage_names()
             )));
         }
     }

@@ -255,7 +255,7 @@ fn probe(path: &str, v: toml::Value) -> Result<(), String> {
     let reported = path
         .replacen("faults.events.", "faults.events[0].", 1)
         .replacen("multistage.scenarios.", "multistage.scenarios[0].", 1);
-    match s.validate() {
+    match exompc::scenario::validate(&s) {
         Err(e) if e.field == reported || e.field.starts_with(&format!("{reported}[")) => {
             Err(e.to_string())
         }
@@ -379,6 +379,24 @@ fn documented_ranges_agree_with_validation() {
                 for bad in ["", " lead", "a,b", "q\"t", &"x".repeat(n + 1)] {
                     assert!(probe(p, text(bad)).is_err(), "{p} = {bad:?} accepted");
                 }
+            }
+            Allowed::Controller => {
+                // Every registered controller's name, nothing else; the error lists them.
+                let names: Vec<&str> = exompc::scenario::controllers()
+                    .iter()
+                    .map(|c| c.name())
+                    .collect();
+                for n in &names {
+                    assert!(
+                        probe(p, toml::Value::String(n.to_string())).is_ok(),
+                        "{p} = {n}"
+                    );
+                }
+                let e = probe(p, toml::Value::String("bogus".into())).unwrap_err();
+                for n in &names {
+                    assert!(e.contains(&format!("\"{n}\"")), "{p}: {e}");
+                }
+                assert!(probe(p, toml::Value::String("Not a name".into())).is_err());
             }
             Allowed::Bool => {
                 for b in [true, false] {

@@ -5,16 +5,10 @@ use exompc_cli::io::{
     closest, ensure_out_dir, levenshtein, parse_scenario, write_atomic, AtomicWriter,
 };
 use std::io::Write;
-use std::path::PathBuf;
 
 mod common;
 
-/// An empty scratch folder `name` (see `common::fresh_dir`).
-fn scratch_dir(name: &str) -> PathBuf {
-    let dir = common::fresh_dir(name);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
+use common::empty_dir as scratch_dir;
 
 fn entries(dir: &std::path::Path) -> Vec<String> {
     let mut v: Vec<String> = std::fs::read_dir(dir)
@@ -45,7 +39,7 @@ fn partial_override_changes_only_named_fields() {
         mass_kg: 1.5,
         ..RobotLink::SHANK
     };
-    expected.controller.kind = exompc::config::ControllerKind::Nmpc;
+    expected.controller.kind = exompc::config::ControllerKind::NMPC;
     expected.controller.np = 10;
     expected.timing.dt = 1.0;
     assert_eq!(s, expected);

@@ -1,4 +1,4 @@
-//! `exompc model` and `exompc solve` against oracles written here from the spec (MODEL.md §1-3,
+//! `exompc model` and `exompc solve` against oracles written here from docs/MODEL.md (§1-3,
 //! §8): the closed-form double pendulum, the parallel-axis payload, plant friction, an RK4
 //! step, and the NMPC constraints.
 

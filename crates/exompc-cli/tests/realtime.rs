@@ -16,12 +16,7 @@ const EXE: &str = env!("CARGO_BIN_EXE_exompc");
 
 mod common;
 
-/// An empty scratch folder `name` (see `common::fresh_dir`).
-fn scratch(name: &str) -> PathBuf {
-    let dir = common::fresh_dir(name);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
+use common::empty_dir as scratch;
 
 /// Start a virtual robot on an ephemeral loopback port; returns it and its port. `prio` is the
 /// SCHED_FIFO priority asked for (0: the normal scheduler).

@@ -1,24 +1,10 @@
 //! What a new user meets: verdict lines, monitor trips in the summary, interrupted and repeated
 //! runs, config help, recorded gaits (issue 15).
 
-use std::path::PathBuf;
+mod common;
+
+use common::{exompc, fresh_dir};
 use std::process::{Command, Output};
-
-fn exompc(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_exompc"))
-        .args(args)
-        .output()
-        .expect("run exompc")
-}
-
-fn fresh_dir(name: &str) -> PathBuf {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
-        .join("exompc-ux-tests")
-        .join(name);
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(dir.parent().unwrap()).unwrap();
-    dir
-}
 
 fn text(o: &[u8]) -> String {
     String::from_utf8_lossy(o).into_owned()

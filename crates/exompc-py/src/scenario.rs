@@ -145,7 +145,7 @@ impl PyScenario {
 
     /// Checks every field again (always true for a Scenario built through this API).
     fn validate(&self) -> PyResult<()> {
-        self.inner.validate().map_err(|e| config_err(e.to_string()))
+        exompc::scenario::validate(&self.inner).map_err(|e| config_err(e.to_string()))
     }
 
     /// An independent copy.
@@ -180,16 +180,13 @@ impl PyScenario {
     fn __repr__(&self) -> String {
         let s = &self.inner;
         format!(
-            "Scenario(controller={:?}, payload_kg={}, dt={}, duration_2dof_s={}, duration_1dof_s={})",
+            "Scenario(controller={}, payload_kg={}, dt={}, duration_2dof_s={}, duration_1dof_s={})",
             s.controller.kind,
             s.uncertainty.payload_kg,
             s.timing.dt,
             s.timing.duration_2dof_s,
             s.timing.duration_1dof_s
         )
-        .replace("Msnmpc", "msnmpc")
-        .replace("Nmpc", "nmpc")
-        .replace("Pd", "pd")
     }
 }
 

@@ -86,17 +86,17 @@ fn bench(c: &mut Criterion) {
     };
     step_bench(
         "control/step_nmpc",
-        ControllerKind::Nmpc,
+        ControllerKind::NMPC,
         Formulation::Decoupled,
     );
     step_bench(
         "control/step_msnmpc_decoupled",
-        ControllerKind::Msnmpc,
+        ControllerKind::MSNMPC,
         Formulation::Decoupled,
     );
     step_bench(
         "control/step_msnmpc_coupled",
-        ControllerKind::Msnmpc,
+        ControllerKind::MSNMPC,
         Formulation::Coupled,
     );
 }

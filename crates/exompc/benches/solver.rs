@@ -7,18 +7,10 @@ use exompc::solver::qp::DenseQp;
 use exompc::solver::sqp::{Constraints, LeastSquares, Sqp, SqpSettings};
 use nalgebra::{DMatrix, DVector};
 
-struct Rng(u64);
-impl Rng {
-    fn unif(&mut self) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        (self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn range(&mut self, a: f64, b: f64) -> f64 {
-        a + (b - a) * self.unif()
-    }
-}
+/// The tests' shared support module (its deterministic [`Rng`]).
+#[path = "../tests/common/mod.rs"]
+mod test_support;
+use test_support::Rng;
 
 /// QP with a box, cumulative-sum rows and a gradient pushing several constraints active.
 #[allow(clippy::type_complexity)]

@@ -65,7 +65,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let scenario = Scenario::default();
     let dt = scenario.timing.dt;
     let lim = limits(&scenario);
-    let mut controller = build_controller::<TwoDof, 2>(&scenario, ControllerKind::Msnmpc)?;
+    let mut controller = build_controller::<TwoDof, 2>(&scenario, ControllerKind::MSNMPC)?;
 
     // The plant: thigh and shank of the default robot, 1.5 kg at the middle of the shank.
     let thigh = Link {

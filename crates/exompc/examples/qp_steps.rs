@@ -33,7 +33,7 @@ fn main() {
         other => panic!("formulation `{other}`: decoupled or coupled"),
     };
     let mut s = Scenario::default();
-    s.controller.kind = ControllerKind::Msnmpc;
+    s.controller.kind = ControllerKind::MSNMPC;
     s.controller.np = n;
     s.controller.nc = n;
     s.controller.sqp.qp = qp;
@@ -49,7 +49,7 @@ fn main() {
         })
         .collect();
     s.multistage.probability_floor = s.multistage.probability_floor.min(0.5 / ns as f64);
-    let mut c = build_controller::<TwoDof, 2>(&s, ControllerKind::Msnmpc).expect("controller");
+    let mut c = build_controller::<TwoDof, 2>(&s, ControllerKind::MSNMPC).expect("controller");
     let mut plant = Plant::new(plant_params::<TwoDof, 2>(&s), TwoDof::trajectory(&s));
     let mut sensors = Sensors::new(uncertainty(&s), s.uncertainty.filter_window);
     let mut iters = 0u64;

@@ -42,7 +42,7 @@ fn write_torques(_torque: &Vector2<f64>) {}
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let scenario = Scenario::default();
     let lim = limits(&scenario);
-    let mut controller = build_supervised::<TwoDof, 2>(&scenario, ControllerKind::Msnmpc)?;
+    let mut controller = build_supervised::<TwoDof, 2>(&scenario, ControllerKind::MSNMPC)?;
 
     let period = Duration::from_secs_f64(scenario.timing.dt);
     let mut next = Instant::now();

@@ -15,6 +15,7 @@
 use serde::{Deserialize, Deserializer, Serialize};
 use std::fmt;
 
+mod controller_kind;
 mod keys;
 pub mod scenarios;
 pub use keys::{explain, Allowed, End, KeyDoc, Limit, KEYS};
@@ -598,17 +599,7 @@ impl Default for Timing {
 // [controller]
 // ---------------------------------------------------------------------------------------------
 
-/// Which controller drives the robot.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ControllerKind {
-    /// Baseline joint PD on the estimated human intent (`[controller.pd]` gains).
-    Pd,
-    /// Non-robust NMPC on the nominal (0 kg) model, no disturbance estimate (paper §3.1, eq. 7).
-    Nmpc,
-    /// Multi-stage robust NMPC (paper §3.2, eqs. 10-13).
-    Msnmpc,
-}
+pub use controller_kind::ControllerKind;
 
 pub use crate::control::Interaction;
 pub use crate::control::{FilterAware, Method, RobustSettings};
@@ -617,7 +608,9 @@ pub use crate::control::{FilterAware, Method, RobustSettings};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Controller {
-    /// Controller used by `simulate` (`"pd"`, `"nmpc"`, `"msnmpc"`). Default `"msnmpc"`.
+    /// Controller used by `simulate`: the name of a registered controller (`"pd"`, `"nmpc"`,
+    /// `"msnmpc"` or one added with `exompc::scenario::register_controller`). Default
+    /// `"msnmpc"`.
     pub kind: ControllerKind,
     /// Intent gain K1 (1/N, applied as `K1·I`): `q̂_H = q_R + K1 F` (paper eq. 5), >= 0. Default 0.005.
     pub k1: f64,
@@ -653,7 +646,7 @@ pub struct Controller {
 impl Default for Controller {
     fn default() -> Self {
         Self {
-            kind: ControllerKind::Msnmpc,
+            kind: ControllerKind::MSNMPC,
             k1: 0.005,
             k2: 0.05,
             np: 3,
@@ -802,7 +795,7 @@ pub use crate::control::{FallbackSettings, MonitorResponse, Monitors};
 
 /// The complete scenario: plant, human, controller, estimator, faults and monitors.
 ///
-/// `Scenario::default()` is the embedded default scenario of spec `MODEL.md`.
+/// `Scenario::default()` is the embedded default scenario of `docs/MODEL.md`.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Scenario {

@@ -47,7 +47,7 @@
 //! use nalgebra::Vector2;
 //!
 //! let scenario = Scenario::default(); // the paper's 2-DOF study (docs/MODEL.md)
-//! let mut controller = build_controller::<TwoDof, 2>(&scenario, ControllerKind::Msnmpc)?;
+//! let mut controller = build_controller::<TwoDof, 2>(&scenario, ControllerKind::MSNMPC)?;
 //!
 //! // The robot sits on the human's desired start; the straps pull slightly.
 //! let (q, qd, _) = TwoDof::trajectory(&scenario).eval(0.0);

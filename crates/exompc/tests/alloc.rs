@@ -39,20 +39,20 @@ fn control_steps_do_not_allocate() {
     let mut s = Scenario::default();
     s.multistage.parallel = false;
 
-    s.controller.kind = ControllerKind::Nmpc;
-    assert_eq!(count_steps(&s, ControllerKind::Nmpc), 0, "nmpc allocates");
+    s.controller.kind = ControllerKind::NMPC;
+    assert_eq!(count_steps(&s, ControllerKind::NMPC), 0, "nmpc allocates");
 
-    s.controller.kind = ControllerKind::Msnmpc;
+    s.controller.kind = ControllerKind::MSNMPC;
     s.multistage.formulation = Formulation::Decoupled;
     assert_eq!(
-        count_steps(&s, ControllerKind::Msnmpc),
+        count_steps(&s, ControllerKind::MSNMPC),
         0,
         "msnmpc (decoupled) allocates"
     );
 
     s.multistage.formulation = Formulation::Coupled;
     assert_eq!(
-        count_steps(&s, ControllerKind::Msnmpc),
+        count_steps(&s, ControllerKind::MSNMPC),
         0,
         "msnmpc (coupled) allocates"
     );
@@ -61,16 +61,16 @@ fn control_steps_do_not_allocate() {
     s.controller.sqp.qp = exompc::control::QpBackend::Structured;
     s.controller.np = 12;
     s.controller.nc = 12;
-    s.controller.kind = ControllerKind::Nmpc;
+    s.controller.kind = ControllerKind::NMPC;
     assert_eq!(
-        count_steps(&s, ControllerKind::Nmpc),
+        count_steps(&s, ControllerKind::NMPC),
         0,
         "nmpc (structured QP) allocates"
     );
-    s.controller.kind = ControllerKind::Msnmpc;
+    s.controller.kind = ControllerKind::MSNMPC;
     s.multistage.formulation = Formulation::Decoupled;
     assert_eq!(
-        count_steps(&s, ControllerKind::Msnmpc),
+        count_steps(&s, ControllerKind::MSNMPC),
         0,
         "msnmpc (decoupled, structured QP) allocates"
     );
@@ -92,7 +92,7 @@ fn control_steps_do_not_allocate() {
     s.multistage.formulation = Formulation::Decoupled;
     s.controller.robust.filter_aware = exompc::config::FilterAware::Always;
     assert_eq!(
-        count_steps(&s, ControllerKind::Msnmpc),
+        count_steps(&s, ControllerKind::MSNMPC),
         0,
         "msnmpc (filter-aware) allocates"
     );
@@ -123,7 +123,7 @@ fn supervised_steps_do_not_allocate() {
     provoked.robot.payload_position_m = 0.43;
     for s in [Scenario::default(), provoked] {
         let mut controller =
-            exompc::scenario::build_supervised::<TwoDof, 2>(&s, ControllerKind::Msnmpc).unwrap();
+            exompc::scenario::build_supervised::<TwoDof, 2>(&s, ControllerKind::MSNMPC).unwrap();
         let mut plant = Plant::new(plant_params::<TwoDof, 2>(&s), TwoDof::trajectory(&s));
         let mut sensors = Sensors::new(uncertainty(&s), s.uncertainty.filter_window);
         let mut total = 0;

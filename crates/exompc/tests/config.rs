@@ -1,4 +1,4 @@
-//! Tests of `exompc::config`: spec defaults, validation rules and helpers.
+//! Tests of `exompc::config`: the defaults of docs/MODEL.md, validation rules and helpers.
 
 use exompc::config::*;
 
@@ -105,7 +105,7 @@ fn default_matches_spec_values() {
     );
     // MODEL.md §8
     let c = &s.controller;
-    assert_eq!(c.kind, ControllerKind::Msnmpc);
+    assert_eq!(c.kind, ControllerKind::MSNMPC);
     assert_eq!((c.k1, c.k2), (0.005, 0.05));
     assert_eq!((c.np, c.nc), (3, 3));
     assert_eq!((c.r_d, c.r_t), (0.1, 1e-5));

@@ -443,7 +443,7 @@ proptest! {
         let mut out = vec![0.0; n];
         update_probabilities(&prev, &ll, floor, &mut out);
         check_distribution(&out, floor);
-        // And with the spec floor.
+        // And with the default floor.
         let floor = 1e-4;
         update_probabilities(&prev, &ll, floor, &mut out);
         check_distribution(&out, floor);

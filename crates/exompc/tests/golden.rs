@@ -19,11 +19,11 @@ fn scenario(r: Run) -> Scenario {
     let mut s = Scenario::default();
     match r {
         Run::Nmpc(p) => {
-            s.controller.kind = ControllerKind::Nmpc;
+            s.controller.kind = ControllerKind::NMPC;
             s.uncertainty.payload_kg = p;
         }
         Run::Ms(f, p) => {
-            s.controller.kind = ControllerKind::Msnmpc;
+            s.controller.kind = ControllerKind::MSNMPC;
             s.multistage.formulation = f;
             s.uncertainty.payload_kg = p;
         }

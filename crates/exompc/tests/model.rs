@@ -1,4 +1,4 @@
-//! Model tests against independent oracles: the spec's closed form, energy conservation,
+//! Model tests against independent oracles: the closed form of docs/MODEL.md, energy conservation,
 //! the skew-symmetry identity, a direct payload computation and strap energy gradients.
 
 mod common;

@@ -19,7 +19,7 @@ type V2 = Vector2<f64>;
 
 fn ms_scenario(payloads: &[f64], formulation: Formulation) -> Scenario {
     let mut s = Scenario::default();
-    s.controller.kind = ControllerKind::Msnmpc;
+    s.controller.kind = ControllerKind::MSNMPC;
     s.multistage.payloads_kg = payloads.to_vec();
     s.multistage.formulation = formulation;
     // The equivalences below are between optima; solve tightly so that the paths the solvers

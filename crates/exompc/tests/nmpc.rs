@@ -1,5 +1,5 @@
 //! The non-robust NMPC (paper §3.1, eq. 7 with constraints 8-9; MODEL.md §8) against oracles built
-//! here: the cost of eq. 7 written from the spec, finite-difference gradients, multipliers
+//! here: the cost of eq. 7 written from docs/MODEL.md, finite-difference gradients, multipliers
 //! recovered by a small non-negative least squares on the active set, and an independent
 //! Gauss-Newton SQP whose QPs are solved by Clarabel.
 
@@ -222,7 +222,7 @@ fn nnls(cols: &[Vec<f64>], g: &DVector<f64>) -> (f64, Vec<f64>) {
     best
 }
 
-/// Independent SQP: finite-difference gradient and Hessian of the spec's cost, QPs solved by
+/// Independent SQP: finite-difference gradient and Hessian of the cost of docs/MODEL.md, QPs solved by
 /// Clarabel with tight tolerances, Armijo backtracking; from `z = 0`.
 fn reference_solve(su: &Setup, c: &Case) -> Vec<f64> {
     let rows = constraint_rows(su, c);
@@ -537,7 +537,7 @@ fn warm_start_reduces_sqp_iterations() {
 #[test]
 fn nmpc_closed_loop_at_zero_payload_keeps_strap_forces_small() {
     let mut s = Scenario::default();
-    s.controller.kind = ControllerKind::Nmpc;
+    s.controller.kind = ControllerKind::NMPC;
     s.uncertainty.payload_kg = 0.0;
     let sum = run_experiment::<TwoDof, 2>(&s, &mut []).unwrap();
     let (th, sh) = (

@@ -124,7 +124,7 @@ fn provoked_limit_cycle_trips_the_oscillation_monitor_within_1_s() {
 #[test]
 fn default_scenario_trips_no_monitor() {
     let mut cases = Vec::new();
-    for kind in [ControllerKind::Msnmpc, ControllerKind::Nmpc] {
+    for kind in [ControllerKind::MSNMPC, ControllerKind::NMPC] {
         for p in [0.0, 1.0, 2.0, 3.0] {
             let mut s = Scenario::default();
             s.controller.kind = kind;
@@ -225,7 +225,7 @@ fn fallback_response_calms_the_provoked_limit_cycle() {
 /// first force-oscillation trip time.
 fn force_oscillation_trip(force: impl Fn(f64) -> [f64; 2], seconds: f64) -> Option<f64> {
     let s = Scenario::default();
-    let inner = exompc::build_controller::<TwoDof, 2>(&s, ControllerKind::Pd).unwrap();
+    let inner = exompc::build_controller::<TwoDof, 2>(&s, ControllerKind::PD).unwrap();
     let mut sup = Supervisor::new(inner, SafetySettings::from_scenario(&s));
     let n = (seconds / s.timing.dt).round() as usize;
     for k in 0..n {

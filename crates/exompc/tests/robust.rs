@@ -217,7 +217,7 @@ fn robust_default_holds_where_the_paper_method_limit_cycles() {
         m.oscillation_torque_rms_nm = 1e300;
         let paper = run(&paper);
         let mut nmpc = s.clone();
-        nmpc.controller.kind = ControllerKind::Nmpc;
+        nmpc.controller.kind = ControllerKind::NMPC;
         let nmpc = run(&nmpc);
         for a in 0..robust.0.len() {
             assert!(

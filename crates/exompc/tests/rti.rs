@@ -143,20 +143,20 @@ fn rti_closed_loop_diff<D: Dof<N>, const N: usize>(kind: ControllerKind, n: usiz
 fn rti_closed_loops_dense_equal_structured() {
     for (kind, d) in [
         (
-            ControllerKind::Nmpc,
-            rti_closed_loop_diff::<OneDof, 1>(ControllerKind::Nmpc, 10),
+            ControllerKind::NMPC,
+            rti_closed_loop_diff::<OneDof, 1>(ControllerKind::NMPC, 10),
         ),
         (
-            ControllerKind::Nmpc,
-            rti_closed_loop_diff::<TwoDof, 2>(ControllerKind::Nmpc, 10),
+            ControllerKind::NMPC,
+            rti_closed_loop_diff::<TwoDof, 2>(ControllerKind::NMPC, 10),
         ),
         (
-            ControllerKind::Msnmpc,
-            rti_closed_loop_diff::<TwoDof, 2>(ControllerKind::Msnmpc, 10),
+            ControllerKind::MSNMPC,
+            rti_closed_loop_diff::<TwoDof, 2>(ControllerKind::MSNMPC, 10),
         ),
         (
-            ControllerKind::Nmpc,
-            rti_closed_loop_diff::<TwoDof, 2>(ControllerKind::Nmpc, 20),
+            ControllerKind::NMPC,
+            rti_closed_loop_diff::<TwoDof, 2>(ControllerKind::NMPC, 20),
         ),
     ] {
         eprintln!("{kind:?}: max |ΔT| = {d:e}");

@@ -67,9 +67,9 @@ fn scenario(kind: Kind, payloads: &[f64]) -> Scenario {
     let mut s = Scenario::default();
     s.multistage.payloads_kg = payloads.to_vec();
     s.controller.kind = match kind {
-        Kind::Pd => ControllerKind::Pd,
-        Kind::Nmpc => ControllerKind::Nmpc,
-        Kind::MsDecoupled | Kind::MsCoupled => ControllerKind::Msnmpc,
+        Kind::Pd => ControllerKind::PD,
+        Kind::Nmpc => ControllerKind::NMPC,
+        Kind::MsDecoupled | Kind::MsCoupled => ControllerKind::MSNMPC,
     };
     s.multistage.formulation = match kind {
         Kind::MsCoupled => Formulation::Coupled,
@@ -316,7 +316,7 @@ fn stale_sensor_trips_the_timeout_monitor_and_ramps_to_zero() {
 #[test]
 fn supervisor_keeps_the_inner_previous_torque_in_sync() {
     let s = scenario(Kind::MsDecoupled, &[0.0, 2.0]);
-    let inner = build_controller::<TwoDof, 2>(&s, ControllerKind::Msnmpc).unwrap();
+    let inner = build_controller::<TwoDof, 2>(&s, ControllerKind::MSNMPC).unwrap();
     let mut settings = SafetySettings::from_scenario(&s);
     settings.monitors.response = MonitorResponse::RampToZero;
     let mut sup = Supervisor::new(inner, settings);

@@ -270,7 +270,7 @@ fn the_bank_identifies_the_plants_shank_mass() {
         shank_mass("heavier", 3.6),
     ]);
     s.robot.shank.mass_kg = 2.4;
-    s.controller.kind = ControllerKind::Msnmpc;
+    s.controller.kind = ControllerKind::MSNMPC;
     s.timing.duration_2dof_s = 10.0;
     s.timing.duration_1dof_s = 10.0;
     s.validate().unwrap();

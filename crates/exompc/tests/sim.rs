@@ -74,7 +74,7 @@ fn check_derivatives<const N: usize, T: Trajectory<N>>(
 fn trajectories_match_spec_and_finite_differences() {
     check_derivatives("swing", &SwingTrajectory::default(), swing_spec, 20.0);
     check_derivatives("knee", &KneeTrajectory::default(), knee_spec, 30.0);
-    // The scenario's trajectory is the spec's.
+    // The scenario's trajectory is the one of docs/MODEL.md.
     let s = Scenario::default();
     use exompc::scenario::Dof;
     check_derivatives("scenario swing", &TwoDof::trajectory(&s), swing_spec, 20.0);
@@ -269,7 +269,7 @@ fn controller_build_errors_are_typed() {
     use exompc::scenario::{build_controller, RunError, TwoDof};
     let mut s = exompc::config::Scenario::default();
     s.ekf.q_angle = -1.0; // not validated here: build_controller trusts its caller
-    match build_controller::<TwoDof, 2>(&s, exompc::config::ControllerKind::Msnmpc) {
+    match build_controller::<TwoDof, 2>(&s, exompc::config::ControllerKind::MSNMPC) {
         Err(RunError::MultiStage(MultiStageError::Estimator(EstimateError::InvalidSetting(
             field,
             _,
@@ -280,8 +280,8 @@ fn controller_build_errors_are_typed() {
     let mut s = exompc::config::Scenario::default();
     s.controller.torque_max = f64::NAN;
     for kind in [
-        exompc::config::ControllerKind::Nmpc,
-        exompc::config::ControllerKind::Msnmpc,
+        exompc::config::ControllerKind::NMPC,
+        exompc::config::ControllerKind::MSNMPC,
     ] {
         let e = build_controller::<TwoDof, 2>(&s, kind)
             .err()

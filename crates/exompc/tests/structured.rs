@@ -414,11 +414,11 @@ fn structured_closed_loops_equal_dense() {
     // within the rounding floor of the KKT test, and the loops drift apart by ~1e-7 N·m; the
     // tolerance says so (docs/PERFORMANCE.md, closed-loop agreement).
     for (kind, formulation, n, tol) in [
-        (ControllerKind::Nmpc, Formulation::Decoupled, 3, 1e-8),
-        (ControllerKind::Nmpc, Formulation::Decoupled, 10, 1e-8),
-        (ControllerKind::Msnmpc, Formulation::Decoupled, 3, 1e-8),
-        (ControllerKind::Msnmpc, Formulation::Decoupled, 10, 1e-8),
-        (ControllerKind::Nmpc, Formulation::Decoupled, 20, 1e-6),
+        (ControllerKind::NMPC, Formulation::Decoupled, 3, 1e-8),
+        (ControllerKind::NMPC, Formulation::Decoupled, 10, 1e-8),
+        (ControllerKind::MSNMPC, Formulation::Decoupled, 3, 1e-8),
+        (ControllerKind::MSNMPC, Formulation::Decoupled, 10, 1e-8),
+        (ControllerKind::NMPC, Formulation::Decoupled, 20, 1e-6),
     ] {
         let d = closed_loop_diff(kind, formulation, n, 400);
         eprintln!("{kind:?} {formulation:?} n={n}: max |ΔT| = {d:e}");

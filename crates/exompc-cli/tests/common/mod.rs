@@ -32,3 +32,10 @@ pub fn fresh_dir(name: &str) -> PathBuf {
 pub fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
+
+/// `fresh_dir(name)`, created empty.
+pub fn empty_dir(name: &str) -> PathBuf {
+    let d = fresh_dir(name);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}

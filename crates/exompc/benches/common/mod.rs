@@ -8,7 +8,7 @@ use exompc::sim::{Plant, Sensors};
 
 /// `steps` filtered measurements of a closed loop of `s` under the plain NMPC.
 pub fn record(s: &Scenario, steps: usize) -> Vec<Measurement<2>> {
-    let mut c = build_controller::<TwoDof, 2>(s, ControllerKind::Nmpc).expect("controller");
+    let mut c = build_controller::<TwoDof, 2>(s, ControllerKind::NMPC).expect("controller");
     let mut plant = Plant::new(plant_params::<TwoDof, 2>(s), TwoDof::trajectory(s));
     let mut sensors = Sensors::new(uncertainty(s), s.uncertainty.filter_window);
     let mut out = Vec::with_capacity(steps);

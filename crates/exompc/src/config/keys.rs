@@ -78,6 +78,9 @@ pub enum Allowed {
     Bool,
     /// A file path (a TOML string), relative to the config file's folder.
     Path,
+    /// The name of a registered controller (a TOML string; the registry is
+    /// [`exompc::scenario::controllers`](crate::scenario::controllers)).
+    Controller,
     /// A name (a TOML string): non-empty, at most this many characters, no commas, quotes or
     /// control characters, no leading or trailing space, unique among its tables.
     Name(usize),
@@ -131,6 +134,9 @@ impl Allowed {
                     Some((last, rest)) => format!("{} or {last}", rest.join(", ")),
                     None => String::new(),
                 }
+            }
+            Allowed::Controller => {
+                "the name of a registered controller".into()
             }
             Allowed::Bool => "true or false".into(),
             Allowed::Path => "a file path (relative to the config file's folder)".into(),
@@ -365,7 +371,7 @@ pub const KEYS: &[KeyDoc] = &[
     k("timing.duration_1dof_s", "s", real(key_closed("timing.dt"), closed(1e6)), M7, DURATION_NOTE_1),
     // [controller]
     table("controller", M8, "Human-intent estimation and the NMPC (paper eqs. 5-9, Table 1)."),
-    k("controller.kind", "", Allowed::Choice(&["pd", "nmpc", "msnmpc"]), M8X, "Controller used by simulate: baseline PD, plain NMPC on the 0 kg model, or multi-stage robust NMPC."),
+    k("controller.kind", "", Allowed::Controller, M8X, "Controller used by simulate, by its name in the controller registry (the built-in ones: baseline PD, plain NMPC on the 0 kg model, multi-stage robust NMPC)."),
     k("controller.k1", "rad/N", NONNEG, "docs/MODEL.md §8, paper eq. 5", "Intent gain K1: estimated human angle q_R + K1 F."),
     k("controller.k2", "rad/(N·s)", NONNEG, "docs/MODEL.md §8, paper eq. 6", "Intent gain K2: estimated human velocity qd_R + K2 F."),
     k("controller.np", "steps", int(1, 200), "docs/MODEL.md §8, paper Table 1", "Prediction horizon Np."),

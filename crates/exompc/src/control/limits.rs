@@ -17,9 +17,9 @@ pub struct LimitsError {
 /// `|T| ≤ max` and `|T − T_prev| ≤ rate` on every joint (paper eqs. 8-9, MODEL.md §8).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TorqueLimits {
-    /// Torque magnitude limit `T_max` (N·m), spec 30.
+    /// Torque magnitude limit `T_max` (N·m), default 30.
     pub max: f64,
-    /// Torque change limit per control period `ΔT_max` (N·m), spec 1000 N·m/s × 0.01 s = 10.
+    /// Torque change limit per control period `ΔT_max` (N·m), default 1000 N·m/s × 0.01 s = 10.
     pub rate: f64,
 }
 

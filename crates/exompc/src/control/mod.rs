@@ -152,9 +152,9 @@ pub trait Controller<const N: usize> {
 /// Human-intent estimate of paper eqs. 5-6: `q̂_H = q_R + K1 F`, `q̂d_H = qd_R + K2 F`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct IntentEstimator {
-    /// `K1` (rad/N), diagonal, spec 0.005.
+    /// `K1` (rad/N), diagonal, default 0.005.
     pub k1: f64,
-    /// `K2` (rad/(N·s)), diagonal, spec 0.05.
+    /// `K2` (rad/(N·s)), diagonal, default 0.05.
     pub k2: f64,
 }
 

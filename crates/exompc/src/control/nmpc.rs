@@ -11,13 +11,13 @@ use nalgebra::{DMatrix, DVector, SMatrix, SVector};
 /// Horizon and weights of eq. 7 (MODEL.md §8).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct NmpcSettings {
-    /// Prediction horizon `Np` (steps), spec 3.
+    /// Prediction horizon `Np` (steps), default 3.
     pub np: usize,
-    /// Control horizon `Nc ≤ Np` (steps), spec 3; the torque is held after `Nc`.
+    /// Control horizon `Nc ≤ Np` (steps), default 3; the torque is held after `Nc`.
     pub nc: usize,
-    /// Velocity-tracking weight `r_d`, spec 0.1.
+    /// Velocity-tracking weight `r_d`, default 0.1.
     pub r_d: f64,
-    /// Torque-increment weight `r_t`, spec 1e-5.
+    /// Torque-increment weight `r_t`, default 1e-5.
     pub r_t: f64,
     /// SQP settings.
     pub sqp: SqpSettings,

@@ -1,5 +1,5 @@
 //! State, disturbance and scenario-probability estimation: parallel extended Kalman filters
-//! (paper §3.2, eqs. 10-11; spec `MODEL.md` §8).
+//! (paper §3.2, eqs. 10-11; docs/MODEL.md §8).
 //!
 //! The multi-stage controller runs one EKF per payload scenario on the augmented state
 //! `x = [q, qd, d]` (joint angles, joint velocities and a lumped joint torque disturbance `d`

@@ -1,6 +1,6 @@
 //! Planar serial chains: human and robot legs, payload, friction, interaction straps, RK4.
 //!
-//! Paper §2, eqs. 1-4; spec (`MODEL.md`) §1-4. Everything here is generic over the scalar type
+//! Paper §2, eqs. 1-4; docs/MODEL.md §1-4. Everything here is generic over the scalar type
 //! ([`Real`]) so that the very same code yields exact derivatives with forward-mode dual numbers
 //! (`num-dual`).
 

@@ -51,7 +51,7 @@ pub trait Dof<const N: usize> {
     fn straps(s: &Scenario) -> Straps<N>;
     /// The human's desired trajectory.
     fn trajectory(s: &Scenario) -> Self::Traj;
-    /// The builder of controller `c` for this layout (see [`CONTROLLERS`](super::CONTROLLERS)).
+    /// The builder of controller `c` for this layout (see [`controllers`](super::controllers)).
     fn builder(c: &ControllerInfo) -> Builder<N>;
 }
 
@@ -219,14 +219,16 @@ pub fn initial_torque<D: Dof<N>, const N: usize>(s: &Scenario) -> SVector<f64, N
     scenario_robot::<D, N>(s, 0.0).chain.gravity_torque(&q0)
 }
 
-/// The controller `kind` for scenario `s`, built by its [`CONTROLLERS`](super::CONTROLLERS)
-/// entry.
+/// The controller `kind` for scenario `s`, built by its registry entry
+/// ([`controllers`](super::controllers)); [`RunError::Config`] naming `controller.kind` if no
+/// controller of that name is registered.
 pub fn build_controller<D: Dof<N>, const N: usize>(
     s: &Scenario,
     kind: ControllerKind,
 ) -> Result<Box<dyn Controller<N>>, RunError> {
+    let info = controller_info(kind)?;
     let t0 = initial_torque::<D, N>(s);
-    D::builder(controller_info(kind))(s, t0)
+    D::builder(info)(s, t0)
 }
 
 /// The PD baseline of scenario `s` (`[controller.pd]` gains), previous torque `t0`.

@@ -15,7 +15,10 @@ pub use build::{
     initial_torque, intent, limits, nmpc_settings, plant_params, prediction_model, scenario_robot,
     uncertainty, Dof, OneDof, TwoDof,
 };
-pub use registry::{controller_by_name, controller_info, Builder, ControllerInfo, CONTROLLERS};
+pub use registry::{
+    controller_by_name, controller_info, controllers, register_controller, validate, Builder,
+    ControllerInfo, DuplicateController, BUILTIN,
+};
 pub use run::{
     run_experiment, run_experiment_report, run_soak, soak_scenario, RunError, SoakReport,
 };

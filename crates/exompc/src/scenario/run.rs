@@ -111,7 +111,7 @@ pub fn run_experiment_report<D: Dof<N>, const N: usize>(
         s.uncertainty.payload_kg,
         s.timing.dt,
     );
-    if s.controller.kind == ControllerKind::Msnmpc {
+    if super::controller_info(s.controller.kind)?.multistage {
         summary.scenarios = Some(crate::config::scenarios::names(s));
     }
     summary.safety = SafetySummary::from_report(controller.report());
@@ -147,7 +147,7 @@ pub struct SoakReport {
 /// 60 s.
 pub fn soak_scenario(base: &Scenario, seconds: f64, payload_kg: f64) -> Scenario {
     let mut s = base.clone();
-    s.controller.kind = ControllerKind::Msnmpc;
+    s.controller.kind = ControllerKind::MSNMPC;
     s.uncertainty.payload_kg = payload_kg;
     s.timing.duration_2dof_s = seconds;
     if s.faults.events.is_empty() {

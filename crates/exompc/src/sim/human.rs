@@ -28,9 +28,9 @@ impl<const N: usize> HumanLeg<N> {
 pub struct HumanBrain<const N: usize> {
     /// The nominal model the brain believes in (60 kg).
     pub nominal: Chain<N>,
-    /// Proportional gain (1/s²), spec 400.
+    /// Proportional gain (1/s²), default 400.
     pub kp: f64,
-    /// Derivative gain (1/s), spec 40.
+    /// Derivative gain (1/s), default 40.
     pub kd: f64,
 }
 

@@ -18,7 +18,7 @@ pub struct PlantParams<const N: usize> {
     pub coulomb: f64,
     /// True payload `m_p` (kg) on the last link, unknown to the controller.
     pub payload_kg: f64,
-    /// Payload distance from the last joint (m), spec 0.215.
+    /// Payload distance from the last joint (m), default 0.215.
     pub payload_position: f64,
     /// The human leg.
     pub human: HumanLeg<N>,

@@ -36,27 +36,27 @@ pub trait Trajectory<const N: usize> {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct SwingTrajectory {
-    /// Mean frequency (Hz), spec 0.8.
+    /// Mean frequency (Hz), default 0.8.
     pub base_frequency_hz: f64,
-    /// Frequency swing amplitude (Hz), spec 0.2.
+    /// Frequency swing amplitude (Hz), default 0.2.
     pub frequency_swing_hz: f64,
-    /// Period of the frequency swing (s), spec 15.
+    /// Period of the frequency swing (s), default 15.
     pub frequency_period_s: f64,
-    /// Hip offset (rad), spec 0.10.
+    /// Hip offset (rad), default 0.10.
     pub hip_offset: f64,
-    /// Mean hip amplitude (rad), spec 0.30.
+    /// Mean hip amplitude (rad), default 0.30.
     pub hip_amplitude: f64,
-    /// Hip amplitude swing (rad), spec 0.05.
+    /// Hip amplitude swing (rad), default 0.05.
     pub hip_amplitude_swing: f64,
-    /// Period of the hip amplitude swing (s), spec 10.
+    /// Period of the hip amplitude swing (s), default 10.
     pub hip_amplitude_period_s: f64,
-    /// Mean knee amplitude (rad), spec 1.00.
+    /// Mean knee amplitude (rad), default 1.00.
     pub knee_amplitude: f64,
-    /// Knee amplitude swing (rad), spec 0.15.
+    /// Knee amplitude swing (rad), default 0.15.
     pub knee_amplitude_swing: f64,
-    /// Period of the knee amplitude swing (s), spec 7.
+    /// Period of the knee amplitude swing (s), default 7.
     pub knee_amplitude_period_s: f64,
-    /// Knee phase lag (rad), spec π/3.
+    /// Knee phase lag (rad), default π/3.
     pub knee_phase: f64,
 }
 
@@ -127,10 +127,10 @@ impl Trajectory<2> for SwingTrajectory {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct KneeTrajectory {
-    /// Amplitude `A` (rad), >= 0; spec 0.6.
+    /// Amplitude `A` (rad), >= 0; default 0.6.
     #[serde(rename = "one_dof_amplitude")]
     pub amplitude: f64,
-    /// Frequency `f` (Hz), > 0; spec 0.5.
+    /// Frequency `f` (Hz), > 0; default 0.5.
     #[serde(rename = "one_dof_frequency_hz")]
     pub frequency_hz: f64,
 }

@@ -11,11 +11,11 @@ pub struct Uncertainty {
     pub mass_perturbation: bool,
     /// Apply the lumped disturbance `D(t)` on each joint.
     pub disturbance: bool,
-    /// Velocity noise amplitude (rad/s), spec 1e-4.
+    /// Velocity noise amplitude (rad/s), default 1e-4.
     pub velocity_noise: f64,
-    /// Strap force noise amplitude (N), spec 1e-3.
+    /// Strap force noise amplitude (N), default 1e-3.
     pub force_noise: f64,
-    /// Noise angular frequency (rad/s), spec 100.
+    /// Noise angular frequency (rad/s), default 100.
     pub noise_frequency: f64,
 }
 
