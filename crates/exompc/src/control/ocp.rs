@@ -23,7 +23,7 @@ use super::TorqueLimits;
 use crate::model::JointState;
 use crate::solver::engine::{self, finite_or_inf, BoundCheck, SqpSteps};
 use crate::solver::{QpInfo, RiccatiQp, SolverError, SqpInfo, SqpSettings, SqpStatus};
-use nalgebra::DVector;
+use nalgebra::{DVector, SVector};
 use serde::{Deserialize, Serialize};
 
 /// Which QP solver the NMPC's SQP uses (`[controller.sqp] qp`).
@@ -375,17 +375,15 @@ impl<const N: usize> StageWork<N> {
         }
     }
 
-    /// KKT residual at `z` with the last QP multipliers, from `grad`, the QP's dynamics matrices
-    /// (at `z`) and `torques`: stationarity by an adjoint sweep, box and cumulative violation,
-    /// complementarity. Returns `(kkt, violation)`.
-    fn kkt(&mut self, z: &DVector<f64>) -> (f64, f64) {
+    /// [`adjoint_stationarity`] for any `N` (slices).
+    fn stationarity_any_size(&mut self) -> f64 {
         let nx = 3 * N;
         let (np, nc) = (self.np, self.nc);
         let off = nc * N;
         let mult = self.qp.multipliers();
+        let mut stat: f64 = 0.0;
         let (mu, next) = self.costate.split_at_mut(nx);
         next.fill(0.0);
-        let mut stat: f64 = 0.0;
         for j in (0..np).rev() {
             // μ_{j+1} = g_x + mult_x + A_{j+1}ᵀ μ_{j+2}.
             let xo = off + j * nx;
@@ -411,6 +409,22 @@ impl<const N: usize> StageWork<N> {
             }
             next.copy_from_slice(mu);
         }
+        stat
+    }
+
+    /// KKT residual at `z` with the last QP multipliers, from `grad`, the QP's dynamics matrices
+    /// (at `z`) and `torques`: stationarity by an adjoint sweep, box and cumulative violation,
+    /// complementarity. Returns `(kkt, violation)`.
+    fn kkt(&mut self, z: &DVector<f64>) -> (f64, f64) {
+        let nx = 3 * N;
+        let (np, nc) = (self.np, self.nc);
+        let off = nc * N;
+        let stat = match N {
+            1 => adjoint_stationarity::<3, 1>(&self.qp, &self.grad, np, nc),
+            2 => adjoint_stationarity::<6, 2>(&self.qp, &self.grad, np, nc),
+            _ => self.stationarity_any_size(),
+        };
+        let mult = self.qp.multipliers();
         let mut check = BoundCheck::default();
         for k in 0..off {
             check.add(self.rl - z[k], z[k] - self.ru, mult[k]);
@@ -428,6 +442,47 @@ impl<const N: usize> StageWork<N> {
         let k = stat.max(check.violation).max(check.complementarity);
         (finite_or_inf(k), check.violation)
     }
+}
+
+/// Largest stationarity residual `|g_u + mult_u + B_jᵀ μ_{j+1}|` of the inputs, with the costates
+/// `μ_{j+1} = g_x + mult_x + A_{j+1}ᵀ μ_{j+2}` from a backward sweep (fixed-size blocks).
+fn adjoint_stationarity<const NX: usize, const NU: usize>(
+    qp: &RiccatiQp,
+    grad: &[f64],
+    np: usize,
+    nc: usize,
+) -> f64 {
+    let off = nc * NU;
+    let mult = qp.multipliers();
+    let mut next = SVector::<f64, NX>::zeros();
+    let mut stat: f64 = 0.0;
+    for j in (0..np).rev() {
+        // Same summation order as the slice version (results identical to the last bit).
+        let xo = off + j * NX;
+        let mut mu = SVector::<f64, NX>::zeros();
+        for c in 0..NX {
+            let mut s = grad[xo + c] + mult[xo + c];
+            if j + 1 < np {
+                let a = &qp.a[(j + 1) * NX * NX..(j + 2) * NX * NX];
+                for t in 0..NX {
+                    s += a[c * NX + t] * next[t];
+                }
+            }
+            mu[c] = s;
+        }
+        if j < nc {
+            let b = &qp.b[j * NX * NU..(j + 1) * NX * NU];
+            for i in 0..NU {
+                let mut s = grad[j * NU + i] + mult[j * NU + i];
+                for t in 0..NX {
+                    s += b[i * NX + t] * mu[t];
+                }
+                stat = stat.max(s.abs());
+            }
+        }
+        next = mu;
+    }
+    stat
 }
 
 impl<const N: usize> SqpSteps for StageSteps<'_, N> {

@@ -24,6 +24,7 @@
 
 use super::qp::{QpInfo, QpSettings, QpStatus};
 use super::SolverError;
+use nalgebra::{SMatrix, SVector};
 
 /// The stage-structured QP described in the module documentation, with all workspace allocated
 /// at construction. Trajectory vectors (`g`, `lo`, `hi`, the solution and the multipliers) use
@@ -178,10 +179,74 @@ impl RiccatiQp {
     fn factor(&mut self) -> bool {
         // The NMPC's stage sizes (1-DOF, 2-DOF) as constants: unrolled, bounds checks removed.
         match (self.nx, self.nu) {
-            (3, 1) => self.factor_dims(3, 1),
-            (6, 2) => self.factor_dims(6, 2),
+            (3, 1) => self.factor_fixed::<3, 1>(),
+            (6, 2) => self.factor_fixed::<6, 2>(),
             (nx, nu) => self.factor_dims(nx, nu),
         }
+    }
+
+    /// [`Self::factor_dims`] with fixed-size blocks on the stack for the NMPC's `nx × nu` stages:
+    /// `P_j = Q_{j−1} + A_jᵀ P_{j+1} A_j + S̄_jᵀ K_j`, `S̄_j = B_jᵀ P_{j+1} A_j`,
+    /// `K_j = −(R_j + B_jᵀ P_{j+1} B_j)⁻¹ S̄_j`. Every sum runs in the order of `factor_dims`, so
+    /// the factor is identical to the last bit (nalgebra's `P A`, `P B`, `Bᵀ(PA)` accumulate
+    /// column by column from zero like the slice loops).
+    fn factor_fixed<const NX: usize, const NU: usize>(&mut self) -> bool {
+        let (np, nc) = (self.np, self.nc);
+        let n2 = NX * NX;
+        let mut p = SMatrix::<f64, NX, NX>::from_column_slice(&self.q[(np - 1) * n2..np * n2]);
+        for j in (0..np).rev() {
+            let a = SMatrix::<f64, NX, NX>::from_column_slice(&self.a[j * n2..(j + 1) * n2]);
+            let pa = p * a;
+            let mut sb = SMatrix::<f64, NU, NX>::zeros();
+            let mut kg = SMatrix::<f64, NU, NX>::zeros();
+            if j < nc {
+                let b = SMatrix::<f64, NX, NU>::from_column_slice(
+                    &self.b[j * NX * NU..(j + 1) * NX * NU],
+                );
+                let pb = p * b;
+                let rj = &self.r[j * NU * NU..(j + 1) * NU * NU];
+                let ls = &mut self.lchol[j * NU * NU..(j + 1) * NU * NU];
+                for c in 0..NU {
+                    for rr in 0..NU {
+                        let mut s = rj[c * NU + rr];
+                        for k in 0..NX {
+                            s += b[(k, rr)] * pb[(k, c)];
+                        }
+                        ls[c * NU + rr] = s;
+                    }
+                }
+                sb = b.tr_mul(&pa);
+                if !cholesky(ls, NU) {
+                    return false;
+                }
+                kg = -sb;
+                for c in 0..NX {
+                    chol_solve(ls, NU, &mut kg.as_mut_slice()[c * NU..(c + 1) * NU]);
+                }
+                self.sbar[j * NU * NX..(j + 1) * NU * NX].copy_from_slice(sb.as_slice());
+                self.kgain[j * NU * NX..(j + 1) * NU * NX].copy_from_slice(kg.as_slice());
+            }
+            if j == 0 {
+                break;
+            }
+            let qj = &self.q[(j - 1) * n2..j * n2];
+            for c in 0..NX {
+                for rr in 0..=c {
+                    let mut s = qj[c * NX + rr];
+                    for k in 0..NX {
+                        s += a[(k, rr)] * pa[(k, c)];
+                    }
+                    if j < nc {
+                        for i in 0..NU {
+                            s += sb[(i, rr)] * kg[(i, c)];
+                        }
+                    }
+                    p[(rr, c)] = s;
+                    p[(c, rr)] = s;
+                }
+            }
+        }
+        self.lchol.iter().all(|v| v.is_finite()) && self.kgain.iter().all(|v| v.is_finite())
     }
 
     #[inline(always)]
@@ -278,9 +343,96 @@ impl RiccatiQp {
     /// `x_j`, `j > top + 1`).
     fn sweep(&mut self, use_unit: bool, top: usize, out_is_yp: bool) {
         match (self.nx, self.nu) {
-            (3, 1) => self.sweep_dims(3, 1, use_unit, top, out_is_yp),
-            (6, 2) => self.sweep_dims(6, 2, use_unit, top, out_is_yp),
+            (3, 1) => self.sweep_fixed::<3, 1>(use_unit, top, out_is_yp),
+            (6, 2) => self.sweep_fixed::<6, 2>(use_unit, top, out_is_yp),
             (nx, nu) => self.sweep_dims(nx, nu, use_unit, top, out_is_yp),
+        }
+    }
+
+    /// [`Self::sweep_dims`] with fixed-size blocks on the stack, in the same summation order
+    /// (identical results).
+    fn sweep_fixed<const NX: usize, const NU: usize>(
+        &mut self,
+        use_unit: bool,
+        top: usize,
+        out_is_yp: bool,
+    ) {
+        let (np, nc) = (self.np, self.nc);
+        let n2 = NX * NX;
+        let off = nc * NU;
+        let lin: &[f64] = if use_unit { &self.unit } else { &self.g };
+        // Backward pass for the feed-forward terms.
+        let xi = off + top * NX;
+        let mut pn = SVector::<f64, NX>::from_column_slice(&lin[xi..xi + NX]);
+        for j in top + 1..nc {
+            self.kff[j * NU..(j + 1) * NU].fill(0.0);
+        }
+        for j in (0..=top).rev() {
+            let mut kf = SVector::<f64, NU>::zeros();
+            if j < nc {
+                let b = &self.b[j * NX * NU..(j + 1) * NX * NU];
+                for i in 0..NU {
+                    let mut s = lin[j * NU + i];
+                    for t in 0..NX {
+                        s += b[i * NX + t] * pn[t];
+                    }
+                    kf[i] = -s;
+                }
+                chol_solve(
+                    &self.lchol[j * NU * NU..(j + 1) * NU * NU],
+                    NU,
+                    kf.as_mut_slice(),
+                );
+                self.kff[j * NU..(j + 1) * NU].copy_from_slice(kf.as_slice());
+            }
+            if j == 0 {
+                break;
+            }
+            let a = &self.a[j * n2..(j + 1) * n2];
+            let xo = off + (j - 1) * NX;
+            let mut next = SVector::<f64, NX>::zeros();
+            for c in 0..NX {
+                let mut s = lin[xo + c];
+                for t in 0..NX {
+                    s += a[c * NX + t] * pn[t];
+                }
+                if j < nc {
+                    let sb = &self.sbar[j * NU * NX..(j + 1) * NU * NX];
+                    for i in 0..NU {
+                        s += sb[c * NU + i] * kf[i];
+                    }
+                }
+                next[c] = s;
+            }
+            pn = next;
+        }
+        // Forward pass from x_0 = 0.
+        let out: &mut [f64] = if out_is_yp {
+            &mut self.yp
+        } else {
+            &mut self.sol
+        };
+        let mut xs = SVector::<f64, NX>::zeros();
+        for j in 0..np {
+            let a = SMatrix::<f64, NX, NX>::from_column_slice(&self.a[j * n2..(j + 1) * n2]);
+            let mut xn = a * xs;
+            if j < nc {
+                let kg = &self.kgain[j * NU * NX..(j + 1) * NU * NX];
+                let b = &self.b[j * NX * NU..(j + 1) * NX * NU];
+                for i in 0..NU {
+                    let mut s = self.kff[j * NU + i];
+                    for c in 0..NX {
+                        s += kg[c * NU + i] * xs[c];
+                    }
+                    out[j * NU + i] = s;
+                    for rr in 0..NX {
+                        xn[rr] += b[i * NX + rr] * s;
+                    }
+                }
+            }
+            let xo = off + j * NX;
+            out[xo..xo + NX].copy_from_slice(xn.as_slice());
+            xs = xn;
         }
     }
 
@@ -386,6 +538,38 @@ impl RiccatiQp {
 
     /// Objective `½wᵀHw + gᵀw` of the trajectory `w = self.sol`.
     fn objective(&self) -> f64 {
+        match (self.nx, self.nu) {
+            (3, 1) => self.objective_fixed::<3, 1>(),
+            (6, 2) => self.objective_fixed::<6, 2>(),
+            _ => self.objective_dims(),
+        }
+    }
+
+    /// [`Self::objective_dims`] with fixed-size nalgebra blocks.
+    fn objective_fixed<const NX: usize, const NU: usize>(&self) -> f64 {
+        let off = self.nc * NU;
+        let mut f = 0.0;
+        for (w, g) in self.sol.iter().zip(&self.g) {
+            f += w * g;
+        }
+        for j in 0..self.nc {
+            let u = SVector::<f64, NU>::from_column_slice(&self.sol[j * NU..(j + 1) * NU]);
+            let rj =
+                SMatrix::<f64, NU, NU>::from_column_slice(&self.r[j * NU * NU..(j + 1) * NU * NU]);
+            f += 0.5 * u.dot(&(rj * u));
+        }
+        for j in 0..self.np {
+            let x =
+                SVector::<f64, NX>::from_column_slice(&self.sol[off + j * NX..off + (j + 1) * NX]);
+            let qj =
+                SMatrix::<f64, NX, NX>::from_column_slice(&self.q[j * NX * NX..(j + 1) * NX * NX]);
+            f += 0.5 * x.dot(&(qj * x));
+        }
+        f
+    }
+
+    /// Objective `½wᵀHw + gᵀw` of the trajectory `w = self.sol`, any stage size.
+    fn objective_dims(&self) -> f64 {
         let (nx, nu, np, nc) = (self.nx, self.nu, self.np, self.nc);
         let off = nc * nu;
         let mut f = 0.0;
@@ -620,5 +804,84 @@ pub(super) fn chol_solve(l: &[f64], n: usize, b: &mut [f64]) {
             s -= l[i * n + k] * b[k];
         }
         b[i] = s / l[i * n + i];
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A QP with pseudo-random stage data (deterministic LCG), `Q`, `R` positive definite.
+    fn random_qp(nx: usize, nu: usize, np: usize, nc: usize, seed: u64) -> RiccatiQp {
+        let mut state = seed;
+        let mut next = move || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let mut qp = RiccatiQp::new(nx, nu, np, nc, QpSettings::default()).unwrap();
+        for v in
+            qp.a.iter_mut()
+                .chain(qp.b.iter_mut())
+                .chain(qp.g.iter_mut())
+        {
+            *v = next();
+        }
+        for (blocks, n, shift) in [(&mut qp.q, nx, 0.0), (&mut qp.r, nu, 0.1)] {
+            for blk in blocks.chunks_mut(n * n) {
+                let l: Vec<f64> = (0..n * n).map(|_| next()).collect();
+                for c in 0..n {
+                    for r in 0..n {
+                        let mut s = if r == c { shift } else { 0.0 };
+                        for k in 0..n {
+                            s += l[k * n + r] * l[k * n + c];
+                        }
+                        blk[c * n + r] = s;
+                    }
+                }
+            }
+        }
+        qp
+    }
+
+    /// The fixed-size kernels (the NMPC's 1-DOF and 2-DOF stages) equal the general slice
+    /// kernels to the last bit: factor, full sweep and the truncated sweeps of the active-set
+    /// method.
+    #[test]
+    fn fixed_size_kernels_equal_general_ones_bitwise() {
+        for (nx, nu) in [(3, 1), (6, 2)] {
+            for (np, nc, seed) in [(1, 1, 1), (7, 4, 2), (12, 12, 3)] {
+                let mut a = random_qp(nx, nu, np, nc, seed);
+                let mut b = a.clone();
+                let ok = match (nx, nu) {
+                    (3, 1) => a.factor_fixed::<3, 1>(),
+                    _ => a.factor_fixed::<6, 2>(),
+                };
+                assert!(ok && b.factor_dims(nx, nu));
+                assert_eq!(a.lchol, b.lchol);
+                assert_eq!(a.kgain, b.kgain);
+                assert_eq!(a.sbar, b.sbar);
+                for top in [np - 1, np / 2, 0] {
+                    for use_unit in [false, true] {
+                        a.unit.fill(0.0);
+                        b.unit.fill(0.0);
+                        let id = a.len() / 2;
+                        a.unit[id] = 1.0;
+                        b.unit[id] = 1.0;
+                        match (nx, nu) {
+                            (3, 1) => a.sweep_fixed::<3, 1>(use_unit, top, use_unit),
+                            _ => a.sweep_fixed::<6, 2>(use_unit, top, use_unit),
+                        }
+                        b.sweep_dims(nx, nu, use_unit, top, use_unit);
+                        assert_eq!(a.sol, b.sol);
+                        assert_eq!(a.yp, b.yp);
+                        assert_eq!(a.kff, b.kff);
+                    }
+                }
+                let (oa, ob) = (a.objective(), b.objective_dims());
+                assert!((oa - ob).abs() <= 1e-12 * (1.0 + ob.abs()));
+            }
+        }
     }
 }
