@@ -79,7 +79,7 @@ fn control_steps_do_not_allocate() {
     for nr in [1, 3] {
         s.multistage.robust_horizon = nr;
         assert_eq!(
-            count_steps(&s, ControllerKind::Msnmpc),
+            count_steps(&s, ControllerKind::MSNMPC),
             0,
             "msnmpc (coupled, structured QP, robust horizon {nr}) allocates"
         );

@@ -404,7 +404,7 @@ fn coupled_closed_loop_diff<D: Dof<N>, const N: usize>(n: usize, nr: usize, step
     let run = |qp: QpBackend| {
         let mut sc = s.clone();
         sc.controller.sqp.qp = qp;
-        let mut c = build_controller::<D, N>(&sc, ControllerKind::Msnmpc).unwrap();
+        let mut c = build_controller::<D, N>(&sc, ControllerKind::MSNMPC).unwrap();
         let mut plant = Plant::new(plant_params::<D, N>(&sc), D::trajectory(&sc));
         let mut sensors = Sensors::new(uncertainty(&sc), sc.uncertainty.filter_window);
         let mut out = vec![];
