@@ -297,6 +297,10 @@ impl<const N: usize> StageWork<N> {
             let xn = if jac {
                 let (xn, g): (JointState<f64, N>, StepJacobian<N>) =
                     problem.model.step_with_jacobian(&x, &u, tau, &inp);
+                // The only non-constant entries of A_j and B_j.
+                finite &= [g.qq, g.qv, g.vq, g.vv, g.qu, g.vu]
+                    .iter()
+                    .all(|m| m.iter().all(|v| v.is_finite()));
                 let aj = &mut self.qp.a[j * nx * nx..(j + 1) * nx * nx];
                 aj.fill(0.0);
                 for c in 0..N {
@@ -346,10 +350,6 @@ impl<const N: usize> StageWork<N> {
             if jac {
                 self.qp.g[k] = sqrt_rt * rz;
             }
-        }
-        if jac {
-            finite &=
-                self.qp.a.iter().all(|v| v.is_finite()) && self.qp.b.iter().all(|v| v.is_finite());
         }
         if finite {
             0.5 * sum
