@@ -331,8 +331,20 @@ fn check_value(value: &toml::Value, expected: &toml::Value, path: &str) -> Resul
             kind_name(value)
         )
     };
+    // A number or a word (`controller.k1 = "auto"`): serde and validation judge the value.
+    let number_or_word = || {
+        matches!(
+            exompc::config::explain(path).map(|d| d.allowed),
+            Some(exompc::config::Allowed::RealOrWord { .. })
+        )
+    };
     match (expected, value) {
         (V::Table(s), V::Table(u)) => check_keys(u, s, path),
+        (V::Float(_) | V::String(_), V::Float(_) | V::Integer(_) | V::String(_))
+            if number_or_word() =>
+        {
+            Ok(())
+        }
         (V::Float(_), V::Float(_) | V::Integer(_)) => Ok(()),
         (V::Float(_), _) => Err(mismatch("a number")),
         (V::Integer(_), V::Integer(i)) if *i < 0 => Err(format!(

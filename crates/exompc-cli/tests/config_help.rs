@@ -208,7 +208,10 @@ fn every_key_is_explained_and_every_explanation_names_a_key() {
         assert!(!d.source.is_empty(), "{}: no source", d.path);
         let numeric = matches!(
             d.allowed,
-            Allowed::Real { .. } | Allowed::Int { .. } | Allowed::List { .. }
+            Allowed::Real { .. }
+                | Allowed::Int { .. }
+                | Allowed::List { .. }
+                | Allowed::RealOrWord { .. }
         );
         assert_eq!(numeric, !d.unit.is_empty(), "{}: unit `{}`", d.path, d.unit);
         for dep in d.allowed.depends_on() {
@@ -310,6 +313,16 @@ fn documented_ranges_agree_with_validation() {
                     }
                     None => assert!(probe(p, f(1e9)).is_ok(), "{p} = 1e9"),
                 }
+            }
+            Allowed::RealOrWord { lo, word } => {
+                let text = |t: &str| toml::Value::String(t.to_string());
+                assert!(probe(p, f(f64::NAN)).is_err(), "{p}: NaN accepted");
+                assert!(probe(p, f(lo)).is_ok(), "{p} = {lo}");
+                assert!(probe(p, f(beyond(lo, false))).is_err(), "{p} below {lo}");
+                assert!(probe(p, f(1e9)).is_ok(), "{p} = 1e9");
+                assert!(probe(p, text(word)).is_ok(), "{p} = {word}");
+                let e = probe(p, text("bogus")).unwrap_err();
+                assert!(e.contains(word), "{p}: {e}");
             }
             Allowed::Int { lo, hi } => {
                 let i = |v: i64| toml::Value::Integer(v);

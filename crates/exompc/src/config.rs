@@ -602,7 +602,7 @@ impl Default for Timing {
 pub use controller_kind::ControllerKind;
 
 pub use crate::control::Interaction;
-pub use crate::control::{FilterAware, Method, RobustSettings};
+pub use crate::control::{FilterAware, GainSetting, Method, RobustSettings};
 
 /// `[controller]`: intent estimation and NMPC (MODEL.md §8, paper eqs. 5-9, Table 1).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -612,10 +612,13 @@ pub struct Controller {
     /// `"msnmpc"` or one added with `exompc::scenario::register_controller`). Default
     /// `"msnmpc"`.
     pub kind: ControllerKind,
-    /// Intent gain K1 (1/N, applied as `K1·I`): `q̂_H = q_R + K1 F` (paper eq. 5), >= 0. Default 0.005.
-    pub k1: f64,
-    /// Intent gain K2 (1/(N·s)): `q̂d_H = qd_R + K2 F` (paper eq. 6), >= 0. Default 0.05.
-    pub k2: f64,
+    /// Intent gain K1 (1/N, applied as `K1·I`): `q̂_H = q_R + K1 F` (paper eq. 5), >= 0, or
+    /// `"auto"`: `K1 = 4.6875 rad/m / straps.stiffness` (`control::GainSetting`; 0.005 at the
+    /// default straps). Default `"auto"`.
+    pub k1: GainSetting,
+    /// Intent gain K2 (1/(N·s)): `q̂d_H = qd_R + K2 F` (paper eq. 6), >= 0, or `"auto"`:
+    /// `K2 = 46.875 rad/(m·s) / straps.stiffness` (0.05 at the default straps). Default `"auto"`.
+    pub k2: GainSetting,
     /// Prediction horizon Np (steps), 1..=200. Default 3.
     pub np: usize,
     /// Control horizon Nc (steps), 1..=np. Default 3.
@@ -647,8 +650,8 @@ impl Default for Controller {
     fn default() -> Self {
         Self {
             kind: ControllerKind::MSNMPC,
-            k1: 0.005,
-            k2: 0.05,
+            k1: GainSetting::Auto,
+            k2: GainSetting::Auto,
             np: 3,
             nc: 3,
             r_d: 0.1,
@@ -966,8 +969,8 @@ impl Scenario {
         reals(
             "controller",
             &[
-                ("k1", c.k1, R::NonNeg),
-                ("k2", c.k2, R::NonNeg),
+                ("k1", c.k1.value().unwrap_or(0.0), R::NonNeg),
+                ("k2", c.k2.value().unwrap_or(0.0), R::NonNeg),
                 ("r_d", c.r_d, R::NonNeg),
                 ("r_t", c.r_t, R::Pos),
                 ("torque_max", c.torque_max, R::Pos),

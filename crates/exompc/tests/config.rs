@@ -106,7 +106,11 @@ fn default_matches_spec_values() {
     // MODEL.md §8
     let c = &s.controller;
     assert_eq!(c.kind, ControllerKind::MSNMPC);
-    assert_eq!((c.k1, c.k2), (0.005, 0.05));
+    // "auto": K = κ / ks, the paper's 0.005 / 0.05 at the default 937.5 N/m straps.
+    assert_eq!((c.k1, c.k2), (GainSetting::Auto, GainSetting::Auto));
+    let i = exompc::scenario::intent(&s);
+    let straps = exompc::model::Straps::two_dof(0.28, 0.16, s.straps.stiffness, s.straps.damping);
+    assert_eq!((i.k1.value(&straps), i.k2.value(&straps)), (0.005, 0.05));
     assert_eq!((c.np, c.nc), (3, 3));
     assert_eq!((c.r_d, c.r_t), (0.1, 1e-5));
     assert_eq!((c.torque_max, c.torque_rate_max), (30.0, 1000.0));
@@ -329,8 +333,8 @@ const RULES: &[(&str, Mutation)] = &[
     ("timing.duration_1dof_s", |s| {
         s.timing.duration_1dof_s = f64::NAN
     }),
-    ("controller.k1", |s| s.controller.k1 = f64::NAN),
-    ("controller.k2", |s| s.controller.k2 = -0.05),
+    ("controller.k1", |s| s.controller.k1 = f64::NAN.into()),
+    ("controller.k2", |s| s.controller.k2 = (-0.05).into()),
     ("controller.np", |s| s.controller.np = 0),
     ("controller.np", |s| s.controller.np = 201),
     ("controller.nc", |s| s.controller.nc = 4),
@@ -447,7 +451,7 @@ fn boundary_values_are_accepted() {
     s.controller.np = 200;
     s.controller.nc = 200;
     s.multistage.robust_horizon = 200;
-    s.controller.k1 = 0.0;
+    s.controller.k1 = 0.0.into();
     s.controller.r_d = 0.0;
     s.straps.damping = 0.0;
     s.robot.shank.com_m = s.robot.shank.length_m;

@@ -72,6 +72,13 @@ pub enum Allowed {
         /// Largest entry.
         hi: f64,
     },
+    /// A finite real number `>= lo`, or the word `word` (a TOML string), e.g. `"auto"`.
+    RealOrWord {
+        /// Smallest number.
+        lo: f64,
+        /// The word.
+        word: &'static str,
+    },
     /// One of these words (a TOML string).
     Choice(&'static [&'static str]),
     /// `true` or `false`.
@@ -121,6 +128,7 @@ impl Allowed {
                 if hi.inclusive { ']' } else { ')' }
             ),
             Allowed::Int { lo, hi } => format!("integer in {lo}..={hi}"),
+            Allowed::RealOrWord { lo, word } => format!("finite, >= {lo}, or \"{word}\""),
             Allowed::List {
                 min_len,
                 max_len,
@@ -247,6 +255,10 @@ const NONNEG: Allowed = Allowed::Real {
     lo: closed(0.0),
     hi: None,
 };
+const AUTO: Allowed = Allowed::RealOrWord {
+    lo: 0.0,
+    word: "auto",
+};
 const FRACTION: Allowed = Allowed::Real {
     lo: open(0.0),
     hi: closed(1.0),
@@ -372,8 +384,8 @@ pub const KEYS: &[KeyDoc] = &[
     // [controller]
     table("controller", M8, "Human-intent estimation and the NMPC (paper eqs. 5-9, Table 1)."),
     k("controller.kind", "", Allowed::Controller, M8X, "Controller used by simulate, by its name in the controller registry (the built-in ones: baseline PD, plain NMPC on the 0 kg model, multi-stage robust NMPC)."),
-    k("controller.k1", "rad/N", NONNEG, "docs/MODEL.md §8, paper eq. 5", "Intent gain K1: estimated human angle q_R + K1 F."),
-    k("controller.k2", "rad/(N·s)", NONNEG, "docs/MODEL.md §8, paper eq. 6", "Intent gain K2: estimated human velocity qd_R + K2 F."),
+    k("controller.k1", "rad/N", AUTO, "docs/MODEL.md §8, paper eq. 5", "Intent gain K1: estimated human angle q_R + K1 F; \"auto\" = 4.6875 rad/m / straps.stiffness (0.005 at the default straps)."),
+    k("controller.k2", "rad/(N·s)", AUTO, "docs/MODEL.md §8, paper eq. 6", "Intent gain K2: estimated human velocity qd_R + K2 F; \"auto\" = 46.875 rad/(m·s) / straps.stiffness (0.05 at the default straps)."),
     k("controller.np", "steps", int(1, 200), "docs/MODEL.md §8, paper Table 1", "Prediction horizon Np."),
     k("controller.nc", "steps", Allowed::Int { lo: 1, hi: Limit::Key("controller.np") }, "docs/MODEL.md §8, paper Table 1", "Control horizon Nc (torque increments optimised; held after)."),
     k("controller.r_d", "s²", NONNEG, "docs/MODEL.md §8, paper eq. 7", "Weight of the velocity-tracking error in the cost."),

@@ -22,6 +22,7 @@
 
 mod fallback;
 mod highpass;
+mod intent;
 mod lag;
 mod limits;
 mod multistage;
@@ -35,6 +36,7 @@ mod safety;
 
 pub use fallback::{FallbackSettings, FallbackSettingsError, Transparent};
 pub use highpass::HighPass;
+pub use intent::{GainSetting, IntentGain, AUTO_K1_PER_STIFFNESS, AUTO_K2_PER_STIFFNESS};
 pub use lag::{ForceLag, HfShareDetector};
 pub use limits::{LimitsError, TorqueLimits};
 pub use multistage::{CoupledProblem, Formulation, MultiStage, MultiStageError, MultiStageOptions};
@@ -149,22 +151,36 @@ pub trait Controller<const N: usize> {
     }
 }
 
-/// Human-intent estimate of paper eqs. 5-6: `q̂_H = q_R + K1 F`, `q̂d_H = qd_R + K2 F`.
+/// Human-intent estimate of paper eqs. 5-6: `q̂_H = q_R + K1 F`, `q̂d_H = qd_R + K2 F`, with
+/// fixed gains `K = k·I` (the paper's) or gains derived from the strap model ([`IntentGain`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct IntentEstimator {
-    /// `K1` (rad/N), diagonal, default 0.005.
-    pub k1: f64,
-    /// `K2` (rad/(N·s)), diagonal, default 0.05.
-    pub k2: f64,
+    /// `K1`: fixed (rad/N, default 0.005) or `κ1 (ks J)⁻¹`.
+    pub k1: IntentGain,
+    /// `K2`: fixed (rad/(N·s), default 0.05) or `κ2 (ks J)⁻¹`.
+    pub k2: IntentGain,
 }
 
 impl IntentEstimator {
-    /// `(q̂_H, q̂d_H)` from a filtered measurement.
+    /// The paper's diagonal gains `K1 = k1·I`, `K2 = k2·I`.
+    pub fn fixed(k1: f64, k2: f64) -> Self {
+        IntentEstimator {
+            k1: IntentGain::Fixed(k1),
+            k2: IntentGain::Fixed(k2),
+        }
+    }
+
+    /// `(q̂_H, q̂d_H)` from a filtered measurement; `straps` (the prediction model's) give the
+    /// derived gains.
     #[inline]
     pub fn estimate<const N: usize>(
         &self,
         m: &Measurement<N>,
+        straps: &crate::model::Straps<N>,
     ) -> (SVector<f64, N>, SVector<f64, N>) {
-        (m.q + m.force * self.k1, m.qd + m.force * self.k2)
+        (
+            m.q + self.k1.apply(straps, &m.force),
+            m.qd + self.k2.apply(straps, &m.force),
+        )
     }
 }

@@ -420,7 +420,7 @@ pub fn horizon_inputs<const N: usize>(
     m: &Measurement<N>,
     disturbance: SVector<f64, N>,
 ) -> HorizonInputs<N> {
-    let (q_h, qd_h) = intent.estimate(m);
+    let (q_h, qd_h) = intent.estimate(m, &model.straps);
     HorizonInputs {
         q_h,
         qd_h,

@@ -1,7 +1,7 @@
 //! Baseline controller: gravity compensation plus PD toward the human-intent estimate.
 
 use super::{ControlOutput, Controller, IntentEstimator, Measurement, StepStatus, TorqueLimits};
-use crate::model::RobotModel;
+use crate::model::{RobotModel, Straps};
 use nalgebra::SVector;
 
 /// `T = G_R(q) + Kp (q̂_H − q) + Kd (q̂d_H − qd)` on the nominal robot model, with the intent
@@ -11,6 +11,8 @@ use nalgebra::SVector;
 pub struct PdController<const N: usize> {
     model: RobotModel<N>,
     intent: IntentEstimator,
+    /// The straps the intent gains are derived from (`k1 = "auto"`).
+    straps: Straps<N>,
     limits: TorqueLimits,
     kp: f64,
     kd: f64,
@@ -18,10 +20,12 @@ pub struct PdController<const N: usize> {
 }
 
 impl<const N: usize> PdController<N> {
-    /// A PD controller with gains `kp` (N·m/rad), `kd` (N·m·s/rad) and initial torque `t0`.
+    /// A PD controller with gains `kp` (N·m/rad), `kd` (N·m·s/rad) and initial torque `t0`;
+    /// `straps` give the intent gains derived from the strap model.
     pub fn new(
         model: RobotModel<N>,
         intent: IntentEstimator,
+        straps: Straps<N>,
         limits: TorqueLimits,
         kp: f64,
         kd: f64,
@@ -30,6 +34,7 @@ impl<const N: usize> PdController<N> {
         PdController {
             model,
             intent,
+            straps,
             limits,
             kp,
             kd,
@@ -47,7 +52,7 @@ impl<const N: usize> Controller<N> for PdController<N> {
                 iterations: 0,
             };
         }
-        let (qh, qdh) = self.intent.estimate(m);
+        let (qh, qdh) = self.intent.estimate(m, &self.straps);
         let desired =
             self.model.chain.gravity_torque(&m.q) + (qh - m.q) * self.kp + (qdh - m.qd) * self.kd;
         let t = self.limits.clamp(&self.prev, &desired);

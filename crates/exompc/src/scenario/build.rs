@@ -9,6 +9,7 @@ use crate::control::{
     Controller, IntentEstimator, MultiStage, MultiStageOptions, Nmpc, NmpcSettings, PdController,
     PredictionModel, SafetySettings, Supervisor, TorqueLimits, Transparent,
 };
+use crate::control::{AUTO_K1_PER_STIFFNESS, AUTO_K2_PER_STIFFNESS};
 use crate::estimate::EstimatorOptions;
 use crate::model::{Friction, Link, RobotModel, Straps, WinterFractions};
 use crate::sim::{
@@ -205,11 +206,11 @@ pub fn limits(s: &Scenario) -> TorqueLimits {
     }
 }
 
-/// Intent-estimate gains of a scenario (paper eqs. 5-6).
+/// Intent-estimate gains of a scenario (paper eqs. 5-6; `"auto"` = `κ / ks`, `control::IntentGain`).
 pub fn intent(s: &Scenario) -> IntentEstimator {
     IntentEstimator {
-        k1: s.controller.k1,
-        k2: s.controller.k2,
+        k1: s.controller.k1.gain(AUTO_K1_PER_STIFFNESS),
+        k2: s.controller.k2.gain(AUTO_K2_PER_STIFFNESS),
     }
 }
 
@@ -239,6 +240,7 @@ pub fn build_pd<D: Dof<N>, const N: usize>(
     Ok(Box::new(PdController::new(
         scenario_robot::<D, N>(s, 0.0),
         intent(s),
+        D::straps(s),
         limits(s),
         s.controller.pd.kp,
         s.controller.pd.kd,
@@ -339,7 +341,11 @@ impl SafetySettings {
                 rate: s.rate_limit_per_step(),
             },
             dt: s.timing.dt,
-            k1: s.controller.k1,
+            k1: s
+                .controller
+                .k1
+                .value()
+                .unwrap_or(AUTO_K1_PER_STIFFNESS / s.straps.stiffness),
             strap_levers_m: vec![s.straps.ls1_m, s.straps.ls2_m],
             strap_stiffness: s.straps.stiffness,
             strap_damping: s.straps.damping,
