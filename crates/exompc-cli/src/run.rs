@@ -160,8 +160,14 @@ pub fn describe(s: &Summary) -> String {
     );
     for m in &sa.monitors {
         out += &format!(
-            "\n    {:<16}{} trips, first at {:.2} s",
+            "\n    {:<20}{} trips, first at {:.2} s",
             m.monitor, m.trips, m.first_trip_s
+        );
+    }
+    if sa.events_dropped > 0 {
+        out += &format!(
+            "\n    ({} monitor events not logged: the counts above miss their trips)",
+            sa.events_dropped
         );
     }
     out

@@ -174,6 +174,7 @@ impl Verdict {
             monitor_steps: s.monitor_steps,
             bad_measurement_steps: s.bad_measurement_steps,
             monitors: Vec::new(),
+            events_dropped: r.monitor_events_dropped,
         };
         let report = exompc::control::SafetyReport {
             events: r.monitor_events.clone(),
@@ -237,6 +238,7 @@ mod tests {
                 } else {
                     vec![]
                 },
+                events_dropped: 0,
             },
             ..Default::default()
         }

@@ -21,12 +21,17 @@ pub struct MonitorTally {
 pub struct SafetySummary {
     /// Monitor trips, all monitors (including trips beyond the event log's capacity).
     pub monitor_trips: u64,
-    /// Steps on which a monitor's response (hold or ramp to zero) set the torque.
+    /// Steps on which a monitor's response (hold, ramp to zero or the fallback controller)
+    /// set the torque.
     pub monitor_steps: u64,
     /// Steps whose measurement was rejected as implausible (previous torque held).
     pub bad_measurement_steps: u64,
     /// Trips per monitor kind, in order of first trip (from the logged events).
     pub monitors: Vec<MonitorTally>,
+    /// Monitor events not logged because the event log was full: when non-zero, `monitors`
+    /// counts only the logged trips (`monitor_trips` counts all).
+    #[serde(default)]
+    pub events_dropped: u64,
 }
 
 /// `TrackingError` → `tracking_error` (the serde spelling of a unit variant's `Debug` name), so
@@ -66,6 +71,7 @@ impl SafetySummary {
             monitor_steps: r.monitor_steps,
             bad_measurement_steps: r.bad_measurement_steps,
             monitors,
+            events_dropped: r.events_dropped,
         }
     }
 
@@ -121,6 +127,12 @@ mod tests {
             ]
         );
         assert!(!s.is_clean());
+        assert_eq!(s.events_dropped, 0);
+        let full = SafetyReport {
+            events_dropped: 7,
+            ..r
+        };
+        assert_eq!(SafetySummary::from_report(&full).events_dropped, 7);
         assert!(SafetySummary::from_report(&SafetyReport::default()).is_clean());
         assert_eq!(snake_case("SensorTimeout"), "sensor_timeout");
     }
