@@ -95,8 +95,8 @@ impl Default for Faults {
 }
 
 impl Faults {
-    /// Checks the force range (finite, > 0) and every event's start and duration (finite,
-    /// >= 0) and magnitude (finite); the error names the key (`saturation_n`,
+    /// Checks the force range (finite, > 0), every event's start and duration (finite and
+    /// not negative) and magnitude (finite); the error names the key (`saturation_n`,
     /// `events[2].start_s`).
     pub fn validate(&self) -> Result<(), InvalidField> {
         check::real("saturation_n", self.saturation_n, Range::Pos)?;
