@@ -1,6 +1,6 @@
 //! Tests of the CLI's I/O helpers (`exompc_cli::io`).
 
-use exompc::config::{Channel, FaultKind, HumanSegment, RobotLink, Scenario};
+use exompc::config::{Channel, FaultKind, HumanSegment, Link, Scenario};
 use exompc_cli::io::{
     closest, ensure_out_dir, levenshtein, parse_scenario, write_atomic, AtomicWriter,
 };
@@ -35,9 +35,9 @@ fn partial_override_changes_only_named_fields() {
         mass_fraction: 0.11,
         ..HumanSegment::WINTER_THIGH
     };
-    expected.robot.shank = RobotLink {
-        mass_kg: 1.5,
-        ..RobotLink::SHANK
+    expected.robot.shank = Link {
+        mass: 1.5,
+        ..Link::ROBOT_SHANK
     };
     expected.controller.kind = exompc::config::ControllerKind::NMPC;
     expected.controller.np = 10;

@@ -12,6 +12,7 @@
 //!
 //! Units are SI throughout (m, kg, s, rad, N, N·m).
 
+use crate::check::{self, InvalidField, Range as R};
 use serde::{Deserialize, Deserializer, Serialize};
 use std::fmt;
 
@@ -125,71 +126,31 @@ fn on_field(e: ConfigError, field: &str, breached: bool, o: Other<'_>) -> Config
     }
 }
 
-/// Allowed range of a real-valued field (all variants also require the value to be finite).
-#[derive(Debug, Clone, Copy)]
-enum R {
-    /// Any finite value.
-    Any,
-    /// `> 0`.
-    Pos,
-    /// `>= 0`.
-    NonNeg,
-    /// `[a, b]`.
-    Closed(f64, f64),
-    /// `(a, b]`.
-    OpenClosed(f64, f64),
-    /// `(a, b)`.
-    Open(f64, f64),
+impl From<InvalidField> for ConfigError {
+    fn from(e: InvalidField) -> Self {
+        ConfigError::new(e.field, e.value, e.allowed)
+    }
 }
 
-impl R {
-    fn contains(self, v: f64) -> bool {
-        v.is_finite()
-            && match self {
-                R::Any => true,
-                R::Pos => v > 0.0,
-                R::NonNeg => v >= 0.0,
-                R::Closed(a, b) => a <= v && v <= b,
-                R::OpenClosed(a, b) => a < v && v <= b,
-                R::Open(a, b) => a < v && v < b,
-            }
-    }
-
-    fn describe(self) -> String {
-        match self {
-            R::Any => "finite".into(),
-            R::Pos => "finite, > 0".into(),
-            R::NonNeg => "finite, >= 0".into(),
-            R::Closed(a, b) => format!("finite, in [{a}, {b}]"),
-            R::OpenClosed(a, b) => format!("finite, in ({a}, {b}]"),
-            R::Open(a, b) => format!("finite, in ({a}, {b})"),
-        }
-    }
+/// A settings type's error (its key inside its own table) as a scenario error: the key gets
+/// the table path `prefix` (`mass_kg` → `robot.thigh.mass_kg`).
+fn at(prefix: &str) -> impl Fn(InvalidField) -> ConfigError + '_ {
+    move |e| e.within(prefix).into()
 }
 
 /// Checks a real value against a range.
 fn real(path: &str, v: f64, r: R) -> Result<(), ConfigError> {
-    if r.contains(v) {
-        Ok(())
-    } else {
-        Err(ConfigError::new(path, v, r.describe()))
-    }
+    Ok(check::real(path, v, r)?)
 }
 
 /// Checks an integer value against an inclusive range.
 fn int(path: &str, v: usize, lo: usize, hi: usize) -> Result<(), ConfigError> {
-    if (lo..=hi).contains(&v) {
-        Ok(())
-    } else {
-        Err(ConfigError::new(path, v, format!("integer in {lo}..={hi}")))
-    }
+    Ok(check::int(path, v, lo, hi)?)
 }
 
 /// Checks a list of `(name, value, range)` triples under the table path `prefix`.
 fn reals(prefix: &str, items: &[(&str, f64, R)]) -> Result<(), ConfigError> {
-    items
-        .iter()
-        .try_for_each(|&(name, v, r)| real(&format!("{prefix}.{name}"), v, r))
+    Ok(check::reals(items).map_err(|e| e.within(prefix))?)
 }
 
 /// Generates a private "patch" struct (all fields optional) and a deserialiser function that
@@ -243,70 +204,10 @@ pub struct Human {
     pub shank: HumanSegment,
 }
 
-/// `[human.thigh]` / `[human.shank]`: anthropometric fractions from Winter's tables (MODEL.md §2).
-///
-/// A partial table overrides only the fields it names; the rest keep the thigh's or shank's
-/// default (see [`HumanSegment::WINTER_THIGH`], [`HumanSegment::WINTER_SHANK`]).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct HumanSegment {
-    /// Segment mass as a fraction of body mass (-), in (0, 1].
-    pub mass_fraction: f64,
-    /// Segment length as a fraction of body height (-), in (0, 1].
-    pub length_fraction: f64,
-    /// Distance of the COM from the proximal joint as a fraction of the segment length (-), in (0, 1].
-    pub com_fraction: f64,
-    /// Radius of gyration about the COM as a fraction of the segment length (-), in (0, 1].
-    pub gyration_fraction: f64,
-}
-
-impl HumanSegment {
-    /// Winter's thigh: mass 0.100 m_b, length 0.245 H, COM 0.433 l, gyration 0.323 l (MODEL.md §2).
-    pub const WINTER_THIGH: Self = Self {
-        mass_fraction: 0.100,
-        length_fraction: 0.245,
-        com_fraction: 0.433,
-        gyration_fraction: 0.323,
-    };
-    /// Winter's shank + foot: mass 0.061 m_b, length 0.246 H, COM 0.606 l, gyration 0.416 l (MODEL.md §2).
-    pub const WINTER_SHANK: Self = Self {
-        mass_fraction: 0.061,
-        length_fraction: 0.246,
-        com_fraction: 0.606,
-        gyration_fraction: 0.416,
-    };
-
-    /// Segment mass (kg) for body mass `body_mass_kg`.
-    pub fn mass_kg(&self, body_mass_kg: f64) -> f64 {
-        self.mass_fraction * body_mass_kg
-    }
-    /// Segment length l (m) for body height `height_m`.
-    pub fn length_m(&self, height_m: f64) -> f64 {
-        self.length_fraction * height_m
-    }
-    /// COM distance from the proximal joint c (m) for body height `height_m`.
-    pub fn com_m(&self, height_m: f64) -> f64 {
-        self.com_fraction * self.length_m(height_m)
-    }
-    /// Inertia about the COM, `I = m (rho l)^2` (kg·m², MODEL.md §2).
-    pub fn inertia_kgm2(&self, body_mass_kg: f64, height_m: f64) -> f64 {
-        let r = self.gyration_fraction * self.length_m(height_m);
-        self.mass_kg(body_mass_kg) * r * r
-    }
-
-    fn validate(&self, p: &str) -> Result<(), ConfigError> {
-        let f = R::OpenClosed(0.0, 1.0);
-        reals(
-            p,
-            &[
-                ("mass_fraction", self.mass_fraction, f),
-                ("length_fraction", self.length_fraction, f),
-                ("com_fraction", self.com_fraction, f),
-                ("gyration_fraction", self.gyration_fraction, f),
-            ],
-        )
-    }
-}
+/// `[human.thigh]` / `[human.shank]`: Winter's fractions of one segment, the model's own type
+/// with its keys, ranges and `validate` (a partial table overrides only the keys it names; the
+/// rest keep [`HumanSegment::WINTER_THIGH`] or [`HumanSegment::WINTER_SHANK`]).
+pub use crate::model::HumanSegment;
 
 patch_deserializer!(HumanSegmentPatch, HumanSegment,
     { mass_fraction, length_fraction, com_fraction, gyration_fraction },
@@ -340,8 +241,8 @@ impl Human {
                 ("kd", self.kd, R::Pos),
             ],
         )?;
-        self.thigh.validate("human.thigh")?;
-        self.shank.validate("human.shank")
+        self.thigh.validate().map_err(at("human.thigh"))?;
+        self.shank.validate().map_err(at("human.shank"))
     }
 }
 
@@ -364,77 +265,25 @@ pub struct Robot {
     pub payload_position_m: f64,
     /// `[robot.thigh]` link parameters (MODEL.md §3 table).
     #[serde(deserialize_with = "de_robot_thigh")]
-    pub thigh: RobotLink,
+    pub thigh: Link,
     /// `[robot.shank]` link parameters (MODEL.md §3 table).
     #[serde(deserialize_with = "de_robot_shank")]
-    pub shank: RobotLink,
+    pub shank: Link,
 }
 
-/// `[robot.thigh]` / `[robot.shank]`: one rigid link of the exoskeleton (MODEL.md §1, §3).
-///
-/// A partial table overrides only the fields it names; the rest keep the thigh's or shank's
-/// default ([`RobotLink::THIGH`], [`RobotLink::SHANK`]).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RobotLink {
-    /// Link length l (m), > 0.
-    pub length_m: f64,
-    /// Link mass m (kg), > 0.
-    pub mass_kg: f64,
-    /// COM distance c from the proximal joint along the link (m), in [0, length_m].
-    pub com_m: f64,
-    /// Inertia about the COM I (kg·m²), > 0.
-    pub inertia_kgm2: f64,
+/// `[robot.thigh]` / `[robot.shank]`: one rigid link of the exoskeleton (MODEL.md §1, §3), the
+/// model's own type with its keys (`length_m`, `mass_kg`, `com_m`, `inertia_kgm2`), ranges and
+/// `validate`. A partial table overrides only the keys it names (read as a
+/// [`scenarios::LinkOverride`]); the rest keep [`Link::ROBOT_THIGH`] or [`Link::ROBOT_SHANK`].
+pub use crate::model::Link;
+
+fn de_robot_thigh<'de, D: Deserializer<'de>>(d: D) -> Result<Link, D::Error> {
+    scenarios::LinkOverride::deserialize(d).map(|p| p.apply(Link::ROBOT_THIGH))
 }
 
-impl RobotLink {
-    /// Default robot thigh: l 0.43 m, m 2.0 kg, c 0.20 m, I 0.035 kg·m² (MODEL.md §3).
-    pub const THIGH: Self = Self {
-        length_m: 0.43,
-        mass_kg: 2.0,
-        com_m: 0.20,
-        inertia_kgm2: 0.035,
-    };
-    /// Default robot shank: l 0.43 m, m 1.2 kg, c 0.18 m, I 0.018 kg·m² (MODEL.md §3).
-    pub const SHANK: Self = Self {
-        length_m: 0.43,
-        mass_kg: 1.2,
-        com_m: 0.18,
-        inertia_kgm2: 0.018,
-    };
-
-    fn validate(&self, p: &str) -> Result<(), ConfigError> {
-        reals(
-            p,
-            &[
-                ("length_m", self.length_m, R::Pos),
-                ("mass_kg", self.mass_kg, R::Pos),
-            ],
-        )?;
-        let com = R::Closed(0.0, self.length_m);
-        cross(
-            real(&format!("{p}.com_m"), self.com_m, com),
-            self.com_m > self.length_m,
-            Other {
-                key: &format!("{p}.length_m"),
-                value: self.length_m.to_string(),
-                relation: "<=",
-                reason: "the centre of mass lies on the link",
-                fix: format!(
-                    "set {p}.com_m <= {} or lengthen {p}.length_m",
-                    self.length_m
-                ),
-            },
-        )?;
-        real(&format!("{p}.inertia_kgm2"), self.inertia_kgm2, R::Pos)
-    }
+fn de_robot_shank<'de, D: Deserializer<'de>>(d: D) -> Result<Link, D::Error> {
+    scenarios::LinkOverride::deserialize(d).map(|p| p.apply(Link::ROBOT_SHANK))
 }
-
-patch_deserializer!(RobotLinkPatch, RobotLink,
-    { length_m, mass_kg, com_m, inertia_kgm2 },
-    de_robot_thigh => RobotLink::THIGH,
-    de_robot_shank => RobotLink::SHANK,
-);
 
 impl Default for Robot {
     fn default() -> Self {
@@ -443,16 +292,30 @@ impl Default for Robot {
             coulomb_friction: 0.05048,
             coulomb_smoothing: 0.01,
             payload_position_m: 0.215,
-            thigh: RobotLink::THIGH,
-            shank: RobotLink::SHANK,
+            thigh: Link::ROBOT_THIGH,
+            shank: Link::ROBOT_SHANK,
         }
     }
 }
 
 impl Robot {
     fn validate(&self) -> Result<(), ConfigError> {
-        self.thigh.validate("robot.thigh")?;
-        self.shank.validate("robot.shank")?;
+        for (p, l) in [("robot.thigh", &self.thigh), ("robot.shank", &self.shank)] {
+            l.validate().map_err(at(p)).map_err(|e| {
+                on_field(
+                    e,
+                    &format!("{p}.com_m"),
+                    l.com > l.length,
+                    Other {
+                        key: &format!("{p}.length_m"),
+                        value: l.length.to_string(),
+                        relation: "<=",
+                        reason: "the centre of mass lies on the link",
+                        fix: format!("set {p}.com_m <= {} or lengthen {p}.length_m", l.length),
+                    },
+                )
+            })?;
+        }
         reals(
             "robot",
             &[
@@ -461,7 +324,7 @@ impl Robot {
                 ("coulomb_smoothing", self.coulomb_smoothing, R::Pos),
             ],
         )?;
-        let (pos, l) = (self.payload_position_m, self.shank.length_m);
+        let (pos, l) = (self.payload_position_m, self.shank.length);
         cross(
             real("robot.payload_position_m", pos, R::Closed(0.0, l)),
             pos > l,
@@ -511,43 +374,9 @@ impl Default for Straps {
 // [uncertainty]
 // ---------------------------------------------------------------------------------------------
 
-/// `[uncertainty]`: plant uncertainties and sensor imperfections (MODEL.md §5, paper §4.1).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Uncertainty {
-    /// True payload m_p at the middle of the robot shank (kg), in [0, 20]; unknown to the
-    /// controller (MODEL.md §3, §5). Default 0.
-    pub payload_kg: f64,
-    /// Enable `m_dis(t) = 0.05 sin(t) + 0.01 sin(100 t + pi/4)` kg on each robot link (MODEL.md §5).
-    pub mass_perturbation: bool,
-    /// Enable the lumped joint disturbance `D(t) = 0.1 sin(t) + 0.05 sin(100 t + pi/2)` N·m (MODEL.md §5).
-    pub disturbance: bool,
-    /// Enable the linear human body-mass ramp of the 2-DOF run (MODEL.md §2).
-    pub human_mass_ramp: bool,
-    /// Velocity measurement noise amplitude (rad/s), >= 0: `a sin(w t)` (MODEL.md §5). Default 1e-4.
-    pub velocity_noise: f64,
-    /// Strap force measurement noise amplitude (N), >= 0 (MODEL.md §5). Default 1e-3.
-    pub force_noise: f64,
-    /// Angular frequency w of the measurement noise (rad/s), >= 0 (MODEL.md §5). Default 100.
-    pub noise_frequency: f64,
-    /// Moving-average window on measured velocities and forces (samples), 1..=100 (MODEL.md §5). Default 5.
-    pub filter_window: usize,
-}
-
-impl Default for Uncertainty {
-    fn default() -> Self {
-        Self {
-            payload_kg: 0.0,
-            mass_perturbation: true,
-            disturbance: true,
-            human_mass_ramp: true,
-            velocity_noise: 1e-4,
-            force_noise: 1e-3,
-            noise_frequency: 100.0,
-            filter_window: 5,
-        }
-    }
-}
+/// `[uncertainty]`: plant uncertainties and sensor imperfections (MODEL.md §5, paper §4.1);
+/// the simulator's own type with its keys, ranges and `validate`.
+pub use crate::sim::{Uncertainty, MAX_PAYLOAD_KG};
 
 // ---------------------------------------------------------------------------------------------
 // [trajectory]
@@ -557,11 +386,6 @@ impl Default for Uncertainty {
 /// with its keys, ranges and `validate` in [`crate::sim::Gait`].
 pub use crate::sim::Gait as Trajectory;
 pub use crate::sim::GaitKind as TrajectoryKind;
-
-/// A `[trajectory]` error as a scenario error: the key gets its table path (`trajectory.`).
-fn in_trajectory(e: crate::sim::InvalidField) -> ConfigError {
-    ConfigError::new(format!("trajectory.{}", e.field), e.value, e.allowed)
-}
 
 // ---------------------------------------------------------------------------------------------
 // [timing]
@@ -603,6 +427,8 @@ pub use controller_kind::ControllerKind;
 
 pub use crate::control::Interaction;
 pub use crate::control::{FilterAware, GainSetting, Method, RobustSettings};
+use crate::solver::{SolverError, SqpSettings};
+use std::time::Duration;
 
 /// `[controller]`: intent estimation and NMPC (MODEL.md §8, paper eqs. 5-9, Table 1).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -667,15 +493,18 @@ impl Default for Controller {
     }
 }
 
-/// `[controller.sqp]`: SQP solver limits (paper §3.1).
+/// `[controller.sqp]`: SQP solver limits (paper §3.1); the keys of [`SqpSettings`] a scenario
+/// sets (see [`Sqp::settings`]), checked by its `validate`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Sqp {
     /// Maximum SQP iterations per solve, 1..=1000. Default 20.
     pub max_iterations: usize,
-    /// KKT residual tolerance, in (0, 1]. Default 1e-8.
+    /// KKT residual tolerance, in [0, 1] (0: never converged, every solve runs to a limit).
+    /// Default 1e-8.
     pub kkt_tolerance: f64,
-    /// Optional wall-clock budget per solve (µs), 1..=10_000_000; absent = no time budget.
+    /// Optional wall-clock budget per solve (µs), 0..=10_000_000 (0: stop after the first
+    /// iteration); absent = no time budget.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_time_us: Option<u64>,
     /// Hessian model of the QP subproblems: `"structured_secant"` (Gauss-Newton plus a
@@ -696,14 +525,49 @@ pub struct Sqp {
 
 impl Default for Sqp {
     fn default() -> Self {
+        let d = SqpSettings::default();
         Self {
-            max_iterations: 20,
-            kkt_tolerance: 1e-8,
+            max_iterations: d.max_iterations,
+            kkt_tolerance: d.kkt_tolerance,
             max_time_us: None,
-            hessian: crate::solver::HessianModel::StructuredSecant,
+            hessian: d.hessian,
             qp: crate::control::QpBackend::Auto,
-            rti: false,
+            rti: d.real_time_iteration,
         }
+    }
+}
+
+impl Sqp {
+    /// The solver settings of this table: its keys set, the solver's defaults elsewhere.
+    pub fn settings(&self) -> SqpSettings {
+        SqpSettings {
+            max_iterations: self.max_iterations,
+            kkt_tolerance: self.kkt_tolerance,
+            max_time: self.max_time_us.map(Duration::from_micros),
+            hessian: self.hessian,
+            real_time_iteration: self.rti,
+            ..SqpSettings::default()
+        }
+    }
+
+    /// Checks the table with the solver's own ranges ([`SqpSettings::validate`]); the error
+    /// names the key as `controller.sqp.max_time_us`.
+    fn validate(&self) -> Result<(), ConfigError> {
+        self.settings().validate().map_err(|e| match e {
+            SolverError::InvalidSetting {
+                field,
+                value,
+                allowed,
+            } => {
+                let key = match field {
+                    "max_time" => "max_time_us",
+                    "real_time_iteration" => "rti",
+                    f => f,
+                };
+                ConfigError::new(format!("controller.sqp.{key}"), value, allowed)
+            }
+            other => ConfigError::new("controller.sqp", other, "valid solver settings"),
+        })
     }
 }
 
@@ -826,9 +690,6 @@ pub struct Scenario {
     pub monitors: Monitors,
 }
 
-/// Upper bound on any payload (kg) accepted by validation.
-pub const MAX_PAYLOAD_KG: f64 = 20.0;
-
 /// Most control steps one run may take (`duration / dt`), so that a tiny `dt` cannot start a
 /// practically endless run.
 pub const MAX_CONTROL_STEPS: usize = 100_000_000;
@@ -847,8 +708,8 @@ impl Scenario {
 
         let s = &self.straps;
         for (name, v, link, l) in [
-            ("ls1_m", s.ls1_m, "thigh", self.robot.thigh.length_m),
-            ("ls2_m", s.ls2_m, "shank", self.robot.shank.length_m),
+            ("ls1_m", s.ls1_m, "thigh", self.robot.thigh.length),
+            ("ls2_m", s.ls2_m, "shank", self.robot.shank.length),
         ] {
             cross(
                 real(&format!("straps.{name}"), v, R::OpenClosed(0.0, l)),
@@ -870,23 +731,13 @@ impl Scenario {
             ],
         )?;
 
-        let u = &self.uncertainty;
-        reals(
-            "uncertainty",
-            &[
-                ("payload_kg", u.payload_kg, R::Closed(0.0, MAX_PAYLOAD_KG)),
-                ("velocity_noise", u.velocity_noise, R::NonNeg),
-                ("force_noise", u.force_noise, R::NonNeg),
-                ("noise_frequency", u.noise_frequency, R::NonNeg),
-            ],
-        )?;
-        int("uncertainty.filter_window", u.filter_window, 1, 100)?;
+        self.uncertainty.validate().map_err(at("uncertainty"))?;
 
         let sw = &self.trajectory.swing;
         let (swing, base) = (sw.frequency_swing_hz, sw.base_frequency_hz);
         self.trajectory
             .validate()
-            .map_err(in_trajectory)
+            .map_err(at("trajectory"))
             .map_err(|e| {
                 on_field(e, "trajectory.frequency_swing_hz", swing >= base, Other {
                     key: "trajectory.base_frequency_hz",
@@ -977,26 +828,7 @@ impl Scenario {
                 ("torque_rate_max", c.torque_rate_max, R::Pos),
             ],
         )?;
-        int(
-            "controller.sqp.max_iterations",
-            c.sqp.max_iterations,
-            1,
-            1000,
-        )?;
-        real(
-            "controller.sqp.kkt_tolerance",
-            c.sqp.kkt_tolerance,
-            R::OpenClosed(0.0, 1.0),
-        )?;
-        if let Some(us) = c.sqp.max_time_us {
-            if !(1..=10_000_000).contains(&us) {
-                return Err(ConfigError::new(
-                    "controller.sqp.max_time_us",
-                    us,
-                    "integer in 1..=10000000, or absent",
-                ));
-            }
-        }
+        c.sqp.validate()?;
         reals(
             "controller.pd",
             &[("kp", c.pd.kp, R::Pos), ("kd", c.pd.kd, R::Pos)],
@@ -1073,66 +905,9 @@ impl Scenario {
             },
         )?;
 
-        let e = &self.ekf;
-        reals(
-            "ekf",
-            &[
-                ("q_angle", e.q_angle, R::Pos),
-                ("q_velocity", e.q_velocity, R::Pos),
-                ("q_disturbance", e.q_disturbance, R::Pos),
-                ("r_angle", e.r_angle, R::Pos),
-                ("r_velocity", e.r_velocity, R::Pos),
-                ("p0_angle", e.p0_angle, R::Pos),
-                ("p0_velocity", e.p0_velocity, R::Pos),
-                ("p0_disturbance", e.p0_disturbance, R::Pos),
-            ],
-        )?;
-
-        real("faults.saturation_n", self.faults.saturation_n, R::Pos)?;
-        for (i, ev) in self.faults.events.iter().enumerate() {
-            reals(
-                &format!("faults.events[{i}]"),
-                &[
-                    ("start_s", ev.start_s, R::NonNeg),
-                    ("duration_s", ev.duration_s, R::NonNeg),
-                    ("magnitude", ev.magnitude, R::Any),
-                ],
-            )?;
-        }
-
-        let mo = &self.monitors;
-        reals(
-            "monitors",
-            &[
-                ("tracking_error_max_rad", mo.tracking_error_max_rad, R::Pos),
-                ("force_max_n", mo.force_max_n, R::Pos),
-                ("sensor_timeout_s", mo.sensor_timeout_s, R::Pos),
-                (
-                    "oscillation_force_rms_n",
-                    mo.oscillation_force_rms_n,
-                    R::Pos,
-                ),
-                (
-                    "oscillation_torque_rms_nm",
-                    mo.oscillation_torque_rms_nm,
-                    R::Pos,
-                ),
-                ("oscillation_cutoff_hz", mo.oscillation_cutoff_hz, R::Pos),
-                (
-                    "oscillation_window_s",
-                    mo.oscillation_window_s,
-                    R::OpenClosed(0.0, 10.0),
-                ),
-                (
-                    "oscillation_clear_s",
-                    mo.oscillation_clear_s,
-                    R::Closed(0.0, 1e6),
-                ),
-            ],
-        )?;
-        mo.fallback.validate().map_err(|e| {
-            ConfigError::new(format!("monitors.fallback.{}", e.field), e.value, e.allowed)
-        })
+        self.ekf.validate().map_err(at("ekf"))?;
+        self.faults.validate().map_err(at("faults"))?;
+        self.monitors.validate().map_err(at("monitors"))
     }
 
     /// Run length (s) of the `dof`-DOF experiment: `duration_1dof_s` for `dof == 1`,
@@ -1156,7 +931,7 @@ impl Scenario {
         };
         self.trajectory
             .check_run(dof, self.duration_s(dof), key)
-            .map_err(in_trajectory)
+            .map_err(at("trajectory"))
     }
 
     /// Number of control steps N of the `dof`-DOF run, `round(duration / dt)` (MODEL.md §7, §8a).

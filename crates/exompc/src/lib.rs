@@ -77,6 +77,7 @@
 //! re-exported at the crate root; their module paths work as well.
 #![warn(missing_docs)]
 
+mod check;
 pub mod config;
 pub mod control;
 pub mod estimate;
@@ -86,6 +87,7 @@ pub mod scenario;
 pub mod sim;
 pub mod solver;
 
+pub use check::InvalidField;
 pub use config::{ControllerKind, Scenario};
 pub use control::{
     ControlOutput, Controller, Measurement, MultiStage, Nmpc, StepStatus, Supervisor, TorqueLimits,

@@ -5,14 +5,16 @@
 //! `config`; `lib.rs`, the crate root that re-exports the main types, is not scanned). Line
 //! comments (`//`, `///`, `//!`) are removed first, so doc links to a higher layer are allowed;
 //! then every `crate::name` and every `crate::{a::…, b, …}` group names the modules a file
-//! uses. A module may use its own layer's lower layers only; `model` and `solver` share the
-//! bottom layer and use nothing of each other.
+//! uses. A module may use its own layer's lower layers only; `model` and `solver` share a
+//! layer and use nothing of each other; below them, `check` (the range checks every settings
+//! type's `validate()` shares) uses nothing of the crate.
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
 /// The layers, lowest first. A module may import modules of strictly lower layers only.
 const LAYERS: &[&[&str]] = &[
+    &["check"],
     &["model", "solver"],
     &["estimate"],
     &["control"],

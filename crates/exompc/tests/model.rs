@@ -240,8 +240,9 @@ fn strap_torque_is_the_negative_energy_gradient_and_forces_are_opposite() {
 
 #[test]
 fn winter_segments_match_spec_numbers() {
-    let thigh = HumanSegment::Thigh.fractions().link(60.0, 1.75);
-    let shank = HumanSegment::Shank.fractions().link(60.0, 1.75);
+    // MODEL.md §2: thigh m = 6.0, c = 0.18565, I = 0.11507; shank m = 3.66, c = 0.26088, I = 0.11739.
+    let thigh = HumanSegment::WINTER_THIGH.link(60.0, 1.75);
+    let shank = HumanSegment::WINTER_SHANK.link(60.0, 1.75);
     assert!((thigh.mass - 6.0).abs() < 1e-12 && (thigh.length - 0.42875).abs() < 1e-12);
     assert!((thigh.com - 0.18565).abs() < 1e-5 && (thigh.inertia - 0.11507).abs() < 1e-5);
     assert!((shank.mass - 3.66).abs() < 1e-12 && (shank.length - 0.4305).abs() < 1e-12);

@@ -191,10 +191,10 @@ fn robust_default_holds_where_the_paper_method_limit_cycles() {
             s.uncertainty.filter_window = 9
         }),
         ("heavier robot", 2, 2.0, |s| {
-            s.robot.thigh.mass_kg = 4.0;
-            s.robot.thigh.inertia_kgm2 = 0.07;
-            s.robot.shank.mass_kg = 2.5;
-            s.robot.shank.inertia_kgm2 = 0.036;
+            s.robot.thigh.mass = 4.0;
+            s.robot.thigh.inertia = 0.07;
+            s.robot.shank.mass = 2.5;
+            s.robot.shank.inertia = 0.036;
         }),
         ("1-DOF, filter window 9", 1, 2.0, |s| {
             s.uncertainty.filter_window = 9

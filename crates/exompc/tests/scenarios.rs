@@ -81,7 +81,7 @@ fn overrides_change_only_what_they_name() {
     straps.stiffness = 600.0;
     assert_eq!(r[0].straps, straps);
     let mut robot = s.robot.clone();
-    robot.shank.mass_kg = 2.4;
+    robot.shank.mass = 2.4;
     robot.viscous_friction = 0.01;
     assert_eq!(
         (r[1].payload_kg, &r[1].robot, &r[1].straps),
@@ -269,7 +269,7 @@ fn the_bank_identifies_the_plants_shank_mass() {
         shank_mass("heavy", 2.4),
         shank_mass("heavier", 3.6),
     ]);
-    s.robot.shank.mass_kg = 2.4;
+    s.robot.shank.mass = 2.4;
     s.controller.kind = ControllerKind::MSNMPC;
     s.timing.duration_2dof_s = 10.0;
     s.timing.duration_1dof_s = 10.0;
@@ -281,7 +281,7 @@ fn the_bank_identifies_the_plants_shank_mass() {
         assert!(p[1] > p[0] && p[1] > p[2], "{dof}-DOF: {p:?}");
     }
     // The plant with the light shank: the light scenario wins.
-    s.robot.shank.mass_kg = 1.2;
+    s.robot.shank.mass = 1.2;
     let (p, _) = closed_loop_final_probabilities(&s, 2);
     println!("light plant: final probabilities {p:?}");
     assert!(p[0] > p[1] && p[0] > p[2], "{p:?}");

@@ -270,10 +270,9 @@ fn controller_build_errors_are_typed() {
     let mut s = exompc::config::Scenario::default();
     s.ekf.q_angle = -1.0; // not validated here: build_controller trusts its caller
     match build_controller::<TwoDof, 2>(&s, exompc::config::ControllerKind::MSNMPC) {
-        Err(RunError::MultiStage(MultiStageError::Estimator(EstimateError::InvalidSetting(
-            field,
-            _,
-        )))) => assert_eq!(field, "q_angle"),
+        Err(RunError::MultiStage(MultiStageError::Estimator(EstimateError::Settings(e)))) => {
+            assert_eq!(e.field, "q_angle")
+        }
         Err(e) => panic!("expected an estimator error, got {e}"),
         Ok(_) => panic!("a negative EKF variance was accepted"),
     }

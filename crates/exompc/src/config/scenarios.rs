@@ -28,7 +28,8 @@
 //! as `multistage.scenarios[2].straps.stiffness`. [`warnings`](crate::scenario::multistage::warnings) lists pairs of scenarios the EKF
 //! bank cannot tell apart (see [`ScenarioWarning`](crate::scenario::multistage::ScenarioWarning) for the criterion).
 
-use super::{ConfigError, Robot, RobotLink, Scenario, Straps, MAX_PAYLOAD_KG, MAX_SCENARIOS};
+use super::{ConfigError, Link, Robot, Scenario, Straps, MAX_PAYLOAD_KG, MAX_SCENARIOS};
+use crate::check::{self, Range};
 use serde::{Deserialize, Serialize};
 
 // ---------------------------------------------------------------------------------------------
@@ -81,7 +82,7 @@ pub struct RobotOverride {
     pub shank: LinkOverride,
 }
 
-/// Partial `[robot.thigh]` / `[robot.shank]` table; every key as in [`RobotLink`].
+/// Partial `[robot.thigh]` / `[robot.shank]` table; every key as in [`Link`].
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct LinkOverride {
@@ -122,11 +123,11 @@ impl ScenarioSpec {
     /// `[[multistage.scenarios]]` for tools that check a file key by key.
     pub fn every_key() -> Self {
         let (r, st) = (Robot::default(), Straps::default());
-        let link = |l: RobotLink| LinkOverride {
-            length_m: Some(l.length_m),
-            mass_kg: Some(l.mass_kg),
-            com_m: Some(l.com_m),
-            inertia_kgm2: Some(l.inertia_kgm2),
+        let link = |l: Link| LinkOverride {
+            length_m: Some(l.length),
+            mass_kg: Some(l.mass),
+            com_m: Some(l.com),
+            inertia_kgm2: Some(l.inertia),
         };
         ScenarioSpec {
             name: "name".into(),
@@ -162,11 +163,11 @@ impl LinkOverride {
     }
 
     /// `base` with the given keys replaced.
-    pub fn apply(&self, mut base: RobotLink) -> RobotLink {
-        set(&mut base.length_m, self.length_m);
-        set(&mut base.mass_kg, self.mass_kg);
-        set(&mut base.com_m, self.com_m);
-        set(&mut base.inertia_kgm2, self.inertia_kgm2);
+    pub fn apply(&self, mut base: Link) -> Link {
+        set(&mut base.length, self.length_m);
+        set(&mut base.mass, self.mass_kg);
+        set(&mut base.com, self.com_m);
+        set(&mut base.inertia, self.inertia_kgm2);
         base
     }
 }
@@ -393,13 +394,5 @@ pub fn validate(s: &Scenario) -> Result<usize, ConfigError> {
 }
 
 fn payload(path: &str, v: f64) -> Result<(), ConfigError> {
-    if v.is_finite() && (0.0..=MAX_PAYLOAD_KG).contains(&v) {
-        Ok(())
-    } else {
-        Err(ConfigError::new(
-            path,
-            v,
-            format!("finite, in [0, {MAX_PAYLOAD_KG}]"),
-        ))
-    }
+    Ok(check::real(path, v, Range::Closed(0.0, MAX_PAYLOAD_KG))?)
 }

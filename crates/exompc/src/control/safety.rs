@@ -4,6 +4,7 @@ use super::highpass::HighPass;
 use super::{
     ControlOutput, Controller, FallbackSettings, Measurement, StepStatus, TorqueLimits, Transparent,
 };
+use crate::check::{self, InvalidField, Range};
 use nalgebra::{SMatrix, SVector};
 use serde::{Deserialize, Serialize};
 
@@ -110,6 +111,50 @@ impl Default for Monitors {
             oscillation_clear_s: 2.0,
             fallback: FallbackSettings::default(),
         }
+    }
+}
+
+impl Monitors {
+    /// Checks every threshold, cutoff and time (finite, > 0; the window in (0, 10], the clear
+    /// time in [0, 1e6]); the error names the key (`force_max_n`, ...).
+    pub fn validate(&self) -> Result<(), InvalidField> {
+        check::reals(&[
+            (
+                "tracking_error_max_rad",
+                self.tracking_error_max_rad,
+                Range::Pos,
+            ),
+            ("force_max_n", self.force_max_n, Range::Pos),
+            ("sensor_timeout_s", self.sensor_timeout_s, Range::Pos),
+            (
+                "oscillation_force_rms_n",
+                self.oscillation_force_rms_n,
+                Range::Pos,
+            ),
+            (
+                "oscillation_torque_rms_nm",
+                self.oscillation_torque_rms_nm,
+                Range::Pos,
+            ),
+            (
+                "oscillation_cutoff_hz",
+                self.oscillation_cutoff_hz,
+                Range::Pos,
+            ),
+            (
+                "oscillation_window_s",
+                self.oscillation_window_s,
+                Range::OpenClosed(0.0, 10.0),
+            ),
+            (
+                "oscillation_clear_s",
+                self.oscillation_clear_s,
+                Range::Closed(0.0, 1e6),
+            ),
+        ])?;
+        self.fallback
+            .validate()
+            .map_err(|e| InvalidField::new(&format!("fallback.{}", e.field), e.value, e.allowed))
     }
 }
 

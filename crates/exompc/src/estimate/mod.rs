@@ -47,6 +47,7 @@ pub use bank::{update_probabilities, EkfBank};
 pub use ekf::{Ekf, EkfError, InnovationStats};
 pub use scenario::{ScenarioEkf, ScenarioUpdate};
 
+use crate::check::{self, InvalidField, Range};
 use nalgebra::{SMatrix, SVector};
 
 /// Which innovation the scenario probabilities (paper eq. 10) are computed from.
@@ -81,6 +82,9 @@ pub enum EstimateError {
     /// A setting is out of range (name of the setting and the requirement).
     #[error("invalid estimator setting `{0}`: {1}")]
     InvalidSetting(&'static str, &'static str),
+    /// An [`EkfSettings`] value is out of range.
+    #[error("EKF settings: {0}")]
+    Settings(#[from] InvalidField),
     /// The bank was given no scenario.
     #[error("the EKF bank needs at least one scenario")]
     NoScenario,
@@ -127,27 +131,18 @@ impl Default for EkfSettings {
 }
 
 impl EkfSettings {
-    /// Check that every variance is finite and strictly positive.
-    pub fn validate(&self) -> Result<(), EstimateError> {
-        let all = [
-            ("q_angle", self.q_angle),
-            ("q_velocity", self.q_velocity),
-            ("q_disturbance", self.q_disturbance),
-            ("r_angle", self.r_angle),
-            ("r_velocity", self.r_velocity),
-            ("p0_angle", self.p0_angle),
-            ("p0_velocity", self.p0_velocity),
-            ("p0_disturbance", self.p0_disturbance),
-        ];
-        for (name, v) in all {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(EstimateError::InvalidSetting(
-                    name,
-                    "must be finite and > 0",
-                ));
-            }
-        }
-        Ok(())
+    /// Checks that every variance is finite and > 0; the error names the key (`q_angle`, ...).
+    pub fn validate(&self) -> Result<(), InvalidField> {
+        check::reals(&[
+            ("q_angle", self.q_angle, Range::Pos),
+            ("q_velocity", self.q_velocity, Range::Pos),
+            ("q_disturbance", self.q_disturbance, Range::Pos),
+            ("r_angle", self.r_angle, Range::Pos),
+            ("r_velocity", self.r_velocity, Range::Pos),
+            ("p0_angle", self.p0_angle, Range::Pos),
+            ("p0_velocity", self.p0_velocity, Range::Pos),
+            ("p0_disturbance", self.p0_disturbance, Range::Pos),
+        ])
     }
 
     /// `Q = diag(q_angle·1_N, q_velocity·1_N, q_disturbance·1_N)` for `NA = 3N` states.

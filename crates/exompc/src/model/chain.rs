@@ -2,24 +2,58 @@
 #![allow(clippy::needless_range_loop)] // index-heavy formulas read closest to the math
 
 use super::{c, Real, GRAVITY};
+use crate::check::{self, InvalidField, Range};
 use nalgebra::{SMatrix, SVector};
 use serde::{Deserialize, Serialize};
 
 /// Rigid link parameters (MODEL.md §1): length, mass, COM distance from the proximal joint along
-/// the link, and inertia about the COM.
+/// the link, and inertia about the COM. The scenario's `[robot.thigh]` / `[robot.shank]` tables
+/// (keys `length_m`, `mass_kg`, `com_m`, `inertia_kgm2`).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Link {
-    /// Length `l` (m): distance from the proximal to the distal joint.
+    /// Length `l` (m): distance from the proximal to the distal joint, > 0.
+    #[serde(rename = "length_m")]
     pub length: f64,
-    /// Mass `m` (kg).
+    /// Mass `m` (kg), > 0.
+    #[serde(rename = "mass_kg")]
     pub mass: f64,
-    /// COM distance `c` (m) from the proximal joint.
+    /// COM distance `c` (m) from the proximal joint, in [0, length].
+    #[serde(rename = "com_m")]
     pub com: f64,
-    /// Inertia `I` about the COM (kg·m²).
+    /// Inertia `I` about the COM (kg·m²), > 0.
+    #[serde(rename = "inertia_kgm2")]
     pub inertia: f64,
 }
 
 impl Link {
+    /// Default robot thigh: l 0.43 m, m 2.0 kg, c 0.20 m, I 0.035 kg·m² (MODEL.md §3).
+    pub const ROBOT_THIGH: Self = Self {
+        length: 0.43,
+        mass: 2.0,
+        com: 0.20,
+        inertia: 0.035,
+    };
+    /// Default robot shank: l 0.43 m, m 1.2 kg, c 0.18 m, I 0.018 kg·m² (MODEL.md §3).
+    pub const ROBOT_SHANK: Self = Self {
+        length: 0.43,
+        mass: 1.2,
+        com: 0.18,
+        inertia: 0.018,
+    };
+
+    /// Checks length and mass (finite, > 0), the COM on the link (in [0, length]) and the
+    /// inertia (finite, > 0), in this order; the error names the key (`length_m`, `mass_kg`,
+    /// `com_m`, `inertia_kgm2`).
+    pub fn validate(&self) -> Result<(), InvalidField> {
+        check::reals(&[
+            ("length_m", self.length, Range::Pos),
+            ("mass_kg", self.mass, Range::Pos),
+            ("com_m", self.com, Range::Closed(0.0, self.length)),
+            ("inertia_kgm2", self.inertia, Range::Pos),
+        ])
+    }
+
     /// The link with a point mass `mp` (kg) rigidly attached at distance `d` (m) from its proximal
     /// joint, merged by the parallel-axis theorem (MODEL.md §3, payload).
     pub fn with_point_mass(&self, mp: f64, d: f64) -> Link {

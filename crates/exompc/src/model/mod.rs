@@ -11,7 +11,7 @@ mod robot;
 mod straps;
 
 pub use chain::{Chain, Link};
-pub use human::{HumanSegment, WinterFractions};
+pub use human::HumanSegment;
 pub use rk4::{rk4_step, JointState, RkState};
 pub use robot::{tanh, Friction, RobotModel};
 pub use straps::Straps;

@@ -4,39 +4,19 @@
 
 use super::registry::{controller_info, Builder, ControllerInfo};
 use super::RunError;
-use crate::config::{self, ControllerKind, Method, MonitorResponse, Scenario};
+use crate::config::{ControllerKind, Method, MonitorResponse, Scenario};
 use crate::control::{
     Controller, IntentEstimator, MultiStage, MultiStageOptions, Nmpc, NmpcSettings, PdController,
     PredictionModel, SafetySettings, Supervisor, TorqueLimits, Transparent,
 };
 use crate::control::{AUTO_K1_PER_STIFFNESS, AUTO_K2_PER_STIFFNESS};
 use crate::estimate::EstimatorOptions;
-use crate::model::{Friction, Link, RobotModel, Straps, WinterFractions};
+use crate::model::{Friction, HumanSegment, Link, RobotModel, Straps};
 use crate::sim::{
     robot_model, GaitTrajectory, HumanLeg, KneeTrajectory, PlantParams, SwingTrajectory,
     Trajectory, Uncertainty,
 };
-use crate::solver::SqpSettings;
 use nalgebra::SVector;
-use std::time::Duration;
-
-fn link(l: &config::RobotLink) -> Link {
-    Link {
-        length: l.length_m,
-        mass: l.mass_kg,
-        com: l.com_m,
-        inertia: l.inertia_kgm2,
-    }
-}
-
-fn winter(h: &config::HumanSegment) -> WinterFractions {
-    WinterFractions {
-        mass: h.mass_fraction,
-        length: h.length_fraction,
-        com: h.com_fraction,
-        gyration: h.gyration_fraction,
-    }
-}
 
 /// One of the paper's two experiment layouts, with `N` joints.
 pub trait Dof<const N: usize> {
@@ -47,7 +27,7 @@ pub trait Dof<const N: usize> {
     /// Bare robot links (hip outwards).
     fn robot_links(s: &Scenario) -> [Link; N];
     /// Human Winter segments.
-    fn human_segments(s: &Scenario) -> [WinterFractions; N];
+    fn human_segments(s: &Scenario) -> [HumanSegment; N];
     /// Strap model.
     fn straps(s: &Scenario) -> Straps<N>;
     /// The human's desired trajectory.
@@ -67,10 +47,10 @@ pub struct OneDof;
 impl Dof<2> for TwoDof {
     type Traj = GaitTrajectory<SwingTrajectory, 2>;
     fn robot_links(s: &Scenario) -> [Link; 2] {
-        [link(&s.robot.thigh), link(&s.robot.shank)]
+        [s.robot.thigh, s.robot.shank]
     }
-    fn human_segments(s: &Scenario) -> [WinterFractions; 2] {
-        [winter(&s.human.thigh), winter(&s.human.shank)]
+    fn human_segments(s: &Scenario) -> [HumanSegment; 2] {
+        [s.human.thigh, s.human.shank]
     }
     fn straps(s: &Scenario) -> Straps<2> {
         Straps::two_dof(
@@ -91,10 +71,10 @@ impl Dof<2> for TwoDof {
 impl Dof<1> for OneDof {
     type Traj = GaitTrajectory<KneeTrajectory, 1>;
     fn robot_links(s: &Scenario) -> [Link; 1] {
-        [link(&s.robot.shank)]
+        [s.robot.shank]
     }
-    fn human_segments(s: &Scenario) -> [WinterFractions; 1] {
-        [winter(&s.human.shank)]
+    fn human_segments(s: &Scenario) -> [HumanSegment; 1] {
+        [s.human.shank]
     }
     fn straps(s: &Scenario) -> Straps<1> {
         Straps::one_dof(s.straps.ls2_m, s.straps.stiffness, s.straps.damping)
@@ -107,16 +87,10 @@ impl Dof<1> for OneDof {
     }
 }
 
-/// The plant's uncertainty settings of a scenario.
+/// The plant's uncertainty settings of a scenario: its `[uncertainty]` table, which is the
+/// simulator's own [`Uncertainty`] type.
 pub fn uncertainty(s: &Scenario) -> Uncertainty {
-    let u = &s.uncertainty;
-    Uncertainty {
-        mass_perturbation: u.mass_perturbation,
-        disturbance: u.disturbance,
-        velocity_noise: u.velocity_noise,
-        force_noise: u.force_noise,
-        noise_frequency: u.noise_frequency,
-    }
+    s.uncertainty
 }
 
 /// Plant parameters of a scenario for layout `D` (MODEL.md §2-7).
@@ -143,7 +117,7 @@ pub fn plant_params<D: Dof<N>, const N: usize>(s: &Scenario) -> PlantParams<N> {
         nominal_body_mass: s.human.body_mass_kg,
         brain_gains: (s.human.kp, s.human.kd),
         straps: D::straps(s),
-        uncertainty: uncertainty(s),
+        uncertainty: s.uncertainty,
         dt: s.timing.dt,
         substeps: s.timing.plant_substeps,
     }
@@ -186,14 +160,7 @@ pub fn nmpc_settings(s: &Scenario) -> NmpcSettings {
         nc: c.nc,
         r_d: c.r_d,
         r_t: c.r_t,
-        sqp: SqpSettings {
-            max_iterations: c.sqp.max_iterations,
-            kkt_tolerance: c.sqp.kkt_tolerance,
-            max_time: c.sqp.max_time_us.map(Duration::from_micros),
-            hessian: c.sqp.hessian,
-            real_time_iteration: c.sqp.rti,
-            ..SqpSettings::default()
-        },
+        sqp: c.sqp.settings(),
         qp: c.sqp.qp,
     }
 }

@@ -147,14 +147,10 @@ pub fn differing_keys(a: &ResolvedScenario, b: &ResolvedScenario) -> Vec<String>
         ("thigh", &ra.thigh, &rb.thigh),
         ("shank", &ra.shank, &rb.shank),
     ] {
-        cmp(&format!("robot.{l}.length_m"), la.length_m, lb.length_m);
-        cmp(&format!("robot.{l}.mass_kg"), la.mass_kg, lb.mass_kg);
-        cmp(&format!("robot.{l}.com_m"), la.com_m, lb.com_m);
-        cmp(
-            &format!("robot.{l}.inertia_kgm2"),
-            la.inertia_kgm2,
-            lb.inertia_kgm2,
-        );
+        cmp(&format!("robot.{l}.length_m"), la.length, lb.length);
+        cmp(&format!("robot.{l}.mass_kg"), la.mass, lb.mass);
+        cmp(&format!("robot.{l}.com_m"), la.com, lb.com);
+        cmp(&format!("robot.{l}.inertia_kgm2"), la.inertia, lb.inertia);
     }
     let (sa, sb) = (&a.straps, &b.straps);
     cmp("straps.ls1_m", sa.ls1_m, sb.ls1_m);

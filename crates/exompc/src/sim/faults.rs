@@ -1,6 +1,7 @@
 //! Sensor fault injection (`[faults]`, see [`FaultInjector`]) and the soak run's counters.
 
 use super::closed_loop::{Recorder, StepRecord};
+use crate::check::{self, InvalidField, Range};
 use crate::control::{Measurement, StepStatus};
 use serde::{Deserialize, Serialize};
 
@@ -90,6 +91,24 @@ impl Default for Faults {
             events: Vec::new(),
             saturation_n: 70.0,
         }
+    }
+}
+
+impl Faults {
+    /// Checks the force range (finite, > 0), every event's start and duration (finite and
+    /// not negative) and magnitude (finite); the error names the key (`saturation_n`,
+    /// `events[2].start_s`).
+    pub fn validate(&self) -> Result<(), InvalidField> {
+        check::real("saturation_n", self.saturation_n, Range::Pos)?;
+        for (i, ev) in self.events.iter().enumerate() {
+            check::reals(&[
+                ("start_s", ev.start_s, Range::NonNeg),
+                ("duration_s", ev.duration_s, Range::NonNeg),
+                ("magnitude", ev.magnitude, Range::Any),
+            ])
+            .map_err(|e| e.within(&format!("events[{i}]")))?;
+        }
+        Ok(())
     }
 }
 

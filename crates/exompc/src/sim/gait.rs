@@ -9,63 +9,13 @@
 
 use super::spline::{CubicSpline, SplineEnds};
 use super::trajectory::{KneeTrajectory, SwingTrajectory, Trajectory};
+use crate::check::InvalidField;
 use crate::model::Real;
 use nalgebra::SVector;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::path::PathBuf;
 use std::sync::Arc;
-
-/// A setting outside its allowed range; `field` is the key inside its own table
-/// (`hip_amplitude`), so a scenario layer can prefix its table path (`trajectory.hip_amplitude`).
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("invalid value for {field}: {value} (allowed: {allowed})")]
-pub struct InvalidField {
-    /// Key of the field within its table, e.g. `hip_amplitude`.
-    pub field: String,
-    /// The offending value as text.
-    pub value: String,
-    /// What is allowed, e.g. `finite, >= 0`.
-    pub allowed: String,
-}
-
-impl InvalidField {
-    fn new(field: &str, value: impl fmt::Display, allowed: impl Into<String>) -> Self {
-        InvalidField {
-            field: field.into(),
-            value: value.to_string(),
-            allowed: allowed.into(),
-        }
-    }
-}
-
-/// Allowed range of a real setting (always also finite).
-#[derive(Debug, Clone, Copy)]
-pub(crate) enum Range {
-    /// Any finite value.
-    Any,
-    /// `> 0`.
-    Pos,
-    /// `>= 0`.
-    NonNeg,
-    /// `[a, b)`.
-    ClosedOpen(f64, f64),
-}
-
-/// Checks `v` against `r`; the message reads as in the scenario's other tables.
-pub(crate) fn check(field: &str, v: f64, r: Range) -> Result<(), InvalidField> {
-    let (ok, allowed) = match r {
-        Range::Any => (true, "finite".to_string()),
-        Range::Pos => (v > 0.0, "finite, > 0".to_string()),
-        Range::NonNeg => (v >= 0.0, "finite, >= 0".to_string()),
-        Range::ClosedOpen(a, b) => (a <= v && v < b, format!("finite, in [{a}, {b})")),
-    };
-    if v.is_finite() && ok {
-        Ok(())
-    } else {
-        Err(InvalidField::new(field, v, allowed))
-    }
-}
 
 /// Which desired motion the human follows (`[trajectory] kind`).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]

@@ -1,13 +1,13 @@
 //! The simulated human: leg model from Winter's tables and the "brain" (MODEL.md §2, paper §4.1).
 
-use crate::model::{Chain, Link, WinterFractions};
+use crate::model::{Chain, HumanSegment, Link};
 use nalgebra::SVector;
 
 /// The human leg of `N` segments: Winter fractions, height, and a body mass that may ramp.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct HumanLeg<const N: usize> {
     /// Segment fractions from the hip outwards (1-DOF: the shank only).
-    pub segments: [WinterFractions; N],
+    pub segments: [HumanSegment; N],
     /// Body height (m).
     pub height: f64,
 }

@@ -17,14 +17,15 @@ mod stability;
 mod trajectory;
 mod uncertainty;
 
+pub use crate::check::InvalidField;
 pub use closed_loop::{run_closed_loop, Recorder, StepRecord, TraceLog, TraceRow};
 pub use faults::{
     channel_index, default_schedule, repeat_schedule, Channel, FaultEvent, FaultInjector,
     FaultKind, Faults, SoakStats,
 };
 pub use gait::{
-    Gait, GaitKind, GaitRecording, GaitTrajectory, InvalidField, RecordedTrajectory,
-    RecordingColumn, RecordingError,
+    Gait, GaitKind, GaitRecording, GaitTrajectory, RecordedTrajectory, RecordingColumn,
+    RecordingError,
 };
 pub use human::{HumanBrain, HumanLeg};
 pub use metrics::{Metrics, StepTimeStats, Summary};
@@ -37,7 +38,7 @@ pub use stability::{
     RunStability, StabilityCriteria, StrapStability,
 };
 pub use trajectory::{KneeTrajectory, SwingTrajectory, Trajectory};
-pub use uncertainty::Uncertainty;
+pub use uncertainty::{Uncertainty, MAX_PAYLOAD_KG};
 
 use crate::control::Measurement;
 use nalgebra::SVector;

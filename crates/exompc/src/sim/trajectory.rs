@@ -1,7 +1,7 @@
 //! The human's desired joint trajectories (MODEL.md §6), with exact time derivatives obtained by
 //! second-order dual numbers (`num_dual::second_derivative`).
 
-use super::gait::{check, InvalidField, Range};
+use crate::check::{real as check, InvalidField, Range};
 use crate::model::Real;
 use nalgebra::SVector;
 use num_dual::{second_derivative, Dual2};

@@ -61,7 +61,7 @@ impl Constraints {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SqpSettings {
     /// Maximum number of SQP iterations (QP subproblems, not counting the projection of an
-    /// infeasible warm start). Default `20`; allowed `≥ 1`.
+    /// infeasible warm start). Default `20`; allowed `1..=1000`.
     pub max_iterations: usize,
     /// Converged when the KKT residual (max of stationarity `‖Jᵀr + λ_box + Aᵀλ‖∞`, primal
     /// violation and complementarity `max |λᵢ|·slackᵢ`) is at most this. Default `1e-8`;
@@ -86,7 +86,8 @@ pub struct SqpSettings {
     /// Hessian model of the QP subproblems. Default [`HessianModel::StructuredSecant`].
     pub hessian: HessianModel,
     /// Wall-clock budget for one solve; when exceeded the current (best, feasible) iterate is
-    /// returned with [`SqpStatus::MaxTime`]. Checked once per iteration. Default `None`.
+    /// returned with [`SqpStatus::MaxTime`]. Checked once per iteration (a zero budget stops
+    /// after the first). Default `None`; allowed at most 10 s.
     pub max_time: Option<Duration>,
     /// Settings of the inner QP solver (see [`QpSettings`]). Default `QpSettings::default()`.
     pub qp: QpSettings,
@@ -117,16 +118,36 @@ impl Default for SqpSettings {
 }
 
 impl SqpSettings {
+    /// Largest allowed `max_iterations`.
+    pub const MAX_ITERATIONS: usize = 1000;
+    /// Longest allowed `max_time` (10 s).
+    pub const MAX_TIME: Duration = Duration::from_secs(10);
+
     /// Checks every field against its allowed range; the error names the field and value.
     pub fn validate(&self) -> Result<(), SolverError> {
-        if self.max_iterations < 1 {
+        if !(1..=Self::MAX_ITERATIONS).contains(&self.max_iterations) {
             return Err(SolverError::InvalidSetting {
                 field: "max_iterations",
                 value: self.max_iterations as f64,
-                allowed: ">= 1",
+                allowed: "integer in 1..=1000",
             });
         }
-        check_range("kkt_tolerance", self.kkt_tolerance, 0.0, 1.0, "[0, 1]")?;
+        check_range(
+            "kkt_tolerance",
+            self.kkt_tolerance,
+            0.0,
+            1.0,
+            "finite, in [0, 1]",
+        )?;
+        if let Some(t) = self.max_time {
+            if t > Self::MAX_TIME {
+                return Err(SolverError::InvalidSetting {
+                    field: "max_time",
+                    value: t.as_nanos() as f64 / 1e3,
+                    allowed: "at most 10 s (0..=10000000 µs), or none",
+                });
+            }
+        }
         check_range(
             "feasibility_tolerance",
             self.feasibility_tolerance,
