@@ -57,9 +57,9 @@ fuzz_target!(|data: &[u8]| {
     let lim = limits(&s);
     let mut ms: Vec<Box<dyn Controller<2>>> = Vec::new();
     for (s, kind) in [
-        (&s, ControllerKind::Msnmpc),
-        (&s, ControllerKind::Nmpc),
-        (&coupled, ControllerKind::Msnmpc),
+        (&s, ControllerKind::MSNMPC),
+        (&s, ControllerKind::NMPC),
+        (&coupled, ControllerKind::MSNMPC),
     ] {
         ms.push(build_controller::<TwoDof, 2>(s, kind).unwrap());
         ms.push(Box::new(build_supervised::<TwoDof, 2>(s, kind).unwrap()));

@@ -124,7 +124,8 @@ pub trait Controller<const N: usize> {
     /// allocates on the hot path, and always returns a torque within the limits.
     fn step(&mut self, m: &Measurement<N>) -> ControlOutput<N>;
 
-    /// Short name (`pd`, `nmpc`, `msnmpc`).
+    /// Short name: the name of the controller's registry entry (`msnmpc`, `nmpc`, `pd`, ...;
+    /// [`crate::scenario::ControllerInfo`]), used in summaries and folder names.
     fn name(&self) -> &'static str;
 
     /// Scenario probabilities `μ_i(k)` (paper eqs. 10-11), if the controller has scenarios.

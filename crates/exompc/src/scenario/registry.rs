@@ -95,8 +95,7 @@ pub struct DuplicateController(pub ControllerKind);
 ///
 /// ```
 /// use exompc::config::{ControllerKind, Scenario};
-/// use exompc::control::Controller;
-/// use exompc::scenario::{build_pd, register_controller, ControllerInfo, OneDof, RunError, TwoDof};
+/// use exompc::scenario::{build_pd, register_controller, ControllerInfo, OneDof, TwoDof};
 ///
 /// static MINE: ControllerInfo = ControllerInfo {
 ///     kind: ControllerKind::from_static("my-pd"),
