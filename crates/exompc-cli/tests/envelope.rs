@@ -34,8 +34,8 @@ fn describe_failures(env: &Envelope) -> String {
 /// 0.30 m 3 kg and 0.43 m 2 kg (monitor trips only: the fallback then holds them); payload at
 /// 0.43 m 3 kg (unstable, monitor trips); filter window 7 at 0 kg and 9 at 0, 1 kg, gait
 /// 1.1 Hz 0 kg and 1.3 Hz 0 kg (worse than NMPC); gait 1.1 Hz 3 kg, 1.3 Hz 3 kg, heavier
-/// robot 2 kg (monitor trips); gait 1.3 Hz 2 kg (RMS ≥ 20 N); straps ×2 0 kg (worse than
-/// NMPC since `k1 = k2 = "auto"`; before: RMS ≥ 20 N, monitor trips). The paper-method default
+/// robot 2 kg (monitor trips); gait 1.3 Hz 2 kg (RMS ≥ 20 N); straps ×2 0 kg (RMS ≥ 20 N,
+/// monitor trips; with `k1 = k2 = "auto"` only worse than NMPC). The paper-method default
 /// failed 26.
 #[test]
 #[ignore = "15 of 72 standard-envelope cells fail with today's default controller (see doc)"]

@@ -7,10 +7,13 @@ use exompc::scenario::{run_experiment, TwoDof};
 use exompc_cli::io::{parse_scenario, parse_value, set_key};
 
 #[test]
-fn auto_is_the_default_and_a_config_reads_auto_numbers_and_mixes() {
+fn a_config_reads_auto_numbers_and_mixes() {
     let d = Scenario::default();
-    assert_eq!(d.controller.k1, GainSetting::Auto);
-    assert_eq!(d.controller.k2, GainSetting::Auto);
+    assert_eq!(d.controller.k1, GainSetting::Value(0.005));
+    assert_eq!(d.controller.k2, GainSetting::Value(0.05));
+    let s = parse_scenario("[controller]\nk1 = \"auto\"\nk2 = \"auto\"\n").unwrap();
+    assert_eq!(s.controller.k1, GainSetting::Auto);
+    assert_eq!(s.controller.k2, GainSetting::Auto);
     let s = parse_scenario("[controller]\nk1 = 0.004\nk2 = \"auto\"\n").unwrap();
     assert_eq!(s.controller.k1, GainSetting::Value(0.004));
     assert_eq!(s.controller.k2, GainSetting::Auto);
@@ -55,6 +58,8 @@ fn auto_gains_run_the_loop_of_the_stiffness_scaled_numbers() {
             auto.uncertainty.payload_kg = 1.0;
             auto.straps.stiffness = ks;
             auto.straps.damping = cs;
+            auto.controller.k1 = GainSetting::Auto;
+            auto.controller.k2 = GainSetting::Auto;
             let mut fixed = auto.clone();
             fixed.controller.k1 = GainSetting::Value(k1);
             fixed.controller.k2 = GainSetting::Value(k2);

@@ -440,10 +440,10 @@ pub struct Controller {
     pub kind: ControllerKind,
     /// Intent gain K1 (1/N, applied as `K1·I`): `q̂_H = q_R + K1 F` (paper eq. 5), >= 0, or
     /// `"auto"`: `K1 = 4.6875 rad/m / straps.stiffness` (`control::GainSetting`; 0.005 at the
-    /// default straps). Default `"auto"`.
+    /// default straps). Default 0.005.
     pub k1: GainSetting,
     /// Intent gain K2 (1/(N·s)): `q̂d_H = qd_R + K2 F` (paper eq. 6), >= 0, or `"auto"`:
-    /// `K2 = 46.875 rad/(m·s) / straps.stiffness` (0.05 at the default straps). Default `"auto"`.
+    /// `K2 = 46.875 rad/(m·s) / straps.stiffness` (0.05 at the default straps). Default 0.05.
     pub k2: GainSetting,
     /// Prediction horizon Np (steps), 1..=200. Default 3.
     pub np: usize,
@@ -476,8 +476,8 @@ impl Default for Controller {
     fn default() -> Self {
         Self {
             kind: ControllerKind::MSNMPC,
-            k1: GainSetting::Auto,
-            k2: GainSetting::Auto,
+            k1: GainSetting::Value(0.005),
+            k2: GainSetting::Value(0.05),
             np: 3,
             nc: 3,
             r_d: 0.1,
