@@ -15,11 +15,7 @@ use exompc::control::{
     horizon_inputs, Measurement, NmpcCore, NmpcSettings, QpBackend, TorqueLimits,
 };
 use exompc::model::JointState;
-use exompc::scenario::{
-    build_controller, intent, limits, nmpc_settings, plant_params, prediction_model, uncertainty,
-    Dof, OneDof, TwoDof,
-};
-use exompc::sim::{Plant, Sensors};
+use exompc::scenario::{intent, limits, nmpc_settings, prediction_model, Dof, OneDof, TwoDof};
 use exompc::solver::{DenseQp, HessianModel, QpSettings, QpStatus, RiccatiQp, SqpStatus};
 use nalgebra::{DMatrix, DVector, SVector};
 
@@ -371,38 +367,7 @@ fn closed_loop_diff(kind: ControllerKind, formulation: Formulation, n: usize, st
     s.controller.sqp.max_iterations = 1000;
     s.controller.sqp.kkt_tolerance = 1e-10;
     s.multistage.formulation = formulation;
-    let run = |qp: QpBackend| {
-        let mut sc = s.clone();
-        sc.controller.sqp.qp = qp;
-        let mut c = build_controller::<TwoDof, 2>(&sc, kind).unwrap();
-        let mut plant = Plant::new(plant_params::<TwoDof, 2>(&sc), TwoDof::trajectory(&sc));
-        let mut sensors = Sensors::new(uncertainty(&sc), sc.uncertainty.filter_window);
-        let mut out = vec![];
-        for _ in 0..steps {
-            let st = *plant.state();
-            let f = plant.strap_force();
-            let (_, meas) = sensors.read(plant.time(), &st.robot.q, &st.robot.qd, &f);
-            let o = c.step(&meas);
-            out.push((o.torque, o.iterations, o.status));
-            plant.step(&o.torque);
-        }
-        out
-    };
-    let a = run(QpBackend::Dense);
-    let b = run(QpBackend::Structured);
-    for (k, (x, y)) in a.iter().zip(&b).enumerate() {
-        if (x.0 - y.0).amax() > 1e-9 {
-            eprintln!(
-                "step {k}: {:?} {} {:?} / {:?} {} {:?}",
-                x.0, x.1, x.2, y.0, y.1, y.2
-            );
-            break;
-        }
-    }
-    a.iter()
-        .zip(&b)
-        .map(|(x, y)| (x.0 - y.0).amax())
-        .fold(0.0, f64::max)
+    common::dense_vs_structured_torque_diff::<TwoDof, 2>(&s, kind, steps)
 }
 
 #[test]

@@ -12,15 +12,9 @@ mod common;
 
 use common::Rng;
 use exompc::config::{ControllerKind, Formulation, Scenario};
-use exompc::control::{
-    horizon_inputs, CoupledProblem, Measurement, QpBackend, TorqueLimits, TreeSqp,
-};
+use exompc::control::{horizon_inputs, CoupledProblem, Measurement, TorqueLimits, TreeSqp};
 use exompc::model::JointState;
-use exompc::scenario::{
-    build_controller, intent, limits, nmpc_settings, plant_params, prediction_model, uncertainty,
-    Dof, OneDof, TwoDof,
-};
-use exompc::sim::{Plant, Sensors};
+use exompc::scenario::{intent, limits, nmpc_settings, prediction_model, Dof, OneDof, TwoDof};
 use exompc::solver::{
     Constraints, DenseQp, HessianModel, LeastSquares, QpSettings, QpStatus, Sqp, SqpStatus, TreeQp,
 };
@@ -401,38 +395,7 @@ fn coupled_closed_loop_diff<D: Dof<N>, const N: usize>(n: usize, nr: usize, step
     s.controller.sqp.kkt_tolerance = 1e-10;
     s.multistage.formulation = Formulation::Coupled;
     s.multistage.robust_horizon = nr;
-    let run = |qp: QpBackend| {
-        let mut sc = s.clone();
-        sc.controller.sqp.qp = qp;
-        let mut c = build_controller::<D, N>(&sc, ControllerKind::MSNMPC).unwrap();
-        let mut plant = Plant::new(plant_params::<D, N>(&sc), D::trajectory(&sc));
-        let mut sensors = Sensors::new(uncertainty(&sc), sc.uncertainty.filter_window);
-        let mut out = vec![];
-        for _ in 0..steps {
-            let st = *plant.state();
-            let f = plant.strap_force();
-            let (_, meas) = sensors.read(plant.time(), &st.robot.q, &st.robot.qd, &f);
-            let o = c.step(&meas);
-            out.push((o.torque, o.iterations, o.status));
-            plant.step(&o.torque);
-        }
-        out
-    };
-    let a = run(QpBackend::Dense);
-    let b = run(QpBackend::Structured);
-    for (k, (x, y)) in a.iter().zip(&b).enumerate() {
-        if (x.0 - y.0).amax() > 1e-9 {
-            eprintln!(
-                "step {k}: {:?} {} {:?} / {:?} {} {:?}",
-                x.0, x.1, x.2, y.0, y.1, y.2
-            );
-            break;
-        }
-    }
-    a.iter()
-        .zip(&b)
-        .map(|(x, y)| (x.0 - y.0).amax())
-        .fold(0.0, f64::max)
+    common::dense_vs_structured_torque_diff::<D, N>(&s, ControllerKind::MSNMPC, steps)
 }
 
 #[test]

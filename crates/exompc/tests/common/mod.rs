@@ -174,3 +174,48 @@ pub fn measurement() -> impl proptest::strategy::Strategy<Value = exompc::contro
         force: nalgebra::Vector2::new(v[4], v[5]),
     })
 }
+
+/// The scenario `s` in two closed loops of `steps` steps, one with the dense and one with the
+/// structured QP back-end (`[controller.sqp] qp`), controller `kind`: the largest difference
+/// between their torques (N·m). Prints the first step that differs by more than 1e-9.
+pub fn dense_vs_structured_torque_diff<D: exompc::scenario::Dof<N>, const N: usize>(
+    s: &exompc::config::Scenario,
+    kind: exompc::config::ControllerKind,
+    steps: usize,
+) -> f64 {
+    use exompc::control::QpBackend;
+    use exompc::scenario::{build_controller, plant_params, uncertainty};
+    use exompc::sim::{Plant, Sensors};
+    let run = |qp: QpBackend| {
+        let mut sc = s.clone();
+        sc.controller.sqp.qp = qp;
+        let mut c = build_controller::<D, N>(&sc, kind).unwrap();
+        let mut plant = Plant::new(plant_params::<D, N>(&sc), D::trajectory(&sc));
+        let mut sensors = Sensors::new(uncertainty(&sc), sc.uncertainty.filter_window);
+        let mut out = vec![];
+        for _ in 0..steps {
+            let st = *plant.state();
+            let f = plant.strap_force();
+            let (_, meas) = sensors.read(plant.time(), &st.robot.q, &st.robot.qd, &f);
+            let o = c.step(&meas);
+            out.push((o.torque, o.iterations, o.status));
+            plant.step(&o.torque);
+        }
+        out
+    };
+    let a = run(QpBackend::Dense);
+    let b = run(QpBackend::Structured);
+    for (k, (x, y)) in a.iter().zip(&b).enumerate() {
+        if (x.0 - y.0).amax() > 1e-9 {
+            eprintln!(
+                "step {k}: {:?} {} {:?} / {:?} {} {:?}",
+                x.0, x.1, x.2, y.0, y.1, y.2
+            );
+            break;
+        }
+    }
+    a.iter()
+        .zip(&b)
+        .map(|(x, y)| (x.0 - y.0).amax())
+        .fold(0.0, f64::max)
+}
