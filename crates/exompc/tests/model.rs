@@ -283,9 +283,18 @@ fn dual_numbers_give_the_exact_derivative_of_forward_dynamics() {
 
 #[test]
 fn safe_tanh_matches_std_and_has_finite_exact_derivative_everywhere() {
+    // The saturated branch (|x| ≥ 19, no exp) returns what the formula gives there: exactly ±1.
+    for i in 0..=2100 {
+        let x = 19.0 + 0.01 * i as f64;
+        let e = (-2.0 * x).exp();
+        assert_eq!((1.0 - e) / (1.0 + e), 1.0, "formula at {x}");
+        assert_eq!(exompc::model::tanh(x), 1.0);
+        assert_eq!(exompc::model::tanh(-x), -1.0);
+    }
     use num_dual::Dual64;
     for &x in &[
-        -1e6, -800.0, -355.0, -3.0, -1e-9, 0.0, 1e-9, 0.5, 3.0, 400.0, 800.0, 1e300,
+        -1e6, -800.0, -355.0, -19.0, -18.99, -3.0, -1e-9, 0.0, 1e-9, 0.5, 3.0, 18.99, 19.0, 400.0,
+        800.0, 1e300,
     ] {
         let v: f64 = exompc::model::tanh(x);
         assert!((v - x.tanh()).abs() < 1e-15, "tanh({x})");
@@ -296,5 +305,70 @@ fn safe_tanh_matches_std_and_has_finite_exact_derivative_everywhere() {
             "d tanh({x}) = {}",
             d.eps
         );
+    }
+}
+
+/// Units in the last place between `a` and the reference `b`.
+fn ulps(a: f64, b: f64) -> f64 {
+    let unit = if b == 0.0 {
+        f64::MIN_POSITIVE
+    } else {
+        (b.abs().log2().floor() - 52.0).exp2()
+    };
+    (a - b).abs() / unit
+}
+
+#[test]
+fn fast_sin_cos_is_within_an_ulp_of_std() {
+    use exompc::model::sin_cos;
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let mut next = move || {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let mut worst: f64 = 0.0;
+    let mut check = |x: f64| {
+        let (s, c) = sin_cos(x);
+        let (s0, c0) = x.sin_cos();
+        // Near a zero of sin or cos the reference's own last bit is the floor.
+        let es = if s0.abs() > 1e-300 { ulps(s, s0) } else { 0.0 };
+        let ec = if c0.abs() > 1e-300 { ulps(c, c0) } else { 0.0 };
+        assert!(
+            es <= 1.0 && ec <= 1.0,
+            "x = {x:e}: sin {es} ulp, cos {ec} ulp"
+        );
+        worst = worst.max(es).max(ec);
+    };
+    for _ in 0..200_000 {
+        check((next() - 0.5) * 40.0);
+    }
+    for _ in 0..20_000 {
+        check((next() - 0.5) * 2.0e6);
+    }
+    // Near multiples of π/2 (heavy cancellation in the reduction) and on the branch edges.
+    for k in -2000i64..=2000 {
+        let m = k as f64 * std::f64::consts::FRAC_PI_2;
+        for d in [-2.0, -1.0, 0.0, 1.0, 2.0] {
+            check(m + d * m.abs().max(1.0) * f64::EPSILON);
+        }
+    }
+    for x in [
+        0.0,
+        -0.0,
+        1e-300,
+        std::f64::consts::FRAC_PI_4,
+        -std::f64::consts::FRAC_PI_4,
+        1_647_098.9,
+        1_647_099.0,
+        1e22,
+    ] {
+        check(x);
+    }
+    assert!(worst <= 1.0);
+    for x in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+        let (s, c) = sin_cos(x);
+        assert!(s.is_nan() && c.is_nan());
     }
 }

@@ -22,8 +22,9 @@ use super::prediction::StepJacobian;
 use super::TorqueLimits;
 use crate::model::JointState;
 use crate::solver::engine::{self, finite_or_inf, BoundCheck, SqpSteps};
+use crate::solver::riccati::held_congruence;
 use crate::solver::{QpInfo, RiccatiQp, SolverError, SqpInfo, SqpSettings, SqpStatus};
-use nalgebra::{DVector, SVector};
+use nalgebra::{DVector, SMatrix, SVector};
 use serde::{Deserialize, Serialize};
 
 /// Which QP solver the NMPC's SQP uses (`[controller.sqp] qp`).
@@ -188,6 +189,44 @@ impl<const N: usize> StageWork<N> {
     /// `V = [[V11, V12], [V12ᵀ, V22]]`: `AᵀVA = [[FᵀV11F, FᵀX], [XᵀF, GᵀX + V12ᵀG + V22]]`,
     /// `X = V11 G + V12`.
     fn max_condensed_diagonal(&mut self) -> f64 {
+        match N {
+            1 => self.max_condensed_diagonal_fixed::<3, 1>(),
+            2 => self.max_condensed_diagonal_fixed::<6, 2>(),
+            _ => self.max_condensed_diagonal_any_size(),
+        }
+    }
+
+    /// [`Self::max_condensed_diagonal`] with fixed-size blocks for the 1-DOF and 2-DOF stages
+    /// (`NX = 3N`, `NU = N`): `V_j = Q_j + A_{j+1}ᵀ V_{j+1} A_{j+1}` by the held-input
+    /// congruence of the Riccati factor. Equals the slice version to rounding (unit test).
+    fn max_condensed_diagonal_fixed<const NX: usize, const NU: usize>(&self) -> f64 {
+        let nn = NX * NX;
+        let (np, nc) = (self.np, self.nc);
+        let qp = &self.qp;
+        let mut maxdiag = self.r_t;
+        let mut v = SMatrix::<f64, NX, NX>::from_column_slice(&qp.q[(np - 1) * nn..np * nn]);
+        for j in (0..np).rev() {
+            if j + 1 < np {
+                let a =
+                    SMatrix::<f64, NX, NX>::from_column_slice(&qp.a[(j + 1) * nn..(j + 2) * nn]);
+                v = held_congruence::<NX, NU>(&v, &a)
+                    + SMatrix::<f64, NX, NX>::from_column_slice(&qp.q[j * nn..(j + 1) * nn]);
+            }
+            if j < nc {
+                let b = SMatrix::<f64, NX, NU>::from_column_slice(
+                    &qp.b[j * NX * NU..(j + 1) * NX * NU],
+                );
+                for i in 0..NU {
+                    let col = b.column(i);
+                    maxdiag = maxdiag.max(col.dot(&(v * col)) + self.r_t);
+                }
+            }
+        }
+        maxdiag
+    }
+
+    /// [`Self::max_condensed_diagonal`] for any `N` (slices).
+    fn max_condensed_diagonal_any_size(&mut self) -> f64 {
         let nx = 3 * N;
         let s2 = 2 * N;
         let nn = nx * nx;
@@ -596,5 +635,62 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
 
     fn kkt(&mut self, z: &DVector<f64>) -> (f64, f64) {
         self.w.kkt(z)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Stage matrices of the held-input form with pseudo-random `F`, `G` (deterministic LCG).
+    fn random_work<const N: usize>(np: usize, nc: usize, seed: u64) -> StageWork<N> {
+        let s = NmpcSettings {
+            np,
+            nc,
+            ..NmpcSettings::default()
+        };
+        let mut w = StructuredSqp::<N>::new(&s).unwrap().w;
+        let mut state = seed;
+        let mut next = move || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let nx = 3 * N;
+        for j in 0..np {
+            let a = &mut w.qp.a[j * nx * nx..(j + 1) * nx * nx];
+            for c in 0..nx {
+                for r in 0..nx {
+                    a[c * nx + r] = if r < 2 * N {
+                        next()
+                    } else if r == c {
+                        1.0
+                    } else {
+                        0.0
+                    };
+                }
+            }
+            if j < nc {
+                let tail = a[2 * N * nx..].to_vec();
+                w.qp.b[j * nx * N..(j + 1) * nx * N].copy_from_slice(&tail);
+            }
+        }
+        w
+    }
+
+    #[test]
+    fn fixed_size_condensed_diagonal_equals_the_slice_version() {
+        for (np, nc, seed) in [(1, 1, 1), (5, 3, 2), (20, 20, 3), (50, 50, 4)] {
+            let mut w1 = random_work::<1>(np, nc, seed);
+            let a = w1.max_condensed_diagonal_fixed::<3, 1>();
+            let b = w1.max_condensed_diagonal_any_size();
+            assert!((a - b).abs() <= 1e-12 * b.abs(), "N = 1: {a} vs {b}");
+            let mut w2 = random_work::<2>(np, nc, seed);
+            let a = w2.max_condensed_diagonal_fixed::<6, 2>();
+            let b = w2.max_condensed_diagonal_any_size();
+            assert!((a - b).abs() <= 1e-12 * b.abs(), "N = 2: {a} vs {b}");
+            assert!(b > w2.r_t);
+        }
     }
 }

@@ -1,7 +1,9 @@
 //! The NMPC prediction model (MODEL.md §8): the scenario's robot model, the disturbance estimate,
 //! and the strap torque predicted from the human-intent estimate inside every RK4 stage.
 
-use crate::model::{c, rk4_step, tanh, Friction, JointState, Real, RkState, RobotModel, Straps};
+use crate::model::{
+    c, rk4_step, sin_cos, tanh, Friction, JointState, Real, RkState, RobotModel, Straps,
+};
 use nalgebra::{SMatrix, SVector};
 use num_dual::{DualSVec64, DualStruct};
 use serde::{Deserialize, Serialize};
@@ -301,7 +303,7 @@ impl<const N: usize> PredictionModel<N> {
         let mut sin_th = [0.0; N];
         let mut cos_th = [0.0; N];
         for a in 0..N {
-            (sin_th[a], cos_th[a]) = th[a].sin_cos();
+            (sin_th[a], cos_th[a]) = sin_cos(th[a]);
         }
         let mut cs = [[1.0; N]; N];
         let mut sn = [[0.0; N]; N];

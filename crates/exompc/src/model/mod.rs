@@ -9,12 +9,14 @@ mod human;
 mod rk4;
 mod robot;
 mod straps;
+mod trig;
 
 pub use chain::{Chain, Link};
 pub use human::HumanSegment;
 pub use rk4::{rk4_step, JointState, RkState};
 pub use robot::{tanh, Friction, RobotModel};
 pub use straps::Straps;
+pub use trig::sin_cos;
 
 use num_dual::DualNum;
 

@@ -71,6 +71,9 @@ pub struct RiccatiQp {
     zdir: Vec<f64>,
     mmat: Vec<f64>,
     rvec: Vec<f64>,
+    /// The data of the last factorisation has the held-input form
+    /// ([`Self::held_input_structure`]); the sweeps then skip its zero and identity blocks.
+    held: bool,
 }
 
 impl RiccatiQp {
@@ -134,6 +137,7 @@ impl RiccatiQp {
             zdir: vec![0.0; len],
             mmat: vec![0.0; cap * cap],
             rvec: vec![0.0; cap],
+            held: false,
         })
     }
 
@@ -178,11 +182,101 @@ impl RiccatiQp {
     /// reduced input Hessian `R + BᵀPB` is not numerically positive definite.
     fn factor(&mut self) -> bool {
         // The NMPC's stage sizes (1-DOF, 2-DOF) as constants: unrolled, bounds checks removed.
+        self.held = match (self.nx, self.nu) {
+            (3, 1) => self.held_input_structure::<3, 1>(),
+            (6, 2) => self.held_input_structure::<6, 2>(),
+            _ => false,
+        };
         match (self.nx, self.nu) {
+            (3, 1) if self.held => self.factor_held::<3, 1>(),
+            (6, 2) if self.held => self.factor_held::<6, 2>(),
             (3, 1) => self.factor_fixed::<3, 1>(),
             (6, 2) => self.factor_fixed::<6, 2>(),
             (nx, nu) => self.factor_dims(nx, nu),
         }
+    }
+
+    /// Whether every stage has the NMPC's held-input form (`control::ocp`): the last `NU` state
+    /// components are the input accumulated so far, `A_j = [[F_j, G_j], [0, I]]`, and
+    /// `B_j = [G_j; I]` is the last `NU` columns of `A_j` (compared exactly: the OCP writes
+    /// the same numbers into both).
+    fn held_input_structure<const NX: usize, const NU: usize>(&self) -> bool {
+        let ns = NX - NU;
+        let n2 = NX * NX;
+        for j in 0..self.np {
+            let a = &self.a[j * n2..(j + 1) * n2];
+            for c in 0..NX {
+                for r in ns..NX {
+                    let want = if c == r { 1.0 } else { 0.0 };
+                    if a[c * NX + r] != want {
+                        return false;
+                    }
+                }
+            }
+            if j < self.nc && self.b[j * NX * NU..(j + 1) * NX * NU] != a[ns * NX..] {
+                return false;
+            }
+        }
+        true
+    }
+
+    /// The Riccati recursion of [`Self::factor_fixed`] for the held-input form of
+    /// [`Self::held_input_structure`], which skips the zero and identity blocks of `A_j` and
+    /// reads `Bᵀ P A`, `Bᵀ P B` off `Aᵀ P A` (about half the multiply-adds of the general
+    /// stage). Equals the general recursion to rounding (unit test against
+    /// [`Self::factor_dims`]).
+    fn factor_held<const NX: usize, const NU: usize>(&mut self) -> bool {
+        let ns = NX - NU;
+        let (np, nc) = (self.np, self.nc);
+        let n2 = NX * NX;
+        let mut p = SMatrix::<f64, NX, NX>::from_column_slice(&self.q[(np - 1) * n2..np * n2]);
+        for j in (0..np).rev() {
+            let a = SMatrix::<f64, NX, NX>::from_column_slice(&self.a[j * n2..(j + 1) * n2]);
+            let w = held_congruence::<NX, NU>(&p, &a);
+            let mut sb = SMatrix::<f64, NU, NX>::zeros();
+            let mut kg = SMatrix::<f64, NU, NX>::zeros();
+            if j < nc {
+                // S̄ = Bᵀ P A = W[ns.., :], R + Bᵀ P B = R + W[ns.., ns..].
+                for c in 0..NX {
+                    for i in 0..NU {
+                        sb[(i, c)] = w[(ns + i, c)];
+                    }
+                }
+                let rj = &self.r[j * NU * NU..(j + 1) * NU * NU];
+                let ls = &mut self.lchol[j * NU * NU..(j + 1) * NU * NU];
+                for c in 0..NU {
+                    for r in 0..NU {
+                        ls[c * NU + r] = rj[c * NU + r] + w[(ns + r, ns + c)];
+                    }
+                }
+                if !cholesky(ls, NU) {
+                    return false;
+                }
+                kg = -sb;
+                for c in 0..NX {
+                    chol_solve(ls, NU, &mut kg.as_mut_slice()[c * NU..(c + 1) * NU]);
+                }
+                self.sbar[j * NU * NX..(j + 1) * NU * NX].copy_from_slice(sb.as_slice());
+                self.kgain[j * NU * NX..(j + 1) * NU * NX].copy_from_slice(kg.as_slice());
+            }
+            if j == 0 {
+                break;
+            }
+            let qj = &self.q[(j - 1) * n2..j * n2];
+            for c in 0..NX {
+                for r in 0..=c {
+                    let mut s = qj[c * NX + r] + w[(r, c)];
+                    if j < nc {
+                        for i in 0..NU {
+                            s += sb[(i, r)] * kg[(i, c)];
+                        }
+                    }
+                    p[(r, c)] = s;
+                    p[(c, r)] = s;
+                }
+            }
+        }
+        self.lchol.iter().all(|v| v.is_finite()) && self.kgain.iter().all(|v| v.is_finite())
     }
 
     /// [`Self::factor_dims`] with fixed-size blocks on the stack for the NMPC's `nx × nu` stages:
@@ -342,16 +436,20 @@ impl RiccatiQp {
     /// `lin` is zero on every stage after `top` (inputs `u_j`, `j > top`, and states
     /// `x_j`, `j > top + 1`).
     fn sweep(&mut self, use_unit: bool, top: usize, out_is_yp: bool) {
-        match (self.nx, self.nu) {
-            (3, 1) => self.sweep_fixed::<3, 1>(use_unit, top, out_is_yp),
-            (6, 2) => self.sweep_fixed::<6, 2>(use_unit, top, out_is_yp),
-            (nx, nu) => self.sweep_dims(nx, nu, use_unit, top, out_is_yp),
+        match (self.nx, self.nu, self.held) {
+            (3, 1, true) => self.sweep_fixed::<3, 1, true>(use_unit, top, out_is_yp),
+            (6, 2, true) => self.sweep_fixed::<6, 2, true>(use_unit, top, out_is_yp),
+            (3, 1, false) => self.sweep_fixed::<3, 1, false>(use_unit, top, out_is_yp),
+            (6, 2, false) => self.sweep_fixed::<6, 2, false>(use_unit, top, out_is_yp),
+            (nx, nu, _) => self.sweep_dims(nx, nu, use_unit, top, out_is_yp),
         }
     }
 
     /// [`Self::sweep_dims`] with fixed-size blocks on the stack, in the same summation order
-    /// (identical results).
-    fn sweep_fixed<const NX: usize, const NU: usize>(
+    /// (identical results). With `HELD` (data of the held-input form, see
+    /// [`Self::held_input_structure`]) the zero and identity blocks of `A_j` are skipped (equal
+    /// to rounding).
+    fn sweep_fixed<const NX: usize, const NU: usize, const HELD: bool>(
         &mut self,
         use_unit: bool,
         top: usize,
@@ -373,8 +471,13 @@ impl RiccatiQp {
                 let b = &self.b[j * NX * NU..(j + 1) * NX * NU];
                 for i in 0..NU {
                     let mut s = lin[j * NU + i];
-                    for t in 0..NX {
+                    // Held form: B = [G; I].
+                    let rows = if HELD { NX - NU } else { NX };
+                    for t in 0..rows {
                         s += b[i * NX + t] * pn[t];
+                    }
+                    if HELD {
+                        s += pn[NX - NU + i];
                     }
                     kf[i] = -s;
                 }
@@ -393,8 +496,13 @@ impl RiccatiQp {
             let mut next = SVector::<f64, NX>::zeros();
             for c in 0..NX {
                 let mut s = lin[xo + c];
-                for t in 0..NX {
+                // Held form: column c of A is [F or G column; unit vector or 0].
+                let rows = if HELD { NX - NU } else { NX };
+                for t in 0..rows {
                     s += a[c * NX + t] * pn[t];
+                }
+                if HELD && c >= NX - NU {
+                    s += pn[c];
                 }
                 if j < nc {
                     let sb = &self.sbar[j * NU * NX..(j + 1) * NU * NX];
@@ -415,7 +523,21 @@ impl RiccatiQp {
         let mut xs = SVector::<f64, NX>::zeros();
         for j in 0..np {
             let a = SMatrix::<f64, NX, NX>::from_column_slice(&self.a[j * n2..(j + 1) * n2]);
-            let mut xn = a * xs;
+            let mut xn = if HELD {
+                // [F G] xs on the top rows, the held inputs copied.
+                let mut xn = SVector::<f64, NX>::zeros();
+                for c in 0..NX {
+                    for r in 0..NX - NU {
+                        xn[r] += a[(r, c)] * xs[c];
+                    }
+                }
+                for r in NX - NU..NX {
+                    xn[r] = xs[r];
+                }
+                xn
+            } else {
+                a * xs
+            };
             if j < nc {
                 let kg = &self.kgain[j * NU * NX..(j + 1) * NU * NX];
                 let b = &self.b[j * NX * NU..(j + 1) * NX * NU];
@@ -425,8 +547,15 @@ impl RiccatiQp {
                         s += kg[c * NU + i] * xs[c];
                     }
                     out[j * NU + i] = s;
-                    for rr in 0..NX {
-                        xn[rr] += b[i * NX + rr] * s;
+                    if HELD {
+                        for rr in 0..NX - NU {
+                            xn[rr] += b[i * NX + rr] * s;
+                        }
+                        xn[NX - NU + i] += s;
+                    } else {
+                        for rr in 0..NX {
+                            xn[rr] += b[i * NX + rr] * s;
+                        }
                     }
                 }
             }
@@ -608,7 +737,7 @@ impl RiccatiQp {
         };
         self.act.clear();
         self.mult.fill(0.0);
-        let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+        let finite = all_finite;
         let data_finite = finite(&self.a)
             && finite(&self.b)
             && finite(&self.q)
@@ -761,6 +890,60 @@ impl RiccatiQp {
     }
 }
 
+/// `Aᵀ P A` for a symmetric `P` and `A = [[F, G], [0, I]]` of the held-input form (the last `NU`
+/// states are the input accumulated so far; `control::ocp`), skipping the zero and identity
+/// blocks: `X = P A` (first columns `P[:, :ns] F`, last `P[:, :ns] G + P[:, ns:]`), then
+/// `Aᵀ X` (rows `≥ ns` add `X[r, :]`), symmetric. About half the multiply-adds of the general
+/// product; equal to it to rounding.
+#[inline(always)]
+pub(crate) fn held_congruence<const NX: usize, const NU: usize>(
+    p: &SMatrix<f64, NX, NX>,
+    a: &SMatrix<f64, NX, NX>,
+) -> SMatrix<f64, NX, NX> {
+    let ns = NX - NU;
+    let mut x = SMatrix::<f64, NX, NX>::zeros();
+    for c in 0..NX {
+        for r in 0..NX {
+            let mut s = if c >= ns { p[(r, c)] } else { 0.0 };
+            for k in 0..ns {
+                s += p[(r, k)] * a[(k, c)];
+            }
+            x[(r, c)] = s;
+        }
+    }
+    let mut w = SMatrix::<f64, NX, NX>::zeros();
+    for c in 0..NX {
+        for r in 0..=c {
+            let mut s = if r >= ns { x[(r, c)] } else { 0.0 };
+            for k in 0..ns {
+                s += a[(k, r)] * x[(k, c)];
+            }
+            w[(r, c)] = s;
+            w[(c, r)] = s;
+        }
+    }
+    w
+}
+
+/// Whether every entry is finite, without a branch per entry: `x − x` is 0 for a finite `x`
+/// and NaN otherwise, summed in four independent lanes (vectorisable).
+#[inline]
+#[allow(clippy::eq_op)] // `x − x` is the test
+fn all_finite(v: &[f64]) -> bool {
+    let mut acc = [0.0f64; 4];
+    let chunks = v.chunks_exact(4);
+    let rest = chunks.remainder();
+    for c in chunks {
+        for l in 0..4 {
+            acc[l] += c[l] - c[l];
+        }
+    }
+    for x in rest {
+        acc[0] += x - x;
+    }
+    (acc[0] + acc[1] + acc[2] + acc[3]) == 0.0
+}
+
 /// In-place lower Cholesky factor of the `n × n` column-major `m` (upper part ignored).
 /// Returns `false` unless the matrix is numerically positive definite.
 pub(super) fn cholesky(m: &mut [f64], n: usize) -> bool {
@@ -845,6 +1028,93 @@ mod tests {
         qp
     }
 
+    /// [`random_qp`] with the NMPC's held-input form: `A_j = [[F, G], [0, I]]`, `B_j = [G; I]`.
+    fn random_held_qp(nx: usize, nu: usize, np: usize, nc: usize, seed: u64) -> RiccatiQp {
+        let mut qp = random_qp(nx, nu, np, nc, seed);
+        let ns = nx - nu;
+        for j in 0..np {
+            let a = &mut qp.a[j * nx * nx..(j + 1) * nx * nx];
+            for c in 0..nx {
+                for r in ns..nx {
+                    a[c * nx + r] = if c == r { 1.0 } else { 0.0 };
+                }
+            }
+            if j < nc {
+                let tail = a[ns * nx..].to_vec();
+                qp.b[j * nx * nu..(j + 1) * nx * nu].copy_from_slice(&tail);
+            }
+        }
+        qp
+    }
+
+    #[test]
+    fn all_finite_finds_every_non_finite_entry() {
+        for len in [0, 1, 3, 4, 5, 8, 37] {
+            let v = vec![1.5; len];
+            assert!(all_finite(&v));
+            for i in 0..len {
+                for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+                    let mut w = v.clone();
+                    w[i] = bad;
+                    assert!(!all_finite(&w), "len {len}, index {i}, {bad}");
+                }
+            }
+        }
+        assert!(all_finite(&[
+            f64::MAX,
+            -f64::MAX,
+            f64::MIN_POSITIVE,
+            0.0,
+            -0.0
+        ]));
+    }
+
+    /// The held-input recursion equals the general one to rounding, and is only chosen for
+    /// data of that form.
+    #[test]
+    fn held_input_factor_equals_the_general_one() {
+        for (nx, nu) in [(3, 1), (6, 2)] {
+            for (np, nc, seed) in [(1, 1, 4), (7, 4, 5), (12, 12, 6), (30, 30, 7)] {
+                let mut a = random_held_qp(nx, nu, np, nc, seed);
+                let mut b = a.clone();
+                let held = match (nx, nu) {
+                    (3, 1) => a.held_input_structure::<3, 1>(),
+                    _ => a.held_input_structure::<6, 2>(),
+                };
+                assert!(held);
+                assert!(a.factor() && b.factor_dims(nx, nu));
+                let close = |x: &[f64], y: &[f64]| {
+                    let scale = y.iter().fold(1.0f64, |m, v| m.max(v.abs()));
+                    x.iter().zip(y).all(|(u, v)| (u - v).abs() <= 1e-12 * scale)
+                };
+                assert!(close(&a.lchol, &b.lchol));
+                assert!(close(&a.kgain, &b.kgain));
+                assert!(close(&a.sbar, &b.sbar));
+                assert!(a.held);
+                for top in [np - 1, np / 2, 0] {
+                    for use_unit in [false, true] {
+                        a.unit.fill(0.0);
+                        b.unit.fill(0.0);
+                        let id = a.len() / 2;
+                        a.unit[id] = 1.0;
+                        b.unit[id] = 1.0;
+                        a.sweep(use_unit, top, use_unit);
+                        b.sweep_dims(nx, nu, use_unit, top, use_unit);
+                        assert!(close(&a.sol, &b.sol) && close(&a.yp, &b.yp));
+                        assert!(close(&a.kff, &b.kff));
+                    }
+                }
+                // The general data of `random_qp` is not of the held form.
+                let g = random_qp(nx, nu, np, nc, seed);
+                let general = match (nx, nu) {
+                    (3, 1) => g.held_input_structure::<3, 1>(),
+                    _ => g.held_input_structure::<6, 2>(),
+                };
+                assert!(!general);
+            }
+        }
+    }
+
     /// The fixed-size kernels (the NMPC's 1-DOF and 2-DOF stages) equal the general slice
     /// kernels to the last bit: factor, full sweep and the truncated sweeps of the active-set
     /// method.
@@ -870,8 +1140,8 @@ mod tests {
                         a.unit[id] = 1.0;
                         b.unit[id] = 1.0;
                         match (nx, nu) {
-                            (3, 1) => a.sweep_fixed::<3, 1>(use_unit, top, use_unit),
-                            _ => a.sweep_fixed::<6, 2>(use_unit, top, use_unit),
+                            (3, 1) => a.sweep_fixed::<3, 1, false>(use_unit, top, use_unit),
+                            _ => a.sweep_fixed::<6, 2, false>(use_unit, top, use_unit),
                         }
                         b.sweep_dims(nx, nu, use_unit, top, use_unit);
                         assert_eq!(a.sol, b.sol);
