@@ -426,7 +426,7 @@ impl Default for Timing {
 pub use controller_kind::ControllerKind;
 
 pub use crate::control::Interaction;
-pub use crate::control::{FilterAware, GainSetting, Method, RobustSettings};
+pub use crate::control::{FilterAware, GainSetting, Method, RobustIntentGains, RobustSettings};
 use crate::solver::{SolverError, SqpSettings};
 use std::time::Duration;
 
@@ -855,6 +855,7 @@ impl Scenario {
                 ),
                 ("human_bandwidth_hz", rb.human_bandwidth_hz, R::Pos),
                 ("release_s", rb.release_s, R::Closed(0.0, 1e6)),
+                ("ekf_force_lead", rb.ekf_force_lead, R::Closed(0.0, 3.0)),
             ],
         )?;
 

@@ -412,6 +412,8 @@ pub const KEYS: &[KeyDoc] = &[
     k("controller.robust.oscillation_min_force_n", "N", NONNEG, ROB, "Smallest RMS of the high-passed strap forces that counts as oscillation."),
     k("controller.robust.human_bandwidth_hz", "Hz", POS, ROB, "Bandwidth of the human's motion in the Smith predictor."),
     k("controller.robust.release_s", "s", real(closed(0.0), closed(1e6)), ROB, "Return to the paper's estimate after this long without oscillation; 0 = stay engaged."),
+    k("controller.robust.ekf_force_lead", "-", real(closed(0.0), closed(3.0)), ROB, "Lead of the EKF's strap-force input, as a share of the moving average's delay (w-1)/2 samples; 0 = the filtered force."),
+    k("controller.robust.intent_gains", "", Allowed::Choice(&["strap_model", "configured"]), ROB, "Intent gains of the robust method: controller.k1/k2 scaled by 937.5 N/m / straps.stiffness (equal at the default straps), or as configured."),
     // [multistage]
     table("multistage", M8, "Scenario tree and probabilities of the multi-stage NMPC (paper eqs. 10-13)."),
     k("multistage.payloads_kg", "kg", Allowed::List { min_len: 1, max_len: MAX_SCENARIOS, lo: 0.0, hi: MAX_PAYLOAD_KG }, M8, "Payload of each scenario (one EKF and one NMPC each)."),

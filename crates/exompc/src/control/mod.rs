@@ -45,7 +45,7 @@ pub use ocp::{QpBackend, StructuredSqp, AUTO_STRUCTURED_MIN_VARS};
 pub use ocp_tree::{TreeSqp, AUTO_TREE_MIN_VARS};
 pub use pd::PdController;
 pub use prediction::{HorizonInputs, Interaction, PredictionModel, StepJacobian};
-pub use robust::{FilterAware, Method, RobustSettings};
+pub use robust::{FilterAware, Method, RobustIntentGains, RobustSettings, PAPER_STRAP_STIFFNESS};
 pub use safety::{
     MonitorAction, MonitorEvent, MonitorKind, MonitorResponse, Monitors, OscillationDetector,
     SafetyReport, SafetySettings, StrapAngleEstimate, Supervisor, OSCILLATION_MIN_HALF_CYCLES,

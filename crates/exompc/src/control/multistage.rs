@@ -506,11 +506,17 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
                 }
             }
         }
+        let ekf_force = match self.robust.as_mut() {
+            Some(r) => r.ekf_force(&m.force),
+            None => m.force,
+        };
         for i in 0..self.models.len() {
             if let Some((dq, dqd)) = &stretch {
                 mi.force = m.force - self.models[i].straps.force(dq, dqd);
+                self.prev_force[i] = mi.force;
+            } else {
+                self.prev_force[i] = ekf_force;
             }
-            self.prev_force[i] = mi.force;
             self.dist[i] = self.bank.disturbance(i);
             self.inputs[i] = horizon_inputs(&self.intent, &self.models[i], &mi, self.dist[i]);
         }

@@ -9,7 +9,13 @@
 //! the paper's method (heavy legs, long filters, stiff straps) but tracks less tightly where the
 //! paper's method is stable, so by default it engages when the [`HfShareDetector`] sees an
 //! interaction oscillation, and then stays engaged.
+//!
+//! Two more extensions act from the first step: the intent gains follow the strap stiffness
+//! ([`RobustIntentGains::StrapModel`], the default; identical to the configured gains at the
+//! paper's straps), and optionally the EKF's strap-torque input is led by a share of the
+//! moving average's delay ([`RobustSettings::ekf_force_lead`], default off).
 
+use super::intent::{GainSetting, IntentGain};
 use super::lag::{ForceLag, HfShareDetector};
 use super::Measurement;
 use nalgebra::SVector;
@@ -62,6 +68,47 @@ pub struct RobustSettings {
     /// With `"on_oscillation"`: return to the paper's estimate after this long (s) without a
     /// detected oscillation; 0 = stay engaged for the rest of the run. >= 0. Default 0.
     pub release_s: f64,
+    /// Lead of the EKF's strap-torque input while the filter-aware mode is not engaged, as a
+    /// fraction of the moving average's delay `(w−1)/2·dt`: the filtered force is extrapolated
+    /// linearly from its last two samples, `F̄(k) + λ (w−1)/2 (F̄(k) − F̄(k−1))`. In [0, 3];
+    /// 0 = the filtered force (the paper's). Default 0.
+    pub ekf_force_lead: f64,
+    /// Intent gains of the robust method: `"strap_model"` (the configured `controller.k1`,
+    /// `k2` are the gains at the paper's 937.5 N/m straps and scale with `937.5 / ks`, i.e.
+    /// `K = (κ / ks)·I` with `κ = 937.5·k`; exactly the configured gains at the default straps)
+    /// or `"configured"` (`controller.k1`, `k2` as they are, the paper's). Default
+    /// `"strap_model"`.
+    pub intent_gains: RobustIntentGains,
+}
+
+/// The strap stiffness (N/m) at which the paper's intent gains hold (paper Table 1,
+/// docs/MODEL.md §4); `intent_gains = "strap_model"` scales the configured gains from it.
+pub const PAPER_STRAP_STIFFNESS: f64 = 937.5;
+
+impl RobustIntentGains {
+    /// The gain the robust method uses for the configured `k` (`kappa_auto`: the `κ` of
+    /// `"auto"`): `"configured"` keeps it; `"strap_model"` turns a fixed `k` into
+    /// `κ = PAPER_STRAP_STIFFNESS · k` per stiffness (`"auto"` stays `"auto"`).
+    pub fn gain(&self, k: GainSetting, kappa_auto: f64) -> IntentGain {
+        match (self, k) {
+            (RobustIntentGains::StrapModel, GainSetting::Value(v)) => {
+                IntentGain::PerStiffness(PAPER_STRAP_STIFFNESS * v)
+            }
+            _ => k.gain(kappa_auto),
+        }
+    }
+}
+
+/// Which intent gains `method = "robust"` uses (docs/ROBUSTNESS-controller.md).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RobustIntentGains {
+    /// `controller.k1`, `controller.k2` as configured (the paper's fixed `K = k·I`).
+    Configured,
+    /// The configured gains scaled to each scenario's strap stiffness,
+    /// `K = (937.5 N/m · k / ks)·I` (the default).
+    #[default]
+    StrapModel,
 }
 
 impl Default for RobustSettings {
@@ -74,6 +121,8 @@ impl Default for RobustSettings {
             oscillation_min_force_n: 1.5,
             human_bandwidth_hz: 3.0,
             release_s: 0.0,
+            ekf_force_lead: 0.0,
+            intent_gains: RobustIntentGains::StrapModel,
         }
     }
 }
@@ -88,6 +137,9 @@ pub(crate) struct RobustState<const N: usize> {
     /// Steps without a detected oscillation before release (0 = never), and the count.
     release_steps: usize,
     quiet: usize,
+    /// Lead (samples) of the EKF's strap force while not engaged, and the last filtered force.
+    lead: f64,
+    last_force: Option<SVector<f64, N>>,
 }
 
 impl<const N: usize> RobustState<N> {
@@ -105,6 +157,8 @@ impl<const N: usize> RobustState<N> {
             engaged: s.filter_aware == FilterAware::Always,
             release_steps: (s.release_s / dt).round() as usize,
             quiet: 0,
+            lead: s.ekf_force_lead * (window.max(1) - 1) as f64 / 2.0,
+            last_force: None,
         }
     }
 
@@ -114,6 +168,7 @@ impl<const N: usize> RobustState<N> {
         if gap {
             self.lag.reset();
             self.detector.reset();
+            self.last_force = None;
         }
         self.lag.push(&m.q);
         let osc = self.detector.push(&m.force);
@@ -132,6 +187,18 @@ impl<const N: usize> RobustState<N> {
         self.engaged
     }
 
+    /// The strap force the EKF takes as its input while the filter-aware mode is not engaged:
+    /// the filtered force `f` led by [`RobustSettings::ekf_force_lead`] (the filtered force
+    /// itself on the first sample after a gap or with no lead). Call once per step.
+    pub(crate) fn ekf_force(&mut self, f: &SVector<f64, N>) -> SVector<f64, N> {
+        let out = match self.last_force {
+            Some(prev) if self.lead > 0.0 => f + (f - prev) * self.lead,
+            _ => *f,
+        };
+        self.last_force = Some(*f);
+        out
+    }
+
     /// Record the lag-free velocity `qd_now` of this period and return the strap stretch and
     /// its rate whose force the Smith predictor removes ([`ForceLag::relative_motion`]); each
     /// scenario's predicted force is `F̄ − F(Δq, Δqd)` with its own strap model
@@ -143,5 +210,51 @@ impl<const N: usize> RobustState<N> {
     ) -> Option<(SVector<f64, N>, SVector<f64, N>)> {
         self.lag.push_velocity(qd_now);
         self.lag.relative_motion(m, qd_now)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A force ramping linearly through a `w`-sample moving average lags by exactly
+    /// `(w−1)/2` samples, so the full lead (`ekf_force_lead = 1`) gives back the true force of
+    /// the current sample; no lead gives the filtered force.
+    #[test]
+    fn full_lead_recovers_a_ramp_behind_the_moving_average() {
+        let dt = 0.01;
+        let truth = |k: usize| SVector::<f64, 2>::new(3.0 + 0.7 * k as f64, -1.0 - 0.2 * k as f64);
+        for w in [1usize, 3, 5, 9] {
+            for (lead, want_true) in [(1.0, true), (0.0, false)] {
+                let s = RobustSettings {
+                    ekf_force_lead: lead,
+                    ..RobustSettings::default()
+                };
+                let mut r = RobustState::<2>::new(&s, w, dt);
+                for k in w..40 {
+                    let filtered = (k + 1 - w..=k).map(truth).sum::<SVector<f64, 2>>() / w as f64;
+                    let out = r.ekf_force(&filtered);
+                    if k > w {
+                        let want = if want_true { truth(k) } else { filtered };
+                        assert!(
+                            (out - want).norm() < 1e-9,
+                            "w {w} lead {lead} k {k}: {out:?}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn strap_model_gains_equal_the_configured_ones_at_the_papers_straps() {
+        let straps = |ks: f64| crate::model::Straps::two_dof(0.28, 0.16, ks, 93.7);
+        let g = RobustIntentGains::StrapModel.gain(GainSetting::Value(0.005), 4.6875);
+        assert_eq!(g.value(&straps(937.5)), 0.005);
+        assert_eq!(g.value(&straps(1875.0)), 0.0025);
+        let c = RobustIntentGains::Configured.gain(GainSetting::Value(0.004), 4.6875);
+        assert_eq!(c.value(&straps(1875.0)), 0.004);
+        let a = RobustIntentGains::StrapModel.gain(GainSetting::Auto, 4.6875);
+        assert_eq!(a.value(&straps(468.75)), 0.01);
     }
 }

@@ -282,13 +282,25 @@ where
         robust_horizon: s.multistage.robust_horizon,
         parallel: s.multistage.parallel,
     };
+    // The robust method's intent gains follow the strap stiffness (`[controller.robust]
+    // intent_gains`); the paper's are the configured ones.
+    let intent = match s.controller.method {
+        Method::Paper => intent(s),
+        Method::Robust => {
+            let g = s.controller.robust.intent_gains;
+            IntentEstimator {
+                k1: g.gain(s.controller.k1, AUTO_K1_PER_STIFFNESS),
+                k2: g.gain(s.controller.k2, AUTO_K2_PER_STIFFNESS),
+            }
+        }
+    };
     let ms = MultiStage::<N, NA, NY>::new(
         models,
         &nmpc_settings(s),
         &ekf,
         &est,
         options,
-        intent(s),
+        intent,
         limits(s),
         t0,
     )?;
