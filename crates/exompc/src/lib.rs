@@ -86,6 +86,8 @@ pub mod runtime;
 pub mod scenario;
 pub mod sim;
 pub mod solver;
+#[cfg(test)]
+mod test_rng;
 
 pub use check::InvalidField;
 pub use config::{ControllerKind, Scenario};

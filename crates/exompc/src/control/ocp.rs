@@ -650,13 +650,7 @@ mod tests {
             ..NmpcSettings::default()
         };
         let mut w = StructuredSqp::<N>::new(&s).unwrap().w;
-        let mut state = seed;
-        let mut next = move || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut next = crate::test_rng::lcg(seed);
         let nx = 3 * N;
         for j in 0..np {
             let a = &mut w.qp.a[j * nx * nx..(j + 1) * nx * nx];

@@ -81,19 +81,17 @@ pub fn sin_cos(x: f64) -> (f64, f64) {
     let mut w = f * PIO2_1T;
     let mut y0 = r - w;
     let ex = exponent(x);
-    if ex - exponent(y0) > 16 {
-        let t = r;
-        w = f * PIO2_2;
-        r = t - w;
-        w = f * PIO2_2T - ((t - r) - w);
-        y0 = r - w;
-        if ex - exponent(y0) > 49 {
-            let t = r;
-            w = f * PIO2_3;
-            r = t - w;
-            w = f * PIO2_3T - ((t - r) - w);
-            y0 = r - w;
+    // Each further round subtracts the next part of π/2 while the result has lost more than
+    // `bits` of the argument's exponent to cancellation.
+    for (p, pt, bits) in [(PIO2_2, PIO2_2T, 16), (PIO2_3, PIO2_3T, 49)] {
+        if ex - exponent(y0) <= bits {
+            break;
         }
+        let t = r;
+        w = f * p;
+        r = t - w;
+        w = f * pt - ((t - r) - w);
+        y0 = r - w;
     }
     let y1 = (r - y0) - w;
     let (s, c) = (kernel_sin(y0, y1), kernel_cos(y0, y1));

@@ -249,32 +249,16 @@ impl RiccatiQp {
                         ls[c * NU + r] = rj[c * NU + r] + w[(ns + r, ns + c)];
                     }
                 }
-                if !cholesky(ls, NU) {
-                    return false;
+                match self.stage_gain(j, &sb) {
+                    Some(k) => kg = k,
+                    None => return false,
                 }
-                kg = -sb;
-                for c in 0..NX {
-                    chol_solve(ls, NU, &mut kg.as_mut_slice()[c * NU..(c + 1) * NU]);
-                }
-                self.sbar[j * NU * NX..(j + 1) * NU * NX].copy_from_slice(sb.as_slice());
-                self.kgain[j * NU * NX..(j + 1) * NU * NX].copy_from_slice(kg.as_slice());
             }
             if j == 0 {
                 break;
             }
             let qj = &self.q[(j - 1) * n2..j * n2];
-            for c in 0..NX {
-                for r in 0..=c {
-                    let mut s = qj[c * NX + r] + w[(r, c)];
-                    if j < nc {
-                        for i in 0..NU {
-                            s += sb[(i, r)] * kg[(i, c)];
-                        }
-                    }
-                    p[(r, c)] = s;
-                    p[(c, r)] = s;
-                }
-            }
+            riccati_update(&mut p, j < nc, &sb, &kg, |r, c| qj[c * NX + r] + w[(r, c)]);
         }
         self.lchol.iter().all(|v| v.is_finite()) && self.kgain.iter().all(|v| v.is_finite())
     }
@@ -310,37 +294,46 @@ impl RiccatiQp {
                     }
                 }
                 sb = b.tr_mul(&pa);
-                if !cholesky(ls, NU) {
-                    return false;
+                match self.stage_gain(j, &sb) {
+                    Some(k) => kg = k,
+                    None => return false,
                 }
-                kg = -sb;
-                for c in 0..NX {
-                    chol_solve(ls, NU, &mut kg.as_mut_slice()[c * NU..(c + 1) * NU]);
-                }
-                self.sbar[j * NU * NX..(j + 1) * NU * NX].copy_from_slice(sb.as_slice());
-                self.kgain[j * NU * NX..(j + 1) * NU * NX].copy_from_slice(kg.as_slice());
             }
             if j == 0 {
                 break;
             }
             let qj = &self.q[(j - 1) * n2..j * n2];
-            for c in 0..NX {
-                for rr in 0..=c {
-                    let mut s = qj[c * NX + rr];
-                    for k in 0..NX {
-                        s += a[(k, rr)] * pa[(k, c)];
-                    }
-                    if j < nc {
-                        for i in 0..NU {
-                            s += sb[(i, rr)] * kg[(i, c)];
-                        }
-                    }
-                    p[(rr, c)] = s;
-                    p[(c, rr)] = s;
+            riccati_update(&mut p, j < nc, &sb, &kg, |rr, c| {
+                let mut s = qj[c * NX + rr];
+                for k in 0..NX {
+                    s += a[(k, rr)] * pa[(k, c)];
                 }
-            }
+                s
+            });
         }
         self.lchol.iter().all(|v| v.is_finite()) && self.kgain.iter().all(|v| v.is_finite())
+    }
+
+    /// Factorises `R_j + Bᵀ P B` (written into `lchol[j]` by the caller), and stores
+    /// `S̄_j = Bᵀ P A` and the gain `K_j = −(R_j + Bᵀ P B)⁻¹ S̄_j`, which it returns; `None`
+    /// when the reduced input Hessian is not numerically positive definite.
+    #[inline(always)]
+    fn stage_gain<const NX: usize, const NU: usize>(
+        &mut self,
+        j: usize,
+        sb: &SMatrix<f64, NU, NX>,
+    ) -> Option<SMatrix<f64, NU, NX>> {
+        let ls = &mut self.lchol[j * NU * NU..(j + 1) * NU * NU];
+        if !cholesky(ls, NU) {
+            return None;
+        }
+        let mut kg = -sb;
+        for c in 0..NX {
+            chol_solve(ls, NU, &mut kg.as_mut_slice()[c * NU..(c + 1) * NU]);
+        }
+        self.sbar[j * NU * NX..(j + 1) * NU * NX].copy_from_slice(sb.as_slice());
+        self.kgain[j * NU * NX..(j + 1) * NU * NX].copy_from_slice(kg.as_slice());
+        Some(kg)
     }
 
     #[inline(always)]
@@ -890,6 +883,30 @@ impl RiccatiQp {
     }
 }
 
+/// `P ← base(r, c) + [with_input] S̄ᵀ K` on the upper triangle, mirrored: the last step of one
+/// Riccati stage (`base` = `Q + Aᵀ P A` in the caller's summation order).
+#[inline(always)]
+fn riccati_update<const NX: usize, const NU: usize>(
+    p: &mut SMatrix<f64, NX, NX>,
+    with_input: bool,
+    sb: &SMatrix<f64, NU, NX>,
+    kg: &SMatrix<f64, NU, NX>,
+    base: impl Fn(usize, usize) -> f64,
+) {
+    for c in 0..NX {
+        for r in 0..=c {
+            let mut s = base(r, c);
+            if with_input {
+                for i in 0..NU {
+                    s += sb[(i, r)] * kg[(i, c)];
+                }
+            }
+            p[(r, c)] = s;
+            p[(c, r)] = s;
+        }
+    }
+}
+
 /// `Aᵀ P A` for a symmetric `P` and `A = [[F, G], [0, I]]` of the held-input form (the last `NU`
 /// states are the input accumulated so far; `control::ocp`), skipping the zero and identity
 /// blocks: `X = P A` (first columns `P[:, :ns] F`, last `P[:, :ns] G + P[:, ns:]`), then
@@ -996,13 +1013,7 @@ mod tests {
 
     /// A QP with pseudo-random stage data (deterministic LCG), `Q`, `R` positive definite.
     fn random_qp(nx: usize, nu: usize, np: usize, nc: usize, seed: u64) -> RiccatiQp {
-        let mut state = seed;
-        let mut next = move || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut next = crate::test_rng::lcg(seed);
         let mut qp = RiccatiQp::new(nx, nu, np, nc, QpSettings::default()).unwrap();
         for v in
             qp.a.iter_mut()
