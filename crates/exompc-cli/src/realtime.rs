@@ -208,6 +208,9 @@ struct RunSummary {
     counters: exompc::runtime::LoopStats,
     link: exompc::runtime::LinkStats,
     safety: Option<exompc::control::SafetyReport>,
+    /// The supervisor's counters as `exompc simulate`'s `summary.json` has them (trips per
+    /// monitor with the first, handovers, `latched_at_s`).
+    safety_summary: Option<exompc::sim::SafetySummary>,
     rms_force_measured_n: Vec<f64>,
     realtime: RtStatus,
 }
@@ -378,6 +381,10 @@ fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs) -> Result<(), C
         counters: *lp.stats(),
         link: exompc::runtime::RobotInterface::<N>::link_stats(&robot),
         safety: lp.controller().safety_report().cloned(),
+        safety_summary: lp
+            .controller()
+            .safety_report()
+            .map(exompc::sim::SafetySummary::from_report),
         rms_force_measured_n: sum_f2
             .iter()
             .map(|v| (v / n_f.max(1) as f64).sqrt())
@@ -401,6 +408,9 @@ fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs) -> Result<(), C
         summary.counters.limit_violations,
         a.out.display()
     );
+    if let Some(sa) = &summary.safety_summary {
+        println!("{}", exompc_cli::run::describe_safety(sa));
+    }
     Ok(())
 }
 

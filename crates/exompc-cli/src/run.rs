@@ -153,8 +153,14 @@ pub fn describe(s: &Summary) -> String {
         "  limit violations {}   solver failures {}\n",
         s.limit_violations, s.solver_failures
     );
-    let sa = &s.safety;
-    out += &format!(
+    out += &describe_safety(&s.safety);
+    out
+}
+
+/// The printed safety lines of a summary (`exompc simulate` and `exompc run`): trips and held
+/// steps, each monitor's trips and first trip, the latch.
+pub fn describe_safety(sa: &exompc::sim::SafetySummary) -> String {
+    let mut out = format!(
         "  safety            monitor trips {}   monitor-held steps {}   rejected measurements {}",
         sa.monitor_trips, sa.monitor_steps, sa.bad_measurement_steps
     );
@@ -162,6 +168,12 @@ pub fn describe(s: &Summary) -> String {
         out += &format!(
             "\n    {:<20}{} trips, first at {:.2} s",
             m.monitor, m.trips, m.first_trip_s
+        );
+    }
+    if let Some(t) = sa.latched_at_s {
+        out += &format!(
+            "\n    latched at {t:.2} s (handover {}): the monitor response keeps the torque until a reset",
+            sa.handovers
         );
     }
     if sa.events_dropped > 0 {

@@ -84,6 +84,12 @@ fn safety_reasons(s: &SafetySummary, steps: u64, holds_expected: bool) -> Vec<St
             pct(s.monitor_steps, steps)
         ));
     }
+    if let Some(t) = s.latched_at_s {
+        r.push(format!(
+            "latched at {t:.2} s (handover {}): the controller was not handed the torque back",
+            s.handovers
+        ));
+    }
     if s.bad_measurement_steps > 0 && !holds_expected {
         r.push(format!(
             "torque held on a rejected measurement on {}",
@@ -175,6 +181,7 @@ impl Verdict {
             bad_measurement_steps: s.bad_measurement_steps,
             monitors: Vec::new(),
             events_dropped: r.monitor_events_dropped,
+            ..Default::default()
         };
         let report = exompc::control::SafetyReport {
             events: r.monitor_events.clone(),
@@ -239,6 +246,7 @@ mod tests {
                     vec![]
                 },
                 events_dropped: 0,
+                ..Default::default()
             },
             ..Default::default()
         }

@@ -332,3 +332,57 @@ fn sixty_seconds_two_kg_matches_simulate() {
     assert_eq!(u(&r, "counters.limit_violations"), 0);
     assert_eq!(u(&v, "robot.limit_violations"), 0);
 }
+
+/// The real-time runner reports the supervisor's latch as `exompc simulate` does: on the
+/// provoked limit cycle (the paper's method, a 9-sample filter, 2 kg at the ankle) with
+/// `latch_trips = 1`, the first handover latches; `summary.json` has it in `safety` (the
+/// report: `handovers`, `latched_at`, a `latch` event) and in `safety_summary` (simulate's
+/// block: `handovers`, `latched_at_s`), and the printed summary says so.
+#[test]
+fn run_reports_the_latch_like_simulate() {
+    let dir = scratch("latch");
+    std::fs::create_dir_all(&dir).unwrap();
+    let cfg = dir.join("provoked.toml");
+    std::fs::write(
+        &cfg,
+        "[controller]\nmethod = \"paper\"\n[uncertainty]\nfilter_window = 9\n\
+         [robot]\npayload_position_m = 0.43\n[monitors]\nlatch_trips = 1\n",
+    )
+    .unwrap();
+    let cfg = cfg.to_str().unwrap();
+    let (vr, port) = robot(
+        &dir,
+        &["--config", cfg, "--payload", "2", "--duration", "3"],
+        "0",
+    );
+    let run = Command::new(EXE)
+        .args(["run", "--rt-priority", "0", "--no-mlock", "--config", cfg])
+        .arg("--robot")
+        .arg(format!("127.0.0.1:{port}"))
+        .arg("--out")
+        .arg(dir.join("run"))
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start run");
+    let out = finish(run, "run");
+    finish(vr, "virtual-robot");
+    let r = json(&dir.join("run/summary.json"));
+    let t = r["safety_summary"]["latched_at_s"]
+        .as_f64()
+        .unwrap_or_else(|| panic!("no latch: {}", r["safety_summary"]));
+    assert!(t > 0.0 && t < 2.0, "latched at {t} s");
+    assert_eq!(u(&r, "safety_summary.handovers"), 1);
+    assert_eq!(u(&r, "safety.handovers"), 1);
+    assert_eq!(r["safety"]["latched_at"].as_f64(), Some(t));
+    let events = r["safety"]["events"].as_array().unwrap();
+    assert!(
+        events.iter().any(|e| e["action"] == "latch" && e["t"] == t),
+        "{events:?}"
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains(&format!("latched at {t:.2} s (handover 1)")),
+        "{stdout}"
+    );
+}

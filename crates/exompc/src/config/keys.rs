@@ -476,6 +476,8 @@ pub const KEYS: &[KeyDoc] = &[
     k("monitors.oscillation_cutoff_hz", "Hz", POS, REL2, "Oscillation monitor high-pass cut-off (taken just below Nyquist if above it)."),
     k("monitors.oscillation_window_s", "s", real(open(0.0), closed(10.0)), REL2, "Oscillation monitor sliding window."),
     k("monitors.oscillation_clear_s", "s", real(closed(0.0), closed(1e6)), REL2, "A tripped oscillation monitor clears after its condition has been absent this long."),
+    k("monitors.latch_trips", "trips", int(0, 1000), REL2, "Latch after this many handovers (a tracking-error, strap-force or oscillation monitor taking the torque from the controller) within latch_window_s: the response then keeps the torque until an operator's reset; 0: never latch."),
+    k("monitors.latch_window_s", "s", real(open(0.0), closed(1e6)), REL2, "The window of latch_trips."),
     table("monitors.fallback", FALLBACK, "The transparent fallback controller of response = \"fallback\": the robot's inverse dynamics along the predicted human motion."),
     k("monitors.fallback.inertia_share", "-", real(closed(0.0), closed(1.0)), FALLBACK, "Share of the robot's inertia compensated along the predicted human acceleration."),
     k("monitors.fallback.acceleration_cutoff_hz", "Hz", POS, FALLBACK, "Low-pass cut-off of the encoder acceleration in the robot's velocity estimate (Coriolis, friction)."),

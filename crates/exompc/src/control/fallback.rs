@@ -329,10 +329,30 @@ impl<const N: usize> Transparent<N> {
         if !m.is_finite() || !applied.iter().all(|x| x.is_finite()) {
             return;
         }
+        self.observe_inner(m, applied, true);
+    }
+
+    /// Feed a measurement whose encoder channels (`q`, `qd`) are valid but whose strap forces
+    /// are not (silent, non-finite or at the sensor's range): the torque needs only the
+    /// encoders, so the human-motion estimate goes on; the payload estimate, which compares
+    /// the measured strap torque with the model, is frozen until forces are valid again.
+    pub fn observe_encoders(&mut self, m: &Measurement<N>, applied: &SVector<f64, N>) {
+        let finite = |v: &SVector<f64, N>| v.iter().all(|x| x.is_finite());
+        if !finite(&m.q) || !finite(&m.qd) || !finite(applied) {
+            return;
+        }
+        self.observe_inner(m, applied, false);
+    }
+
+    fn observe_inner(&mut self, m: &Measurement<N>, applied: &SVector<f64, N>, forces: bool) {
         self.q = [m.q, self.q[0], self.q[1]];
         self.nq = (self.nq + 1).min(3);
         self.torque = [*applied, self.torque[0]];
-        let strap = self.jt * m.force;
+        let strap = if forces {
+            self.jt * m.force
+        } else {
+            SVector::zeros()
+        };
         if self.nq == 3 {
             // Central differences at the previous sample k−1.
             let dt = self.dt;
@@ -350,7 +370,7 @@ impl<const N: usize> Transparent<N> {
             self.ring[self.pos] = (y, resid);
             self.pos = (self.pos + 1) % w;
             self.filled = (self.filled + 1).min(w);
-            if let (Some(prev), true) = (self.prev_strap, self.filled == w) {
+            if let (Some(prev), true, true) = (self.prev_strap, self.filled == w, forces) {
                 // The force measured at k−1 averages samples k−w .. k−1: the ring's content.
                 let (mut ys, mut rs) = (SVector::<f64, N>::zeros(), SVector::<f64, N>::zeros());
                 for (y, r) in &self.ring {
@@ -368,7 +388,7 @@ impl<const N: usize> Transparent<N> {
                 }
             }
         }
-        self.prev_strap = Some(strap);
+        self.prev_strap = forces.then_some(strap);
     }
 
     /// One human-angle estimate at k−1 from the strap torque `strap` the robot's dynamics

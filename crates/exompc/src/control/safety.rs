@@ -58,7 +58,9 @@ pub enum MonitorResponse {
     RampToZero,
     /// Switch to the transparent fallback controller ([`Transparent`]: the robot's own
     /// gravity, friction, most of its inertia and the estimated payload compensated, no intent
-    /// feed-forward), within the rate limit; `ramp_to_zero` while a sensor channel is silent.
+    /// feed-forward), within the rate limit; `ramp_to_zero` while an encoder channel (q, qd)
+    /// is invalid or silent (a silent or saturated force channel only freezes its payload
+    /// estimate).
     Fallback,
 }
 
@@ -93,6 +95,16 @@ pub struct Monitors {
     /// has been absent this long (s), in [0, 1e6]: longer than the other monitors' 0.1 s so
     /// that a limit cycle does not restart at once. Default 2.
     pub oscillation_clear_s: f64,
+    /// Latch after repeated trips: when the supervisor has taken the torque from the
+    /// controller (a *handover*: a tracking-error, strap-force or oscillation monitor tripped
+    /// while none of them was; sensor timeouts do not count) this many times within
+    /// `latch_window_s`, it latches: the response keeps the torque when the monitors clear,
+    /// until [`Supervisor::reset_latch`] (an operator's reset), instead of handing back to a
+    /// controller that has just failed again. 0 disables the latch; in 0..=1000. Default 2 (the
+    /// controller gets one second chance a minute).
+    pub latch_trips: usize,
+    /// The window of `latch_trips` (s), in (0, 1e6]. Default 60.
+    pub latch_window_s: f64,
     /// `[monitors.fallback]`: the transparent fallback controller of `response = "fallback"`.
     pub fallback: FallbackSettings,
 }
@@ -109,14 +121,20 @@ impl Default for Monitors {
             oscillation_cutoff_hz: 3.0,
             oscillation_window_s: 0.5,
             oscillation_clear_s: 2.0,
+            latch_trips: 2,
+            latch_window_s: 60.0,
             fallback: FallbackSettings::default(),
         }
     }
 }
 
 impl Monitors {
+    /// Largest `latch_trips`.
+    pub const MAX_LATCH_TRIPS: usize = 1000;
+
     /// Checks every threshold, cutoff and time (finite, > 0; the window in (0, 10], the clear
-    /// time in [0, 1e6]); the error names the key (`force_max_n`, ...).
+    /// time in [0, 1e6], the latch window in (0, 1e6], `latch_trips` in 0..=1000); the error
+    /// names the key (`force_max_n`, ...).
     pub fn validate(&self) -> Result<(), InvalidField> {
         check::reals(&[
             (
@@ -151,7 +169,13 @@ impl Monitors {
                 self.oscillation_clear_s,
                 Range::Closed(0.0, 1e6),
             ),
+            (
+                "latch_window_s",
+                self.latch_window_s,
+                Range::OpenClosed(0.0, 1e6),
+            ),
         ])?;
+        check::int("latch_trips", self.latch_trips, 0, Self::MAX_LATCH_TRIPS)?;
         self.fallback
             .validate()
             .map_err(|e| InvalidField::new(&format!("fallback.{}", e.field), e.value, e.allowed))
@@ -184,6 +208,11 @@ const MONITORS: [MonitorKind; 5] = [
 
 /// Indices of the oscillation monitors in [`MONITORS`].
 const OSCILLATION: [usize; 2] = [3, 4];
+
+/// Indices of the monitors that see the *controller* fail (all but the sensor timeout: a
+/// silent channel is a sensor fault, and the fallback needs the same sensors): their
+/// handovers count toward the latch.
+const LATCHING: [usize; 4] = [0, 1, 3, 4];
 
 /// Half-cycles beyond the hysteresis band (the RMS threshold) an oscillation monitor needs in
 /// its window, besides the RMS: one and a half periods, so that a single jolt (whose high-pass
@@ -296,7 +325,8 @@ impl<const N: usize> OscillationDetector<N> {
         self.rms_max()
     }
 
-    /// Per-channel RMS of the high-passed signal over the window (0 before any sample).
+    /// Per-channel RMS of the high-passed signal over the window (0 before any sample; over
+    /// the samples so far while the window fills).
     pub fn rms(&self) -> SVector<f64, N> {
         let n = self.filled.max(1) as f64;
         self.sum.map(|s| (s.max(0.0) / n).sqrt())
@@ -390,6 +420,13 @@ pub enum MonitorAction {
     Trip,
     /// The monitor cleared; the controller resumed.
     Clear,
+    /// The supervisor latched (`[monitors] latch_trips` handovers within `latch_window_s`;
+    /// `monitor` is the one whose trip made the last handover, `value` the number of
+    /// handovers in the window): the response keeps the torque until a reset.
+    Latch,
+    /// The latch was reset ([`Supervisor::reset_latch`]); the controller resumes once no
+    /// monitor is tripped (`monitor` is the one that latched, `value` 0).
+    Reset,
 }
 
 /// One logged monitor event.
@@ -420,6 +457,13 @@ pub struct SafetyReport {
     pub events: Vec<MonitorEvent>,
     /// Events not stored because the log was full.
     pub events_dropped: u64,
+    /// Handovers: times the supervisor took the torque from the controller because it failed
+    /// (a tracking-error, strap-force or oscillation monitor tripped while none of them was;
+    /// several tripping together make one handover; sensor timeouts do not count).
+    pub handovers: u64,
+    /// Supervisor time (s) at which it latched (`[monitors] latch_trips`), `None` when it has
+    /// not, or when the latch was reset since.
+    pub latched_at: Option<f64>,
 }
 
 /// Runtime safety supervision (exoskeleton-firmware style): measurement plausibility checks
@@ -454,6 +498,14 @@ pub struct SafetyReport {
 ///   It applies the configured `response` like the other monitors and clears after
 ///   `oscillation_clear_s` (2 s) without oscillation, so that a limit cycle does not restart
 ///   at once.
+/// * **Latch.** Each time a monitor that sees the controller fail (tracking error, strap force,
+///   force or torque oscillation; not the sensor timeout, a sensor fault) trips while none of
+///   them was, the supervisor takes the torque from the controller (a *handover*, counted in
+///   [`SafetyReport::handovers`]). After
+///   `latch_trips` (2) handovers within `latch_window_s` (60 s) it latches: the response
+///   keeps the torque when the monitors clear (a controller that failed twice in a minute
+///   is not handed the person again), until [`Supervisor::reset_latch`]. The latch is
+///   logged ([`MonitorAction::Latch`]) with its time in [`SafetyReport::latched_at`].
 /// * **Limits.** Every output passes through [`TorqueLimits::clamp`] relative to the previous
 ///   output, so `|T| ≤ T_max` and `|T − T_prev| ≤ ΔT_max` hold whatever the inner controller
 ///   returns (NaN included).
@@ -477,6 +529,13 @@ pub struct Supervisor<const N: usize, C> {
     force_osc: OscillationDetector<N>,
     torque_osc: OscillationDetector<N>,
     fallback: Option<Transparent<N>>,
+    /// A controller-failure monitor (or the latch) had the torque on the previous step.
+    engaged: bool,
+    latched: bool,
+    /// Times of the last `latch_trips` handovers (ring, allocated once).
+    handover_t: Vec<f64>,
+    handover_pos: usize,
+    latch_monitor: MonitorKind,
     report: SafetyReport,
 }
 
@@ -484,6 +543,7 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
     /// Wrap `inner`; the supervisor starts from the inner controller's previous torque.
     pub fn new(inner: C, settings: SafetySettings) -> Self {
         let cap = settings.max_events;
+        let settings_latch_trips = settings.monitors.latch_trips.min(Monitors::MAX_LATCH_TRIPS);
         let prev = settings.limits.admissible(&inner.previous_torque());
         let mo = &settings.monitors;
         let detector = |band: f64| {
@@ -518,6 +578,11 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             force_osc,
             torque_osc,
             fallback: None,
+            engaged: false,
+            latched: false,
+            handover_t: vec![f64::NEG_INFINITY; settings_latch_trips.max(1)],
+            handover_pos: 0,
+            latch_monitor: MonitorKind::TorqueOscillation,
             report: SafetyReport {
                 events: Vec::with_capacity(cap),
                 ..Default::default()
@@ -560,6 +625,69 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         self.tripped.iter().any(|&t| t)
     }
 
+    /// True while the supervisor is latched (`[monitors] latch_trips`): the response keeps
+    /// the torque whatever the monitors say, until [`Supervisor::reset_latch`].
+    pub fn is_latched(&self) -> bool {
+        self.latched
+    }
+
+    /// An operator's reset of the latch: the handover history is forgotten and the controller
+    /// takes the torque back once no monitor is tripped (at once if none is). Logged as a
+    /// [`MonitorAction::Reset`] event; does nothing when not latched.
+    pub fn reset_latch(&mut self) {
+        if !self.latched {
+            return;
+        }
+        self.latched = false;
+        self.report.latched_at = None;
+        self.handover_t.fill(f64::NEG_INFINITY);
+        let now = self.t0 + self.k.saturating_sub(1) as f64 * self.dt();
+        self.log(MonitorEvent {
+            t: now,
+            monitor: self.latch_monitor,
+            action: MonitorAction::Reset,
+            value: 0.0,
+        });
+    }
+
+    fn dt(&self) -> f64 {
+        if self.s.dt.is_finite() && self.s.dt > 0.0 {
+            self.s.dt
+        } else {
+            0.01
+        }
+    }
+
+    /// Counts a handover at `now` and latches after `latch_trips` of them within
+    /// `latch_window_s`.
+    fn handover(&mut self, now: f64) {
+        self.report.handovers += 1;
+        let k = self.s.monitors.latch_trips.min(self.handover_t.len());
+        if k == 0 || self.latched {
+            return;
+        }
+        self.handover_t[self.handover_pos] = now;
+        self.handover_pos = (self.handover_pos + 1) % k;
+        let window = self.s.monitors.latch_window_s;
+        let recent = self.handover_t[..k]
+            .iter()
+            .filter(|&&t| now - t < window - 1e-9)
+            .count();
+        if recent >= k {
+            self.latched = true;
+            self.report.latched_at = Some(now);
+            self.latch_monitor = (0..MONITORS.len())
+                .find(|&i| LATCHING.contains(&i) && self.tripped[i])
+                .map_or(MonitorKind::TorqueOscillation, |i| MONITORS[i]);
+            self.log(MonitorEvent {
+                t: now,
+                monitor: self.latch_monitor,
+                action: MonitorAction::Latch,
+                value: recent as f64,
+            });
+        }
+    }
+
     /// True while an oscillation monitor is tripped.
     pub fn is_oscillation_tripped(&self) -> bool {
         OSCILLATION.iter().any(|&i| self.tripped[i])
@@ -573,12 +701,14 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         }
     }
 
-    /// Updates the channel freshness; returns (all valid, longest silence in s).
-    fn check_channels(&mut self, m: &Measurement<N>, now: f64) -> (bool, f64) {
+    /// Updates the channel freshness; returns (all valid, longest silence in s, encoders
+    /// (q, qd) valid and none silent beyond `sensor_timeout_s`).
+    fn check_channels(&mut self, m: &Measurement<N>, now: f64) -> (bool, f64, bool) {
         let first = self.k == 1;
         let bounds = [self.s.angle_max, self.s.velocity_max, self.s.saturation_n];
         let mut all_valid = m.t.is_finite();
         let mut silent: f64 = 0.0;
+        let mut encoders = m.t.is_finite();
         for (sig, vals) in [&m.q, &m.qd, &m.force].into_iter().enumerate() {
             for j in 0..N {
                 let v = vals[j];
@@ -595,9 +725,13 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
                 self.last[sig][j] = v;
                 all_valid &= valid;
                 silent = silent.max(now - self.fresh_t[sig][j]);
+                if sig < 2 {
+                    encoders &= valid
+                        && now - self.fresh_t[sig][j] <= self.s.monitors.sensor_timeout_s + 1e-9;
+                }
             }
         }
-        (all_valid, silent)
+        (all_valid, silent, encoders)
     }
 
     /// Evaluates the monitors; returns true while any is tripped.
@@ -673,27 +807,31 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             self.t0 = m.t;
         }
         self.k += 1;
-        let dt = if self.s.dt.is_finite() && self.s.dt > 0.0 {
-            self.s.dt
-        } else {
-            0.01
-        };
-        let now = self.t0 + (self.k - 1) as f64 * dt;
+        let now = self.t0 + (self.k - 1) as f64 * self.dt();
         self.report.steps += 1;
-        let (valid, silent) = self.check_channels(m, now);
+        let (valid, silent, encoders) = self.check_channels(m, now);
         self.update_monitors(m, silent, now);
-        let tripped = self.is_tripped();
+        let controller_failed = LATCHING.iter().any(|&i| self.tripped[i]);
+        if controller_failed && !self.engaged {
+            self.handover(now);
+        }
+        self.engaged = controller_failed || self.latched;
+        let tripped = self.is_tripped() || self.latched;
         let prev = self.prev;
-        if valid {
-            if let Some(fb) = self.fallback.as_mut() {
+        if let Some(fb) = self.fallback.as_mut() {
+            if valid {
                 fb.observe(m, &prev);
+            } else if encoders {
+                fb.observe_encoders(m, &prev);
             }
         }
-        // The fallback needs fresh sensors: ramp to zero while a channel is silent.
-        let silent_channel = self.tripped[2] || !valid;
+        // The fallback's torque needs only fresh encoders: ramp to zero while an encoder
+        // channel is invalid or silent. A silent or saturated force channel does not stop it
+        // (it freezes its payload estimate): ramping to zero would hang the robot's weight on
+        // the straps, whose force then stays at the sensor's range.
         let response = match (self.s.monitors.response, &self.fallback) {
             (MonitorResponse::Hold, _) => prev,
-            (MonitorResponse::Fallback, Some(fb)) if !silent_channel => fb.torque(),
+            (MonitorResponse::Fallback, Some(fb)) if encoders => fb.torque(),
             (MonitorResponse::RampToZero | MonitorResponse::Fallback, _) => SVector::zeros(),
         };
         let (desired, mut status, iterations) = if valid {

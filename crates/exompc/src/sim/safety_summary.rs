@@ -32,6 +32,15 @@ pub struct SafetySummary {
     /// counts only the logged trips (`monitor_trips` counts all).
     #[serde(default)]
     pub events_dropped: u64,
+    /// Times the supervisor took the torque from the controller because it failed (a
+    /// tracking-error, strap-force or oscillation monitor tripped while none of them was):
+    /// what counts toward the latch.
+    #[serde(default)]
+    pub handovers: u64,
+    /// Supervisor time (s) at which repeated handovers latched the response
+    /// (`[monitors] latch_trips`); `null` when it did not latch.
+    #[serde(default)]
+    pub latched_at_s: Option<f64>,
 }
 
 /// `TrackingError` → `tracking_error` (the serde spelling of a unit variant's `Debug` name), so
@@ -72,6 +81,8 @@ impl SafetySummary {
             bad_measurement_steps: r.bad_measurement_steps,
             monitors,
             events_dropped: r.events_dropped,
+            handovers: r.handovers,
+            latched_at_s: r.latched_at,
         }
     }
 
@@ -106,8 +117,11 @@ mod tests {
                 ev(1.2, MonitorKind::StrapForce, MonitorAction::Trip),
             ],
             events_dropped: 0,
+            handovers: 2,
+            latched_at: Some(1.2),
         };
         let s = SafetySummary::from_report(&r);
+        assert_eq!((s.handovers, s.latched_at_s), (2, Some(1.2)));
         assert_eq!(s.monitor_trips, 3);
         assert_eq!(s.monitor_steps, 40);
         assert_eq!(s.bad_measurement_steps, 3);
