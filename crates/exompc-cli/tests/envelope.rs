@@ -27,17 +27,16 @@ fn describe_failures(env: &Envelope) -> String {
 /// 18 cells × 0-3 kg, ~20 s in release) the default MS-NMPC is stable, RMS < 20 N (unless
 /// torque-limited), within the limits, no worse than the NMPC, and trips no monitor.
 ///
-/// FAILS today (robust default with the fallback monitor response, measured with `exompc
-/// envelope`) in 16 of 72 cells: payload at 0.10 m 1, 2 kg (worse than NMPC); payload at
-/// 0.30 m 3 kg and 0.43 m 2 kg (monitor trips only: the fallback then holds them); payload at
-/// 0.43 m 3 kg (unstable, monitor trips); filter window 7 at 0 kg and 9 at 0, 1 kg, gait
-/// 1.1 Hz 0 kg and 1.3 Hz 0 kg (worse than NMPC); gait 1.1 Hz 3 kg, 1.3 Hz 3 kg, heavier
-/// robot 2 kg (monitor trips); gait 1.3 Hz 2 kg (RMS ≥ 20 N); straps ×2 0 kg (RMS ≥ 20 N,
-/// monitor trips; with `k1 = k2 = "auto"` only worse than NMPC); straps ×2 1 kg (worse than
-/// the NMPC, by 0.1 N on the shank: the NMPC reference trips and the supervisor's latch,
-/// docs/ROBUSTNESS.md §5, keeps it in the fallback). The paper-method default failed 26.
+/// FAILS today (robust default with the fallback monitor response and the latch, measured
+/// with `exompc envelope`) in 14 of 72 cells: payload at 0.10 m 1, 2 kg (worse than NMPC);
+/// payload at 0.30 m 3 kg and 0.43 m 2 kg (unstable, monitor trips); payload at 0.43 m 3 kg,
+/// gait 1.1 Hz 3 kg, 1.3 Hz 3 kg, heavier robot 2 kg (monitor trips); filter window 7 at 0 kg
+/// and 9 at 0, 1 kg, gait 1.1 Hz 0 kg and 1.3 Hz 0 kg (worse than NMPC); gait 1.3 Hz 2 kg
+/// (RMS ≥ 20 N). (Straps ×2 pass since the robust method scales the intent gains with the
+/// strap stiffness; a cell where only the NMPC reference trips a monitor is not "worse than
+/// NMPC", docs/ROBUSTNESS.md §4.) The paper-method default failed 26.
 #[test]
-#[ignore = "16 of 72 standard-envelope cells fail with today's default controller (see doc)"]
+#[ignore = "14 of 72 standard-envelope cells fail with today's default controller (see doc)"]
 fn standard_envelope_meets_the_acceptance() {
     let env = run(&Grid::standard());
     assert_eq!(env.verdicts.len(), 72);

@@ -301,7 +301,9 @@ pub struct CellVerdict {
     pub rms_waived: bool,
     /// No step outside the torque or rate limit.
     pub within_limits: bool,
-    /// Every strap's RMS ≤ `ratio ×` the NMPC's (ratio 1 at payloads ≥ 1 kg, 1.1 below).
+    /// Every strap's RMS ≤ `ratio ×` the NMPC's (ratio 1 at payloads ≥ 1 kg, 1.1 below), or
+    /// the NMPC's run tripped a safety monitor while the robust one did not (the reference's
+    /// forces are then the safety layer's, and the NMPC failed the cell by itself).
     pub no_worse_than_nmpc: bool,
     /// No safety monitor tripped (a run that needs the safety layer does not hold).
     pub no_monitor_trip: bool,
@@ -309,12 +311,14 @@ pub struct CellVerdict {
     pub pass: bool,
 }
 
-/// The acceptance of one cell: `ms` and `nmpc` are the classified runs, `*_rms` their
-/// per-strap RMS forces, `violations` and `monitor_trips` the robust run's limit violations
-/// and safety-monitor trips, `payload_kg` the true payload.
+/// The acceptance of one cell: `ms` is the robust run classified, `nmpc_rms` the NMPC run's
+/// per-strap RMS forces and `nmpc_trips` its safety-monitor trips, `violations` and
+/// `monitor_trips` the robust run's limit violations and safety-monitor trips, `payload_kg`
+/// the true payload.
 pub fn cell_verdict(
     ms: &RunStability,
     nmpc_rms: &[f64],
+    nmpc_trips: u64,
     violations: u64,
     monitor_trips: u64,
     payload_kg: f64,
@@ -327,12 +331,14 @@ pub fn cell_verdict(
     let rms_waived = ms.torque_limit_fraction > c.max_limit_fraction;
     let rms_ok = rms_waived || ms.straps.iter().all(|s| s.rms_n < c.max_rms_n);
     let ratio = if payload_kg >= 1.0 { 1.0 } else { 1.1 };
-    let no_worse_than_nmpc = ms.straps.len() == nmpc_rms.len()
-        && ms
-            .straps
-            .iter()
-            .zip(nmpc_rms)
-            .all(|(s, &n)| s.rms_n <= ratio * n);
+    let reference_needed_the_safety_layer = nmpc_trips > 0 && monitor_trips == 0;
+    let no_worse_than_nmpc = reference_needed_the_safety_layer
+        || (ms.straps.len() == nmpc_rms.len()
+            && ms
+                .straps
+                .iter()
+                .zip(nmpc_rms)
+                .all(|(s, &n)| s.rms_n <= ratio * n));
     let within_limits = violations == 0;
     CellVerdict {
         stable,
@@ -437,19 +443,25 @@ mod tests {
             classify(vec![strap(&x), strap(&x)], tl, 0.0, n, &c)
         };
         let a = 5.0 / 2f64.sqrt(); // RMS of the 5 N sine
-        assert!(cell_verdict(&ms(5.0, 0.0), &[a, a], 0, 0, 1.0, &c).pass);
+        assert!(cell_verdict(&ms(5.0, 0.0), &[a, a], 0, 0, 0, 1.0, &c).pass);
         // At ≥ 1 kg no worse than NMPC; at 0 kg within 1.1×.
-        let v = cell_verdict(&ms(5.0, 0.0), &[0.95 * a, a], 0, 0, 1.0, &c);
+        let v = cell_verdict(&ms(5.0, 0.0), &[0.95 * a, a], 0, 0, 0, 1.0, &c);
         assert!(!v.pass && !v.no_worse_than_nmpc && v.stable);
-        assert!(cell_verdict(&ms(5.0, 0.0), &[0.95 * a, a], 0, 0, 0.0, &c).pass);
-        assert!(!cell_verdict(&ms(5.0, 0.0), &[a, a], 1, 0, 0.0, &c).pass);
+        assert!(cell_verdict(&ms(5.0, 0.0), &[0.95 * a, a], 0, 0, 0, 0.0, &c).pass);
+        assert!(!cell_verdict(&ms(5.0, 0.0), &[a, a], 0, 1, 0, 0.0, &c).pass);
         // 30 N amplitude: RMS 21 N fails unless the torque limit waives it.
         let big = 30.0 / 2f64.sqrt() + 0.01;
-        let v = cell_verdict(&ms(30.0, 0.0), &[big, big], 0, 0, 2.0, &c);
+        let v = cell_verdict(&ms(30.0, 0.0), &[big, big], 0, 0, 0, 2.0, &c);
         assert!(!v.rms_ok && !v.pass);
-        let v = cell_verdict(&ms(30.0, 0.2), &[big, big], 0, 0, 2.0, &c);
+        let v = cell_verdict(&ms(30.0, 0.2), &[big, big], 0, 0, 0, 2.0, &c);
         assert!(v.rms_ok && v.rms_waived && v.pass);
-        let v = cell_verdict(&ms(5.0, 0.0), &[a, a], 0, 1, 1.0, &c);
+        let v = cell_verdict(&ms(5.0, 0.0), &[a, a], 0, 0, 1, 1.0, &c);
         assert!(!v.pass && !v.no_monitor_trip);
+        // A reference that needed the safety layer (its forces are the fallback's) does not
+        // make a robust run without trips worse; with trips on both sides forces decide.
+        let v = cell_verdict(&ms(5.0, 0.0), &[0.5 * a, 0.5 * a], 3, 0, 0, 1.0, &c);
+        assert!(v.no_worse_than_nmpc && v.pass);
+        let v = cell_verdict(&ms(5.0, 0.0), &[0.5 * a, 0.5 * a], 3, 0, 1, 1.0, &c);
+        assert!(!v.no_worse_than_nmpc && !v.pass);
     }
 }
