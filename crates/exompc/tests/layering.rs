@@ -7,14 +7,15 @@
 //! then every `crate::name` and every `crate::{a::…, b, …}` group names the modules a file
 //! uses. A module may use its own layer's lower layers only; `model` and `solver` share a
 //! layer and use nothing of each other; below them, `check` (the range checks every settings
-//! type's `validate()` shares) uses nothing of the crate.
+//! type's `validate()` shares) and `test_rng` (the unit tests' random numbers, `cfg(test)`)
+//! use nothing of the crate.
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
 /// The layers, lowest first. A module may import modules of strictly lower layers only.
 const LAYERS: &[&[&str]] = &[
-    &["check"],
+    &["check", "test_rng"],
     &["model", "solver"],
     &["estimate"],
     &["control"],
