@@ -261,7 +261,8 @@ fn robust_default_equals_the_paper_method_on_the_default_scenario() {
 
 /// Envelope cell "straps ×2" at 0 kg (strap stiffness 1875 N/m, damping 187.4 N·s/m): with
 /// the configured (paper's) intent gains the intent loop's gain doubles and the robust
-/// MS-NMPC's shank strap reaches more than 20 N RMS; with the default
+/// MS-NMPC fails the cell (its shank strap above 20 N RMS, or — with the latch of the safety
+/// layer — monitor trips); with the default
 /// `intent_gains = "strap_model"` it passes the cell's acceptance — every strap below 20 N
 /// and within 1.1× the plain NMPC's RMS (0 kg), no monitor trip. The plain NMPC is unchanged
 /// by the setting (it uses the configured gains).
@@ -279,7 +280,7 @@ fn strap_model_intent_gains_pass_the_stiff_straps_cell() {
     let (robust, trips) = run(&s);
     let mut configured = s.clone();
     configured.controller.robust.intent_gains = RobustIntentGains::Configured;
-    let (configured, _) = run(&configured);
+    let (configured, configured_trips) = run(&configured);
     let mut nmpc = s.clone();
     nmpc.controller.kind = ControllerKind::NMPC;
     let (nmpc, _) = run(&nmpc);
@@ -290,8 +291,12 @@ fn strap_model_intent_gains_pass_the_stiff_straps_cell() {
         );
     }
     assert_eq!(trips, 0, "robust MS-NMPC tripped a monitor");
+    // With the configured gains the cell fails: the shank strap exceeds 20 N RMS, or the
+    // safety layer has to take over (since the latch, its fallback then holds the forces
+    // down, so a trip is the failure to look for).
     assert!(
-        configured[1] >= 20.0,
-        "with the configured gains the shank is {configured:?}: the cell no longer tests the setting"
+        configured[1] >= 20.0 || configured_trips > 0,
+        "with the configured gains the shank is {configured:?} with {configured_trips} trips: \
+         the cell no longer tests the setting"
     );
 }
