@@ -3,6 +3,8 @@
 //! torque back to the failing controller, it counts only the monitors that see the controller
 //! fail, it respects its window, and an operator's reset hands the torque back.
 
+mod common;
+
 use exompc::config::{ControllerKind, Scenario};
 use exompc::control::{
     Controller, Measurement, MonitorAction, MonitorKind, SafetyReport, SafetySettings, StepStatus,
@@ -16,12 +18,7 @@ use std::f64::consts::PI;
 /// The paper's method with a 9-sample filter and 2 kg at the ankle (0.43 m): a 4 Hz limit
 /// cycle from the start, which the controller restarts after every handback.
 fn provoked() -> Scenario {
-    let mut s = Scenario::default();
-    s.controller.method = exompc::config::Method::Paper;
-    s.uncertainty.filter_window = 9;
-    s.uncertainty.payload_kg = 2.0;
-    s.robot.payload_position_m = 0.43;
-    s
+    common::provoked_limit_cycle()
 }
 
 fn run(s: &Scenario) -> (SafetyReport, TraceLog<2>) {

@@ -3,6 +3,8 @@
 //! angle estimate, a provoked limit cycle that must trip the monitor within 1 s, and the
 //! default scenario that must trip nothing.
 
+mod common;
+
 use exompc::config::{ControllerKind, MonitorResponse, Scenario};
 use exompc::control::{
     Controller, Measurement, MonitorAction, MonitorKind, OscillationDetector, SafetySettings,
@@ -93,12 +95,7 @@ fn run(
 /// The paper's method (`controller.method = "paper"`) with a 9-sample filter and 2 kg at the
 /// ankle (0.43 m): a 4 Hz limit cycle from the start.
 fn provoked() -> Scenario {
-    let mut s = Scenario::default();
-    s.controller.method = exompc::config::Method::Paper;
-    s.uncertainty.filter_window = 9;
-    s.uncertainty.payload_kg = 2.0;
-    s.robot.payload_position_m = 0.43;
-    s
+    common::provoked_limit_cycle()
 }
 
 fn first_oscillation_trip(rep: &exompc::control::SafetyReport) -> Option<f64> {

@@ -219,3 +219,14 @@ pub fn dense_vs_structured_torque_diff<D: exompc::scenario::Dof<N>, const N: usi
         .map(|(x, y)| (x.0 - y.0).amax())
         .fold(0.0, f64::max)
 }
+
+/// The provoked limit cycle of issue 10: the paper's method (`controller.method = "paper"`)
+/// with a 9-sample filter and 2 kg at the ankle (0.43 m) oscillates at 4 Hz from the start.
+pub fn provoked_limit_cycle() -> exompc::config::Scenario {
+    let mut s = exompc::config::Scenario::default();
+    s.controller.method = exompc::config::Method::Paper;
+    s.uncertainty.filter_window = 9;
+    s.uncertainty.payload_kg = 2.0;
+    s.robot.payload_position_m = 0.43;
+    s
+}
