@@ -200,11 +200,12 @@ impl<const N: usize> LeastSquares for NmpcProblem<N> {
         let mut u = self.t_prev;
         // Finiteness of everything written, checked once at the end.
         let mut finite = SMatrix::<f64, N, N>::zeros();
+        let consts = self.model.jacobian_constants();
         for j in 0..np {
             self.torque(z, j, &mut u);
-            let (xn, g): (JointState<f64, N>, StepJacobian<N>) =
-                self.model
-                    .step_with_jacobian(&x, &u, j as f64 * self.model.dt, &self.inputs);
+            let (xn, g): (JointState<f64, N>, StepJacobian<N>) = self
+                .model
+                .step_with_jacobian_using(&consts, &x, &u, j as f64 * self.model.dt, &self.inputs);
             // S_{j+1}[i] = Φ S_j[i] + Γ for every block i ≤ min(j, Nc−1); S_j[j] = 0 on entry.
             let active = j.min(nc - 1);
             let row = j * 2 * N;

@@ -197,30 +197,30 @@ impl<const N: usize> StageWork<N> {
     }
 
     /// [`Self::max_condensed_diagonal`] with fixed-size blocks for the 1-DOF and 2-DOF stages
-    /// (`NX = 3N`, `NU = N`): `V_j = Q_j + A_{j+1}ᵀ V_{j+1} A_{j+1}` by the held-input
-    /// congruence of the Riccati factor. Equals the slice version to rounding (unit test).
+    /// (`NX = 3N`, `NU = N`): `W_j = A_jᵀ V_j A_j` by the held-input congruence of the Riccati
+    /// factor, `V_{j−1} = Q_{j−1} + W_j`. Since `B_j = [G_j; I]` is the last `NU` columns of
+    /// `A_j` (the held-input form written by [`Self::evaluate`]), `(B_jᵀ V_j B_j)_aa` is the
+    /// diagonal entry `W_j[ns + a, ns + a]`: one congruence a stage, no separate `Bᵀ V B`.
+    /// Equals the slice version to rounding (unit test).
     fn max_condensed_diagonal_fixed<const NX: usize, const NU: usize>(&self) -> f64 {
         let nn = NX * NX;
+        let ns = NX - NU;
         let (np, nc) = (self.np, self.nc);
         let qp = &self.qp;
         let mut maxdiag = self.r_t;
         let mut v = SMatrix::<f64, NX, NX>::from_column_slice(&qp.q[(np - 1) * nn..np * nn]);
         for j in (0..np).rev() {
-            if j + 1 < np {
-                let a =
-                    SMatrix::<f64, NX, NX>::from_column_slice(&qp.a[(j + 1) * nn..(j + 2) * nn]);
-                v = held_congruence::<NX, NU>(&v, &a)
-                    + SMatrix::<f64, NX, NX>::from_column_slice(&qp.q[j * nn..(j + 1) * nn]);
-            }
+            let a = SMatrix::<f64, NX, NX>::from_column_slice(&qp.a[j * nn..(j + 1) * nn]);
+            let w = held_congruence::<NX, NU>(&v, &a);
             if j < nc {
-                let b = SMatrix::<f64, NX, NU>::from_column_slice(
-                    &qp.b[j * NX * NU..(j + 1) * NX * NU],
-                );
                 for i in 0..NU {
-                    let col = b.column(i);
-                    maxdiag = maxdiag.max(col.dot(&(v * col)) + self.r_t);
+                    maxdiag = maxdiag.max(w[(ns + i, ns + i)] + self.r_t);
                 }
             }
+            if j == 0 {
+                break;
+            }
+            v = w + SMatrix::<f64, NX, NX>::from_column_slice(&qp.q[(j - 1) * nn..j * nn]);
         }
         maxdiag
     }
@@ -313,6 +313,7 @@ impl<const N: usize> StageWork<N> {
     /// Simulates from `problem.x0` with increments `z`; with `jac`, fills the QP's dynamics
     /// matrices and gradient. Writes the cumulative torques into `torques_trial` and returns the
     /// cost `½‖r‖²` (non-finite when anything is).
+    #[allow(clippy::eq_op)] // `v − v` is the finiteness test
     fn evaluate(&mut self, problem: &NmpcProblem<N>, z: &[f64], jac: bool) -> f64 {
         let nx = 3 * N;
         let (np, nc) = (self.np, self.nc);
@@ -325,6 +326,7 @@ impl<const N: usize> StageWork<N> {
         let mut sum = 0.0;
         let mut finite = true;
         let off = nc * N;
+        let consts = problem.model.jacobian_constants();
         for j in 0..np {
             if j < nc {
                 for a in 0..N {
@@ -334,12 +336,18 @@ impl<const N: usize> StageWork<N> {
             }
             let tau = j as f64 * dt;
             let xn = if jac {
-                let (xn, g): (JointState<f64, N>, StepJacobian<N>) =
-                    problem.model.step_with_jacobian(&x, &u, tau, &inp);
+                let (xn, g): (JointState<f64, N>, StepJacobian<N>) = problem
+                    .model
+                    .step_with_jacobian_using(&consts, &x, &u, tau, &inp);
                 // The only non-constant entries of A_j and B_j.
-                finite &= [g.qq, g.qv, g.vq, g.vv, g.qu, g.vu]
-                    .iter()
-                    .all(|m| m.iter().all(|v| v.is_finite()));
+                // Branch-free: `v − v` is 0 for a finite `v` and NaN otherwise.
+                let mut nan = 0.0;
+                for m in [g.qq, g.qv, g.vq, g.vv, g.qu, g.vu] {
+                    for v in m.iter() {
+                        nan += v - v;
+                    }
+                }
+                finite &= nan == 0.0;
                 let aj = &mut self.qp.a[j * nx * nx..(j + 1) * nx * nx];
                 aj.fill(0.0);
                 for c in 0..N {
@@ -484,38 +492,52 @@ impl<const N: usize> StageWork<N> {
 }
 
 /// Largest stationarity residual `|g_u + mult_u + B_jᵀ μ_{j+1}|` of the inputs, with the costates
-/// `μ_{j+1} = g_x + mult_x + A_{j+1}ᵀ μ_{j+2}` from a backward sweep (fixed-size blocks).
+/// `μ_{j+1} = g_x + mult_x + A_{j+1}ᵀ μ_{j+2}` from a backward sweep (fixed-size blocks). The
+/// dynamics have the held-input form written by [`StageWork::evaluate`] (`A = [[F, G], [0, I]]`,
+/// `B = [G; I]`), so the zero and identity rows are skipped: the same nonzero terms in the same
+/// order as the slice version (equal values).
 fn adjoint_stationarity<const NX: usize, const NU: usize>(
     qp: &RiccatiQp,
     grad: &[f64],
     np: usize,
     nc: usize,
 ) -> f64 {
+    let ns = NX - NU;
+    let nn = NX * NX;
     let off = nc * NU;
     let mult = qp.multipliers();
+    let (gu, gx) = grad.split_at(off);
+    let (mu_u, mu_x) = mult.split_at(off);
     let mut next = SVector::<f64, NX>::zeros();
     let mut stat: f64 = 0.0;
     for j in (0..np).rev() {
-        // Same summation order as the slice version (results identical to the last bit).
-        let xo = off + j * NX;
+        let (gj, mj) = (&gx[j * NX..(j + 1) * NX], &mu_x[j * NX..(j + 1) * NX]);
         let mut mu = SVector::<f64, NX>::zeros();
         for c in 0..NX {
-            let mut s = grad[xo + c] + mult[xo + c];
-            if j + 1 < np {
-                let a = &qp.a[(j + 1) * NX * NX..(j + 2) * NX * NX];
-                for t in 0..NX {
-                    s += a[c * NX + t] * next[t];
+            mu[c] = gj[c] + mj[c];
+        }
+        if j + 1 < np {
+            let a = &qp.a[(j + 1) * nn..(j + 2) * nn];
+            for c in 0..NX {
+                let mut s = mu[c];
+                for (act, nt) in a[c * NX..c * NX + ns].iter().zip(next.iter()) {
+                    s += act * nt;
                 }
+                if c >= ns {
+                    s += next[c];
+                }
+                mu[c] = s;
             }
-            mu[c] = s;
         }
         if j < nc {
             let b = &qp.b[j * NX * NU..(j + 1) * NX * NU];
+            let (guj, muj) = (&gu[j * NU..(j + 1) * NU], &mu_u[j * NU..(j + 1) * NU]);
             for i in 0..NU {
-                let mut s = grad[j * NU + i] + mult[j * NU + i];
-                for t in 0..NX {
-                    s += b[i * NX + t] * mu[t];
+                let mut s = guj[i] + muj[i];
+                for (bt, mt) in b[i * NX..i * NX + ns].iter().zip(mu.iter()) {
+                    s += bt * mt;
                 }
+                s += mu[ns + i];
                 stat = stat.max(s.abs());
             }
         }
@@ -671,6 +693,22 @@ mod tests {
             }
         }
         w
+    }
+
+    #[test]
+    fn held_adjoint_stationarity_equals_the_slice_version() {
+        for (np, nc, seed) in [(1, 1, 5), (5, 3, 6), (20, 20, 7), (50, 12, 8)] {
+            let mut w1 = random_work::<1>(np, nc, seed);
+            let mut next = crate::test_rng::lcg(seed + 100);
+            w1.grad.iter_mut().for_each(|g| *g = next());
+            let a = adjoint_stationarity::<3, 1>(&w1.qp, &w1.grad, np, nc);
+            assert_eq!(a, w1.stationarity_any_size(), "N = 1");
+            let mut w2 = random_work::<2>(np, nc, seed);
+            w2.grad.iter_mut().for_each(|g| *g = next());
+            let a = adjoint_stationarity::<6, 2>(&w2.qp, &w2.grad, np, nc);
+            assert_eq!(a, w2.stationarity_any_size(), "N = 2");
+            assert!(a > 0.0);
+        }
     }
 
     #[test]

@@ -214,6 +214,7 @@ impl<const N: usize> TreeWork<N> {
             let mut x = problem.x0;
             let mut u = problem.t_prev;
             let mut sum = 0.0;
+            let consts = problem.model.jacobian_constants();
             for j in 0..np {
                 if j < nc {
                     for a in 0..N {
@@ -223,8 +224,9 @@ impl<const N: usize> TreeWork<N> {
                 }
                 let tau = j as f64 * dt;
                 x = if jac {
-                    let (xn, g): (JointState<f64, N>, StepJacobian<N>) =
-                        problem.model.step_with_jacobian(&x, &u, tau, &inp);
+                    let (xn, g): (JointState<f64, N>, StepJacobian<N>) = problem
+                        .model
+                        .step_with_jacobian_using(&consts, &x, &u, tau, &inp);
                     let ao = (i * np + j) * nx * nx;
                     let aj = &mut self.qp.a[ao..ao + nx * nx];
                     aj.fill(0.0);

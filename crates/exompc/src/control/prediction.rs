@@ -215,7 +215,27 @@ impl<const N: usize> PredictionModel<N> {
         tau0: f64,
         inp: &HorizonInputs<N>,
     ) -> (JointState<f64, N>, StepJacobian<N>) {
-        let consts = StageConstants::new(self);
+        self.step_with_jacobian_using(&self.jacobian_constants(), x, u, tau0, inp)
+    }
+
+    /// The model constants [`Self::step_with_jacobian_using`] needs, computed once for a
+    /// rollout of many steps.
+    #[inline]
+    pub(crate) fn jacobian_constants(&self) -> StageConstants<N> {
+        StageConstants::new(self)
+    }
+
+    /// [`Self::step_with_jacobian`] with the constants of [`Self::jacobian_constants`] (of this
+    /// model) computed by the caller: the same numbers.
+    #[inline]
+    pub(crate) fn step_with_jacobian_using(
+        &self,
+        consts: &StageConstants<N>,
+        x: &JointState<f64, N>,
+        u: &SVector<f64, N>,
+        tau0: f64,
+        inp: &HorizonInputs<N>,
+    ) -> (JointState<f64, N>, StepJacobian<N>) {
         let n = self.substeps.max(1);
         let h = self.dt / n as f64;
         let eye = SMatrix::<f64, N, N>::identity();
@@ -231,16 +251,26 @@ impl<const N: usize> PredictionModel<N> {
         };
         for i in 0..n {
             let t = tau0 + i as f64 * h;
-            let (k1, d1) = self.stage_sens(&consts, t, &s, u, inp, &sens);
+            // The first substep starts from the identity sensitivity: its first stage has no
+            // products and its second stage two fewer (`stage_sens_first`, `stage_sens_second`).
+            let (k1, d1) = if i == 0 {
+                self.stage_sens_first(consts, t, &s, u, inp)
+            } else {
+                self.stage_sens(consts, t, &s, u, inp, &sens)
+            };
             let x2 = s.add_scaled(0.5 * h, &k1);
             let s2 = sens.add_scaled(0.5 * h, &d1);
-            let (k2, d2) = self.stage_sens(&consts, t + 0.5 * h, &x2, u, inp, &s2);
+            let (k2, d2) = if i == 0 {
+                self.stage_sens_second(consts, t + 0.5 * h, &x2, u, inp, &s2)
+            } else {
+                self.stage_sens(consts, t + 0.5 * h, &x2, u, inp, &s2)
+            };
             let x3 = s.add_scaled(0.5 * h, &k2);
             let s3 = sens.add_scaled(0.5 * h, &d2);
-            let (k3, d3) = self.stage_sens(&consts, t + 0.5 * h, &x3, u, inp, &s3);
+            let (k3, d3) = self.stage_sens(consts, t + 0.5 * h, &x3, u, inp, &s3);
             let x4 = s.add_scaled(h, &k3);
             let s4 = sens.add_scaled(h, &d3);
-            let (k4, d4) = self.stage_sens(&consts, t + h, &x4, u, inp, &s4);
+            let (k4, d4) = self.stage_sens(consts, t + h, &x4, u, inp, &s4);
             s = s
                 .add_scaled(h / 6.0, &k1)
                 .add_scaled(h / 3.0, &k2)
@@ -280,10 +310,78 @@ impl<const N: usize> PredictionModel<N> {
         (k, dk)
     }
 
+    /// [`Self::stage_sens`] from the identity sensitivity (`sx = [[I, 0, 0], [0, I, 0]]`):
+    /// `∂k/∂(x₀, u) = [[0, I, 0], [a_q, a_v, M⁻¹]]`, the values `stage_sens` forms from products
+    /// with the identity and zero blocks (`x·1 + y·0 = x`).
+    #[inline(always)]
+    fn stage_sens_first(
+        &self,
+        consts: &StageConstants<N>,
+        tau: f64,
+        x: &JointState<f64, N>,
+        u: &SVector<f64, N>,
+        inp: &HorizonInputs<N>,
+    ) -> (JointState<f64, N>, StepJacobian<N>) {
+        let d = self.derivative_jacobian(consts, tau, x, u, inp);
+        let k = JointState { q: x.qd, qd: d.qdd };
+        let dk = StepJacobian {
+            qq: SMatrix::zeros(),
+            qv: SMatrix::identity(),
+            qu: SMatrix::zeros(),
+            vq: d.a_q,
+            vv: d.a_v,
+            vu: d.minv,
+        };
+        (k, dk)
+    }
+
+    /// [`Self::stage_sens`] for the second RK4 stage of the first substep, where `sx.qq = I`
+    /// and `sx.qu = 0` exactly (identity plus `h/2` times the zero blocks of the first stage):
+    /// the products with them are left out (same values).
+    #[inline(always)]
+    fn stage_sens_second(
+        &self,
+        consts: &StageConstants<N>,
+        tau: f64,
+        x: &JointState<f64, N>,
+        u: &SVector<f64, N>,
+        inp: &HorizonInputs<N>,
+        sx: &StepJacobian<N>,
+    ) -> (JointState<f64, N>, StepJacobian<N>) {
+        let d = self.derivative_jacobian(consts, tau, x, u, inp);
+        let k = JointState { q: x.qd, qd: d.qdd };
+        let dk = StepJacobian {
+            qq: sx.vq,
+            qv: sx.vv,
+            qu: sx.vu,
+            vq: d.a_q + d.a_v * sx.vq,
+            vv: d.a_q * sx.qv + d.a_v * sx.vv,
+            vu: d.a_v * sx.vu + d.minv,
+        };
+        (k, dk)
+    }
+
     /// `qdd` of [`Self::derivative`] with its partial derivatives `∂qdd/∂q`, `∂qdd/∂qd` and
     /// `∂qdd/∂u = M⁻¹`, in `f64`.
-    #[allow(clippy::needless_range_loop)] // index algebra of the closed-form derivatives
+    #[inline(always)]
     fn derivative_jacobian(
+        &self,
+        k: &StageConstants<N>,
+        tau: f64,
+        x: &JointState<f64, N>,
+        u: &SVector<f64, N>,
+        inp: &HorizonInputs<N>,
+    ) -> AccelJacobian<N> {
+        if N == 2 {
+            self.derivative_jacobian_two_links(k, tau, x, u, inp)
+        } else {
+            self.derivative_jacobian_chain(k, tau, x, u, inp)
+        }
+    }
+
+    /// [`Self::derivative_jacobian`] for any `N`: the chain's tensors `∂M/∂q`, `∂²M/∂q²`.
+    #[allow(clippy::needless_range_loop)] // index algebra of the closed-form derivatives
+    fn derivative_jacobian_chain(
         &self,
         k: &StageConstants<N>,
         tau: f64,
@@ -405,39 +503,12 @@ impl<const N: usize> PredictionModel<N> {
         let mut fr = SVector::<f64, N>::zeros();
         let mut dfr = [0.0; N];
         for i in 0..N {
-            let (coul, dcoul) = match rb.friction {
-                Friction::Sign => (
-                    if v[i] > 0.0 {
-                        rb.coulomb
-                    } else if v[i] < 0.0 {
-                        -rb.coulomb
-                    } else {
-                        0.0
-                    },
-                    0.0,
-                ),
-                Friction::Tanh { width } => {
-                    let t: f64 = tanh(v[i] * (1.0 / width));
-                    (t * rb.coulomb, rb.coulomb * (1.0 - t * t) * (1.0 / width))
-                }
-            };
+            let (coul, dcoul) = friction_terms(rb, v[i]);
             fr[i] = v[i] * rb.viscous + coul;
             dfr[i] = rb.viscous + dcoul;
         }
         // Interaction torque and its derivatives (−ks JᵀJ, −cs JᵀJ when predicted).
-        let (t_int, ti_q, ti_v) = match self.interaction {
-            Interaction::Hold => (inp.t_int_measured, zero_mat(), zero_mat()),
-            Interaction::Predict => {
-                let mut dq = SVector::<f64, N>::zeros();
-                let mut dqd = SVector::<f64, N>::zeros();
-                for i in 0..N {
-                    dq[i] = -q[i] + (inp.q_h[i] + tau * inp.qd_h[i]);
-                    dqd[i] = -v[i] + inp.qd_h[i];
-                }
-                let t = self.straps.torque(&self.straps.force(&dq, &dqd));
-                (t, k.ks_jtj, k.cs_jtj)
-            }
-        };
+        let (t_int, ti_q, ti_v) = self.interaction_terms(k, tau, q, v, inp);
         let mut rhs = SVector::<f64, N>::zeros();
         for i in 0..N {
             rhs[i] = u[i] + t_int[i] + inp.disturbance[i] - hv[i] - g[i] - fr[i];
@@ -467,6 +538,153 @@ impl<const N: usize> PredictionModel<N> {
             a_q: minv * bq,
             a_v: minv * bv,
             minv,
+        }
+    }
+}
+
+impl<const N: usize> PredictionModel<N> {
+    /// Interaction torque and its derivatives (`−ks JᵀJ`, `−cs JᵀJ` when predicted).
+    #[inline(always)]
+    fn interaction_terms(
+        &self,
+        k: &StageConstants<N>,
+        tau: f64,
+        q: &SVector<f64, N>,
+        v: &SVector<f64, N>,
+        inp: &HorizonInputs<N>,
+    ) -> (SVector<f64, N>, SMatrix<f64, N, N>, SMatrix<f64, N, N>) {
+        match self.interaction {
+            Interaction::Hold => (inp.t_int_measured, zero_mat(), zero_mat()),
+            Interaction::Predict => {
+                let mut dq = SVector::<f64, N>::zeros();
+                let mut dqd = SVector::<f64, N>::zeros();
+                for i in 0..N {
+                    dq[i] = -q[i] + (inp.q_h[i] + tau * inp.qd_h[i]);
+                    dqd[i] = -v[i] + inp.qd_h[i];
+                }
+                let t = self.straps.torque(&self.straps.force(&dq, &dqd));
+                (t, k.ks_jtj, k.cs_jtj)
+            }
+        }
+    }
+
+    /// [`Self::derivative_jacobian_chain`] for `N = 2` with the chain's tensors written out: of
+    /// `∂M/∂q` (8 entries) and `∂²M/∂q²` (16) only three each are nonzero, so the Coriolis
+    /// terms and their derivatives reduce to a few products. Every nonzero term is formed and
+    /// summed in the order of the chain code, and the terms it skips are exact zeros, so the
+    /// results are the same numbers (unit test `two_link_jacobian_equals_the_chain_code`).
+    #[inline(always)]
+    fn derivative_jacobian_two_links(
+        &self,
+        k: &StageConstants<N>,
+        tau: f64,
+        x: &JointState<f64, N>,
+        u: &SVector<f64, N>,
+        inp: &HorizonInputs<N>,
+    ) -> AccelJacobian<N> {
+        debug_assert_eq!(N, 2);
+        let (q, v) = (&x.q, &x.qd);
+        let (v0, v1) = (v[0], v[1]);
+        let th0 = 0.0 + q[0];
+        let th1 = th0 + q[1];
+        let (s0, c0) = sin_cos(th0);
+        let (s1, c1) = sin_cos(th1);
+        // sin and cos of θ0 − θ1.
+        let sn = s0 * c1 - c0 * s1;
+        let co = c0 * c1 + s0 * s1;
+        let p = &k.p;
+        let it = &k.inertia_tail;
+        let mut m = SMatrix::<f64, N, N>::zeros();
+        m[(0, 0)] = it[0] + p[0][0] + p[0][1] * co + p[1][0] * co + p[1][1];
+        m[(0, 1)] = it[1] + p[0][1] * co + p[1][1];
+        m[(1, 0)] = it[1] + p[1][0] * co + p[1][1];
+        m[(1, 1)] = it[1] + p[1][1];
+        // The nonzero entries d1[1][0][0] = a, d1[1][0][1] = b, d1[1][1][0] = c of ∂M/∂q and
+        // d2[1][1][0][0] = e, d2[1][1][0][1] = f, d2[1][1][1][0] = gd of ∂²M/∂q².
+        let ps01 = -p[0][1] * sn;
+        let pc01 = -p[0][1] * co;
+        let ps10 = -p[1][0] * -sn;
+        let pc10 = -p[1][0] * co;
+        let a = -ps01 + ps10;
+        let b = -ps01;
+        let c = ps10;
+        let e = pc01 + pc10;
+        let f = pc01;
+        let gd = pc10;
+        // h = C qd and ∂h/∂qd.
+        let (g00, g01, g10) = (-(0.5 * a), c - 0.5 * b, -(0.5 * c));
+        let hv0 = a * v0 * v1 + b * v1 * v1;
+        let hv1 = g00 * v0 * v0 + g01 * v0 * v1 + g10 * v1 * v0;
+        let mut dh_v = SMatrix::<f64, N, N>::zeros();
+        dh_v[(0, 0)] = a * v1;
+        dh_v[(0, 1)] = a * v0 + b * v1 + b * v1;
+        dh_v[(1, 0)] = g00 * v0 + g00 * v0 + g01 * v1 + g10 * v1;
+        dh_v[(1, 1)] = g01 * v0 + g10 * v0;
+        // ∂h/∂q: the first column is zero.
+        let (e00, e01, e10) = (-(0.5 * e), gd - 0.5 * f, -(0.5 * gd));
+        let dh_q01 = e * v0 * v1 + f * v1 * v1;
+        let dh_q11 = e00 * v0 * v0 + e01 * v0 * v1 + e10 * v1 * v0;
+        // Gravity and its derivative.
+        let g1 = 0.0 + k.w[1] * s1;
+        let g0 = g1 + k.w[0] * s0;
+        let (wc0, wc1) = (k.w[0] * c0, k.w[1] * c1);
+        let dg00 = 0.0 + wc0 + wc1;
+        // Friction and its (diagonal) derivative.
+        let rb = &self.robot;
+        let mut fr = SVector::<f64, N>::zeros();
+        let mut dfr = [0.0; N];
+        for i in 0..N {
+            let (coul, dcoul) = friction_terms(rb, v[i]);
+            fr[i] = v[i] * rb.viscous + coul;
+            dfr[i] = rb.viscous + dcoul;
+        }
+        let (t_int, ti_q, ti_v) = self.interaction_terms(k, tau, q, v, inp);
+        let hv = [hv0, hv1];
+        let g = [g0, g1];
+        let mut rhs = SVector::<f64, N>::zeros();
+        for i in 0..N {
+            rhs[i] = u[i] + t_int[i] + inp.disturbance[i] - hv[i] - g[i] - fr[i];
+        }
+        let minv = spd_inverse(&m);
+        let qdd = minv * rhs;
+        let mut bq = SMatrix::<f64, N, N>::zeros();
+        bq[(0, 0)] = -ti_q[(0, 0)] - dg00;
+        bq[(1, 0)] = -ti_q[(1, 0)] - wc1;
+        bq[(0, 1)] = -ti_q[(0, 1)] - dh_q01 - wc1 - (a * qdd[0] + b * qdd[1]);
+        bq[(1, 1)] = -ti_q[(1, 1)] - dh_q11 - wc1 - c * qdd[0];
+        let mut bv = -dh_v;
+        for i in 0..N {
+            for j in 0..N {
+                bv[(i, j)] -= ti_v[(i, j)];
+            }
+            bv[(i, i)] -= dfr[i];
+        }
+        AccelJacobian {
+            qdd,
+            a_q: minv * bq,
+            a_v: minv * bv,
+            minv,
+        }
+    }
+}
+
+/// Coulomb friction of one joint speed and its derivative (smooth or sign).
+#[inline(always)]
+fn friction_terms<const N: usize>(rb: &RobotModel<N>, v: f64) -> (f64, f64) {
+    match rb.friction {
+        Friction::Sign => (
+            if v > 0.0 {
+                rb.coulomb
+            } else if v < 0.0 {
+                -rb.coulomb
+            } else {
+                0.0
+            },
+            0.0,
+        ),
+        Friction::Tanh { width } => {
+            let t: f64 = tanh(v * (1.0 / width));
+            (t * rb.coulomb, rb.coulomb * (1.0 - t * t) * (1.0 / width))
         }
     }
 }
@@ -506,8 +724,9 @@ struct AccelJacobian<const N: usize> {
     minv: SMatrix<f64, N, N>,
 }
 
-/// Model constants of the tailored Jacobian, computed once per step.
-struct StageConstants<const N: usize> {
+/// Model constants of the tailored Jacobian ([`PredictionModel::jacobian_constants`]).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct StageConstants<const N: usize> {
     /// `P_ab = Σ_{k ≥ max(a,b)} m_k d_ka d_kb`.
     p: [[f64; N]; N],
     /// `Σ_{k ≥ i} I_k`.
@@ -683,6 +902,125 @@ mod tests {
             assert!((xa.q - xb.q).amax() <= 1e-12 * (1.0 + xb.q.amax()));
             assert!((xa.qd - xb.qd).amax() <= 1e-12 * (1.0 + xb.qd.amax()));
         }
+    }
+
+    /// The written-out two-link Jacobian gives the chain code's numbers (same nonzero terms in
+    /// the same order; the skipped terms are exact zeros).
+    #[test]
+    fn two_link_jacobian_equals_the_chain_code() {
+        let mut rng = Lcg(11);
+        for case in 0..2000 {
+            let interaction = if case % 3 == 2 {
+                Interaction::Hold
+            } else {
+                Interaction::Predict
+            };
+            let friction = if case % 5 == 4 {
+                Friction::Sign
+            } else {
+                Friction::Tanh { width: 0.1 }
+            };
+            let m = model::<2>(&mut rng, interaction, friction, 1);
+            let k = StageConstants::new(&m);
+            let x = JointState {
+                q: rng.vec(4.0),
+                qd: rng.vec(6.0),
+            };
+            let u = rng.vec(20.0);
+            let inp = HorizonInputs {
+                q_h: x.q + rng.vec(0.05),
+                qd_h: x.qd + rng.vec(0.5),
+                t_int_measured: rng.vec(5.0),
+                disturbance: rng.vec(2.0),
+            };
+            let tau = 0.01 * (case % 4) as f64;
+            let a = m.derivative_jacobian_two_links(&k, tau, &x, &u, &inp);
+            let b = m.derivative_jacobian_chain(&k, tau, &x, &u, &inp);
+            assert_eq!(a.qdd, b.qdd, "case {case}");
+            assert_eq!(a.a_q, b.a_q, "case {case}");
+            assert_eq!(a.a_v, b.a_v, "case {case}");
+            assert_eq!(a.minv, b.minv, "case {case}");
+        }
+    }
+
+    /// `step_with_jacobian` (with the shortened first substep) gives the numbers of the plain
+    /// RK4 chaining through `stage_sens`.
+    #[test]
+    fn first_substep_shortcut_equals_plain_chaining() {
+        fn plain<const N: usize>(
+            m: &PredictionModel<N>,
+            x: &JointState<f64, N>,
+            u: &SVector<f64, N>,
+            tau0: f64,
+            inp: &HorizonInputs<N>,
+        ) -> (JointState<f64, N>, StepJacobian<N>) {
+            let consts = StageConstants::new(m);
+            let n = m.substeps.max(1);
+            let h = m.dt / n as f64;
+            let (eye, zero) = (SMatrix::identity(), SMatrix::zeros());
+            let mut s = *x;
+            let mut sens = StepJacobian {
+                qq: eye,
+                qv: zero,
+                vq: zero,
+                vv: eye,
+                qu: zero,
+                vu: zero,
+            };
+            for i in 0..n {
+                let t = tau0 + i as f64 * h;
+                let (k1, d1) = m.stage_sens(&consts, t, &s, u, inp, &sens);
+                let (x2, s2) = (s.add_scaled(0.5 * h, &k1), sens.add_scaled(0.5 * h, &d1));
+                let (k2, d2) = m.stage_sens(&consts, t + 0.5 * h, &x2, u, inp, &s2);
+                let (x3, s3) = (s.add_scaled(0.5 * h, &k2), sens.add_scaled(0.5 * h, &d2));
+                let (k3, d3) = m.stage_sens(&consts, t + 0.5 * h, &x3, u, inp, &s3);
+                let (x4, s4) = (s.add_scaled(h, &k3), sens.add_scaled(h, &d3));
+                let (k4, d4) = m.stage_sens(&consts, t + h, &x4, u, inp, &s4);
+                s = s
+                    .add_scaled(h / 6.0, &k1)
+                    .add_scaled(h / 3.0, &k2)
+                    .add_scaled(h / 3.0, &k3)
+                    .add_scaled(h / 6.0, &k4);
+                sens = sens
+                    .add_scaled(h / 6.0, &d1)
+                    .add_scaled(h / 3.0, &d2)
+                    .add_scaled(h / 3.0, &d3)
+                    .add_scaled(h / 6.0, &d4);
+            }
+            (s, sens)
+        }
+        fn run<const N: usize>(seed: u64) {
+            let mut rng = Lcg(seed);
+            for case in 0..300 {
+                let interaction = if case % 3 == 2 {
+                    Interaction::Hold
+                } else {
+                    Interaction::Predict
+                };
+                let m = model::<N>(
+                    &mut rng,
+                    interaction,
+                    Friction::Tanh { width: 0.1 },
+                    1 + case % 3,
+                );
+                let x = JointState {
+                    q: rng.vec(1.5),
+                    qd: rng.vec(3.0),
+                };
+                let u = rng.vec(20.0);
+                let inp = HorizonInputs {
+                    q_h: x.q + rng.vec(0.05),
+                    qd_h: x.qd + rng.vec(0.5),
+                    t_int_measured: rng.vec(5.0),
+                    disturbance: rng.vec(2.0),
+                };
+                let a = m.step_with_jacobian(&x, &u, 0.01, &inp);
+                assert_eq!(a, plain(&m, &x, &u, 0.01, &inp), "N = {N} case {case}");
+            }
+        }
+        run::<1>(21);
+        run::<2>(22);
+        run::<3>(23);
     }
 
     #[test]

@@ -878,8 +878,24 @@ impl RiccatiQp {
             info.status = QpStatus::NumericalError;
             return info;
         }
-        info.objective = self.objective();
+        info.objective = if info.status == QpStatus::Solved {
+            self.objective_at_solution()
+        } else {
+            self.objective()
+        };
         info
+    }
+
+    /// Objective at a solution: stationarity `H w + g + Eᵀν + mult = 0` (`E w = 0` the
+    /// dynamics) gives `wᵀ H w = −gᵀw − multᵀw`, so `½wᵀHw + gᵀw = ½(gᵀw − multᵀw)`: one pass
+    /// over the trajectory instead of the stage quadratic forms of [`Self::objective`] (equal to
+    /// rounding; unit test).
+    fn objective_at_solution(&self) -> f64 {
+        let mut f = 0.0;
+        for ((w, g), m) in self.sol.iter().zip(&self.g).zip(&self.mult) {
+            f += w * (g - m);
+        }
+        0.5 * f
     }
 }
 
@@ -963,7 +979,19 @@ fn all_finite(v: &[f64]) -> bool {
 
 /// In-place lower Cholesky factor of the `n × n` column-major `m` (upper part ignored).
 /// Returns `false` unless the matrix is numerically positive definite.
+/// The stage sizes of the NMPC (`n = 1, 2`) get their own unrolled copy of the same arithmetic.
+#[inline]
 pub(super) fn cholesky(m: &mut [f64], n: usize) -> bool {
+    match n {
+        1 => cholesky_n(m, 1),
+        2 => cholesky_n(m, 2),
+        _ => cholesky_n(m, n),
+    }
+}
+
+#[inline(always)]
+fn cholesky_n(m: &mut [f64], n: usize) -> bool {
+    let m = &mut m[..n * n];
     let mut maxd: f64 = 0.0;
     for i in 0..n {
         maxd = maxd.max(m[i * n + i].abs());
@@ -990,7 +1018,19 @@ pub(super) fn cholesky(m: &mut [f64], n: usize) -> bool {
 }
 
 /// Solves `L Lᵀ x = b` in place with the factor of [`cholesky`].
+/// Unrolled for `n = 1, 2` like [`cholesky`] (same arithmetic).
+#[inline]
 pub(super) fn chol_solve(l: &[f64], n: usize, b: &mut [f64]) {
+    match n {
+        1 => chol_solve_n(l, 1, b),
+        2 => chol_solve_n(l, 2, b),
+        _ => chol_solve_n(l, n, b),
+    }
+}
+
+#[inline(always)]
+fn chol_solve_n(l: &[f64], n: usize, b: &mut [f64]) {
+    let (l, b) = (&l[..n * n], &mut b[..n]);
     for i in 0..n {
         let mut s = b[i];
         for k in 0..i {
@@ -1124,6 +1164,34 @@ mod tests {
                 assert!(!general);
             }
         }
+    }
+
+    /// The objective from the stationarity identity equals the stage quadratic forms, with and
+    /// without active bounds.
+    #[test]
+    fn objective_at_solution_equals_the_quadratic_form() {
+        let mut with_active = 0;
+        for (nx, nu) in [(3, 1), (6, 2), (4, 3)] {
+            for (np, nc, seed) in [(1, 1, 1), (7, 4, 2), (12, 12, 3), (20, 9, 4)] {
+                for bound in [f64::INFINITY, 0.5, 0.05] {
+                    let mut qp = random_qp(nx, nu, np, nc, seed);
+                    for i in 0..qp.len() {
+                        qp.lo[i] = -bound;
+                        qp.hi[i] = bound;
+                    }
+                    let info = qp.solve();
+                    assert_eq!(info.status, QpStatus::Solved);
+                    with_active += usize::from(qp.num_active() > 0);
+                    let full = qp.objective();
+                    assert!(
+                        (info.objective - full).abs() <= 1e-10 * (1.0 + full.abs()),
+                        "{nx}x{nu} np {np} bound {bound}: {} vs {full}",
+                        info.objective
+                    );
+                }
+            }
+        }
+        assert!(with_active >= 10, "{with_active}");
     }
 
     /// The fixed-size kernels (the NMPC's 1-DOF and 2-DOF stages) equal the general slice
