@@ -944,15 +944,22 @@ pub(crate) fn held_congruence<const NX: usize, const NU: usize>(
             x[(r, c)] = s;
         }
     }
+    // The upper triangle, then mirrored. Computed on the full square (constant loop bounds,
+    // unrolled); the lower half is overwritten by the mirror, so the result is the same.
     let mut w = SMatrix::<f64, NX, NX>::zeros();
+    let at = a.transpose();
     for c in 0..NX {
-        for r in 0..=c {
+        for r in 0..NX {
             let mut s = if r >= ns { x[(r, c)] } else { 0.0 };
             for k in 0..ns {
-                s += a[(k, r)] * x[(k, c)];
+                s += at[(r, k)] * x[(k, c)];
             }
             w[(r, c)] = s;
-            w[(c, r)] = s;
+        }
+    }
+    for c in 0..NX {
+        for r in c + 1..NX {
+            w[(r, c)] = w[(c, r)];
         }
     }
     w
