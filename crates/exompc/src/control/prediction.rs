@@ -562,8 +562,7 @@ impl<const N: usize> PredictionModel<N> {
                     dq[i] = -q[i] + (inp.q_h[i] + tau * inp.qd_h[i]);
                     dqd[i] = -v[i] + inp.qd_h[i];
                 }
-                let t = self.straps.torque(&self.straps.force(&dq, &dqd));
-                (t, k.ks_jtj, k.cs_jtj)
+                (strap_torque(&self.straps, &dq, &dqd), k.ks_jtj, k.cs_jtj)
             }
         }
     }
@@ -666,6 +665,36 @@ impl<const N: usize> PredictionModel<N> {
             minv,
         }
     }
+}
+
+/// `Straps::torque(Straps::force(dq, dqd))` in `f64` without the tests for zero entries of `J`:
+/// a zero entry adds `±0` to a sum, which leaves it unchanged, so for finite arguments the value
+/// is the same (test `branch_free_strap_torque_equals_the_straps_code`).
+#[inline(always)]
+fn strap_torque<const N: usize>(
+    straps: &Straps<N>,
+    dq: &SVector<f64, N>,
+    dqd: &SVector<f64, N>,
+) -> SVector<f64, N> {
+    let j = &straps.j;
+    let mut f = [0.0; N];
+    for (s, fs) in f.iter_mut().enumerate() {
+        let mut acc = 0.0;
+        for i in 0..N {
+            let jsi = j[(s, i)];
+            acc += dq[i] * (straps.stiffness * jsi) + dqd[i] * (straps.damping * jsi);
+        }
+        *fs = acc;
+    }
+    let mut t = SVector::<f64, N>::zeros();
+    for i in 0..N {
+        let mut acc = 0.0;
+        for (s, fs) in f.iter().enumerate() {
+            acc += fs * j[(s, i)];
+        }
+        t[i] = acc;
+    }
+    t
 }
 
 /// Coulomb friction of one joint speed and its derivative (smooth or sign).
@@ -941,6 +970,31 @@ mod tests {
             assert_eq!(a.a_v, b.a_v, "case {case}");
             assert_eq!(a.minv, b.minv, "case {case}");
         }
+    }
+
+    /// The branch-free strap torque of the Jacobian code equals `Straps::torque(Straps::force)`
+    /// for finite arguments, with and without zero entries in `J`.
+    #[test]
+    fn branch_free_strap_torque_equals_the_straps_code() {
+        fn run<const N: usize>(seed: u64) {
+            let mut rng = Lcg(seed);
+            for case in 0..500 {
+                let mut m = model::<N>(&mut rng, Interaction::Predict, Friction::Sign, 1);
+                if case % 2 == 0 {
+                    m.straps.j[(N - 1, 0)] = 0.0;
+                }
+                let (dq, dqd) = (rng.vec::<N>(0.1), rng.vec::<N>(2.0));
+                let want = m.straps.torque(&m.straps.force(&dq, &dqd));
+                assert_eq!(
+                    strap_torque(&m.straps, &dq, &dqd),
+                    want,
+                    "N = {N} case {case}"
+                );
+            }
+        }
+        run::<1>(31);
+        run::<2>(32);
+        run::<3>(33);
     }
 
     /// `step_with_jacobian` (with the shortened first substep) gives the numbers of the plain
