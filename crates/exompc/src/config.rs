@@ -856,6 +856,8 @@ impl Scenario {
                 ("human_bandwidth_hz", rb.human_bandwidth_hz, R::Pos),
                 ("release_s", rb.release_s, R::Closed(0.0, 1e6)),
                 ("ekf_force_lead", rb.ekf_force_lead, R::Closed(0.0, 3.0)),
+                ("disturbance_lead", rb.disturbance_lead, R::Closed(0.0, 3.0)),
+                ("disturbance_q", rb.disturbance_q, R::NonNeg),
             ],
         )?;
 
