@@ -528,7 +528,7 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
         let mut mi = *m;
         let mut stretch = None;
         if let Some(r) = self.robust.as_mut() {
-            if r.observe(m, gap) {
+            if r.observe(m, &self.prev, gap) {
                 let p = self.bank.probabilities();
                 let mut qd = SVector::<f64, N>::zeros();
                 for (f, pi) in self.bank.filters().iter().zip(p) {

@@ -8,7 +8,8 @@
 //! the filtered one, and so does the EKF's strap-torque input. It removes the limit cycles of
 //! the paper's method (heavy legs, long filters, stiff straps) but tracks less tightly where the
 //! paper's method is stable, so by default it engages when the [`HfShareDetector`] sees an
-//! interaction oscillation, and then stays engaged.
+//! interaction oscillation in the strap forces or in the controller's own torque, and then
+//! stays engaged.
 //!
 //! More extensions act from the first step: the intent gains follow the strap stiffness
 //! ([`RobustIntentGains::StrapModel`], the default; identical to the configured gains at the
@@ -96,6 +97,22 @@ pub struct RobustSettings {
     /// `disturbance_lead = 0` and `disturbance_q = 0` there is no disturbance bank (the
     /// paper's `d̂`). Default 1e-3.
     pub disturbance_q: f64,
+    /// With `"on_oscillation"`: the filter-aware mode also engages on an oscillation of the
+    /// controller's own torque — the signal of the safety layer's torque-oscillation monitor,
+    /// seen earlier and with lower thresholds, so that the start-up swing of a heavy or distal
+    /// load engages the mode before the monitor trips: the torque high-passed at
+    /// [`Self::torque_oscillation_cutoff_hz`], averaged over
+    /// [`Self::torque_oscillation_window_s`], above this RMS (N·m) and above
+    /// [`Self::torque_oscillation_fraction`] of the torque's power. >= 0; 0 = off (the strap
+    /// force detector alone). Default 3.
+    pub torque_oscillation_nm: f64,
+    /// Averaging time (s) of the torque detector, in (0, 10]. Default 0.1.
+    pub torque_oscillation_window_s: f64,
+    /// Cut-off (Hz) of the torque detector's high-pass, > 0. Default 4.
+    pub torque_oscillation_cutoff_hz: f64,
+    /// Share of the torque power above the cut-off that counts as oscillation, in
+    /// [0, 0.999]. Default 0.5.
+    pub torque_oscillation_fraction: f64,
 }
 
 /// The strap stiffness (N/m) at which the paper's intent gains hold (paper Table 1,
@@ -142,6 +159,10 @@ impl Default for RobustSettings {
             intent_gains: RobustIntentGains::StrapModel,
             disturbance_lead: 0.5,
             disturbance_q: 1e-3,
+            torque_oscillation_nm: 3.0,
+            torque_oscillation_window_s: 0.1,
+            torque_oscillation_cutoff_hz: 4.0,
+            torque_oscillation_fraction: 0.5,
         }
     }
 }
@@ -161,6 +182,9 @@ pub(crate) struct RobustState<const N: usize> {
     /// Lead (samples) of the disturbance bank's strap force (0 = no disturbance bank).
     dlead: f64,
     dq: f64,
+    /// Detector on the controller's own torque ([`RobustSettings::torque_oscillation_nm`]).
+    torque_det: HfShareDetector<N>,
+    torque_on: bool,
     last_force: Option<SVector<f64, N>>,
 }
 
@@ -182,20 +206,38 @@ impl<const N: usize> RobustState<N> {
             lead: s.ekf_force_lead * (window.max(1) - 1) as f64 / 2.0,
             dlead: s.disturbance_lead * (window.max(1) - 1) as f64 / 2.0,
             dq: s.disturbance_q,
+            torque_det: HfShareDetector::new(
+                dt,
+                s.torque_oscillation_cutoff_hz,
+                s.torque_oscillation_window_s,
+                s.torque_oscillation_fraction,
+                s.torque_oscillation_nm,
+            ),
+            torque_on: s.torque_oscillation_nm > 0.0,
             last_force: None,
         }
     }
 
-    /// Record measurement `m`; `gap` restarts the angle history (first sample or skipped
-    /// periods). Returns whether the filter-aware mode is engaged for this step.
-    pub(crate) fn observe(&mut self, m: &Measurement<N>, gap: bool) -> bool {
+    /// Record measurement `m` and the controller's previous torque `torque`; `gap` restarts
+    /// the angle history (first sample or skipped periods). Returns whether the filter-aware
+    /// mode is engaged for this step.
+    pub(crate) fn observe(
+        &mut self,
+        m: &Measurement<N>,
+        torque: &SVector<f64, N>,
+        gap: bool,
+    ) -> bool {
         if gap {
             self.lag.reset();
             self.detector.reset();
             self.last_force = None;
+            self.torque_det.reset();
         }
         self.lag.push(&m.q);
-        let osc = self.detector.push(&m.force);
+        let mut osc = self.detector.push(&m.force);
+        if self.torque_on {
+            osc |= self.torque_det.push(torque);
+        }
         if self.mode == FilterAware::OnOscillation {
             if osc {
                 self.engaged = true;
