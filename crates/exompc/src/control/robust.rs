@@ -111,7 +111,7 @@ pub struct RobustSettings {
     /// Cut-off (Hz) of the torque detector's high-pass, > 0. Default 4.
     pub torque_oscillation_cutoff_hz: f64,
     /// Share of the torque power above the cut-off that counts as oscillation, in
-    /// [0, 0.999]. Default 0.5.
+    /// [0, 0.999]. Default 0.6.
     pub torque_oscillation_fraction: f64,
 }
 
@@ -162,7 +162,7 @@ impl Default for RobustSettings {
             torque_oscillation_nm: 3.0,
             torque_oscillation_window_s: 0.1,
             torque_oscillation_cutoff_hz: 4.0,
-            torque_oscillation_fraction: 0.5,
+            torque_oscillation_fraction: 0.6,
         }
     }
 }
