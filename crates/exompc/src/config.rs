@@ -856,6 +856,24 @@ impl Scenario {
                 ("human_bandwidth_hz", rb.human_bandwidth_hz, R::Pos),
                 ("release_s", rb.release_s, R::Closed(0.0, 1e6)),
                 ("ekf_force_lead", rb.ekf_force_lead, R::Closed(0.0, 3.0)),
+                ("disturbance_lead", rb.disturbance_lead, R::Closed(0.0, 3.0)),
+                ("disturbance_q", rb.disturbance_q, R::NonNeg),
+                ("torque_oscillation_nm", rb.torque_oscillation_nm, R::NonNeg),
+                (
+                    "torque_oscillation_window_s",
+                    rb.torque_oscillation_window_s,
+                    R::OpenClosed(0.0, 10.0),
+                ),
+                (
+                    "torque_oscillation_cutoff_hz",
+                    rb.torque_oscillation_cutoff_hz,
+                    R::Pos,
+                ),
+                (
+                    "torque_oscillation_fraction",
+                    rb.torque_oscillation_fraction,
+                    R::Closed(0.0, 0.999),
+                ),
             ],
         )?;
 

@@ -125,6 +125,12 @@ fn method_and_robust_settings_are_configured_and_validated() {
         RobustIntentGains::StrapModel
     );
     assert_eq!(s.controller.robust.ekf_force_lead, 0.0);
+    assert_eq!(s.controller.robust.disturbance_lead, 0.5);
+    assert_eq!(s.controller.robust.disturbance_q, 1e-3);
+    assert_eq!(s.controller.robust.torque_oscillation_nm, 3.0);
+    assert_eq!(s.controller.robust.torque_oscillation_window_s, 0.1);
+    assert_eq!(s.controller.robust.torque_oscillation_cutoff_hz, 4.0);
+    assert_eq!(s.controller.robust.torque_oscillation_fraction, 0.6);
     for (set, field) in [
         (
             (|s: &mut Scenario| s.controller.robust.oscillation_fraction = 1.0)
@@ -158,6 +164,34 @@ fn method_and_robust_settings_are_configured_and_validated() {
         (
             |s: &mut Scenario| s.controller.robust.ekf_force_lead = -0.1,
             "controller.robust.ekf_force_lead",
+        ),
+        (
+            |s: &mut Scenario| s.controller.robust.disturbance_lead = 3.5,
+            "controller.robust.disturbance_lead",
+        ),
+        (
+            |s: &mut Scenario| s.controller.robust.disturbance_q = -1e-3,
+            "controller.robust.disturbance_q",
+        ),
+        (
+            |s: &mut Scenario| s.controller.robust.disturbance_q = f64::INFINITY,
+            "controller.robust.disturbance_q",
+        ),
+        (
+            |s: &mut Scenario| s.controller.robust.torque_oscillation_nm = -1.0,
+            "controller.robust.torque_oscillation_nm",
+        ),
+        (
+            |s: &mut Scenario| s.controller.robust.torque_oscillation_window_s = 0.0,
+            "controller.robust.torque_oscillation_window_s",
+        ),
+        (
+            |s: &mut Scenario| s.controller.robust.torque_oscillation_cutoff_hz = 0.0,
+            "controller.robust.torque_oscillation_cutoff_hz",
+        ),
+        (
+            |s: &mut Scenario| s.controller.robust.torque_oscillation_fraction = 1.0,
+            "controller.robust.torque_oscillation_fraction",
         ),
     ] {
         let mut bad = Scenario::default();
@@ -248,15 +282,69 @@ fn robust_default_holds_where_the_paper_method_limit_cycles() {
     }
 }
 
-/// On the default scenario the robust method never engages and equals the paper's run.
+/// On the default scenario the robust method's filter-aware mode never engages: without the
+/// disturbance bank (`disturbance_lead = disturbance_q = 0`) it equals the paper's run bit for
+/// bit; with it (the default) it differs only through the predictions' `d̂`, and stays within
+/// 3 % of the paper's RMS forces (the golden tolerance of tests/golden.rs).
 #[test]
 fn robust_default_equals_the_paper_method_on_the_default_scenario() {
     let mut s = Scenario::default();
     s.uncertainty.payload_kg = 2.0;
     let mut p = s.clone();
     p.controller.method = Method::Paper;
-    let (a, b) = (run2(&s), run2(&p));
-    assert_eq!(a.0, b.0);
+    let mut nobank = s.clone();
+    nobank.controller.robust.disturbance_lead = 0.0;
+    nobank.controller.robust.disturbance_q = 0.0;
+    let (a, b, c) = (run2(&s), run2(&p), run2(&nobank));
+    assert_eq!(c.0, b.0);
+    assert_ne!(a.0, b.0, "the disturbance bank changed nothing");
+    for i in 0..2 {
+        assert!(
+            (a.0[i] - b.0[i]).abs() <= 0.03 * b.0[i],
+            "robust {:?} vs paper {:?}",
+            a.0,
+            b.0
+        );
+    }
+}
+
+/// Envelope cells "gait 1.1 Hz" and "filter window 7" at 0 kg (the exact model is the plain
+/// NMPC's): the paper bank's `d̂` absorbs the moving average's lag torque and the robust
+/// MS-NMPC was worse than 1.1× the plain NMPC; the disturbance bank (its slower, force-led
+/// `d̂`, the default) brings it within the cell's bound, and turning it off fails the cell
+/// again (so the test sees a regression of the setting).
+#[test]
+fn disturbance_bank_passes_the_lag_cells_at_0_kg() {
+    type Cell = (&'static str, fn(&mut Scenario));
+    let cells: [Cell; 2] = [
+        ("gait 1.1 Hz", |s| {
+            s.trajectory.swing.base_frequency_hz = 1.1
+        }),
+        ("filter window 7", |s| s.uncertainty.filter_window = 7),
+    ];
+    for (name, change) in cells {
+        let mut s = Scenario::default();
+        change(&mut s);
+        s.uncertainty.payload_kg = 0.0;
+        let (robust, hf) = run2(&s);
+        let mut off = s.clone();
+        off.controller.robust.disturbance_lead = 0.0;
+        off.controller.robust.disturbance_q = 0.0;
+        let (off, _) = run2(&off);
+        let mut nmpc = s.clone();
+        nmpc.controller.kind = ControllerKind::NMPC;
+        let (nmpc, _) = run2(&nmpc);
+        let within = |f: &[f64]| (0..2).all(|a| f[a] <= 1.1 * nmpc[a]);
+        assert!(
+            within(&robust) && hf.iter().all(|h| *h < 0.25),
+            "{name}: robust {robust:?} (HF {hf:?}) vs NMPC {nmpc:?}"
+        );
+        assert!(
+            !within(&off),
+            "{name}: without the disturbance bank {off:?} vs NMPC {nmpc:?}: the cell no \
+             longer tests the setting"
+        );
+    }
 }
 
 /// Envelope cell "straps ×2" at 0 kg (strap stiffness 1875 N/m, damping 187.4 N·s/m): with
@@ -299,4 +387,50 @@ fn strap_model_intent_gains_pass_the_stiff_straps_cell() {
         "with the configured gains the shank is {configured:?} with {configured_trips} trips: \
          the cell no longer tests the setting"
     );
+}
+
+/// Envelope cells "payload at 0.30 m" and "gait 1.1 Hz" at 3 kg: the start-up swing of the
+/// heavy load (at 0.30 m the torque reaches −22 N·m within 0.12 s and swings back) made the
+/// safety layer's torque-oscillation monitor trip at 0.2-0.25 s, before the strap-force
+/// detector could engage the filter-aware mode. The torque detector
+/// (`torque_oscillation_nm`, the default) engages it first: no monitor trip, every strap below
+/// 20 N and below the plain NMPC's RMS; with the torque detector off the monitor trips again
+/// (so the test sees a regression of the setting).
+#[test]
+fn torque_detector_passes_the_heavy_start_up_cells() {
+    type Cell = (&'static str, fn(&mut Scenario));
+    let cells: [Cell; 2] = [
+        ("payload at 0.30 m", |s| s.robot.payload_position_m = 0.30),
+        ("gait 1.1 Hz", |s| {
+            s.trajectory.swing.base_frequency_hz = 1.1
+        }),
+    ];
+    let run = |s: &Scenario| {
+        let mut log = TraceLog::<2>::default();
+        let sum = run_experiment::<TwoDof, 2>(s, &mut [&mut log]).expect("run");
+        (rms_and_hf(&log).0, sum.safety.monitor_trips)
+    };
+    for (name, change) in cells {
+        let mut s = Scenario::default();
+        change(&mut s);
+        s.uncertainty.payload_kg = 3.0;
+        let (robust, trips) = run(&s);
+        let mut off = s.clone();
+        off.controller.robust.torque_oscillation_nm = 0.0;
+        let (_, off_trips) = run(&off);
+        let mut nmpc = s.clone();
+        nmpc.controller.kind = ControllerKind::NMPC;
+        let (nmpc, _) = run(&nmpc);
+        assert_eq!(trips, 0, "{name}: robust MS-NMPC tripped a monitor");
+        for a in 0..2 {
+            assert!(
+                robust[a] < 20.0 && robust[a] <= nmpc[a],
+                "{name}: robust RMS {robust:?} vs NMPC {nmpc:?}"
+            );
+        }
+        assert!(
+            off_trips > 0,
+            "{name}: without the torque detector no monitor trips: the cell no longer tests it"
+        );
+    }
 }

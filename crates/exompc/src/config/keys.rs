@@ -413,6 +413,12 @@ pub const KEYS: &[KeyDoc] = &[
     k("controller.robust.human_bandwidth_hz", "Hz", POS, ROB, "Bandwidth of the human's motion in the Smith predictor."),
     k("controller.robust.release_s", "s", real(closed(0.0), closed(1e6)), ROB, "Return to the paper's estimate after this long without oscillation; 0 = stay engaged."),
     k("controller.robust.ekf_force_lead", "-", real(closed(0.0), closed(3.0)), ROB, "Lead of the EKF's strap-force input, as a share of the moving average's delay (w-1)/2 samples; 0 = the filtered force."),
+    k("controller.robust.disturbance_lead", "-", real(closed(0.0), closed(3.0)), ROB, "Lead of the disturbance bank's strap-force input (the second EKF bank whose d̂ the predictions take), as a share of the moving average's delay (w-1)/2 samples."),
+    k("controller.robust.disturbance_q", "(N·m)²", NONNEG, ROB, "Random-walk variance of the disturbance bank's d̂ per step; 0 = ekf.q_disturbance (and no bank if disturbance_lead is 0 too)."),
+    k("controller.robust.torque_oscillation_nm", "N·m", NONNEG, ROB, "With on_oscillation: also engage when the controller's own torque, high-passed, has this RMS (and the share below); 0 = off."),
+    k("controller.robust.torque_oscillation_window_s", "s", real(open(0.0), closed(10.0)), ROB, "Averaging time of the torque detector."),
+    k("controller.robust.torque_oscillation_cutoff_hz", "Hz", POS, ROB, "Cut-off of the torque detector's high-pass."),
+    k("controller.robust.torque_oscillation_fraction", "-", real(closed(0.0), closed(0.999)), ROB, "Share of the torque power above the cut-off that counts as oscillation."),
     k("controller.robust.intent_gains", "", Allowed::Choice(&["strap_model", "configured"]), ROB, "Intent gains of the robust method: controller.k1/k2 scaled by 937.5 N/m / straps.stiffness (equal at the default straps), or as configured."),
     // [multistage]
     table("multistage", M8, "Scenario tree and probabilities of the multi-stage NMPC (paper eqs. 10-13)."),

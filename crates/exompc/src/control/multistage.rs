@@ -342,6 +342,14 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     last_t: f64,
     /// Robust extensions (`[controller] method = "robust"`); `None` = the paper's method.
     robust: Option<RobustState<N>>,
+    /// The robust method's disturbance bank ([`RobustSettings::disturbance_lead`]): a copy of
+    /// the bank stepped with the led strap force, whose `d̂ᵢ` the predictions take; its
+    /// probabilities are not used. `None` = `d̂ᵢ` from `bank`.
+    dbank: Option<EkfBank<N, NA, NY>>,
+    /// The strap force the disturbance bank saw at the previous step, per scenario.
+    prev_dforce: Vec<SVector<f64, N>>,
+    ekf: EkfSettings,
+    estimator: EstimatorOptions,
 }
 
 impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
@@ -401,13 +409,29 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             started: false,
             last_t: 0.0,
             robust: None,
+            dbank: None,
+            prev_dforce: vec![zero; s],
+            ekf: *ekf,
+            estimator: *estimator,
         })
     }
 
     /// Enable the robust extensions of [`RobustSettings`] for a sensor filter of `window`
     /// samples (see `control/robust.rs`); without this call the controller is the paper's.
     pub fn with_robust(mut self, settings: &RobustSettings, window: usize) -> Self {
-        self.robust = Some(RobustState::new(settings, window, self.models[0].dt));
+        let r = RobustState::new(settings, window, self.models[0].dt);
+        if r.disturbance_bank() {
+            let mut ekf = self.ekf;
+            if r.disturbance_q() > 0.0 {
+                ekf.q_disturbance = r.disturbance_q();
+            }
+            let robots: Vec<_> = self.models.iter().map(|m| m.robot).collect();
+            let zero = SVector::zeros();
+            // The settings passed the paper's bank's checks in `new`, and `q_disturbance` is
+            // positive, so this succeeds.
+            self.dbank = EkfBank::new(&robots, &ekf, &self.estimator, &zero, &zero).ok();
+        }
+        self.robust = Some(r);
         self
     }
 
@@ -473,17 +497,28 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
         let gap = !self.started || m.t - self.last_t > 1.5 * dt;
         if !self.started {
             self.bank.reset_to(&m.q, &m.qd);
+            if let Some(b) = self.dbank.as_mut() {
+                b.reset_to(&m.q, &m.qd);
+            }
             self.started = true;
         } else if m.t - self.last_t > 1.5 * dt {
             // Periods were skipped (e.g. a supervisor rejected bad data): restart the filters'
             // joint states at the measurement, keep d̂ and the probabilities.
             self.bank.resume_at(&m.q, &m.qd);
+            if let Some(b) = self.dbank.as_mut() {
+                b.resume_at(&m.q, &m.qd);
+            }
         } else {
             // A failed filter keeps its state and the probabilities; the controller goes on.
             let (models, forces) = (&self.models, &self.prev_force);
             let _ = self
                 .bank
                 .step_per_scenario(&y, &self.prev, |i| models[i].straps.torque(&forces[i]));
+            if let Some(b) = self.dbank.as_mut() {
+                let forces = &self.prev_dforce;
+                let _ =
+                    b.step_per_scenario(&y, &self.prev, |i| models[i].straps.torque(&forces[i]));
+            }
         }
         self.last_t = m.t;
         let mut x0 = JointState { q: m.q, qd: m.qd };
@@ -493,7 +528,7 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
         let mut mi = *m;
         let mut stretch = None;
         if let Some(r) = self.robust.as_mut() {
-            if r.observe(m, gap) {
+            if r.observe(m, &self.prev, gap) {
                 let p = self.bank.probabilities();
                 let mut qd = SVector::<f64, N>::zeros();
                 for (f, pi) in self.bank.filters().iter().zip(p) {
@@ -506,18 +541,23 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
                 }
             }
         }
-        let ekf_force = match self.robust.as_mut() {
-            Some(r) => r.ekf_force(&m.force),
-            None => m.force,
+        let (ekf_force, dist_force) = match self.robust.as_mut() {
+            Some(r) => r.ekf_forces(&m.force),
+            None => (m.force, m.force),
         };
         for i in 0..self.models.len() {
             if let Some((dq, dqd)) = &stretch {
                 mi.force = m.force - self.models[i].straps.force(dq, dqd);
                 self.prev_force[i] = mi.force;
+                self.prev_dforce[i] = mi.force;
             } else {
                 self.prev_force[i] = ekf_force;
+                self.prev_dforce[i] = dist_force;
             }
-            self.dist[i] = self.bank.disturbance(i);
+            self.dist[i] = match &self.dbank {
+                Some(b) => b.disturbance(i),
+                None => self.bank.disturbance(i),
+            };
             self.inputs[i] = horizon_inputs(&self.intent, &self.models[i], &mi, self.dist[i]);
         }
         self.weights.copy_from_slice(self.bank.probabilities());

@@ -8,12 +8,16 @@
 //! the filtered one, and so does the EKF's strap-torque input. It removes the limit cycles of
 //! the paper's method (heavy legs, long filters, stiff straps) but tracks less tightly where the
 //! paper's method is stable, so by default it engages when the [`HfShareDetector`] sees an
-//! interaction oscillation, and then stays engaged.
+//! interaction oscillation in the strap forces or in the controller's own torque, and then
+//! stays engaged.
 //!
-//! Two more extensions act from the first step: the intent gains follow the strap stiffness
+//! More extensions act from the first step: the intent gains follow the strap stiffness
 //! ([`RobustIntentGains::StrapModel`], the default; identical to the configured gains at the
-//! paper's straps), and optionally the EKF's strap-torque input is led by a share of the
-//! moving average's delay ([`RobustSettings::ekf_force_lead`], default off).
+//! paper's straps); the predictions take their disturbance estimates from a second EKF bank
+//! with a slower random walk and a led strap-force input ([`RobustSettings::disturbance_q`],
+//! [`RobustSettings::disturbance_lead`]; the probabilities stay the paper's bank's); and
+//! optionally the EKF's strap-torque input is led by a share of the moving average's delay
+//! ([`RobustSettings::ekf_force_lead`], default off).
 
 use super::intent::{GainSetting, IntentGain};
 use super::lag::{ForceLag, HfShareDetector};
@@ -79,6 +83,36 @@ pub struct RobustSettings {
     /// or `"configured"` (`controller.k1`, `k2` as they are, the paper's). Default
     /// `"strap_model"`.
     pub intent_gains: RobustIntentGains,
+    /// Lead of the strap-force input of the *disturbance bank*, as a share `λ_d` of the moving
+    /// average's delay `(w−1)/2` samples, like [`Self::ekf_force_lead`]. The disturbance bank is
+    /// a second EKF bank (same scenarios and `[ekf]` settings except
+    /// [`Self::disturbance_q`]) that supplies only the disturbance estimates `d̂ᵢ` fed to the
+    /// predictions; the scenario probabilities `μᵢ` stay the paper's bank's. In the paper's
+    /// bank `d̂` absorbs the filter's lag torque `Jᵀ(F − F̄)`, which the prediction then holds
+    /// over the horizon (docs/ROBUSTNESS.md, fifth pass). In [0, 3]. Default 0.5.
+    pub disturbance_lead: f64,
+    /// Random-walk variance ((N·m)² per step) of the disturbance bank's `d̂` (the `[ekf]
+    /// q_disturbance` of the paper's bank is 1e-2: a slower `d̂` follows a payload mismatch
+    /// but not the gait-frequency lag torque). >= 0; 0 = `[ekf] q_disturbance`. With
+    /// `disturbance_lead = 0` and `disturbance_q = 0` there is no disturbance bank (the
+    /// paper's `d̂`). Default 1e-3.
+    pub disturbance_q: f64,
+    /// With `"on_oscillation"`: the filter-aware mode also engages on an oscillation of the
+    /// controller's own torque — the signal of the safety layer's torque-oscillation monitor,
+    /// seen earlier and with lower thresholds, so that the start-up swing of a heavy or distal
+    /// load engages the mode before the monitor trips: the torque high-passed at
+    /// [`Self::torque_oscillation_cutoff_hz`], averaged over
+    /// [`Self::torque_oscillation_window_s`], above this RMS (N·m) and above
+    /// [`Self::torque_oscillation_fraction`] of the torque's power. >= 0; 0 = off (the strap
+    /// force detector alone). Default 3.
+    pub torque_oscillation_nm: f64,
+    /// Averaging time (s) of the torque detector, in (0, 10]. Default 0.1.
+    pub torque_oscillation_window_s: f64,
+    /// Cut-off (Hz) of the torque detector's high-pass, > 0. Default 4.
+    pub torque_oscillation_cutoff_hz: f64,
+    /// Share of the torque power above the cut-off that counts as oscillation, in
+    /// [0, 0.999]. Default 0.6.
+    pub torque_oscillation_fraction: f64,
 }
 
 /// The strap stiffness (N/m) at which the paper's intent gains hold (paper Table 1,
@@ -123,6 +157,12 @@ impl Default for RobustSettings {
             release_s: 0.0,
             ekf_force_lead: 0.0,
             intent_gains: RobustIntentGains::StrapModel,
+            disturbance_lead: 0.5,
+            disturbance_q: 1e-3,
+            torque_oscillation_nm: 3.0,
+            torque_oscillation_window_s: 0.1,
+            torque_oscillation_cutoff_hz: 4.0,
+            torque_oscillation_fraction: 0.6,
         }
     }
 }
@@ -139,6 +179,12 @@ pub(crate) struct RobustState<const N: usize> {
     quiet: usize,
     /// Lead (samples) of the EKF's strap force while not engaged, and the last filtered force.
     lead: f64,
+    /// Lead (samples) of the disturbance bank's strap force (0 = no disturbance bank).
+    dlead: f64,
+    dq: f64,
+    /// Detector on the controller's own torque ([`RobustSettings::torque_oscillation_nm`]).
+    torque_det: HfShareDetector<N>,
+    torque_on: bool,
     last_force: Option<SVector<f64, N>>,
 }
 
@@ -158,20 +204,40 @@ impl<const N: usize> RobustState<N> {
             release_steps: (s.release_s / dt).round() as usize,
             quiet: 0,
             lead: s.ekf_force_lead * (window.max(1) - 1) as f64 / 2.0,
+            dlead: s.disturbance_lead * (window.max(1) - 1) as f64 / 2.0,
+            dq: s.disturbance_q,
+            torque_det: HfShareDetector::new(
+                dt,
+                s.torque_oscillation_cutoff_hz,
+                s.torque_oscillation_window_s,
+                s.torque_oscillation_fraction,
+                s.torque_oscillation_nm,
+            ),
+            torque_on: s.torque_oscillation_nm > 0.0,
             last_force: None,
         }
     }
 
-    /// Record measurement `m`; `gap` restarts the angle history (first sample or skipped
-    /// periods). Returns whether the filter-aware mode is engaged for this step.
-    pub(crate) fn observe(&mut self, m: &Measurement<N>, gap: bool) -> bool {
+    /// Record measurement `m` and the controller's previous torque `torque`; `gap` restarts
+    /// the angle history (first sample or skipped periods). Returns whether the filter-aware
+    /// mode is engaged for this step.
+    pub(crate) fn observe(
+        &mut self,
+        m: &Measurement<N>,
+        torque: &SVector<f64, N>,
+        gap: bool,
+    ) -> bool {
         if gap {
             self.lag.reset();
             self.detector.reset();
             self.last_force = None;
+            self.torque_det.reset();
         }
         self.lag.push(&m.q);
-        let osc = self.detector.push(&m.force);
+        let mut osc = self.detector.push(&m.force);
+        if self.torque_on {
+            osc |= self.torque_det.push(torque);
+        }
         if self.mode == FilterAware::OnOscillation {
             if osc {
                 self.engaged = true;
@@ -189,14 +255,27 @@ impl<const N: usize> RobustState<N> {
 
     /// The strap force the EKF takes as its input while the filter-aware mode is not engaged:
     /// the filtered force `f` led by [`RobustSettings::ekf_force_lead`] (the filtered force
-    /// itself on the first sample after a gap or with no lead). Call once per step.
-    pub(crate) fn ekf_force(&mut self, f: &SVector<f64, N>) -> SVector<f64, N> {
-        let out = match self.last_force {
-            Some(prev) if self.lead > 0.0 => f + (f - prev) * self.lead,
+    /// itself on the first sample after a gap or with no lead), and the one the disturbance
+    /// bank takes, led by [`RobustSettings::disturbance_lead`]. Call once per step.
+    pub(crate) fn ekf_forces(&mut self, f: &SVector<f64, N>) -> (SVector<f64, N>, SVector<f64, N>) {
+        let led = |lead: f64| match self.last_force {
+            Some(prev) if lead > 0.0 => f + (f - prev) * lead,
             _ => *f,
         };
+        let out = (led(self.lead), led(self.dlead));
         self.last_force = Some(*f);
         out
+    }
+
+    /// Whether a second EKF bank supplies the disturbance estimates
+    /// ([`RobustSettings::disturbance_lead`] > 0).
+    pub(crate) fn disturbance_bank(&self) -> bool {
+        self.dlead > 0.0 || self.dq > 0.0
+    }
+
+    /// The disturbance bank's random-walk variance (0 = the `[ekf]` one).
+    pub(crate) fn disturbance_q(&self) -> f64 {
+        self.dq
     }
 
     /// Record the lag-free velocity `qd_now` of this period and return the strap stretch and
@@ -233,7 +312,7 @@ mod tests {
                 let mut r = RobustState::<2>::new(&s, w, dt);
                 for k in w..40 {
                     let filtered = (k + 1 - w..=k).map(truth).sum::<SVector<f64, 2>>() / w as f64;
-                    let out = r.ekf_force(&filtered);
+                    let out = r.ekf_forces(&filtered).0;
                     if k > w {
                         let want = if want_true { truth(k) } else { filtered };
                         assert!(
