@@ -26,6 +26,14 @@ pub trait LeastSquares {
     /// Writes `r(z)` into `r` and its Jacobian `∂r/∂z` (`m × n`) into `jac`; returns `false` if
     /// anything is non-finite.
     fn residuals_jacobian(&mut self, z: &[f64], r: &mut [f64], jac: &mut DMatrix<f64>) -> bool;
+    /// Adds the second-order term `Σᵢ rᵢ ∇²rᵢ(z)` of the cost Hessian (`n × n`) to `hess`, with
+    /// `r = r(z)`; used by [`HessianModel::Exact`]. Returns `false` when the problem does not
+    /// provide it (the default) or anything is non-finite; the SQP then takes the
+    /// Gauss–Newton step.
+    fn add_residual_curvature(&mut self, z: &[f64], r: &[f64], hess: &mut DMatrix<f64>) -> bool {
+        let _ = (z, r, hess);
+        false
+    }
 }
 
 /// Box and general linear constraints `zl ≤ z ≤ zu`, `bl ≤ A z ≤ bu` (entries may be ±∞;
@@ -192,6 +200,16 @@ pub enum HessianModel {
     /// not positive definite the iteration falls back to Gauss–Newton (`S` reset). Each solve
     /// starts from `S = 0`, so its first step is the Gauss–Newton step.
     StructuredSecant,
+    /// The exact Hessian `JᵀJ + Σ rᵢ ∇²rᵢ` (the constraints are linear, so this is the
+    /// Lagrangian Hessian): for the NMPC problem the stage blocks `W_j = ∇²(λ_{j+1}ᵀ Φ_j)` of the
+    /// RK4 prediction step with the adjoint `λ` (forward-mode AD; `control::StepHessian`),
+    /// condensed in the dense back-end and passed as `Q_j`, `R_j`, `S_j` blocks to the Riccati QP
+    /// in the structured one, as in acados/HPIPM. Locally quadratic convergence. Safeguard,
+    /// identical in both back-ends: when the QP reports a Hessian that is not positive definite
+    /// (`QpStatus::NumericalError`), that iteration takes the Gauss–Newton step. Problems that
+    /// do not provide the curvature ([`LeastSquares::add_residual_curvature`]) and the coupled
+    /// scenario tree use Gauss–Newton.
+    Exact,
 }
 
 /// Termination status of an SQP solve. Only `Converged` certifies a KKT point; every other
@@ -520,6 +538,24 @@ impl<P: LeastSquares + ?Sized> SqpSteps for DenseSteps<'_, P> {
         let w = &mut *self.w;
         w.gauss_newton_hessian();
         w.shift_bounds(self.cons, z);
+        if w.settings.hessian == HessianModel::Exact {
+            let curved =
+                self.problem
+                    .add_residual_curvature(z.as_slice(), w.r.as_slice(), &mut w.hess);
+            if !curved {
+                w.gauss_newton_hessian();
+                return w.solve_step_qp(self.cons);
+            }
+            let qi = w.solve_step_qp(self.cons);
+            if qi.status == QpStatus::NumericalError {
+                // JᵀJ + Σ rᵢ∇²rᵢ not positive definite: the Gauss–Newton step this iteration.
+                w.gauss_newton_hessian();
+                let mut retry = w.solve_step_qp(self.cons);
+                retry.iterations += qi.iterations;
+                return retry;
+            }
+            return qi;
+        }
         if w.secant_active {
             w.hess += &w.secant;
         }
