@@ -22,7 +22,7 @@ use super::nmpc::{NmpcProblem, NmpcSettings};
 use super::prediction::StepJacobian;
 use super::TorqueLimits;
 use crate::model::JointState;
-use crate::solver::engine::{self, finite_or_inf, BoundCheck, SqpSteps};
+use crate::solver::engine::{self, finite_or_inf, BoundCheck, HessianShift, SqpSteps};
 use crate::solver::riccati::held_congruence;
 use crate::solver::{
     HessianModel, QpInfo, QpStatus, RiccatiQp, SolverError, SqpInfo, SqpSettings, SqpStatus,
@@ -109,6 +109,10 @@ struct StageWork<const N: usize> {
     held_trial: Vec<SVector<f64, N>>,
     /// Costates `λ_{j+1}` of `(q, qd)`.
     lam: Vec<(SVector<f64, N>, SVector<f64, N>)>,
+    /// Largest diagonal entry of the condensed `JᵀJ` at the last Gauss–Newton QP.
+    maxdiag: f64,
+    /// Inertia correction of the exact Hessian (shared rule with the dense back-end).
+    shift: HessianShift,
 }
 
 impl<const N: usize> StructuredSqp<N> {
@@ -157,6 +161,8 @@ impl<const N: usize> StructuredSqp<N> {
                 held: vec![SVector::zeros(); np],
                 held_trial: vec![SVector::zeros(); np],
                 lam: vec![(SVector::zeros(), SVector::zeros()); np],
+                maxdiag: 0.0,
+                shift: HessianShift::default(),
             },
         })
     }
@@ -205,7 +211,18 @@ impl<const N: usize> StageWork<N> {
     /// `R = (r_t + δ) I` with the regularisation of the dense path,
     /// `δ = hessian_regularization · (1 + max diag JᵀJ)`, so both back-ends solve the same QP.
     fn gauss_newton_input_weight(&mut self) -> f64 {
-        self.r_t + self.hessian_regularization * (1.0 + self.max_condensed_diagonal())
+        self.maxdiag = self.max_condensed_diagonal();
+        self.r_t + self.hessian_regularization * (1.0 + self.maxdiag)
+    }
+
+    /// Adds `μ I` to every `R_j` (the condensed Hessian gets `+ μ I`).
+    fn shift_input_weight(&mut self, mu: f64) {
+        for j in 0..self.nc {
+            let rj = &mut self.qp.r[j * N * N..(j + 1) * N * N];
+            for a in 0..N {
+                rj[a * N + a] += mu;
+            }
+        }
     }
 
     /// Largest diagonal entry of the condensed Gauss–Newton Hessian `JᵀJ` at the current
@@ -672,6 +689,7 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
         w.rl = -rate;
         w.ru = rate;
         w.tmax = tmax;
+        w.shift.reset();
         Ok(())
     }
 
@@ -750,13 +768,29 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
         let qi = if w.exact && w.add_curvature(self.problem) {
             let qi = w.qp.solve();
             if qi.status == QpStatus::NumericalError {
-                // Not positive definite: the Gauss–Newton step this iteration (as the dense
-                // back-end does).
-                w.reset_curvature();
-                w.set_input_weight(r);
-                let mut retry = w.qp.solve();
-                retry.iterations += qi.iterations;
-                retry
+                // Not positive definite: the inertia correction, then the Gauss–Newton step (the
+                // dense back-end's rule, `HessianShift`).
+                let mut shift = w.shift;
+                let mut applied = 0.0;
+                let shifted = shift.solve(w.maxdiag, |mu| {
+                    w.shift_input_weight(mu - applied);
+                    applied = mu;
+                    w.qp.solve()
+                });
+                w.shift = shift;
+                match shifted {
+                    Ok(mut s) => {
+                        s.iterations += qi.iterations;
+                        s
+                    }
+                    Err(iterations) => {
+                        w.reset_curvature();
+                        w.set_input_weight(r);
+                        let mut retry = w.qp.solve();
+                        retry.iterations += qi.iterations + iterations;
+                        retry
+                    }
+                }
             } else {
                 qi
             }

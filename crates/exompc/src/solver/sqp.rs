@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use nalgebra::{DMatrix, DVector};
 
-use super::engine::{self, finite_or_inf, BoundCheck, SqpSteps};
+use super::engine::{self, finite_or_inf, BoundCheck, HessianShift, SqpSteps};
 use super::qp::{DenseQp, QpInfo, QpSettings, QpStatus};
 use super::{check_range, SolverError};
 
@@ -317,6 +317,10 @@ struct DenseWork {
     kkt_stationarity: f64,
     kkt_violation: f64,
     kkt_complementarity: f64,
+    /// Largest diagonal entry of `JᵀJ` at the last Gauss–Newton Hessian.
+    maxdiag: f64,
+    /// Inertia correction of the exact Hessian.
+    shift: HessianShift,
 }
 
 impl Sqp {
@@ -363,6 +367,8 @@ impl Sqp {
                 kkt_stationarity: f64::INFINITY,
                 kkt_violation: f64::INFINITY,
                 kkt_complementarity: f64::INFINITY,
+                maxdiag: 0.0,
+                shift: HessianShift::default(),
             },
         })
     }
@@ -475,6 +481,7 @@ impl<P: LeastSquares + ?Sized> SqpSteps for DenseSteps<'_, P> {
         }
         // Each solve starts from S = 0 (its first step is the Gauss–Newton step).
         w.secant_active = false;
+        w.shift.reset();
         if w.settings.hessian == HessianModel::StructuredSecant {
             w.secant.fill(0.0);
         }
@@ -539,22 +546,7 @@ impl<P: LeastSquares + ?Sized> SqpSteps for DenseSteps<'_, P> {
         w.gauss_newton_hessian();
         w.shift_bounds(self.cons, z);
         if w.settings.hessian == HessianModel::Exact {
-            let curved =
-                self.problem
-                    .add_residual_curvature(z.as_slice(), w.r.as_slice(), &mut w.hess);
-            if !curved {
-                w.gauss_newton_hessian();
-                return w.solve_step_qp(self.cons);
-            }
-            let qi = w.solve_step_qp(self.cons);
-            if qi.status == QpStatus::NumericalError {
-                // JᵀJ + Σ rᵢ∇²rᵢ not positive definite: the Gauss–Newton step this iteration.
-                w.gauss_newton_hessian();
-                let mut retry = w.solve_step_qp(self.cons);
-                retry.iterations += qi.iterations;
-                return retry;
-            }
-            return qi;
+            return w.solve_exact_qp(&mut *self.problem, self.cons, z);
         }
         if w.secant_active {
             w.hess += &w.secant;
@@ -624,6 +616,7 @@ impl DenseWork {
             }
             maxdiag = maxdiag.max(self.hess[(j, j)]);
         }
+        self.maxdiag = maxdiag;
         let delta = self.settings.hessian_regularization * (1.0 + maxdiag);
         for j in 0..n {
             self.hess[(j, j)] += delta;
@@ -671,6 +664,49 @@ impl DenseWork {
         } else {
             self.secant.fill(0.0);
             false
+        }
+    }
+
+    /// The QP of one iteration with the exact Hessian `JᵀJ + δI + Σ rᵢ∇²rᵢ` (`hess` holds the
+    /// Gauss–Newton part on entry), with the inertia correction of [`HessianShift`] when it is
+    /// not positive definite and the Gauss–Newton QP as the last resort (also when the problem
+    /// does not provide the curvature).
+    fn solve_exact_qp<P: LeastSquares + ?Sized>(
+        &mut self,
+        problem: &mut P,
+        cons: &Constraints,
+        z: &DVector<f64>,
+    ) -> QpInfo {
+        if !problem.add_residual_curvature(z.as_slice(), self.r.as_slice(), &mut self.hess) {
+            self.gauss_newton_hessian();
+            return self.solve_step_qp(cons);
+        }
+        let qi = self.solve_step_qp(cons);
+        if qi.status != QpStatus::NumericalError {
+            return qi;
+        }
+        let mut shift = self.shift;
+        let mut applied = 0.0;
+        let shifted = shift.solve(self.maxdiag, |mu| {
+            for i in 0..self.n {
+                self.hess[(i, i)] += mu - applied;
+            }
+            applied = mu;
+            self.solve_step_qp(cons)
+        });
+        self.shift = shift;
+        match shifted {
+            Ok(mut s) => {
+                s.iterations += qi.iterations;
+                s
+            }
+            Err(iterations) => {
+                // Not positive definite even shifted: the Gauss–Newton step this iteration.
+                self.gauss_newton_hessian();
+                let mut retry = self.solve_step_qp(cons);
+                retry.iterations += qi.iterations + iterations;
+                retry
+            }
         }
     }
 
