@@ -424,5 +424,6 @@ mod tests {
     fn stage_hessian_matches_finite_differences_of_the_exact_jacobian() {
         check::<1>(11);
         check::<2>(12);
+        check::<3>(13);
     }
 }

@@ -14,8 +14,12 @@
 //! dynamics `A_j = [[Φ_x, Φ_u], [0, I]]`, `B_j = [Φ_u; I]`; its condensed form is exactly the dense
 //! QP `min ½dᵀ(JᵀJ)d + (Jᵀr)ᵀd` of [`crate::solver::Sqp`] with the Gauss–Newton Hessian.
 //!
-//! The structured path always uses the Gauss–Newton Hessian: the structured secant `S` of the
-//! dense path is a dense matrix in the condensed variables and would destroy the stage structure.
+//! Hessian models: Gauss–Newton (also for `structured_secant`: the secant `S` of the dense path
+//! is a dense matrix in the condensed variables and would destroy the stage structure), or the
+//! exact Hessian (`HessianModel::Exact`): the stage blocks `W_j` of `control::hessian` enter as
+//! `Q_j += W_j`, `R_j += W_j[T, T]` and the cross terms `S_j = W_j[T, :]` of the Riccati QP, with
+//! the dense back-end's inertia correction (`engine::HessianShift`) when the QP reports the
+//! Hessian not positive definite, so both back-ends take the same steps.
 
 use super::hessian::costates;
 use super::nmpc::{NmpcProblem, NmpcSettings};
@@ -38,7 +42,7 @@ pub enum QpBackend {
     /// Hessian model: `O((N·Nc)³)` per iteration. The oracle.
     Dense,
     /// Multiple-shooting stages with the Riccati QP ([`crate::solver::RiccatiQp`]) and the
-    /// Gauss–Newton Hessian: `O(Np·N³)` per iteration.
+    /// Gauss–Newton or exact Hessian: `O(Np·N³)` per iteration.
     Structured,
     /// `Structured` when `N·Nc ≥` [`AUTO_STRUCTURED_MIN_VARS`], else `Dense` (the default).
     #[default]
@@ -60,10 +64,10 @@ impl QpBackend {
     }
 }
 
-/// Gauss–Newton SQP over the multiple-shooting form of eq. 7 with the Riccati QP. It runs the
+/// SQP (Gauss–Newton or exact Hessian) over the multiple-shooting form of eq. 7 with the Riccati QP. It runs the
 /// same SQP engine as [`crate::solver::Sqp`] (input checks, warm-start projection, Armijo line
 /// search, KKT termination; `solver/engine.rs`) with a stage-structured back-end, and so
-/// reproduces the dense iterates with `HessianModel::GaussNewton`, but every iteration costs
+/// reproduces the dense iterates with `HessianModel::GaussNewton` and `Exact`, but every iteration costs
 /// `O(Np·N³)` instead of `O((N·Nc)³ + Np·(N·Nc)²)`. All workspace is allocated in
 /// [`StructuredSqp::new`]; [`StructuredSqp::solve`] allocates nothing and never panics.
 #[derive(Clone, Debug)]

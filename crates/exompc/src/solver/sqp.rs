@@ -206,9 +206,11 @@ pub enum HessianModel {
     /// condensed in the dense back-end and passed as `Q_j`, `R_j`, `S_j` blocks to the Riccati QP
     /// in the structured one, as in acados/HPIPM. Locally quadratic convergence. Safeguard,
     /// identical in both back-ends: when the QP reports a Hessian that is not positive definite
-    /// (`QpStatus::NumericalError`), that iteration takes the Gauss–Newton step. Problems that
-    /// do not provide the curvature ([`LeastSquares::add_residual_curvature`]) and the coupled
-    /// scenario tree use Gauss–Newton.
+    /// (`QpStatus::NumericalError`), the QP is solved with `H + μ I` on the decision variables,
+    /// `μ` by IPOPT's inertia-correction rule (from `1e-8·(1 + max diag JᵀJ)`, ×100 / ×8, the
+    /// last `μ/3` remembered within a solve); beyond `μ = 1 + max diag JᵀJ` that iteration takes
+    /// the Gauss–Newton step. Problems that do not provide the curvature
+    /// ([`LeastSquares::add_residual_curvature`]) and the coupled scenario tree use Gauss–Newton.
     Exact,
 }
 
