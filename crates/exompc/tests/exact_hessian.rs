@@ -58,6 +58,10 @@ fn check_dense_hessian<D: Dof<N>, const N: usize>(seed: u64) {
             let mut h = jac.transpose() * &jac;
             let gn = h.clone();
             assert!(p.add_residual_curvature(&z, &r, &mut h));
+            // Wrong dimensions: refused, never a panic.
+            let mut wrong = DMatrix::zeros(n + 1, n + 1);
+            assert!(!p.add_residual_curvature(&z, &r, &mut wrong));
+            assert!(!p.add_residual_curvature(&z[1..], &r, &mut h.clone()));
             let grad = |p: &mut NmpcProblem<N>, z: &[f64]| {
                 let mut r = vec![0.0; m];
                 let mut jac = DMatrix::zeros(m, n);

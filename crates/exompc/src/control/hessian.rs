@@ -220,7 +220,8 @@ impl<const N: usize> CurvatureWork<N> {
     /// Adds `Σ_j Γ_jᵀ W_j Γ_j` to `hess` (`N·Nc` square) for the increments `z`, with the
     /// trajectory simulated from `x0`, `t_prev` and the cost gradient at the states read off the
     /// residuals `r` (layout of `NmpcProblem`: per step `q − q_ref`, `√r_d (qd − qd_ref)`).
-    /// Returns `false` (leaving `hess` partly updated) when anything is non-finite.
+    /// Returns `false` (leaving `hess` partly updated) when anything is non-finite, and (leaving it
+    /// unchanged) when the dimensions do not match the horizons.
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn add_condensed(
         &mut self,
@@ -235,6 +236,10 @@ impl<const N: usize> CurvatureWork<N> {
     ) -> bool {
         let np = self.xs.len();
         let nc = self.sens.len();
+        let n = N * nc;
+        if nc == 0 || z.len() != n || r.len() < 2 * N * np || hess.shape() != (n, n) {
+            return false;
+        }
         let dt = model.dt;
         let mut x = *x0;
         let mut u = *t_prev;

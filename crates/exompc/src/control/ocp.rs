@@ -64,11 +64,11 @@ impl QpBackend {
     }
 }
 
-/// SQP (Gauss–Newton or exact Hessian) over the multiple-shooting form of eq. 7 with the Riccati QP. It runs the
-/// same SQP engine as [`crate::solver::Sqp`] (input checks, warm-start projection, Armijo line
-/// search, KKT termination; `solver/engine.rs`) with a stage-structured back-end, and so
-/// reproduces the dense iterates with `HessianModel::GaussNewton` and `Exact`, but every iteration costs
-/// `O(Np·N³)` instead of `O((N·Nc)³ + Np·(N·Nc)²)`. All workspace is allocated in
+/// SQP (Gauss–Newton or exact Hessian) over the multiple-shooting form of eq. 7 with the
+/// Riccati QP. It runs the same SQP engine as [`crate::solver::Sqp`] (input checks, warm-start
+/// projection, Armijo line search, KKT termination; `solver/engine.rs`) with a stage-structured
+/// back-end, and so reproduces the dense iterates with `HessianModel::GaussNewton` and `Exact`,
+/// but every iteration costs `O(Np·N³)` instead of `O((N·Nc)³ + Np·(N·Nc)²)`. All workspace is allocated in
 /// [`StructuredSqp::new`]; [`StructuredSqp::solve`] allocates nothing and never panics.
 #[derive(Clone, Debug)]
 pub struct StructuredSqp<const N: usize> {
