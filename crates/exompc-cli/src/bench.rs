@@ -300,7 +300,7 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
         CASE_BUDGET.as_secs_f64()
     );
     println!(
-        "dense = condensed QP (scenario's Hessian model), structured = Riccati QP (Gauss-Newton; coupled: block-arrowhead tree);"
+        "dense = condensed QP (scenario's Hessian model), structured = Riccati QP (Gauss-Newton, or exact if the scenario's model is; coupled: block-arrowhead tree, Gauss-Newton);"
     );
     println!(
         "ratio = dense p50 / structured p50, per-iteration ratio = (p50/iters) dense / structured;"

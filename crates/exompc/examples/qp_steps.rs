@@ -9,7 +9,8 @@
 //!
 //! Arguments: `Np = Nc`, scenarios, `dense | structured`, steps (after 20 warm-up steps, which
 //! also run under the toggle; subtract a run with fewer steps for a per-step figure), and
-//! optionally `decoupled | coupled` (default decoupled).
+//! optionally `decoupled | coupled` (default decoupled) and the Hessian model
+//! `gauss_newton | structured_secant | exact` (default: the scenario default).
 
 use exompc::config::{ControllerKind, Formulation, Scenario};
 use exompc::control::QpBackend;
@@ -33,6 +34,13 @@ fn main() {
         other => panic!("formulation `{other}`: decoupled or coupled"),
     };
     let mut s = Scenario::default();
+    s.controller.sqp.hessian = match arg(6, "default").as_str() {
+        "default" => s.controller.sqp.hessian,
+        "gauss_newton" => exompc::solver::HessianModel::GaussNewton,
+        "structured_secant" => exompc::solver::HessianModel::StructuredSecant,
+        "exact" => exompc::solver::HessianModel::Exact,
+        other => panic!("hessian `{other}`: gauss_newton, structured_secant or exact"),
+    };
     s.controller.kind = ControllerKind::MSNMPC;
     s.controller.np = n;
     s.controller.nc = n;

@@ -508,11 +508,12 @@ pub struct Sqp {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_time_us: Option<u64>,
     /// Hessian model of the QP subproblems: `"structured_secant"` (Gauss-Newton plus a
-    /// secant estimate of the residual curvature) or `"gauss_newton"`. Default
-    /// `"structured_secant"`.
+    /// secant estimate of the residual curvature), `"gauss_newton"` or `"exact"` (the exact
+    /// Lagrangian Hessian, in both QP back-ends, shifted by `μ I` when it is not positive
+    /// definite; the coupled scenario tree uses Gauss-Newton). Default `"structured_secant"`.
     pub hessian: crate::solver::HessianModel,
     /// QP solver of the SQP: `"dense"` (condensed, the oracle), `"structured"` (Riccati over
-    /// the horizon stages, Gauss-Newton Hessian; the coupled formulation: the block-arrowhead
+    /// the horizon stages, Gauss-Newton or exact Hessian; the coupled formulation: the block-arrowhead
     /// scenario tree) or `"auto"` (structured when joints·nc ≥ 16; coupled: when the tree's
     /// decision variables joints·(Nr + S·(Nc − Nr)) ≥ 16).
     /// Default `"auto"`.

@@ -85,6 +85,24 @@ fn control_steps_do_not_allocate() {
         );
     }
     s.multistage.robust_horizon = 1;
+    // The exact Hessian (inertia correction and curvature blocks), both back-ends.
+    s.multistage.formulation = Formulation::Decoupled;
+    s.controller.sqp.hessian = exompc::solver::HessianModel::Exact;
+    for qp in [
+        exompc::control::QpBackend::Dense,
+        exompc::control::QpBackend::Structured,
+    ] {
+        s.controller.sqp.qp = qp;
+        for kind in [ControllerKind::NMPC, ControllerKind::MSNMPC] {
+            s.controller.kind = kind;
+            assert_eq!(
+                count_steps(&s, kind),
+                0,
+                "{kind:?} (exact Hessian, {qp:?} QP) allocates"
+            );
+        }
+    }
+    s.controller.sqp.hessian = Scenario::default().controller.sqp.hessian;
     s.controller.sqp.qp = exompc::control::QpBackend::Auto;
     s.controller.np = 3;
     s.controller.nc = 3;

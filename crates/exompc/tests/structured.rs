@@ -377,7 +377,9 @@ fn structured_closed_loops_equal_dense() {
     // Np = Nc = 20 the Gauss–Newton SQP stalls on some steps of this loop (both backends hit
     // 1000 iterations without reaching the KKT tolerance 1e-10): the iterates then wander
     // within the rounding floor of the KKT test, and the loops drift apart by ~1e-7 N·m; the
-    // tolerance says so (docs/PERFORMANCE.md, closed-loop agreement).
+    // tolerance says so (docs/PERFORMANCE.md, closed-loop agreement). With the exact Hessian
+    // (`hessian = "exact"`) every step of the Np = 10 and 20 loops converges and they agree to
+    // 1e-8 (tests/exact_hessian.rs).
     for (kind, formulation, n, tol) in [
         (ControllerKind::NMPC, Formulation::Decoupled, 3, 1e-8),
         (ControllerKind::NMPC, Formulation::Decoupled, 10, 1e-8),

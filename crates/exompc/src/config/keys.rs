@@ -399,7 +399,7 @@ pub const KEYS: &[KeyDoc] = &[
     k("controller.sqp.kkt_tolerance", "-", real(closed(0.0), closed(1.0)), M8, "KKT residual at which a solve counts as converged (0: never, every solve runs to a limit)."),
     k("controller.sqp.max_time_us", "µs", int(0, 10_000_000), M8, "Optional wall-clock budget per solve (0: stop after the first iteration); absent (the default) = no budget."),
     k("controller.sqp.rti", "", Allowed::Bool, PERF, "Real-time iteration: one linearisation and one QP per control period from the shifted previous solution, instead of iterating to the KKT tolerance."),
-    k("controller.sqp.hessian", "", Allowed::Choice(&["gauss_newton", "structured_secant"]), PERF, "Hessian model of the QP subproblems: Gauss-Newton, or Gauss-Newton plus a structured secant term."),
+    k("controller.sqp.hessian", "", Allowed::Choice(&["gauss_newton", "structured_secant", "exact"]), PERF, "Hessian model of the QP subproblems: Gauss-Newton, Gauss-Newton plus a structured secant term, or the exact Hessian (shifted by mu*I, IPOPT's inertia correction, when not positive definite; the coupled tree uses Gauss-Newton)."),
     k("controller.sqp.qp", "", Allowed::Choice(&["dense", "structured", "auto"]), PERF, "QP solver: condensed dense, Riccati over the stages (coupled: block-arrowhead scenario tree), or auto (structured when joints·nc >= 16; coupled: when the tree has >= 16 decision variables)."),
     table("controller.pd", M8X, "Gains of the baseline PD controller (controller.kind = \"pd\")."),
     k("controller.pd.kp", "N·m/rad", POS, M8X, "PD proportional gain on the estimated human angle error."),

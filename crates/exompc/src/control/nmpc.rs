@@ -1,5 +1,6 @@
 //! Non-robust NMPC (paper §3.1, eq. 7 with constraints 8-9) on the SQP of [`crate::solver`].
 
+use super::hessian::CurvatureWork;
 use super::limits::LimitsError;
 use super::ocp::{QpBackend, StructuredSqp};
 use super::prediction::{HorizonInputs, PredictionModel, StepJacobian};
@@ -60,6 +61,8 @@ pub struct NmpcProblem<const N: usize> {
     // Sensitivities of the current state w.r.t. each increment block.
     sq: Vec<SMatrix<f64, N, N>>,
     sv: Vec<SMatrix<f64, N, N>>,
+    // Workspace of the exact Hessian's second-order term.
+    curvature: CurvatureWork<N>,
 }
 
 impl<const N: usize> NmpcProblem<N> {
@@ -84,6 +87,7 @@ impl<const N: usize> NmpcProblem<N> {
             },
             sq: vec![SMatrix::zeros(); s.nc],
             sv: vec![SMatrix::zeros(); s.nc],
+            curvature: CurvatureWork::new(s.np, s.nc),
         }
     }
 
@@ -241,6 +245,21 @@ impl<const N: usize> LeastSquares for NmpcProblem<N> {
             col[k] = self.sqrt_rt;
         }
         r.iter().all(|v| v.is_finite()) && finite.iter().all(|v| v.is_finite())
+    }
+
+    /// `Σ_j Γ_jᵀ W_j Γ_j` with the exact stage blocks `W_j` of `control::hessian` and the state
+    /// sensitivities `Γ_j` (the second-order term of the exact Hessian).
+    fn add_residual_curvature(&mut self, z: &[f64], r: &[f64], hess: &mut DMatrix<f64>) -> bool {
+        self.curvature.add_condensed(
+            &self.model,
+            &self.x0,
+            &self.t_prev,
+            &self.inputs,
+            self.sqrt_rd,
+            z,
+            r,
+            hess,
+        )
     }
 }
 

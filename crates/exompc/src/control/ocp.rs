@@ -14,16 +14,23 @@
 //! dynamics `A_j = [[Φ_x, Φ_u], [0, I]]`, `B_j = [Φ_u; I]`; its condensed form is exactly the dense
 //! QP `min ½dᵀ(JᵀJ)d + (Jᵀr)ᵀd` of [`crate::solver::Sqp`] with the Gauss–Newton Hessian.
 //!
-//! The structured path always uses the Gauss–Newton Hessian: the structured secant `S` of the
-//! dense path is a dense matrix in the condensed variables and would destroy the stage structure.
+//! Hessian models: Gauss–Newton (also for `structured_secant`: the secant `S` of the dense path
+//! is a dense matrix in the condensed variables and would destroy the stage structure), or the
+//! exact Hessian (`HessianModel::Exact`): the stage blocks `W_j` of `control::hessian` enter as
+//! `Q_j += W_j`, `R_j += W_j[T, T]` and the cross terms `S_j = W_j[T, :]` of the Riccati QP, with
+//! the dense back-end's inertia correction (`engine::HessianShift`) when the QP reports the
+//! Hessian not positive definite, so both back-ends take the same steps.
 
+use super::hessian::costates;
 use super::nmpc::{NmpcProblem, NmpcSettings};
 use super::prediction::StepJacobian;
 use super::TorqueLimits;
 use crate::model::JointState;
-use crate::solver::engine::{self, finite_or_inf, BoundCheck, SqpSteps};
+use crate::solver::engine::{self, finite_or_inf, BoundCheck, HessianShift, SqpSteps};
 use crate::solver::riccati::held_congruence;
-use crate::solver::{QpInfo, RiccatiQp, SolverError, SqpInfo, SqpSettings, SqpStatus};
+use crate::solver::{
+    HessianModel, QpInfo, QpStatus, RiccatiQp, SolverError, SqpInfo, SqpSettings, SqpStatus,
+};
 use nalgebra::{DVector, SMatrix, SVector};
 use serde::{Deserialize, Serialize};
 
@@ -35,7 +42,7 @@ pub enum QpBackend {
     /// Hessian model: `O((N·Nc)³)` per iteration. The oracle.
     Dense,
     /// Multiple-shooting stages with the Riccati QP ([`crate::solver::RiccatiQp`]) and the
-    /// Gauss–Newton Hessian: `O(Np·N³)` per iteration.
+    /// Gauss–Newton or exact Hessian: `O(Np·N³)` per iteration.
     Structured,
     /// `Structured` when `N·Nc ≥` [`AUTO_STRUCTURED_MIN_VARS`], else `Dense` (the default).
     #[default]
@@ -57,11 +64,11 @@ impl QpBackend {
     }
 }
 
-/// Gauss–Newton SQP over the multiple-shooting form of eq. 7 with the Riccati QP. It runs the
-/// same SQP engine as [`crate::solver::Sqp`] (input checks, warm-start projection, Armijo line
-/// search, KKT termination; `solver/engine.rs`) with a stage-structured back-end, and so
-/// reproduces the dense iterates with `HessianModel::GaussNewton`, but every iteration costs
-/// `O(Np·N³)` instead of `O((N·Nc)³ + Np·(N·Nc)²)`. All workspace is allocated in
+/// SQP (Gauss–Newton or exact Hessian) over the multiple-shooting form of eq. 7 with the
+/// Riccati QP. It runs the same SQP engine as [`crate::solver::Sqp`] (input checks, warm-start
+/// projection, Armijo line search, KKT termination; `solver/engine.rs`) with a stage-structured
+/// back-end, and so reproduces the dense iterates with `HessianModel::GaussNewton` and `Exact`,
+/// but every iteration costs `O(Np·N³)` instead of `O((N·Nc)³ + Np·(N·Nc)²)`. All workspace is allocated in
 /// [`StructuredSqp::new`]; [`StructuredSqp::solve`] allocates nothing and never panics.
 #[derive(Clone, Debug)]
 pub struct StructuredSqp<const N: usize> {
@@ -94,6 +101,22 @@ struct StageWork<const N: usize> {
     rl: f64,
     ru: f64,
     tmax: f64,
+    /// `HessianModel::Exact`: the QP gets the stage blocks `W_j` of `control::hessian`.
+    exact: bool,
+    /// `qp.q`, `qp.s` hold curvature (must be reset before a Gauss–Newton or projection QP).
+    curved: bool,
+    /// States `x_j` (`j = 0..Np`) and held torques `T_j` of the last linearisation, and of the
+    /// current point (exact Hessian only).
+    states: Vec<JointState<f64, N>>,
+    states_trial: Vec<JointState<f64, N>>,
+    held: Vec<SVector<f64, N>>,
+    held_trial: Vec<SVector<f64, N>>,
+    /// Costates `λ_{j+1}` of `(q, qd)`.
+    lam: Vec<(SVector<f64, N>, SVector<f64, N>)>,
+    /// Largest diagonal entry of the condensed `JᵀJ` at the last Gauss–Newton QP.
+    maxdiag: f64,
+    /// Inertia correction of the exact Hessian (shared rule with the dense back-end).
+    shift: HessianShift,
 }
 
 impl<const N: usize> StructuredSqp<N> {
@@ -112,6 +135,10 @@ impl<const N: usize> StructuredSqp<N> {
             }
         }
         let len = qp.len();
+        let zero_state = JointState {
+            q: SVector::zeros(),
+            qd: SVector::zeros(),
+        };
         Ok(Self {
             settings: s.sqp,
             z_trial: DVector::zeros(nc * N),
@@ -131,6 +158,15 @@ impl<const N: usize> StructuredSqp<N> {
                 rl: 0.0,
                 ru: 0.0,
                 tmax: 0.0,
+                exact: s.sqp.hessian == HessianModel::Exact,
+                curved: false,
+                states: vec![zero_state; np],
+                states_trial: vec![zero_state; np],
+                held: vec![SVector::zeros(); np],
+                held_trial: vec![SVector::zeros(); np],
+                lam: vec![(SVector::zeros(), SVector::zeros()); np],
+                maxdiag: 0.0,
+                shift: HessianShift::default(),
             },
         })
     }
@@ -179,7 +215,18 @@ impl<const N: usize> StageWork<N> {
     /// `R = (r_t + δ) I` with the regularisation of the dense path,
     /// `δ = hessian_regularization · (1 + max diag JᵀJ)`, so both back-ends solve the same QP.
     fn gauss_newton_input_weight(&mut self) -> f64 {
-        self.r_t + self.hessian_regularization * (1.0 + self.max_condensed_diagonal())
+        self.maxdiag = self.max_condensed_diagonal();
+        self.r_t + self.hessian_regularization * (1.0 + self.maxdiag)
+    }
+
+    /// Adds `μ I` to every `R_j` (the condensed Hessian gets `+ μ I`).
+    fn shift_input_weight(&mut self, mu: f64) {
+        for j in 0..self.nc {
+            let rj = &mut self.qp.r[j * N * N..(j + 1) * N * N];
+            for a in 0..N {
+                rj[a * N + a] += mu;
+            }
+        }
     }
 
     /// Largest diagonal entry of the condensed Gauss–Newton Hessian `JᵀJ` at the current
@@ -335,6 +382,10 @@ impl<const N: usize> StageWork<N> {
                 }
             }
             let tau = j as f64 * dt;
+            if jac && self.exact {
+                self.states_trial[j] = x;
+                self.held_trial[j] = u;
+            }
             let xn = if jac {
                 let (xn, g): (JointState<f64, N>, StepJacobian<N>) = problem
                     .model
@@ -403,6 +454,104 @@ impl<const N: usize> StageWork<N> {
         } else {
             f64::NAN
         }
+    }
+
+    /// Restores the Gauss–Newton stage costs `Q_j = diag(I, r_d I, 0)`, `S_j = 0` if the last
+    /// QP had curvature (`R` is set by the caller).
+    fn reset_curvature(&mut self) {
+        if !self.curved {
+            return;
+        }
+        let nx = 3 * N;
+        self.qp.q.fill(0.0);
+        for j in 0..self.np {
+            let qj = &mut self.qp.q[j * nx * nx..(j + 1) * nx * nx];
+            for a in 0..N {
+                qj[a * nx + a] = 1.0;
+                qj[(N + a) * nx + N + a] = self.r_d;
+            }
+        }
+        self.qp.s.fill(0.0);
+        self.curved = false;
+    }
+
+    /// Adds the exact stage blocks `W_j` (`control::hessian`) at the current point to the
+    /// Gauss–Newton QP: with `x_j = (q_j, qd_j, T_{j−1})` and `T_j = T_{j−1} + u_j`,
+    /// `Q_j += W_j`, `R_j += W_j[T, T]`, `S_j = W_j[T, :]` (for `j ≥ Nc`, `T_j = T_{j−1}`: `Q_j`
+    /// only). The costates come from the cost gradient `grad` and the dynamics `qp.a`. Returns
+    /// `false` (and restores the Gauss–Newton blocks) when a block is non-finite.
+    fn add_curvature(&mut self, problem: &NmpcProblem<N>) -> bool {
+        let nx = 3 * N;
+        let s2 = 2 * N;
+        let (np, nc) = (self.np, self.nc);
+        let off = nc * N;
+        let (grad, a) = (&self.grad, &self.qp.a);
+        costates(
+            np,
+            |j| {
+                let xo = off + j * nx;
+                (
+                    SVector::from_fn(|i, _| grad[xo + i]),
+                    SVector::from_fn(|i, _| grad[xo + N + i]),
+                )
+            },
+            |j| {
+                let aj = &a[j * nx * nx..(j + 1) * nx * nx];
+                let blk = |r0: usize, c0: usize| {
+                    SMatrix::<f64, N, N>::from_fn(|r, c| aj[(c0 + c) * nx + r0 + r])
+                };
+                StepJacobian {
+                    qq: blk(0, 0),
+                    qv: blk(0, N),
+                    vq: blk(N, 0),
+                    vv: blk(N, N),
+                    qu: blk(0, s2),
+                    vu: blk(N, s2),
+                }
+            },
+            &mut self.lam,
+        );
+        self.curved = true;
+        let dt = problem.model.dt;
+        let mut finite = true;
+        for j in 0..np {
+            let (lq, lv) = self.lam[j];
+            let w = problem.model.step_lagrangian_hessian(
+                &self.states[j],
+                &self.held[j],
+                j as f64 * dt,
+                &problem.inputs,
+                &lq,
+                &lv,
+            );
+            finite &= w.is_finite();
+            if j >= 1 {
+                let qj = &mut self.qp.q[(j - 1) * nx * nx..j * nx * nx];
+                for c in 0..nx {
+                    for r in 0..nx {
+                        qj[c * nx + r] += w.get(r, c);
+                    }
+                }
+            }
+            if j < nc {
+                let rj = &mut self.qp.r[j * N * N..(j + 1) * N * N];
+                for c in 0..N {
+                    for r in 0..N {
+                        rj[c * N + r] += w.uu[(r, c)];
+                    }
+                }
+                let sj = &mut self.qp.s[j * N * nx..(j + 1) * N * nx];
+                for c in 0..nx {
+                    for i in 0..N {
+                        sj[c * N + i] = w.get(s2 + i, c);
+                    }
+                }
+            }
+        }
+        if !finite {
+            self.reset_curvature();
+        }
+        finite
     }
 
     /// Step-space bounds of the QP at `z` (with `torques` the cumulative torques at `z`).
@@ -566,6 +715,7 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
         w.rl = -rate;
         w.ru = rate;
         w.tmax = tmax;
+        w.shift.reset();
         Ok(())
     }
 
@@ -592,6 +742,7 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
     fn projection_qp(&mut self, z: &DVector<f64>) -> QpInfo {
         // min ½|d|² with the same QP: dynamics reduced to T_j = T_{j−1} + u_j, Q = 0 on T.
         let w = &mut *self.w;
+        w.reset_curvature();
         let nx = 3 * N;
         w.qp.a.fill(0.0);
         w.qp.b.fill(0.0);
@@ -625,17 +776,55 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
         let w = &mut *self.w;
         w.torques.copy_from_slice(&w.torques_trial);
         w.grad.copy_from_slice(&w.qp.g);
+        if w.exact {
+            std::mem::swap(&mut w.states, &mut w.states_trial);
+            std::mem::swap(&mut w.held, &mut w.held_trial);
+        }
         true
     }
 
     fn solve_qp(&mut self, z: &DVector<f64>) -> QpInfo {
         // Gauss–Newton: Q, R fixed, dynamics and gradient from the last accepted linearisation.
         let w = &mut *self.w;
+        w.reset_curvature();
         let r = w.gauss_newton_input_weight();
         w.set_input_weight(r);
         w.qp.g.copy_from_slice(&w.grad);
         w.shift_bounds(z);
-        let qi = w.qp.solve();
+        let qi = if w.exact && w.add_curvature(self.problem) {
+            let qi = w.qp.solve();
+            if qi.status == QpStatus::NumericalError {
+                // Not positive definite: the inertia correction, then the Gauss–Newton step (the
+                // dense back-end's rule, `HessianShift`).
+                let mut shift = w.shift;
+                let mut applied = 0.0;
+                let shifted = shift.solve(w.maxdiag, |mu| {
+                    w.shift_input_weight(mu - applied);
+                    applied = mu;
+                    w.qp.solve()
+                });
+                w.shift = shift;
+                match shifted {
+                    Ok(mut s) => {
+                        s.iterations += qi.iterations;
+                        s
+                    }
+                    Err(iterations) => {
+                        w.reset_curvature();
+                        w.set_input_weight(r);
+                        let mut retry = w.qp.solve();
+                        retry.iterations += qi.iterations + iterations;
+                        retry
+                    }
+                }
+            } else {
+                qi
+            }
+        } else {
+            w.reset_curvature();
+            w.set_input_weight(r);
+            w.qp.solve()
+        };
         let n = w.nc * N;
         w.dz.as_mut_slice().copy_from_slice(&w.qp.solution()[..n]);
         qi

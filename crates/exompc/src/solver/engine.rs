@@ -239,6 +239,65 @@ fn line_search<B: SqpSteps + ?Sized>(
     Ok(c_new)
 }
 
+/// Inertia correction of the exact Hessian (the rule of IPOPT, Wächter & Biegler 2006, §3.1),
+/// shared by both back-ends so that they shift identically: when the QP with the exact Hessian
+/// `H` reports it not positive definite, the QP is solved with `H + μ I` on the decision
+/// variables (the torque increments; in the stage form `R_j + μ I`, which condenses to the same
+/// matrix), `μ` starting at `max(μ_min, μ_last/3)` (or `μ_min` when no shift was needed before in
+/// this solve) and growing ×8 (×100 the first time) until the QP is solved; beyond `μ_max` the
+/// iteration takes the Gauss–Newton step. `μ_min = 1e-8·(1 + d)`, `μ_max = 1·(1 + d)` with `d`
+/// the largest diagonal entry of `JᵀJ` (the scale of the Hessian regularisation).
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct HessianShift {
+    last: f64,
+}
+
+impl HessianShift {
+    /// `μ_min / (1 + d)`.
+    pub const MIN: f64 = 1e-8;
+    /// `μ_max / (1 + d)`.
+    pub const MAX: f64 = 1.0;
+
+    /// Forgets the last shift (at the start of every solve).
+    pub fn reset(&mut self) {
+        self.last = 0.0;
+    }
+
+    /// Solves the QP with the shifts of the rule after the unshifted one failed as not positive
+    /// definite: `solve(μ)` solves with `H + μ I`. Returns the first QP that did not fail so
+    /// (iterations summed over the tries), or `None` with the summed iterations when `μ_max` was
+    /// exceeded.
+    pub fn solve(
+        &mut self,
+        maxdiag: f64,
+        mut solve: impl FnMut(f64) -> QpInfo,
+    ) -> Result<QpInfo, usize> {
+        let scale = 1.0 + maxdiag;
+        let (lo, hi) = (Self::MIN * scale, Self::MAX * scale);
+        if !(lo.is_finite() && hi.is_finite()) {
+            return Err(0);
+        }
+        let fresh = self.last == 0.0;
+        let mut mu = if fresh { lo } else { (self.last / 3.0).max(lo) };
+        let mut iterations = 0;
+        loop {
+            let mut qi = solve(mu);
+            iterations += qi.iterations;
+            if qi.status != QpStatus::NumericalError {
+                self.last = mu;
+                qi.iterations = iterations;
+                return Ok(qi);
+            }
+            mu *= if fresh { 100.0 } else { 8.0 };
+            // The slack keeps rounding differences of `d` between the back-ends from deciding
+            // (the first sequence reaches `μ_max` exactly).
+            if mu > hi * (1.0 + 1e-9) {
+                return Err(iterations);
+            }
+        }
+    }
+}
+
 /// Running maxima of the primal violation and complementarity of bound pairs, for the KKT
 /// tests of the back-ends.
 #[derive(Clone, Copy, Debug, Default)]
@@ -270,5 +329,61 @@ pub(crate) fn finite_or_inf(k: f64) -> f64 {
         f64::INFINITY
     } else {
         k
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn qp(status: QpStatus) -> QpInfo {
+        QpInfo {
+            status,
+            iterations: 1,
+            objective: 0.0,
+        }
+    }
+
+    #[test]
+    fn hessian_shift_follows_the_inertia_correction_rule() {
+        // First correction of a solve: μ_min, ×100 up to μ_max (= μ_min·1e8, reached although
+        // rounding may put it a hair above), then give up.
+        let mut sh = HessianShift::default();
+        let mut tried = vec![];
+        let r = sh.solve(2.0, |mu| {
+            tried.push(mu);
+            qp(QpStatus::NumericalError)
+        });
+        assert_eq!(r.unwrap_err(), 5);
+        let want = [3e-8, 3e-6, 3e-4, 3e-2, 3.0];
+        assert_eq!(tried.len(), want.len());
+        for (a, b) in tried.iter().zip(want) {
+            assert!((a - b).abs() <= 1e-12 * b, "{a} vs {b}");
+        }
+        // Success at 3e-4: remembered; the next correction starts at a third of it, ×8.
+        tried.clear();
+        let r = sh.solve(2.0, |mu| {
+            tried.push(mu);
+            qp(if mu > 1e-4 {
+                QpStatus::Solved
+            } else {
+                QpStatus::NumericalError
+            })
+        });
+        assert_eq!(r.unwrap().iterations, 3);
+        tried.clear();
+        let r = sh.solve(2.0, |mu| {
+            tried.push(mu);
+            qp(if mu > 5e-4 {
+                QpStatus::Solved
+            } else {
+                QpStatus::NumericalError
+            })
+        });
+        assert!(r.is_ok());
+        assert!((tried[0] - 1e-4).abs() < 1e-16 && (tried[1] - 8e-4).abs() < 1e-16);
+        // A reset forgets it; a non-finite scale never shifts.
+        sh.reset();
+        assert_eq!(sh.solve(f64::NAN, |_| qp(QpStatus::Solved)).unwrap_err(), 0);
     }
 }

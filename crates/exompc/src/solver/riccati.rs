@@ -4,7 +4,7 @@
 //! The QP is the linear-quadratic optimal control problem
 //!
 //! ```text
-//! min  Σ_{j=0}^{Nc−1} ½ u_jᵀ R_j u_j + g_{u,j}ᵀ u_j  +  Σ_{j=1}^{Np} ½ x_jᵀ Q_j x_j + g_{x,j}ᵀ x_j
+//! min  Σ_{j=0}^{Nc−1} ½ u_jᵀ R_j u_j + u_jᵀ S_j x_j + g_{u,j}ᵀ u_j  +  Σ_{j=1}^{Np} ½ x_jᵀ Q_j x_j + g_{x,j}ᵀ x_j
 //! s.t. x_0 = 0,  x_{j+1} = A_j x_j + B_j u_j   (no input for j ≥ Nc),
 //!      lo ≤ (u, x) ≤ hi   component-wise (entries may be ±∞),
 //! ```
@@ -14,7 +14,9 @@
 //! eq. 8 is a state box and the rate bound of eq. 9 an input box; see `control::ocp`).
 //!
 //! The reduced Hessian `H` (in the inputs) is factorised once per QP by the backward Riccati
-//! recursion, `O(Np·(nx+nu)³)`. The unconstrained minimiser is one vector sweep (backward and
+//! recursion, `O(Np·(nx+nu)³)`: `R̃ = R + BᵀPB`, `S̄ = S + BᵀPA`, `K = −R̃⁻¹S̄`,
+//! `P ← Q + AᵀPA + S̄ᵀK` (the cross terms `S_j` come from the exact Hessian; the Gauss–Newton
+//! QP has `S = 0`, which takes exactly the recursion without them). The unconstrained minimiser is one vector sweep (backward and
 //! forward, `O(Np·(nx+nu)²)`): if it satisfies every bound, that is the answer. Otherwise the
 //! dual active-set method of Goldfarb and Idnani adds the most violated bound; each addition costs
 //! one more vector sweep (`H⁻¹ n` for the entering normal `n`) plus a `k×k` Cholesky of the
@@ -44,6 +46,10 @@ pub struct RiccatiQp {
     pub q: Vec<f64>,
     /// `R_j`, `j = 0..Nc`, each `nu × nu` column-major (symmetric positive definite).
     pub r: Vec<f64>,
+    /// Cross terms `S_j` of the stage cost `u_jᵀ S_j x_j`, `j = 0..Nc`, each `nu × nx`
+    /// column-major (zero by default; `S_0` multiplies `x_0 = 0`). Used by the exact-Hessian SQP
+    /// (`control::ocp`); all zero gives exactly the factorisation without cross terms.
+    pub s: Vec<f64>,
     /// Linear term in trajectory layout.
     pub g: Vec<f64>,
     /// Lower bounds in trajectory layout (`−∞` for none).
@@ -74,6 +80,8 @@ pub struct RiccatiQp {
     /// The data of the last factorisation has the held-input form
     /// ([`Self::held_input_structure`]); the sweeps then skip its zero and identity blocks.
     held: bool,
+    /// Some cross term `S_j` of the last factorisation is nonzero.
+    cross: bool,
 }
 
 impl RiccatiQp {
@@ -115,6 +123,7 @@ impl RiccatiQp {
             b: vec![0.0; nc * nx * nu],
             q: vec![0.0; np * nx * nx],
             r: vec![0.0; nc * nu * nu],
+            s: vec![0.0; nc * nu * nx],
             g: vec![0.0; len],
             lo: vec![f64::NEG_INFINITY; len],
             hi: vec![f64::INFINITY; len],
@@ -138,6 +147,7 @@ impl RiccatiQp {
             mmat: vec![0.0; cap * cap],
             rvec: vec![0.0; cap],
             held: false,
+            cross: false,
         })
     }
 
@@ -181,6 +191,7 @@ impl RiccatiQp {
     /// Factorises the reduced Hessian by the backward Riccati recursion. Returns `false` when a
     /// reduced input Hessian `R + BᵀPB` is not numerically positive definite.
     fn factor(&mut self) -> bool {
+        self.cross = self.s.iter().any(|v| *v != 0.0);
         // The NMPC's stage sizes (1-DOF, 2-DOF) as constants: unrolled, bounds checks removed.
         self.held = match (self.nx, self.nu) {
             (3, 1) => self.held_input_structure::<3, 1>(),
@@ -242,6 +253,9 @@ impl RiccatiQp {
                         sb[(i, c)] = w[(ns + i, c)];
                     }
                 }
+                if self.cross {
+                    self.add_cross::<NX, NU>(j, &mut sb);
+                }
                 let rj = &self.r[j * NU * NU..(j + 1) * NU * NU];
                 let ls = &mut self.lchol[j * NU * NU..(j + 1) * NU * NU];
                 for c in 0..NU {
@@ -294,6 +308,9 @@ impl RiccatiQp {
                     }
                 }
                 sb = b.tr_mul(&pa);
+                if self.cross {
+                    self.add_cross::<NX, NU>(j, &mut sb);
+                }
                 match self.stage_gain(j, &sb) {
                     Some(k) => kg = k,
                     None => return false,
@@ -312,6 +329,18 @@ impl RiccatiQp {
             });
         }
         self.lchol.iter().all(|v| v.is_finite()) && self.kgain.iter().all(|v| v.is_finite())
+    }
+
+    /// `S̄ ← S̄ + S_j` (the stage cross term).
+    #[inline(always)]
+    fn add_cross<const NX: usize, const NU: usize>(&self, j: usize, sb: &mut SMatrix<f64, NU, NX>) {
+        for (v, sj) in sb
+            .as_mut_slice()
+            .iter_mut()
+            .zip(&self.s[j * NU * NX..(j + 1) * NU * NX])
+        {
+            *v += sj;
+        }
     }
 
     /// Factorises `R_j + Bᵀ P B` (written into `lchol[j]` by the caller), and stores
@@ -385,6 +414,11 @@ impl RiccatiQp {
                             s += b[rr * nx + k] * self.pa[c * nx + k];
                         }
                         sb[c * nu + rr] = s;
+                    }
+                }
+                if self.cross {
+                    for (v, sj) in sb.iter_mut().zip(&self.s[j * nu * nx..(j + 1) * nu * nx]) {
+                        *v += sj;
                     }
                 }
                 if !cholesky(l, nu) {
@@ -679,6 +713,15 @@ impl RiccatiQp {
             let rj =
                 SMatrix::<f64, NU, NU>::from_column_slice(&self.r[j * NU * NU..(j + 1) * NU * NU]);
             f += 0.5 * u.dot(&(rj * u));
+            if self.cross && j > 0 {
+                let sj = SMatrix::<f64, NU, NX>::from_column_slice(
+                    &self.s[j * NU * NX..(j + 1) * NU * NX],
+                );
+                let x = SVector::<f64, NX>::from_column_slice(
+                    &self.sol[off + (j - 1) * NX..off + j * NX],
+                );
+                f += u.dot(&(sj * x));
+            }
         }
         for j in 0..self.np {
             let x =
@@ -704,6 +747,15 @@ impl RiccatiQp {
             for c in 0..nu {
                 for rr in 0..nu {
                     f += 0.5 * u[rr] * rj[c * nu + rr] * u[c];
+                }
+            }
+            if self.cross && j > 0 {
+                let x = &self.sol[off + (j - 1) * nx..off + j * nx];
+                let sj = &self.s[j * nu * nx..(j + 1) * nu * nx];
+                for c in 0..nx {
+                    for rr in 0..nu {
+                        f += u[rr] * sj[c * nu + rr] * x[c];
+                    }
                 }
             }
         }
@@ -735,6 +787,7 @@ impl RiccatiQp {
             && finite(&self.b)
             && finite(&self.q)
             && finite(&self.r)
+            && finite(&self.s)
             && finite(&self.g);
         if !data_finite {
             info.status = QpStatus::NonFiniteInput;

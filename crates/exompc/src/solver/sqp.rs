@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use nalgebra::{DMatrix, DVector};
 
-use super::engine::{self, finite_or_inf, BoundCheck, SqpSteps};
+use super::engine::{self, finite_or_inf, BoundCheck, HessianShift, SqpSteps};
 use super::qp::{DenseQp, QpInfo, QpSettings, QpStatus};
 use super::{check_range, SolverError};
 
@@ -26,6 +26,14 @@ pub trait LeastSquares {
     /// Writes `r(z)` into `r` and its Jacobian `∂r/∂z` (`m × n`) into `jac`; returns `false` if
     /// anything is non-finite.
     fn residuals_jacobian(&mut self, z: &[f64], r: &mut [f64], jac: &mut DMatrix<f64>) -> bool;
+    /// Adds the second-order term `Σᵢ rᵢ ∇²rᵢ(z)` of the cost Hessian (`n × n`) to `hess`, with
+    /// `r = r(z)`; used by [`HessianModel::Exact`]. Returns `false` when the problem does not
+    /// provide it (the default) or anything is non-finite; the SQP then takes the
+    /// Gauss–Newton step.
+    fn add_residual_curvature(&mut self, z: &[f64], r: &[f64], hess: &mut DMatrix<f64>) -> bool {
+        let _ = (z, r, hess);
+        false
+    }
 }
 
 /// Box and general linear constraints `zl ≤ z ≤ zu`, `bl ≤ A z ≤ bu` (entries may be ±∞;
@@ -192,6 +200,18 @@ pub enum HessianModel {
     /// not positive definite the iteration falls back to Gauss–Newton (`S` reset). Each solve
     /// starts from `S = 0`, so its first step is the Gauss–Newton step.
     StructuredSecant,
+    /// The exact Hessian `JᵀJ + Σ rᵢ ∇²rᵢ` (the constraints are linear, so this is the
+    /// Lagrangian Hessian): for the NMPC problem the stage blocks `W_j = ∇²(λ_{j+1}ᵀ Φ_j)` of the
+    /// RK4 prediction step with the adjoint `λ` (forward-mode AD; `control::StepHessian`),
+    /// condensed in the dense back-end and passed as `Q_j`, `R_j`, `S_j` blocks to the Riccati QP
+    /// in the structured one, as in acados/HPIPM. Locally quadratic convergence. Safeguard,
+    /// identical in both back-ends: when the QP reports a Hessian that is not positive definite
+    /// (`QpStatus::NumericalError`), the QP is solved with `H + μ I` on the decision variables,
+    /// `μ` by IPOPT's inertia-correction rule (from `1e-8·(1 + max diag JᵀJ)`, ×100 / ×8, the
+    /// last `μ/3` remembered within a solve); beyond `μ = 1 + max diag JᵀJ` that iteration takes
+    /// the Gauss–Newton step. Problems that do not provide the curvature
+    /// ([`LeastSquares::add_residual_curvature`]) and the coupled scenario tree use Gauss–Newton.
+    Exact,
 }
 
 /// Termination status of an SQP solve. Only `Converged` certifies a KKT point; every other
@@ -299,6 +319,10 @@ struct DenseWork {
     kkt_stationarity: f64,
     kkt_violation: f64,
     kkt_complementarity: f64,
+    /// Largest diagonal entry of `JᵀJ` at the last Gauss–Newton Hessian.
+    maxdiag: f64,
+    /// Inertia correction of the exact Hessian.
+    shift: HessianShift,
 }
 
 impl Sqp {
@@ -345,6 +369,8 @@ impl Sqp {
                 kkt_stationarity: f64::INFINITY,
                 kkt_violation: f64::INFINITY,
                 kkt_complementarity: f64::INFINITY,
+                maxdiag: 0.0,
+                shift: HessianShift::default(),
             },
         })
     }
@@ -457,6 +483,7 @@ impl<P: LeastSquares + ?Sized> SqpSteps for DenseSteps<'_, P> {
         }
         // Each solve starts from S = 0 (its first step is the Gauss–Newton step).
         w.secant_active = false;
+        w.shift.reset();
         if w.settings.hessian == HessianModel::StructuredSecant {
             w.secant.fill(0.0);
         }
@@ -520,6 +547,9 @@ impl<P: LeastSquares + ?Sized> SqpSteps for DenseSteps<'_, P> {
         let w = &mut *self.w;
         w.gauss_newton_hessian();
         w.shift_bounds(self.cons, z);
+        if w.settings.hessian == HessianModel::Exact {
+            return w.solve_exact_qp(&mut *self.problem, self.cons, z);
+        }
         if w.secant_active {
             w.hess += &w.secant;
         }
@@ -588,6 +618,7 @@ impl DenseWork {
             }
             maxdiag = maxdiag.max(self.hess[(j, j)]);
         }
+        self.maxdiag = maxdiag;
         let delta = self.settings.hessian_regularization * (1.0 + maxdiag);
         for j in 0..n {
             self.hess[(j, j)] += delta;
@@ -635,6 +666,49 @@ impl DenseWork {
         } else {
             self.secant.fill(0.0);
             false
+        }
+    }
+
+    /// The QP of one iteration with the exact Hessian `JᵀJ + δI + Σ rᵢ∇²rᵢ` (`hess` holds the
+    /// Gauss–Newton part on entry), with the inertia correction of [`HessianShift`] when it is
+    /// not positive definite and the Gauss–Newton QP as the last resort (also when the problem
+    /// does not provide the curvature).
+    fn solve_exact_qp<P: LeastSquares + ?Sized>(
+        &mut self,
+        problem: &mut P,
+        cons: &Constraints,
+        z: &DVector<f64>,
+    ) -> QpInfo {
+        if !problem.add_residual_curvature(z.as_slice(), self.r.as_slice(), &mut self.hess) {
+            self.gauss_newton_hessian();
+            return self.solve_step_qp(cons);
+        }
+        let qi = self.solve_step_qp(cons);
+        if qi.status != QpStatus::NumericalError {
+            return qi;
+        }
+        let mut shift = self.shift;
+        let mut applied = 0.0;
+        let shifted = shift.solve(self.maxdiag, |mu| {
+            for i in 0..self.n {
+                self.hess[(i, i)] += mu - applied;
+            }
+            applied = mu;
+            self.solve_step_qp(cons)
+        });
+        self.shift = shift;
+        match shifted {
+            Ok(mut s) => {
+                s.iterations += qi.iterations;
+                s
+            }
+            Err(iterations) => {
+                // Not positive definite even shifted: the Gauss–Newton step this iteration.
+                self.gauss_newton_hessian();
+                let mut retry = self.solve_step_qp(cons);
+                retry.iterations += qi.iterations + iterations;
+                retry
+            }
         }
     }
 
