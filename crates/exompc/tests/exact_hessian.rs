@@ -103,32 +103,6 @@ fn dense_exact_hessian_matches_finite_differences_of_the_gradient() {
     check_dense_hessian::<TwoDof, 2>(2);
 }
 
-/// Condensed form of a stage QP with cross terms: `u ↦ (u, x)` by the dynamics, the full
-/// trajectory Hessian with blocks `Q_j`, `R_j`, `S_j`.
-fn condense(qp: &RiccatiQp, nx: usize, nu: usize, np: usize, nc: usize) -> DMatrix<f64> {
-    let len = qp.len();
-    let nuv = nc * nu;
-    let mut t = DMatrix::zeros(len, nuv);
-    for k in 0..nuv {
-        t[(k, k)] = 1.0;
-        let mut x = DVector::zeros(nx);
-        for j in 0..np {
-            let aj = DMatrix::from_column_slice(nx, nx, &qp.a[j * nx * nx..(j + 1) * nx * nx]);
-            let mut xn = &aj * &x;
-            if j < nc {
-                let bj = DMatrix::from_column_slice(nx, nu, &qp.b[j * nx * nu..(j + 1) * nx * nu]);
-                let u = DVector::from_fn(nu, |i, _| t[(j * nu + i, k)]);
-                xn += bj * u;
-            }
-            for i in 0..nx {
-                t[(nuv + j * nx + i, k)] = xn[i];
-            }
-            x = xn;
-        }
-    }
-    t
-}
-
 #[test]
 fn riccati_with_cross_terms_equals_the_dense_qp() {
     let mut rng = Rng::new(7);
@@ -218,7 +192,7 @@ fn riccati_with_cross_terms_equals_the_dense_qp() {
                 qp.hi[i] = rng.uniform(0.2, 1.5);
                 rows.push(i);
             }
-            let t = condense(&qp, nx, nu, np, nc);
+            let t = common::condensing_map(&qp, nx, nu, np, nc);
             let len = qp.len();
             let mut wfull = DMatrix::zeros(len, len);
             for j in 0..nc {
@@ -334,8 +308,7 @@ fn structured_equals_dense_with_the_exact_hessian_on_random_instances() {
     }
 }
 
-/// Per step of a closed loop of the default 2-DOF scenario: torque, SQP iterations, status.
-type Trace = Vec<(SVector<f64, 2>, u32, exompc::control::StepStatus)>;
+type Trace = common::Trace<2>;
 
 /// The closed loop of the default 2-DOF scenario with controller `kind`, horizon `n`, Hessian
 /// model `hessian` and QP back-end `qp`, solved to a KKT residual of 1e-10.
@@ -346,8 +319,6 @@ fn closed_loop(
     qp: QpBackend,
     steps: usize,
 ) -> Trace {
-    use exompc::scenario::{build_controller, plant_params, uncertainty};
-    use exompc::sim::{Plant, Sensors};
     let mut s = Scenario::default();
     s.controller.np = n;
     s.controller.nc = n;
@@ -355,19 +326,7 @@ fn closed_loop(
     s.controller.sqp.max_iterations = 1000;
     s.controller.sqp.kkt_tolerance = 1e-10;
     s.controller.sqp.qp = qp;
-    let mut c = build_controller::<TwoDof, 2>(&s, kind).unwrap();
-    let mut plant = Plant::new(plant_params::<TwoDof, 2>(&s), TwoDof::trajectory(&s));
-    let mut sensors = Sensors::new(uncertainty(&s), s.uncertainty.filter_window);
-    let mut out = vec![];
-    for _ in 0..steps {
-        let st = *plant.state();
-        let f = plant.strap_force();
-        let (_, meas) = sensors.read(plant.time(), &st.robot.q, &st.robot.qd, &f);
-        let o = c.step(&meas);
-        out.push((o.torque, o.iterations, o.status));
-        plant.step(&o.torque);
-    }
-    out
+    common::closed_loop_trace::<TwoDof, 2>(&s, kind, steps)
 }
 
 /// (mean, max) iterations per step and the number of steps that did not converge.

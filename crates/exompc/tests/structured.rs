@@ -77,24 +77,7 @@ fn random_instance(rng: &mut Rng, nx: usize, nu: usize, np: usize, nc: usize) ->
         rows.push(i);
     }
     // Condense: T maps u to the trajectory.
-    let mut t = DMatrix::zeros(len, nuv);
-    for k in 0..nuv {
-        t[(k, k)] = 1.0;
-        let mut x = DVector::zeros(nx);
-        for j in 0..np {
-            let aj = DMatrix::from_column_slice(nx, nx, &qp.a[j * nx * nx..(j + 1) * nx * nx]);
-            let mut xn = &aj * &x;
-            if j < nc {
-                let bj = DMatrix::from_column_slice(nx, nu, &qp.b[j * nx * nu..(j + 1) * nx * nu]);
-                let u = DVector::from_fn(nu, |i, _| t[(j * nu + i, k)]);
-                xn += bj * u;
-            }
-            for i in 0..nx {
-                t[(nuv + j * nx + i, k)] = xn[i];
-            }
-            x = xn;
-        }
-    }
+    let t = common::condensing_map(&qp, nx, nu, np, nc);
     let mut w = DMatrix::zeros(len, len);
     for j in 0..nc {
         for c in 0..nu {

@@ -175,6 +175,66 @@ pub fn measurement() -> impl proptest::strategy::Strategy<Value = exompc::contro
     })
 }
 
+/// Per step of a closed loop: torque, SQP iterations, status.
+pub type Trace<const N: usize> = Vec<(nalgebra::SVector<f64, N>, u32, exompc::control::StepStatus)>;
+
+/// The closed loop of scenario `s` with controller `kind` for `steps` steps (plant, sensors
+/// and controller as `exompc simulate` builds them).
+pub fn closed_loop_trace<D: exompc::scenario::Dof<N>, const N: usize>(
+    s: &exompc::config::Scenario,
+    kind: exompc::config::ControllerKind,
+    steps: usize,
+) -> Trace<N> {
+    use exompc::scenario::{build_controller, plant_params, uncertainty};
+    use exompc::sim::{Plant, Sensors};
+    let mut c = build_controller::<D, N>(s, kind).unwrap();
+    let mut plant = Plant::new(plant_params::<D, N>(s), D::trajectory(s));
+    let mut sensors = Sensors::new(uncertainty(s), s.uncertainty.filter_window);
+    let mut out = vec![];
+    for _ in 0..steps {
+        let st = *plant.state();
+        let f = plant.strap_force();
+        let (_, meas) = sensors.read(plant.time(), &st.robot.q, &st.robot.qd, &f);
+        let o = c.step(&meas);
+        out.push((o.torque, o.iterations, o.status));
+        plant.step(&o.torque);
+    }
+    out
+}
+
+/// The condensing map of a stage QP: the `len × nc·nu` matrix `T` with `(u, x) = T u` by the
+/// dynamics `x_{j+1} = A_j x_j + B_j u_j`, `x_0 = 0` (the dense oracle's view of `qp`).
+pub fn condensing_map(
+    qp: &exompc::solver::RiccatiQp,
+    nx: usize,
+    nu: usize,
+    np: usize,
+    nc: usize,
+) -> nalgebra::DMatrix<f64> {
+    use nalgebra::{DMatrix, DVector};
+    let len = qp.len();
+    let nuv = nc * nu;
+    let mut t = DMatrix::zeros(len, nuv);
+    for k in 0..nuv {
+        t[(k, k)] = 1.0;
+        let mut x = DVector::zeros(nx);
+        for j in 0..np {
+            let aj = DMatrix::from_column_slice(nx, nx, &qp.a[j * nx * nx..(j + 1) * nx * nx]);
+            let mut xn = &aj * &x;
+            if j < nc {
+                let bj = DMatrix::from_column_slice(nx, nu, &qp.b[j * nx * nu..(j + 1) * nx * nu]);
+                let u = DVector::from_fn(nu, |i, _| t[(j * nu + i, k)]);
+                xn += bj * u;
+            }
+            for i in 0..nx {
+                t[(nuv + j * nx + i, k)] = xn[i];
+            }
+            x = xn;
+        }
+    }
+    t
+}
+
 /// The scenario `s` in two closed loops of `steps` steps, one with the dense and one with the
 /// structured QP back-end (`[controller.sqp] qp`), controller `kind`: the largest difference
 /// between their torques (N·m). Prints the first step that differs by more than 1e-9.
@@ -184,24 +244,10 @@ pub fn dense_vs_structured_torque_diff<D: exompc::scenario::Dof<N>, const N: usi
     steps: usize,
 ) -> f64 {
     use exompc::control::QpBackend;
-    use exompc::scenario::{build_controller, plant_params, uncertainty};
-    use exompc::sim::{Plant, Sensors};
     let run = |qp: QpBackend| {
         let mut sc = s.clone();
         sc.controller.sqp.qp = qp;
-        let mut c = build_controller::<D, N>(&sc, kind).unwrap();
-        let mut plant = Plant::new(plant_params::<D, N>(&sc), D::trajectory(&sc));
-        let mut sensors = Sensors::new(uncertainty(&sc), sc.uncertainty.filter_window);
-        let mut out = vec![];
-        for _ in 0..steps {
-            let st = *plant.state();
-            let f = plant.strap_force();
-            let (_, meas) = sensors.read(plant.time(), &st.robot.q, &st.robot.qd, &f);
-            let o = c.step(&meas);
-            out.push((o.torque, o.iterations, o.status));
-            plant.step(&o.torque);
-        }
-        out
+        closed_loop_trace::<D, N>(&sc, kind, steps)
     };
     let a = run(QpBackend::Dense);
     let b = run(QpBackend::Structured);
