@@ -181,45 +181,9 @@ fn riccati_with_cross_terms_equals_the_dense_qp() {
                 *v = rng.uniform(-3.0, 3.0);
             }
             let nuv = nc * nu;
-            for k in 0..nuv {
-                qp.lo[k] = rng.uniform(-1.0, -0.1);
-                qp.hi[k] = rng.uniform(0.1, 1.0);
-            }
-            let mut rows = vec![];
-            for j in 1..=np {
-                let i = qp.x_index(j, j % nx);
-                qp.lo[i] = rng.uniform(-1.5, -0.2);
-                qp.hi[i] = rng.uniform(0.2, 1.5);
-                rows.push(i);
-            }
+            let rows = common::random_stage_bounds(&mut qp, &mut rng, nx, nu, np, nc);
             let t = common::condensing_map(&qp, nx, nu, np, nc);
-            let len = qp.len();
-            let mut wfull = DMatrix::zeros(len, len);
-            for j in 0..nc {
-                for c in 0..nu {
-                    for r in 0..nu {
-                        wfull[(j * nu + r, j * nu + c)] = qp.r[j * nu * nu + c * nu + r];
-                    }
-                }
-                if j >= 1 {
-                    let xo = nuv + (j - 1) * nx;
-                    for c in 0..nx {
-                        for r in 0..nu {
-                            let v = qp.s[j * nu * nx + c * nu + r];
-                            wfull[(j * nu + r, xo + c)] = v;
-                            wfull[(xo + c, j * nu + r)] = v;
-                        }
-                    }
-                }
-            }
-            for j in 0..np {
-                let xo = nuv + j * nx;
-                for c in 0..nx {
-                    for r in 0..nx {
-                        wfull[(xo + r, xo + c)] = qp.q[j * nx * nx + c * nx + r];
-                    }
-                }
-            }
+            let wfull = common::trajectory_hessian(&qp, nx, nu, np, nc);
             let h = t.transpose() * &wfull * &t;
             let g = t.transpose() * DVector::from_column_slice(&qp.g);
             let a = DMatrix::from_fn(rows.len(), nuv, |i, k| t[(rows[i], k)]);

@@ -62,37 +62,12 @@ fn random_instance(rng: &mut Rng, nx: usize, nu: usize, np: usize, nc: usize) ->
     for v in qp.g.iter_mut() {
         *v = rng.uniform(-3.0, 3.0);
     }
-    let len = qp.len();
     let nuv = nc * nu;
     // Bounds: inputs boxed (tight enough to bind), one state component boxed per stage.
-    for k in 0..nuv {
-        qp.lo[k] = rng.uniform(-1.0, -0.1);
-        qp.hi[k] = rng.uniform(0.1, 1.0);
-    }
-    let mut rows = vec![];
-    for j in 1..=np {
-        let i = qp.x_index(j, j % nx);
-        qp.lo[i] = rng.uniform(-1.5, -0.2);
-        qp.hi[i] = rng.uniform(0.2, 1.5);
-        rows.push(i);
-    }
+    let rows = common::random_stage_bounds(&mut qp, rng, nx, nu, np, nc);
     // Condense: T maps u to the trajectory.
     let t = common::condensing_map(&qp, nx, nu, np, nc);
-    let mut w = DMatrix::zeros(len, len);
-    for j in 0..nc {
-        for c in 0..nu {
-            for r in 0..nu {
-                w[(j * nu + r, j * nu + c)] = qp.r[j * nu * nu + c * nu + r];
-            }
-        }
-    }
-    for j in 0..np {
-        for c in 0..nx {
-            for r in 0..nx {
-                w[(nuv + j * nx + r, nuv + j * nx + c)] = qp.q[j * nx * nx + c * nx + r];
-            }
-        }
-    }
+    let w = common::trajectory_hessian(&qp, nx, nu, np, nc);
     let h = t.transpose() * &w * &t;
     let h = (&h + h.transpose()) * 0.5;
     let g = t.transpose() * DVector::from_column_slice(&qp.g);

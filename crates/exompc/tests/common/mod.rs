@@ -235,6 +235,72 @@ pub fn condensing_map(
     t
 }
 
+/// Random bounds of a stage QP (the oracle tests' instances): every input boxed tightly
+/// enough to bind, and one state component per stage (`j mod nx`) boxed; returns the
+/// trajectory indices of the boxed states (the dense oracle's general rows).
+pub fn random_stage_bounds(
+    qp: &mut exompc::solver::RiccatiQp,
+    rng: &mut Rng,
+    nx: usize,
+    nu: usize,
+    np: usize,
+    nc: usize,
+) -> Vec<usize> {
+    for k in 0..nc * nu {
+        qp.lo[k] = rng.uniform(-1.0, -0.1);
+        qp.hi[k] = rng.uniform(0.1, 1.0);
+    }
+    let mut rows = vec![];
+    for j in 1..=np {
+        let i = qp.x_index(j, j % nx);
+        qp.lo[i] = rng.uniform(-1.5, -0.2);
+        qp.hi[i] = rng.uniform(0.2, 1.5);
+        rows.push(i);
+    }
+    rows
+}
+
+/// The Hessian of a stage QP's cost over the whole trajectory `(u, x)`: blocks `R_j`, `Q_j`
+/// and the cross terms `S_j` (between `u_j` and `x_j`), so that the condensed Hessian is
+/// `Tᵀ W T` with `T` = [`condensing_map`].
+pub fn trajectory_hessian(
+    qp: &exompc::solver::RiccatiQp,
+    nx: usize,
+    nu: usize,
+    np: usize,
+    nc: usize,
+) -> nalgebra::DMatrix<f64> {
+    let len = qp.len();
+    let nuv = nc * nu;
+    let mut w = nalgebra::DMatrix::zeros(len, len);
+    for j in 0..nc {
+        for c in 0..nu {
+            for r in 0..nu {
+                w[(j * nu + r, j * nu + c)] = qp.r[j * nu * nu + c * nu + r];
+            }
+        }
+        if j >= 1 {
+            let xo = nuv + (j - 1) * nx;
+            for c in 0..nx {
+                for r in 0..nu {
+                    let v = qp.s[j * nu * nx + c * nu + r];
+                    w[(j * nu + r, xo + c)] = v;
+                    w[(xo + c, j * nu + r)] = v;
+                }
+            }
+        }
+    }
+    for j in 0..np {
+        let xo = nuv + j * nx;
+        for c in 0..nx {
+            for r in 0..nx {
+                w[(xo + r, xo + c)] = qp.q[j * nx * nx + c * nx + r];
+            }
+        }
+    }
+    w
+}
+
 /// The scenario `s` in two closed loops of `steps` steps, one with the dense and one with the
 /// structured QP back-end (`[controller.sqp] qp`), controller `kind`: the largest difference
 /// between their torques (N·m). Prints the first step that differs by more than 1e-9.
