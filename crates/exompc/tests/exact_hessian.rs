@@ -241,18 +241,16 @@ fn compare_random_exact<D: Dof<N>, const N: usize>(n: usize, seed: u64) -> usize
         let amp = if hard { 200.0 } else { 20.0 };
         let force = SVector::<f64, N>::from_fn(|_, _| rng.uniform(-amp, amp));
         let t_prev = SVector::<f64, N>::from_fn(|_, _| rng.uniform(-30.0, 30.0));
-        let m = Measurement {
-            t: 0.0,
-            q,
-            qd,
+        let (a, b) = common::solve_both_cold(
+            &mut dense,
+            &mut st,
+            &model,
+            &int,
+            &lim,
+            (q, qd),
             force,
-        };
-        let inputs = horizon_inputs(&int, &model, &m, SVector::zeros());
-        let x0 = JointState { q, qd };
-        dense.reset();
-        st.reset();
-        let a = dense.solve(x0, t_prev, inputs, &lim);
-        let b = st.solve(x0, t_prev, inputs, &lim);
+            t_prev,
+        );
         assert_eq!(a.status, SqpStatus::Converged, "{N}-DOF n={n} case {k}");
         assert_eq!(b.status, SqpStatus::Converged, "{N}-DOF n={n} case {k}");
         assert_eq!(a.iterations, b.iterations, "{N}-DOF n={n} case {k}");

@@ -11,10 +11,7 @@ mod common;
 use clarabel::solver::{DefaultSolver, IPSolver, SolverStatus, SupportedConeT};
 use common::Rng;
 use exompc::config::{ControllerKind, Formulation, Scenario};
-use exompc::control::{
-    horizon_inputs, Measurement, NmpcCore, NmpcSettings, QpBackend, TorqueLimits,
-};
-use exompc::model::JointState;
+use exompc::control::{NmpcCore, NmpcSettings, QpBackend, TorqueLimits};
 use exompc::scenario::{intent, limits, nmpc_settings, prediction_model, Dof, OneDof, TwoDof};
 use exompc::solver::{DenseQp, HessianModel, QpSettings, QpStatus, RiccatiQp, SqpStatus};
 use nalgebra::{DMatrix, DVector, SVector};
@@ -245,18 +242,16 @@ fn compare_random<D: Dof<N>, const N: usize>(n: usize, seed: u64) -> (usize, usi
                 rng.uniform(-30.0, 30.0)
             }
         });
-        let m = Measurement {
-            t: 0.0,
-            q,
-            qd,
+        let (a, b) = common::solve_both_cold(
+            &mut dense,
+            &mut st,
+            &model,
+            &int,
+            &lim,
+            (q, qd),
             force,
-        };
-        let inputs = horizon_inputs(&int, &model, &m, SVector::zeros());
-        let x0 = JointState { q, qd };
-        dense.reset();
-        st.reset();
-        let a = dense.solve(x0, t_prev, inputs, &lim);
-        let b = st.solve(x0, t_prev, inputs, &lim);
+            t_prev,
+        );
         let (za, zb) = (dense.solution(), st.solution());
         let diff = (za - zb).amax();
         if a.status != SqpStatus::Converged || b.status != SqpStatus::Converged {

@@ -301,6 +301,36 @@ pub fn trajectory_hessian(
     w
 }
 
+/// The NMPC problem at joint state `(q, qd)`, strap force `force` and previous torque
+/// `t_prev` (intent from `intent`, no disturbance), solved from a cold start by the dense and
+/// the structured core: their outcomes, in that order.
+#[allow(clippy::too_many_arguments)]
+pub fn solve_both_cold<const N: usize>(
+    dense: &mut exompc::control::NmpcCore<N>,
+    structured: &mut exompc::control::NmpcCore<N>,
+    model: &exompc::control::PredictionModel<N>,
+    intent: &exompc::control::IntentEstimator,
+    lim: &exompc::control::TorqueLimits,
+    (q, qd): (nalgebra::SVector<f64, N>, nalgebra::SVector<f64, N>),
+    force: nalgebra::SVector<f64, N>,
+    t_prev: nalgebra::SVector<f64, N>,
+) -> (exompc::solver::SqpInfo, exompc::solver::SqpInfo) {
+    let m = exompc::control::Measurement {
+        t: 0.0,
+        q,
+        qd,
+        force,
+    };
+    let inputs = exompc::control::horizon_inputs(intent, model, &m, nalgebra::SVector::zeros());
+    let x0 = exompc::model::JointState { q, qd };
+    dense.reset();
+    structured.reset();
+    (
+        dense.solve(x0, t_prev, inputs, lim),
+        structured.solve(x0, t_prev, inputs, lim),
+    )
+}
+
 /// The scenario `s` in two closed loops of `steps` steps, one with the dense and one with the
 /// structured QP back-end (`[controller.sqp] qp`), controller `kind`: the largest difference
 /// between their torques (N·m). Prints the first step that differs by more than 1e-9.
