@@ -7,6 +7,8 @@
 //! * [`arrowhead`] — the scenario tree of the coupled multi-stage NMPC (shared first inputs):
 //!   per-scenario Riccati recursions and a dense block on the shared inputs; linear in the
 //!   horizon and in the number of scenarios.
+//! * `active_set` (internal) — the Goldfarb–Idnani loop on box constraints that [`riccati`] and
+//!   [`arrowhead`] share; each supplies its own solve with a bound normal.
 //! * [`sqp`] — a Gauss–Newton SQP method for box- and linearly-constrained nonlinear least
 //!   squares, the form of the paper's NMPC problem (eq. 7 with constraints eqs. 8–9).
 //!
@@ -15,6 +17,7 @@
 //! never panics. Not converging is reported through a status enum, never as an error;
 //! [`SolverError`] is only returned for invalid settings or dimensions at construction time.
 
+mod active_set;
 pub mod arrowhead;
 pub(crate) mod engine;
 pub mod qp;

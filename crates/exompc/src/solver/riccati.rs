@@ -24,6 +24,7 @@
 //! Goldfarb–Idnani method on the condensed QP (same `H`, `g`, constraints), so the solution agrees
 //! with [`super::DenseQp`] to rounding.
 
+use super::active_set::{add_violated_bounds, bounds_status, BoxDual, BoxParts};
 use super::qp::{QpInfo, QpSettings, QpStatus};
 use super::SolverError;
 use nalgebra::{SMatrix, SVector};
@@ -774,7 +775,6 @@ impl RiccatiQp {
     /// Solves the QP with the current data. Never panics and allocates nothing; the solution is
     /// [`Self::solution`] and the multipliers [`Self::multipliers`].
     pub fn solve(&mut self) -> QpInfo {
-        let len = self.len();
         let mut info = QpInfo {
             status: QpStatus::Solved,
             iterations: 0,
@@ -793,16 +793,9 @@ impl RiccatiQp {
             info.status = QpStatus::NonFiniteInput;
             return info;
         }
-        for i in 0..len {
-            let (l, h) = (self.lo[i], self.hi[i]);
-            if l.is_nan() || h.is_nan() {
-                info.status = QpStatus::NonFiniteInput;
-                return info;
-            }
-            if l > h || l == f64::INFINITY || h == f64::NEG_INFINITY {
-                info.status = QpStatus::Infeasible;
-                return info;
-            }
+        if let Some(status) = bounds_status(&self.lo, &self.hi) {
+            info.status = status;
+            return info;
         }
         if !self.factor() {
             info.status = QpStatus::NumericalError;
@@ -810,124 +803,8 @@ impl RiccatiQp {
         }
         let top = self.np - 1;
         self.sweep(false, top, false);
-        let tol = self.settings.feasibility_tolerance;
-        let dep2 = self.settings.dependency_tolerance * self.settings.dependency_tolerance;
-        let cap = self.mu.len();
-        'outer: loop {
-            // Most violated bound not in the active set.
-            let mut best = 0.0;
-            let mut entering: Option<(usize, f64)> = None;
-            for i in 0..len {
-                let w = self.sol[i];
-                let (l, h) = (self.lo[i], self.hi[i]);
-                let (v, sigma, bound) = if w < l {
-                    (l - w, 1.0, l)
-                } else if w > h {
-                    (w - h, -1.0, h)
-                } else {
-                    continue;
-                };
-                if v > tol * (1.0 + bound.abs())
-                    && v > best
-                    && !self.act.iter().any(|&(id, _)| id == i)
-                {
-                    best = v;
-                    entering = Some((i, sigma));
-                }
-            }
-            let Some((p, sp)) = entering else {
-                break;
-            };
-            let bp = if sp > 0.0 { self.lo[p] } else { -self.hi[p] };
-            self.normal_solve(p, sp);
-            let npp = sp * self.yp[p];
-            let mut mu_p = 0.0;
-            loop {
-                if info.iterations >= self.settings.max_iterations {
-                    info.status = QpStatus::MaxIterations;
-                    break 'outer;
-                }
-                info.iterations += 1;
-                let k = self.act.len();
-                // r = M⁻¹ N_Wᵀ H⁻¹ n_p, M = N_Wᵀ H⁻¹ N_W.
-                for (a, &(ida, sa)) in self.act.iter().enumerate() {
-                    self.rvec[a] = sa * self.yp[ida];
-                    for c in 0..k {
-                        self.mmat[c * k + a] = sa * self.ycols[c * len + ida];
-                    }
-                }
-                if k > 0 {
-                    if !cholesky(&mut self.mmat[..k * k], k) {
-                        info.status = QpStatus::NumericalError;
-                        break 'outer;
-                    }
-                    chol_solve(&self.mmat[..k * k], k, &mut self.rvec[..k]);
-                }
-                // z = H⁻¹ n_p − Σ rᵢ H⁻¹ nᵢ.
-                self.zdir.copy_from_slice(&self.yp);
-                for c in 0..k {
-                    let rc = self.rvec[c];
-                    let col = &self.ycols[c * len..(c + 1) * len];
-                    for (z, y) in self.zdir.iter_mut().zip(col) {
-                        *z -= rc * y;
-                    }
-                }
-                let nz = sp * self.zdir[p];
-                let full = nz > dep2 * npp.abs().max(f64::MIN_POSITIVE);
-                // Largest dual step keeping the active multipliers nonnegative.
-                let mut t1 = f64::INFINITY;
-                let mut block = usize::MAX;
-                for c in 0..k {
-                    let rc = self.rvec[c];
-                    if rc > 0.0 {
-                        let t = self.mu[c] / rc;
-                        if t < t1 {
-                            t1 = t;
-                            block = c;
-                        }
-                    }
-                }
-                let slack = sp * self.sol[p] - bp;
-                let t2 = if full { -slack / nz } else { f64::INFINITY };
-                let t = t1.min(t2);
-                if !t.is_finite() {
-                    info.status = QpStatus::Infeasible;
-                    break 'outer;
-                }
-                for c in 0..k {
-                    self.mu[c] -= t * self.rvec[c];
-                }
-                mu_p += t;
-                if full {
-                    for (w, z) in self.sol.iter_mut().zip(&self.zdir) {
-                        *w += t * z;
-                    }
-                }
-                if full && t2 <= t1 {
-                    if k + 1 > cap {
-                        info.status = QpStatus::NumericalError;
-                        break 'outer;
-                    }
-                    self.act.push((p, sp));
-                    self.mu[k] = mu_p;
-                    self.ycols[k * len..(k + 1) * len].copy_from_slice(&self.yp);
-                    continue 'outer;
-                }
-                // Drop the blocking constraint (order of the active set is irrelevant).
-                let last = k - 1;
-                self.act.swap(block, last);
-                self.act.pop();
-                self.mu[block] = self.mu[last];
-                if block != last {
-                    let (lo_part, hi_part) = self.ycols.split_at_mut(last * len);
-                    lo_part[block * len..(block + 1) * len].copy_from_slice(&hi_part[..len]);
-                }
-            }
-        }
-        for (c, &(id, s)) in self.act.iter().enumerate() {
-            self.mult[id] = -s * self.mu[c];
-        }
-        if !self.sol.iter().all(|v| v.is_finite()) {
+        let settings = self.settings;
+        if !add_violated_bounds(self, &settings, &mut info) {
             info.status = QpStatus::NumericalError;
             return info;
         }
@@ -1104,6 +981,28 @@ fn chol_solve_n(l: &[f64], n: usize, b: &mut [f64]) {
             s -= l[i * n + k] * b[k];
         }
         b[i] = s / l[i * n + i];
+    }
+}
+
+impl BoxDual for RiccatiQp {
+    fn parts(&mut self) -> BoxParts<'_> {
+        BoxParts {
+            lo: &self.lo,
+            hi: &self.hi,
+            sol: &mut self.sol,
+            mult: &mut self.mult,
+            act: &mut self.act,
+            mu: &mut self.mu,
+            ycols: &mut self.ycols,
+            yp: &self.yp,
+            zdir: &mut self.zdir,
+            mmat: &mut self.mmat,
+            rvec: &mut self.rvec,
+        }
+    }
+
+    fn normal_solve(&mut self, id: usize, sigma: f64) {
+        RiccatiQp::normal_solve(self, id, sigma);
     }
 }
 

@@ -1,0 +1,195 @@
+//! The Goldfarb–Idnani dual active-set loop on box constraints, shared by the stage QP
+//! ([`super::RiccatiQp`]) and the scenario-tree QP ([`super::TreeQp`]).
+//!
+//! Both solvers start from the unconstrained minimiser `w = −H⁻¹g` (their factorisation) and
+//! add the most violated bound `σ e_p` one at a time (Goldfarb & Idnani 1983): the only thing
+//! that differs between them is how `H⁻¹ n` is computed for a bound normal `n = σ e_p`
+//! ([`BoxDual::normal_solve`], a vector sweep of the respective factorisation). The active set,
+//! its multipliers and the columns `H⁻¹ nᵢ` live in the solver's workspace, reached through
+//! [`BoxDual::parts`]; nothing here allocates.
+
+use super::qp::{QpInfo, QpSettings, QpStatus};
+use super::riccati::{chol_solve, cholesky};
+
+/// The workspace the loop reads and writes, borrowed from the solver.
+pub(crate) struct BoxParts<'a> {
+    /// Lower bounds in trajectory layout.
+    pub lo: &'a [f64],
+    /// Upper bounds in trajectory layout.
+    pub hi: &'a [f64],
+    /// Current primal point `w` (on entry the unconstrained minimiser).
+    pub sol: &'a mut [f64],
+    /// Multipliers in trajectory layout (set on exit; zero on entry).
+    pub mult: &'a mut [f64],
+    /// Active bounds `(index, σ)`; empty on entry.
+    pub act: &'a mut Vec<(usize, f64)>,
+    /// Multipliers of the active bounds; its length is the capacity of the active set.
+    pub mu: &'a mut [f64],
+    /// Columns `H⁻¹ nᵢ` of the active bounds, each of the trajectory's length.
+    pub ycols: &'a mut [f64],
+    /// `H⁻¹ n_p` of the entering bound, written by [`BoxDual::normal_solve`].
+    pub yp: &'a [f64],
+    /// Primal direction of the current dual step.
+    pub zdir: &'a mut [f64],
+    /// `M = N_Wᵀ H⁻¹ N_W` (capacity squared).
+    pub mmat: &'a mut [f64],
+    /// `r = M⁻¹ N_Wᵀ H⁻¹ n_p` (capacity).
+    pub rvec: &'a mut [f64],
+}
+
+/// A factorised strictly convex QP with box constraints, as the loop sees it.
+pub(crate) trait BoxDual {
+    /// The workspace of the loop.
+    fn parts(&mut self) -> BoxParts<'_>;
+    /// `H⁻¹ n` for the bound normal `n = σ e_id` into the `yp` of [`Self::parts`].
+    fn normal_solve(&mut self, id: usize, sigma: f64);
+}
+
+/// The status a bound pair `[l, h]` gives a QP before it is solved: `NonFiniteInput` for a NaN,
+/// `Infeasible` for `l > h` or a bound that excludes every finite value; `None` when every
+/// pair is usable.
+pub(crate) fn bounds_status(lo: &[f64], hi: &[f64]) -> Option<QpStatus> {
+    for (&l, &h) in lo.iter().zip(hi) {
+        if l.is_nan() || h.is_nan() {
+            return Some(QpStatus::NonFiniteInput);
+        }
+        if l > h || l == f64::INFINITY || h == f64::NEG_INFINITY {
+            return Some(QpStatus::Infeasible);
+        }
+    }
+    None
+}
+
+/// Runs the dual active-set iterations from the unconstrained minimiser in `sol` until no bound
+/// is violated by more than `feasibility_tolerance·(1 + |bound|)`, then writes the multipliers
+/// of the active bounds into `mult` (`−σ μ`, the solvers' sign convention). Iterations, and
+/// `MaxIterations`, `NumericalError` (a singular `M` or a full active set) or `Infeasible`
+/// (no dual step bounded), go into `info`. Returns whether the final point is finite.
+pub(crate) fn add_violated_bounds<Q: BoxDual + ?Sized>(
+    q: &mut Q,
+    settings: &QpSettings,
+    info: &mut QpInfo,
+) -> bool {
+    let tol = settings.feasibility_tolerance;
+    let dep2 = settings.dependency_tolerance * settings.dependency_tolerance;
+    'outer: loop {
+        let (p, sp, bp) = {
+            let w = q.parts();
+            // Most violated bound not in the active set.
+            let mut best = 0.0;
+            let mut entering: Option<(usize, f64)> = None;
+            for (i, ((&wi, &l), &h)) in w.sol.iter().zip(w.lo).zip(w.hi).enumerate() {
+                let (v, sigma, bound) = if wi < l {
+                    (l - wi, 1.0, l)
+                } else if wi > h {
+                    (wi - h, -1.0, h)
+                } else {
+                    continue;
+                };
+                if v > tol * (1.0 + bound.abs())
+                    && v > best
+                    && !w.act.iter().any(|&(id, _)| id == i)
+                {
+                    best = v;
+                    entering = Some((i, sigma));
+                }
+            }
+            let Some((p, sp)) = entering else {
+                break;
+            };
+            (p, sp, if sp > 0.0 { w.lo[p] } else { -w.hi[p] })
+        };
+        q.normal_solve(p, sp);
+        let w = q.parts();
+        let len = w.sol.len();
+        let cap = w.mu.len();
+        let npp = sp * w.yp[p];
+        let mut mu_p = 0.0;
+        loop {
+            if info.iterations >= settings.max_iterations {
+                info.status = QpStatus::MaxIterations;
+                break 'outer;
+            }
+            info.iterations += 1;
+            let k = w.act.len();
+            // r = M⁻¹ N_Wᵀ H⁻¹ n_p, M = N_Wᵀ H⁻¹ N_W.
+            for (a, &(ida, sa)) in w.act.iter().enumerate() {
+                w.rvec[a] = sa * w.yp[ida];
+                for c in 0..k {
+                    w.mmat[c * k + a] = sa * w.ycols[c * len + ida];
+                }
+            }
+            if k > 0 {
+                if !cholesky(&mut w.mmat[..k * k], k) {
+                    info.status = QpStatus::NumericalError;
+                    break 'outer;
+                }
+                chol_solve(&w.mmat[..k * k], k, &mut w.rvec[..k]);
+            }
+            // z = H⁻¹ n_p − Σ rᵢ H⁻¹ nᵢ.
+            w.zdir.copy_from_slice(w.yp);
+            for c in 0..k {
+                let rc = w.rvec[c];
+                let col = &w.ycols[c * len..(c + 1) * len];
+                for (z, y) in w.zdir.iter_mut().zip(col) {
+                    *z -= rc * y;
+                }
+            }
+            let nz = sp * w.zdir[p];
+            let full = nz > dep2 * npp.abs().max(f64::MIN_POSITIVE);
+            // Largest dual step keeping the active multipliers nonnegative.
+            let mut t1 = f64::INFINITY;
+            let mut block = usize::MAX;
+            for c in 0..k {
+                let rc = w.rvec[c];
+                if rc > 0.0 {
+                    let t = w.mu[c] / rc;
+                    if t < t1 {
+                        t1 = t;
+                        block = c;
+                    }
+                }
+            }
+            let slack = sp * w.sol[p] - bp;
+            let t2 = if full { -slack / nz } else { f64::INFINITY };
+            let t = t1.min(t2);
+            if !t.is_finite() {
+                info.status = QpStatus::Infeasible;
+                break 'outer;
+            }
+            for c in 0..k {
+                w.mu[c] -= t * w.rvec[c];
+            }
+            mu_p += t;
+            if full {
+                for (s, z) in w.sol.iter_mut().zip(w.zdir.iter()) {
+                    *s += t * z;
+                }
+            }
+            if full && t2 <= t1 {
+                if k + 1 > cap {
+                    info.status = QpStatus::NumericalError;
+                    break 'outer;
+                }
+                w.act.push((p, sp));
+                w.mu[k] = mu_p;
+                w.ycols[k * len..(k + 1) * len].copy_from_slice(w.yp);
+                continue 'outer;
+            }
+            // Drop the blocking constraint (order of the active set is irrelevant).
+            let last = k - 1;
+            w.act.swap(block, last);
+            w.act.pop();
+            w.mu[block] = w.mu[last];
+            if block != last {
+                let (lo_part, hi_part) = w.ycols.split_at_mut(last * len);
+                lo_part[block * len..(block + 1) * len].copy_from_slice(&hi_part[..len]);
+            }
+        }
+    }
+    let w = q.parts();
+    for (c, &(id, s)) in w.act.iter().enumerate() {
+        w.mult[id] = -s * w.mu[c];
+    }
+    w.sol.iter().all(|v| v.is_finite())
+}
