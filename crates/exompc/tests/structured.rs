@@ -9,25 +9,17 @@
 mod common;
 
 use clarabel::solver::{DefaultSolver, IPSolver, SolverStatus, SupportedConeT};
-use common::Rng;
+use common::{Condensed, Rng};
 use exompc::config::{ControllerKind, Formulation, Scenario};
 use exompc::control::{NmpcCore, NmpcSettings, QpBackend, TorqueLimits};
 use exompc::scenario::{intent, limits, nmpc_settings, prediction_model, Dof, OneDof, TwoDof};
-use exompc::solver::{DenseQp, HessianModel, QpSettings, QpStatus, RiccatiQp, SqpStatus};
+use exompc::solver::{HessianModel, QpSettings, QpStatus, RiccatiQp, SqpStatus};
 use nalgebra::{DMatrix, DVector, SVector};
 
 /// A random stage QP and its condensed dense form `(H, g, lb, ub, A, bl, bu)`.
 struct Instance {
     qp: RiccatiQp,
-    h: DMatrix<f64>,
-    g: DVector<f64>,
-    lb: DVector<f64>,
-    ub: DVector<f64>,
-    a: DMatrix<f64>,
-    bl: DVector<f64>,
-    bu: DVector<f64>,
-    /// Trajectory index of each general row.
-    rows: Vec<usize>,
+    dense: Condensed,
 }
 
 fn random_instance(rng: &mut Rng, nx: usize, nu: usize, np: usize, nc: usize) -> Instance {
@@ -75,31 +67,34 @@ fn random_instance(rng: &mut Rng, nx: usize, nu: usize, np: usize, nc: usize) ->
     let bu = DVector::from_fn(rows.len(), |r, _| qp.hi[rows[r]]);
     Instance {
         qp,
-        h,
-        g,
-        lb,
-        ub,
-        a,
-        bl,
-        bu,
-        rows,
+        dense: Condensed {
+            h,
+            g,
+            lb,
+            ub,
+            a,
+            bl,
+            bu,
+            rows,
+        },
     }
 }
 
 fn clarabel(inst: &Instance) -> Vec<f64> {
-    let n = inst.g.len();
-    let mut rows = common::box_rows(inst.lb.as_slice(), inst.ub.as_slice());
-    for r in 0..inst.a.nrows() {
-        let row: Vec<f64> = (0..n).map(|c| inst.a[(r, c)]).collect();
-        rows.push((row.clone(), inst.bu[r]));
-        rows.push((row.iter().map(|v| -v).collect(), -inst.bl[r]));
+    let n = inst.dense.g.len();
+    let mut rows = common::box_rows(inst.dense.lb.as_slice(), inst.dense.ub.as_slice());
+    for r in 0..inst.dense.a.nrows() {
+        let row: Vec<f64> = (0..n).map(|c| inst.dense.a[(r, c)]).collect();
+        rows.push((row.clone(), inst.dense.bu[r]));
+        rows.push((row.iter().map(|v| -v).collect(), -inst.dense.bl[r]));
     }
     let am = common::clarabel_rows(rows.iter().map(|(row, _)| row.as_slice()), n);
     let b: Vec<f64> = rows.iter().map(|(_, rhs)| *rhs).collect();
     let cones = vec![SupportedConeT::NonnegativeConeT(rows.len())];
-    let pm = common::clarabel_upper(&inst.h);
+    let pm = common::clarabel_upper(&inst.dense.h);
     let settings = common::clarabel_settings();
-    let mut solver = DefaultSolver::new(&pm, inst.g.as_slice(), &am, &b, &cones, settings).unwrap();
+    let mut solver =
+        DefaultSolver::new(&pm, inst.dense.g.as_slice(), &am, &b, &cones, settings).unwrap();
     solver.solve();
     assert!(matches!(
         solver.solution.status,
@@ -128,37 +123,15 @@ fn riccati_qp_matches_dense_qp_and_clarabel_on_random_stage_qps() {
         let info = inst.qp.solve();
         assert_eq!(info.status, QpStatus::Solved, "case {case}");
         let nuv = nc * nu;
-        let mut dense = DenseQp::new(nuv, inst.rows.len());
-        let mut xd = DVector::zeros(nuv);
-        let di = dense.solve(
-            &inst.h, &inst.g, &inst.lb, &inst.ub, &inst.a, &inst.bl, &inst.bu, &mut xd,
-        );
-        assert_eq!(di.status, QpStatus::Solved, "case {case}");
         let xs = &inst.qp.solution()[..nuv];
+        let xd = common::assert_matches_dense(
+            case,
+            &inst.dense,
+            inst.qp.solution(),
+            inst.qp.multipliers(),
+            info.objective,
+        );
         let scale = 1.0 + xd.amax();
-        for k in 0..nuv {
-            assert!(
-                (xs[k] - xd[k]).abs() <= 1e-8 * scale,
-                "case {case}: u[{k}] structured {} dense {}",
-                xs[k],
-                xd[k]
-            );
-        }
-        // Multipliers agree with the dense solver's (box and general rows).
-        let m = inst.qp.multipliers();
-        for k in 0..nuv {
-            assert!(
-                (m[k] - dense.multipliers_box()[k]).abs() <= 1e-7 * (1.0 + m[k].abs()),
-                "case {case}: box multiplier {k}"
-            );
-        }
-        for (r, &i) in inst.rows.iter().enumerate() {
-            assert!(
-                (m[i] - dense.multipliers_general()[r]).abs() <= 1e-7 * (1.0 + m[i].abs()),
-                "case {case}: row multiplier {r}"
-            );
-        }
-        assert!((info.objective - di.objective).abs() <= 1e-9 * (1.0 + di.objective.abs()));
         let xc = clarabel(&inst);
         for k in 0..nuv {
             assert!(

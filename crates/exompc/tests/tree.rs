@@ -10,27 +10,20 @@
 
 mod common;
 
-use common::Rng;
+use common::{Condensed, Rng};
 use exompc::config::{ControllerKind, Formulation, Scenario};
 use exompc::control::{horizon_inputs, CoupledProblem, Measurement, TorqueLimits, TreeSqp};
 use exompc::model::JointState;
 use exompc::scenario::{intent, limits, nmpc_settings, prediction_model, Dof, OneDof, TwoDof};
 use exompc::solver::{
-    Constraints, DenseQp, HessianModel, LeastSquares, QpSettings, QpStatus, Sqp, SqpStatus, TreeQp,
+    Constraints, HessianModel, LeastSquares, QpSettings, QpStatus, Sqp, SqpStatus, TreeQp,
 };
 use nalgebra::{DMatrix, DVector, SVector};
 
 /// A random tree QP and its condensed dense form.
 struct Instance {
     qp: TreeQp,
-    h: DMatrix<f64>,
-    g: DVector<f64>,
-    lb: DVector<f64>,
-    ub: DVector<f64>,
-    a: DMatrix<f64>,
-    bl: DVector<f64>,
-    bu: DVector<f64>,
-    rows: Vec<usize>,
+    dense: Condensed,
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -158,14 +151,16 @@ fn random_tree(
     let bu = DVector::from_fn(rows.len(), |r, _| qp.hi[rows[r]]);
     Instance {
         qp,
-        h,
-        g,
-        lb,
-        ub,
-        a,
-        bl,
-        bu,
-        rows,
+        dense: Condensed {
+            h,
+            g,
+            lb,
+            ub,
+            a,
+            bl,
+            bu,
+            rows,
+        },
     }
 }
 
@@ -189,8 +184,8 @@ fn tree_qp_matches_dense_qp_on_random_tree_qps() {
     {
         let mut inst = random_tree(&mut rng, nx, nu, np, nc, nr, ns);
         let maxdiag = inst.qp.max_condensed_diagonal();
-        let want = (0..inst.h.nrows())
-            .map(|k| inst.h[(k, k)])
+        let want = (0..inst.dense.h.nrows())
+            .map(|k| inst.dense.h[(k, k)])
             .fold(f64::NEG_INFINITY, f64::max);
         assert!(
             (maxdiag - want).abs() <= 1e-10 * want.abs(),
@@ -198,41 +193,12 @@ fn tree_qp_matches_dense_qp_on_random_tree_qps() {
         );
         let info = inst.qp.solve();
         assert_eq!(info.status, QpStatus::Solved, "case {case}");
-        let nv = inst.qp.num_inputs();
-        let mut dense = DenseQp::new(nv, inst.rows.len());
-        let mut xd = DVector::zeros(nv);
-        let di = dense.solve(
-            &inst.h, &inst.g, &inst.lb, &inst.ub, &inst.a, &inst.bl, &inst.bu, &mut xd,
-        );
-        assert_eq!(di.status, QpStatus::Solved, "case {case}");
-        let xs = &inst.qp.solution()[..nv];
-        let scale = 1.0 + xd.amax();
-        for k in 0..nv {
-            assert!(
-                (xs[k] - xd[k]).abs() <= 1e-8 * scale,
-                "case {case}: u[{k}] tree {} dense {}",
-                xs[k],
-                xd[k]
-            );
-        }
-        let m = inst.qp.multipliers();
-        for k in 0..nv {
-            assert!(
-                (m[k] - dense.multipliers_box()[k]).abs() <= 1e-7 * (1.0 + m[k].abs()),
-                "case {case}: box multiplier {k}"
-            );
-        }
-        for (r, &i) in inst.rows.iter().enumerate() {
-            assert!(
-                (m[i] - dense.multipliers_general()[r]).abs() <= 1e-7 * (1.0 + m[i].abs()),
-                "case {case}: row multiplier {r}"
-            );
-        }
-        assert!(
-            (info.objective - di.objective).abs() <= 1e-9 * (1.0 + di.objective.abs()),
-            "case {case}: objective {} vs {}",
+        common::assert_matches_dense(
+            case,
+            &inst.dense,
+            inst.qp.solution(),
+            inst.qp.multipliers(),
             info.objective,
-            di.objective
         );
         total_active += inst.qp.num_active();
     }

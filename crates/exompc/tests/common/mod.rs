@@ -372,3 +372,70 @@ pub fn provoked_limit_cycle() -> exompc::config::Scenario {
     s.robot.payload_position_m = 0.43;
     s
 }
+
+/// The condensed dense form of a stage or tree QP, the oracle `DenseQp` solves:
+/// `min ½xᵀHx + gᵀx` over the inputs, `lb ≤ x ≤ ub`, `bl ≤ A x ≤ bu`.
+#[allow(dead_code)]
+pub struct Condensed {
+    pub h: nalgebra::DMatrix<f64>,
+    pub g: nalgebra::DVector<f64>,
+    pub lb: nalgebra::DVector<f64>,
+    pub ub: nalgebra::DVector<f64>,
+    pub a: nalgebra::DMatrix<f64>,
+    pub bl: nalgebra::DVector<f64>,
+    pub bu: nalgebra::DVector<f64>,
+    /// Trajectory index of each general row (a state bound of the structured QP).
+    pub rows: Vec<usize>,
+}
+
+/// Solves `c` with `DenseQp` and asserts that a structured solver's trajectory `sol` (inputs
+/// first), multipliers `mult` (trajectory layout) and objective match it: inputs to
+/// `1e-8·(1 + max|x|)`, box and row multipliers to `1e-7·(1 + |m|)`, the objective to
+/// `1e-9·(1 + |f|)`. Returns the dense solution.
+#[allow(dead_code)]
+pub fn assert_matches_dense(
+    case: usize,
+    c: &Condensed,
+    sol: &[f64],
+    mult: &[f64],
+    objective: f64,
+) -> nalgebra::DVector<f64> {
+    use exompc::solver::{DenseQp, QpStatus};
+    let nv = c.g.len();
+    let mut dense = DenseQp::new(nv, c.rows.len());
+    let mut xd = nalgebra::DVector::zeros(nv);
+    let di = dense.solve(&c.h, &c.g, &c.lb, &c.ub, &c.a, &c.bl, &c.bu, &mut xd);
+    assert_eq!(di.status, QpStatus::Solved, "case {case}");
+    let scale = 1.0 + xd.amax();
+    for k in 0..nv {
+        assert!(
+            (sol[k] - xd[k]).abs() <= 1e-8 * scale,
+            "case {case}: u[{k}] structured {} dense {}",
+            sol[k],
+            xd[k]
+        );
+    }
+    for (k, (m, md)) in mult
+        .iter()
+        .zip(dense.multipliers_box())
+        .take(nv)
+        .enumerate()
+    {
+        assert!(
+            (m - md).abs() <= 1e-7 * (1.0 + m.abs()),
+            "case {case}: box multiplier {k}"
+        );
+    }
+    for (r, &i) in c.rows.iter().enumerate() {
+        assert!(
+            (mult[i] - dense.multipliers_general()[r]).abs() <= 1e-7 * (1.0 + mult[i].abs()),
+            "case {case}: row multiplier {r}"
+        );
+    }
+    assert!(
+        (objective - di.objective).abs() <= 1e-9 * (1.0 + di.objective.abs()),
+        "case {case}: objective {objective} vs {}",
+        di.objective
+    );
+    xd
+}
