@@ -118,11 +118,11 @@ pub struct RobustSettings {
     /// probability (control/heavy.rs): a scenario's ratio is the largest over the joints of its
     /// diagonal mass-matrix entry at the stretched leg over the lightest scenario's. A payload
     /// far down the shank makes the moving average's delay unstable from the first step,
-    /// before a detector sees it (docs/ROBUSTNESS.md, sixth pass). >= 0; 0 = off. Default 4.
+    /// before a detector sees it (docs/ROBUSTNESS.md, sixth pass). >= 0; 0 = off. Default 3.
     pub inertia_engage_ratio: f64,
     /// How long (s) the heavy scenarios must hold half of the probability without a break
     /// before the inertia gate opens; it then stays open. In [0, 10] (0 = one step).
-    /// Default 0.05.
+    /// Default 0.1.
     pub inertia_engage_s: f64,
 }
 
@@ -174,8 +174,8 @@ impl Default for RobustSettings {
             torque_oscillation_window_s: 0.1,
             torque_oscillation_cutoff_hz: 4.0,
             torque_oscillation_fraction: 0.6,
-            inertia_engage_ratio: 4.0,
-            inertia_engage_s: 0.05,
+            inertia_engage_ratio: 3.0,
+            inertia_engage_s: 0.1,
         }
     }
 }
