@@ -875,6 +875,12 @@ impl Scenario {
                     rb.torque_oscillation_fraction,
                     R::Closed(0.0, 0.999),
                 ),
+                ("inertia_engage_ratio", rb.inertia_engage_ratio, R::NonNeg),
+                (
+                    "inertia_engage_s",
+                    rb.inertia_engage_s,
+                    R::Closed(0.0, 10.0),
+                ),
             ],
         )?;
 

@@ -131,6 +131,8 @@ fn method_and_robust_settings_are_configured_and_validated() {
     assert_eq!(s.controller.robust.torque_oscillation_window_s, 0.1);
     assert_eq!(s.controller.robust.torque_oscillation_cutoff_hz, 4.0);
     assert_eq!(s.controller.robust.torque_oscillation_fraction, 0.6);
+    assert_eq!(s.controller.robust.inertia_engage_ratio, 3.0);
+    assert_eq!(s.controller.robust.inertia_engage_s, 0.1);
     for (set, field) in [
         (
             (|s: &mut Scenario| s.controller.robust.oscillation_fraction = 1.0)
@@ -192,6 +194,18 @@ fn method_and_robust_settings_are_configured_and_validated() {
         (
             |s: &mut Scenario| s.controller.robust.torque_oscillation_fraction = 1.0,
             "controller.robust.torque_oscillation_fraction",
+        ),
+        (
+            |s: &mut Scenario| s.controller.robust.inertia_engage_ratio = -1.0,
+            "controller.robust.inertia_engage_ratio",
+        ),
+        (
+            |s: &mut Scenario| s.controller.robust.inertia_engage_ratio = f64::NAN,
+            "controller.robust.inertia_engage_ratio",
+        ),
+        (
+            |s: &mut Scenario| s.controller.robust.inertia_engage_s = 10.5,
+            "controller.robust.inertia_engage_s",
         ),
     ] {
         let mut bad = Scenario::default();
@@ -417,6 +431,9 @@ fn torque_detector_passes_the_heavy_start_up_cells() {
         let (robust, trips) = run(&s);
         let mut off = s.clone();
         off.controller.robust.torque_oscillation_nm = 0.0;
+        // The inertia gate (sixth pass) covers the 0.30 m cell too (its 2-kg scenario's ratio
+        // is 4.2): off as well, to see the torque detector alone.
+        off.controller.robust.inertia_engage_ratio = 0.0;
         let (_, off_trips) = run(&off);
         let mut nmpc = s.clone();
         nmpc.controller.kind = ControllerKind::NMPC;
@@ -433,4 +450,96 @@ fn torque_detector_passes_the_heavy_start_up_cells() {
             "{name}: without the torque detector no monitor trips: the cell no longer tests it"
         );
     }
+}
+
+/// The inertia ratio of each payload scenario (control/heavy.rs) is the closed form of the
+/// two-link chain at the stretched leg: at the knee `(I₂ + m₂c₂² + m r²) / (I₂ + m₂c₂²)` and
+/// at the hip the same with the thigh and the shank's distance from the hip; the largest of
+/// the two. The default scenarios (payload at 0.215 m) stay below the default threshold 3, the
+/// ankle ones (0.43 m) reach it from 1 kg.
+#[test]
+fn inertia_ratios_are_the_closed_form_of_the_chain() {
+    use exompc::control::inertia_ratios;
+    use exompc::scenario::multistage::prediction_models;
+    let closed = |s: &Scenario, m: f64| {
+        let (t, k, r) = (&s.robot.thigh, &s.robot.shank, s.robot.payload_position_m);
+        let knee0 = k.inertia + k.mass * k.com * k.com;
+        let shank_hip = k.inertia + k.mass * (t.length + k.com).powi(2);
+        let hip0 = t.inertia + t.mass * t.com * t.com + shank_hip;
+        let knee = (knee0 + m * r * r) / knee0;
+        let hip = (hip0 + m * (t.length + r).powi(2)) / hip0;
+        knee.max(hip)
+    };
+    for pos in [0.215, 0.43] {
+        let mut s = Scenario::default();
+        s.robot.payload_position_m = pos;
+        let ratios = inertia_ratios(&prediction_models::<TwoDof, 2>(&s));
+        let payloads = s.multistage.payloads_kg.clone();
+        assert_eq!(ratios.len(), payloads.len());
+        for (r, m) in ratios.iter().zip(&payloads) {
+            assert!(
+                (r - closed(&s, *m)).abs() < 1e-9,
+                "{pos} m, {m} kg: {r} vs {}",
+                closed(&s, *m)
+            );
+            let heavy = *r >= s.controller.robust.inertia_engage_ratio;
+            assert_eq!(heavy, pos > 0.3 && *m >= 1.0, "{pos} m, {m} kg: ratio {r}");
+        }
+    }
+}
+
+/// Envelope cells "payload at 0.43 m" at 1 and 2 kg (docs/ROBUSTNESS.md, sixth pass): the
+/// distal load limit-cycles from the first step, and the monitors' fallback tripped before the
+/// oscillation detectors engaged the filter-aware mode. The inertia gate
+/// (`inertia_engage_ratio`, the default) engages it from the start: no monitor trip, every
+/// strap below 20 N, below the plain NMPC's RMS and with < 25 % of its power above 3 Hz; with
+/// the gate off a monitor trips. The bare controller (monitors out of reach) at 2 kg diverged
+/// (60 / 90 N): with the gate it stays below 20 N.
+#[test]
+fn inertia_gate_passes_the_distal_load_cells() {
+    let run = |s: &Scenario| {
+        let mut log = TraceLog::<2>::default();
+        let sum = run_experiment::<TwoDof, 2>(s, &mut [&mut log]).expect("run");
+        let (rms, hf) = rms_and_hf(&log);
+        (rms, hf, sum.safety.monitor_trips)
+    };
+    for payload in [1.0, 2.0] {
+        let mut s = Scenario::default();
+        s.robot.payload_position_m = 0.43;
+        s.uncertainty.payload_kg = payload;
+        let (robust, hf, trips) = run(&s);
+        let mut off = s.clone();
+        off.controller.robust.inertia_engage_ratio = 0.0;
+        let (_, _, off_trips) = run(&off);
+        let mut nmpc = s.clone();
+        nmpc.controller.kind = ControllerKind::NMPC;
+        let (nmpc, _, _) = run(&nmpc);
+        assert_eq!(trips, 0, "{payload} kg: robust MS-NMPC tripped a monitor");
+        for a in 0..2 {
+            assert!(
+                robust[a] < 20.0 && robust[a] <= nmpc[a] && hf[a] < 0.25,
+                "{payload} kg: robust RMS {robust:?} (HF {hf:?}) vs NMPC {nmpc:?}"
+            );
+        }
+        assert!(
+            off_trips > 0,
+            "{payload} kg: without the inertia gate no monitor trips: the cell no longer tests it"
+        );
+    }
+    let mut bare = Scenario::default();
+    bare.robot.payload_position_m = 0.43;
+    bare.uncertainty.payload_kg = 2.0;
+    let m = &mut bare.monitors;
+    m.tracking_error_max_rad = 1e300;
+    m.force_max_n = 1e300;
+    m.sensor_timeout_s = 1e300;
+    m.oscillation_force_rms_n = 1e300;
+    m.oscillation_torque_rms_nm = 1e300;
+    let (on, _, _) = run(&bare);
+    bare.controller.robust.inertia_engage_ratio = 0.0;
+    let (off, _, _) = run(&bare);
+    assert!(
+        on.iter().all(|f| *f < 20.0) && off.iter().any(|f| *f > 20.0),
+        "bare controller at 2 kg, 0.43 m: gate on {on:?}, off {off:?}"
+    );
 }

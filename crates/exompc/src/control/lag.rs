@@ -58,6 +58,12 @@ impl<const N: usize> ForceLag<N> {
         self.qd_prev = Some(*qd);
     }
 
+    /// Forget the last velocity (the next [`Self::push_velocity`] starts the acceleration
+    /// estimate afresh), e.g. after periods in which no velocity was pushed.
+    pub fn restart_velocity(&mut self) {
+        self.qd_prev = None;
+    }
+
     /// The filter window `w` (samples).
     pub fn window(&self) -> usize {
         self.buf.len()

@@ -21,6 +21,7 @@
 //! [`crate::config::Scenario`]; `docs/MODEL.md` §8 gives the equations and default values.
 
 mod fallback;
+mod heavy;
 mod hessian;
 mod highpass;
 mod intent;
@@ -36,6 +37,7 @@ mod robust;
 mod safety;
 
 pub use fallback::{FallbackSettings, FallbackSettingsError, Transparent};
+pub use heavy::inertia_ratios;
 pub use hessian::StepHessian;
 pub use highpass::HighPass;
 pub use intent::{GainSetting, IntentGain, AUTO_K1_PER_STIFFNESS, AUTO_K2_PER_STIFFNESS};

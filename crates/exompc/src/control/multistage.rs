@@ -1,5 +1,6 @@
 //! Multi-stage robust NMPC (paper §3.2, eqs. 10-13): see [`MultiStage`].
 
+use super::heavy::InertiaGate;
 use super::limits::LimitsError;
 use super::nmpc::{classify, horizon_inputs, NmpcCore, NmpcProblem, NmpcSettings};
 use super::ocp_tree::{tree_is_structured, TreeSqp};
@@ -348,6 +349,10 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     dbank: Option<EkfBank<N, NA, NY>>,
     /// The strap force the disturbance bank saw at the previous step, per scenario.
     prev_dforce: Vec<SVector<f64, N>>,
+    /// The robust method's inertia gate ([`RobustSettings::inertia_engage_ratio`]; `None` =
+    /// off), and whether the filter-aware mode was used on the previous step.
+    gate: Option<InertiaGate>,
+    filter_aware_prev: bool,
     ekf: EkfSettings,
     estimator: EstimatorOptions,
 }
@@ -411,6 +416,8 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             robust: None,
             dbank: None,
             prev_dforce: vec![zero; s],
+            gate: None,
+            filter_aware_prev: false,
             ekf: *ekf,
             estimator: *estimator,
         })
@@ -430,6 +437,14 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             // The settings passed the paper's bank's checks in `new`, and `q_disturbance` is
             // positive, so this succeeds.
             self.dbank = EkfBank::new(&robots, &ekf, &self.estimator, &zero, &zero).ok();
+        }
+        if r.gated() && settings.inertia_engage_ratio > 0.0 {
+            let dt = self.models[0].dt;
+            self.gate = Some(InertiaGate::new(
+                &self.models,
+                settings.inertia_engage_ratio,
+                (settings.inertia_engage_s / dt).round() as usize,
+            ));
         }
         self.robust = Some(r);
         self
@@ -527,8 +542,17 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
         // Smith-predicted force (its own strap model removes the robot's own force change).
         let mut mi = *m;
         let mut stretch = None;
+        let heavy = match self.gate.as_mut() {
+            Some(g) => g.update(self.bank.probabilities()),
+            None => false,
+        };
         if let Some(r) = self.robust.as_mut() {
-            if r.observe(m, &self.prev, gap) {
+            let engaged = r.observe(m, &self.prev, gap) || heavy;
+            if engaged && !self.filter_aware_prev {
+                r.restart_velocity();
+            }
+            self.filter_aware_prev = engaged;
+            if engaged {
                 let p = self.bank.probabilities();
                 let mut qd = SVector::<f64, N>::zeros();
                 for (f, pi) in self.bank.filters().iter().zip(p) {

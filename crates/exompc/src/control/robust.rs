@@ -113,6 +113,17 @@ pub struct RobustSettings {
     /// Share of the torque power above the cut-off that counts as oscillation, in
     /// [0, 0.999]. Default 0.6.
     pub torque_oscillation_fraction: f64,
+    /// With `"on_oscillation"`: the filter-aware mode is also used on every step where the
+    /// scenarios whose *inertia ratio* reaches this value hold at least half of the EKF bank's
+    /// probability (control/heavy.rs): a scenario's ratio is the largest over the joints of its
+    /// diagonal mass-matrix entry at the stretched leg over the lightest scenario's. A payload
+    /// far down the shank makes the moving average's delay unstable from the first step,
+    /// before a detector sees it (docs/ROBUSTNESS.md, sixth pass). >= 0; 0 = off. Default 3.
+    pub inertia_engage_ratio: f64,
+    /// How long (s) the heavy scenarios must hold half of the probability without a break
+    /// before the inertia gate opens; it then stays open. In [0, 10] (0 = one step).
+    /// Default 0.1.
+    pub inertia_engage_s: f64,
 }
 
 /// The strap stiffness (N/m) at which the paper's intent gains hold (paper Table 1,
@@ -163,6 +174,8 @@ impl Default for RobustSettings {
             torque_oscillation_window_s: 0.1,
             torque_oscillation_cutoff_hz: 4.0,
             torque_oscillation_fraction: 0.6,
+            inertia_engage_ratio: 3.0,
+            inertia_engage_s: 0.1,
         }
     }
 }
@@ -265,6 +278,17 @@ impl<const N: usize> RobustState<N> {
         let out = (led(self.lead), led(self.dlead));
         self.last_force = Some(*f);
         out
+    }
+
+    /// Restart the Smith predictor's velocity history (the filter-aware mode was off on the
+    /// previous step, so its last velocity is stale).
+    pub(crate) fn restart_velocity(&mut self) {
+        self.lag.restart_velocity();
+    }
+
+    /// Whether the filter-aware mode engages on the inertia gate (control/heavy.rs).
+    pub(crate) fn gated(&self) -> bool {
+        self.mode == FilterAware::OnOscillation
     }
 
     /// Whether a second EKF bank supplies the disturbance estimates
