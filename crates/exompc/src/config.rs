@@ -875,6 +875,11 @@ impl Scenario {
                     rb.torque_oscillation_fraction,
                     R::Closed(0.0, 0.999),
                 ),
+                (
+                    "weight_smoothing_s",
+                    rb.weight_smoothing_s,
+                    R::Closed(0.0, 10.0),
+                ),
             ],
         )?;
 

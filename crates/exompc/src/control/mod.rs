@@ -34,6 +34,7 @@ mod pd;
 mod prediction;
 mod robust;
 mod safety;
+mod weights;
 
 pub use fallback::{FallbackSettings, FallbackSettingsError, Transparent};
 pub use hessian::StepHessian;

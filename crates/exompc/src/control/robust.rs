@@ -113,6 +113,13 @@ pub struct RobustSettings {
     /// Share of the torque power above the cut-off that counts as oscillation, in
     /// [0, 0.999]. Default 0.6.
     pub torque_oscillation_fraction: f64,
+    /// Time constant (s) of a first-order low-pass on the scenario probabilities before they
+    /// weight the scenarios' costs (paper eq. 12); the probabilities themselves (reported,
+    /// and the filter-aware velocity blend) stay the bank's. Where no scenario fits, the
+    /// posteriors chatter between 0 and 1 and each switch steps the torque
+    /// (`control/weights.rs`). In [0, 10]; 0 = the probabilities as they are (the paper's).
+    /// Default 0.15.
+    pub weight_smoothing_s: f64,
 }
 
 /// The strap stiffness (N/m) at which the paper's intent gains hold (paper Table 1,
@@ -163,6 +170,7 @@ impl Default for RobustSettings {
             torque_oscillation_window_s: 0.1,
             torque_oscillation_cutoff_hz: 4.0,
             torque_oscillation_fraction: 0.6,
+            weight_smoothing_s: 0.15,
         }
     }
 }
