@@ -881,6 +881,11 @@ impl Scenario {
                     rb.inertia_engage_s,
                     R::Closed(0.0, 10.0),
                 ),
+                (
+                    "weight_smoothing_s",
+                    rb.weight_smoothing_s,
+                    R::Closed(0.0, 10.0),
+                ),
             ],
         )?;
 

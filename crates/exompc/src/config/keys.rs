@@ -421,6 +421,7 @@ pub const KEYS: &[KeyDoc] = &[
     k("controller.robust.torque_oscillation_fraction", "-", real(closed(0.0), closed(0.999)), ROB, "Share of the torque power above the cut-off that counts as oscillation."),
     k("controller.robust.inertia_engage_ratio", "-", NONNEG, ROB, "Inertia ratio (a scenario's diagonal mass-matrix entry at the stretched leg over the lightest scenario's, largest over the joints) from which the filter-aware mode is used while such scenarios hold half the probability; 0 = off."),
     k("controller.robust.inertia_engage_s", "s", real(closed(0.0), closed(10.0)), ROB, "How long the heavy scenarios must hold half the probability without a break before the inertia gate opens (then it stays open)."),
+    k("controller.robust.weight_smoothing_s", "s", real(closed(0.0), closed(10.0)), ROB, "Time constant of the low-pass on the scenario probabilities that weight the MS-NMPC's costs; 0 = the probabilities as they are."),
     k("controller.robust.intent_gains", "", Allowed::Choice(&["strap_model", "configured"]), ROB, "Intent gains of the robust method: controller.k1/k2 scaled by 937.5 N/m / straps.stiffness (equal at the default straps), or as configured."),
     // [multistage]
     table("multistage", M8, "Scenario tree and probabilities of the multi-stage NMPC (paper eqs. 10-13)."),

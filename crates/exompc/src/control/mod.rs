@@ -35,6 +35,7 @@ mod pd;
 mod prediction;
 mod robust;
 mod safety;
+mod weights;
 
 pub use fallback::{FallbackSettings, FallbackSettingsError, Transparent};
 pub use heavy::inertia_ratios;

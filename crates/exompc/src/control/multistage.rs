@@ -6,6 +6,7 @@ use super::nmpc::{classify, horizon_inputs, NmpcCore, NmpcProblem, NmpcSettings}
 use super::ocp_tree::{tree_is_structured, TreeSqp};
 use super::prediction::{HorizonInputs, PredictionModel};
 use super::robust::{RobustSettings, RobustState};
+use super::weights::WeightSmoother;
 use super::{ControlOutput, Controller, IntentEstimator, Measurement, StepStatus, TorqueLimits};
 use crate::estimate::{EkfBank, EkfSettings, EstimateError, EstimatorOptions};
 use crate::model::JointState;
@@ -353,6 +354,9 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     /// off), and whether the filter-aware mode was used on the previous step.
     gate: Option<InertiaGate>,
     filter_aware_prev: bool,
+    /// The robust method's smoothed scenario weights ([`RobustSettings::weight_smoothing_s`]);
+    /// `None` = the bank's probabilities (the paper's).
+    smoother: Option<WeightSmoother>,
     ekf: EkfSettings,
     estimator: EstimatorOptions,
 }
@@ -418,6 +422,7 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             prev_dforce: vec![zero; s],
             gate: None,
             filter_aware_prev: false,
+            smoother: None,
             ekf: *ekf,
             estimator: *estimator,
         })
@@ -447,6 +452,11 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             ));
         }
         self.robust = Some(r);
+        self.smoother = WeightSmoother::new(
+            self.models.len(),
+            self.models[0].dt,
+            settings.weight_smoothing_s,
+        );
         self
     }
 
@@ -584,7 +594,10 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
             };
             self.inputs[i] = horizon_inputs(&self.intent, &self.models[i], &mi, self.dist[i]);
         }
-        self.weights.copy_from_slice(self.bank.probabilities());
+        match self.smoother.as_mut() {
+            Some(sm) => sm.apply(self.bank.probabilities(), &mut self.weights),
+            None => self.weights.copy_from_slice(self.bank.probabilities()),
+        }
         let prev = self.prev;
         let (desired, status, iterations) = if let Some(c) = self.coupled.as_mut() {
             let info = c.solve(x0, prev, &self.inputs, &self.weights, &self.limits);

@@ -124,6 +124,13 @@ pub struct RobustSettings {
     /// before the inertia gate opens; it then stays open. In [0, 10] (0 = one step).
     /// Default 0.1.
     pub inertia_engage_s: f64,
+    /// Time constant (s) of a first-order low-pass on the scenario probabilities before they
+    /// weight the scenarios' costs (paper eq. 12); the probabilities themselves (reported,
+    /// and the filter-aware velocity blend) stay the bank's. Where no scenario fits, the
+    /// posteriors chatter between 0 and 1 and each switch steps the torque
+    /// (`control/weights.rs`). In [0, 10]; 0 = the probabilities as they are (the paper's).
+    /// Default 0.15.
+    pub weight_smoothing_s: f64,
 }
 
 /// The strap stiffness (N/m) at which the paper's intent gains hold (paper Table 1,
@@ -176,6 +183,7 @@ impl Default for RobustSettings {
             torque_oscillation_fraction: 0.6,
             inertia_engage_ratio: 3.0,
             inertia_engage_s: 0.1,
+            weight_smoothing_s: 0.15,
         }
     }
 }
