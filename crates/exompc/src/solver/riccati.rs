@@ -1018,6 +1018,11 @@ pub(crate) fn held_congruence<const NX: usize, const NU: usize>(
     let mut x = SMatrix::<f64, NX, NX>::zeros();
     for c in 0..NX {
         for r in 0..NX {
+            // `X[ns.., ..ns]` feeds only the lower triangle of `Aᵀ X`, which the mirror below
+            // overwrites: left at zero.
+            if r >= ns && c < ns {
+                continue;
+            }
             let mut s = if c >= ns { p[(r, c)] } else { 0.0 };
             for k in 0..ns {
                 s += p[(r, k)] * a[(k, c)];
@@ -1235,6 +1240,93 @@ mod tests {
             0.0,
             -0.0
         ]));
+    }
+
+    /// The full-square `held_congruence` of the fifth pass (every entry of `X = P A`).
+    fn held_congruence_square<const NX: usize, const NU: usize>(
+        p: &SMatrix<f64, NX, NX>,
+        a: &SMatrix<f64, NX, NX>,
+    ) -> SMatrix<f64, NX, NX> {
+        let ns = NX - NU;
+        let mut x = SMatrix::<f64, NX, NX>::zeros();
+        for c in 0..NX {
+            for r in 0..NX {
+                let mut s = if c >= ns { p[(r, c)] } else { 0.0 };
+                for k in 0..ns {
+                    s += p[(r, k)] * a[(k, c)];
+                }
+                x[(r, c)] = s;
+            }
+        }
+        let mut w = SMatrix::<f64, NX, NX>::zeros();
+        let at = a.transpose();
+        for c in 0..NX {
+            for r in 0..NX {
+                let mut s = if r >= ns { x[(r, c)] } else { 0.0 };
+                for k in 0..ns {
+                    s += at[(r, k)] * x[(k, c)];
+                }
+                w[(r, c)] = s;
+            }
+        }
+        for c in 0..NX {
+            for r in c + 1..NX {
+                w[(r, c)] = w[(c, r)];
+            }
+        }
+        w
+    }
+
+    /// `held_congruence` without the block of `X` that only the mirrored-over triangle reads is
+    /// bit-identical to the full square (random symmetric `P`, held `A`, zeros of both signs).
+    #[test]
+    fn held_congruence_equals_the_full_square_bitwise() {
+        fn run<const NX: usize, const NU: usize>(seed: u64) {
+            let mut st = seed;
+            let mut next = || {
+                st = st
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                let v = ((st >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0;
+                if v.abs() < 0.05 {
+                    if v < 0.0 {
+                        -0.0
+                    } else {
+                        0.0
+                    }
+                } else {
+                    v
+                }
+            };
+            let ns = NX - NU;
+            for _ in 0..500 {
+                let mut p = SMatrix::<f64, NX, NX>::zeros();
+                for c in 0..NX {
+                    for r in 0..=c {
+                        let v = next();
+                        p[(r, c)] = v;
+                        p[(c, r)] = v;
+                    }
+                }
+                let mut a = SMatrix::<f64, NX, NX>::zeros();
+                for c in 0..NX {
+                    for r in 0..ns {
+                        a[(r, c)] = next();
+                    }
+                }
+                for i in ns..NX {
+                    a[(i, i)] = 1.0;
+                }
+                let w = held_congruence::<NX, NU>(&p, &a);
+                let v = held_congruence_square::<NX, NU>(&p, &a);
+                for (x, y) in w.iter().zip(v.iter()) {
+                    assert_eq!(x.to_bits(), y.to_bits());
+                }
+            }
+        }
+        run::<3, 1>(11);
+        run::<6, 2>(12);
+        run::<4, 1>(13);
     }
 
     /// The branch-free scans answer as the loops they replace: `any(v != 0)` and the bound-pair
