@@ -653,7 +653,17 @@ impl<const N: usize> StageWork<N> {
         let off = nc * N;
         let stat = match N {
             1 => adjoint_stationarity::<3, 1>(&self.qp, &self.grad, np, nc),
-            2 => adjoint_stationarity::<6, 2>(&self.qp, &self.grad, np, nc),
+            2 => {
+                #[cfg(target_arch = "x86_64")]
+                if has_avx() {
+                    // SAFETY: the CPU supports AVX (checked at run time).
+                    unsafe { adjoint_stationarity_avx::<6, 2>(&self.qp, &self.grad, np, nc) }
+                } else {
+                    adjoint_stationarity::<6, 2>(&self.qp, &self.grad, np, nc)
+                }
+                #[cfg(not(target_arch = "x86_64"))]
+                adjoint_stationarity::<6, 2>(&self.qp, &self.grad, np, nc)
+            }
             _ => self.stationarity_any_size(),
         };
         let mult = self.qp.multipliers();
@@ -689,11 +699,27 @@ unsafe fn max_condensed_diagonal_avx<const N: usize, const NX: usize, const NU: 
     w.max_condensed_diagonal_fixed::<NX, NU>()
 }
 
+/// [`adjoint_stationarity`] compiled with AVX enabled (same operations in the same order).
+///
+/// # Safety
+/// The CPU must support AVX ([`has_avx`]).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+unsafe fn adjoint_stationarity_avx<const NX: usize, const NU: usize>(
+    qp: &RiccatiQp,
+    grad: &[f64],
+    np: usize,
+    nc: usize,
+) -> f64 {
+    adjoint_stationarity::<NX, NU>(qp, grad, np, nc)
+}
+
 /// Largest stationarity residual `|g_u + mult_u + B_jᵀ μ_{j+1}|` of the inputs, with the costates
 /// `μ_{j+1} = g_x + mult_x + A_{j+1}ᵀ μ_{j+2}` from a backward sweep (fixed-size blocks). The
 /// dynamics have the held-input form written by [`StageWork::evaluate`] (`A = [[F, G], [0, I]]`,
 /// `B = [G; I]`), so the zero and identity rows are skipped: the same nonzero terms in the same
 /// order as the slice version (equal values).
+#[inline(always)]
 fn adjoint_stationarity<const NX: usize, const NU: usize>(
     qp: &RiccatiQp,
     grad: &[f64],
@@ -947,6 +973,12 @@ mod tests {
             let a = adjoint_stationarity::<6, 2>(&w2.qp, &w2.grad, np, nc);
             assert_eq!(a, w2.stationarity_any_size(), "N = 2");
             assert!(a > 0.0);
+            #[cfg(target_arch = "x86_64")]
+            if has_avx() {
+                // SAFETY: AVX checked just above.
+                let v = unsafe { adjoint_stationarity_avx::<6, 2>(&w2.qp, &w2.grad, np, nc) };
+                assert_eq!(v.to_bits(), a.to_bits(), "N = 2, AVX build");
+            }
         }
     }
 
