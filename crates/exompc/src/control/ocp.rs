@@ -27,8 +27,6 @@ use super::prediction::StepJacobian;
 use super::TorqueLimits;
 use crate::model::JointState;
 use crate::solver::engine::{self, finite_or_inf, BoundCheck, HessianShift, SqpSteps};
-#[cfg(target_arch = "x86_64")]
-use crate::solver::riccati::has_avx;
 use crate::solver::riccati::held_congruence;
 use crate::solver::{
     HessianModel, QpInfo, QpStatus, RiccatiQp, SolverError, SqpInfo, SqpSettings, SqpStatus,
@@ -246,14 +244,7 @@ impl<const N: usize> StageWork<N> {
     fn max_condensed_diagonal(&mut self) -> f64 {
         match N {
             1 => self.max_condensed_diagonal_fixed::<3, 1>(),
-            2 => {
-                #[cfg(target_arch = "x86_64")]
-                if has_avx() {
-                    // SAFETY: the CPU supports AVX (checked at run time).
-                    return unsafe { max_condensed_diagonal_avx::<N, 6, 2>(self) };
-                }
-                self.max_condensed_diagonal_fixed::<6, 2>()
-            }
+            2 => self.max_condensed_diagonal_fixed::<6, 2>(),
             _ => self.max_condensed_diagonal_any_size(),
         }
     }
@@ -264,7 +255,6 @@ impl<const N: usize> StageWork<N> {
     /// `A_j` (the held-input form written by [`Self::evaluate`]), `(B_jᵀ V_j B_j)_aa` is the
     /// diagonal entry `W_j[ns + a, ns + a]`: one congruence a stage, no separate `Bᵀ V B`.
     /// Equals the slice version to rounding (unit test).
-    #[inline(always)]
     fn max_condensed_diagonal_fixed<const NX: usize, const NU: usize>(&self) -> f64 {
         let nn = NX * NX;
         let ns = NX - NU;
@@ -653,17 +643,7 @@ impl<const N: usize> StageWork<N> {
         let off = nc * N;
         let stat = match N {
             1 => adjoint_stationarity::<3, 1>(&self.qp, &self.grad, np, nc),
-            2 => {
-                #[cfg(target_arch = "x86_64")]
-                if has_avx() {
-                    // SAFETY: the CPU supports AVX (checked at run time).
-                    unsafe { adjoint_stationarity_avx::<6, 2>(&self.qp, &self.grad, np, nc) }
-                } else {
-                    adjoint_stationarity::<6, 2>(&self.qp, &self.grad, np, nc)
-                }
-                #[cfg(not(target_arch = "x86_64"))]
-                adjoint_stationarity::<6, 2>(&self.qp, &self.grad, np, nc)
-            }
+            2 => adjoint_stationarity::<6, 2>(&self.qp, &self.grad, np, nc),
             _ => self.stationarity_any_size(),
         };
         let mult = self.qp.multipliers();
@@ -686,40 +666,11 @@ impl<const N: usize> StageWork<N> {
     }
 }
 
-/// [`StageWork::max_condensed_diagonal_fixed`] compiled with AVX enabled (the Riccati kernels'
-/// run-time dispatch, `solver::riccati`; same operations in the same order, same value).
-///
-/// # Safety
-/// The CPU must support AVX ([`has_avx`]).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx")]
-unsafe fn max_condensed_diagonal_avx<const N: usize, const NX: usize, const NU: usize>(
-    w: &StageWork<N>,
-) -> f64 {
-    w.max_condensed_diagonal_fixed::<NX, NU>()
-}
-
-/// [`adjoint_stationarity`] compiled with AVX enabled (same operations in the same order).
-///
-/// # Safety
-/// The CPU must support AVX ([`has_avx`]).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx")]
-unsafe fn adjoint_stationarity_avx<const NX: usize, const NU: usize>(
-    qp: &RiccatiQp,
-    grad: &[f64],
-    np: usize,
-    nc: usize,
-) -> f64 {
-    adjoint_stationarity::<NX, NU>(qp, grad, np, nc)
-}
-
 /// Largest stationarity residual `|g_u + mult_u + B_jᵀ μ_{j+1}|` of the inputs, with the costates
 /// `μ_{j+1} = g_x + mult_x + A_{j+1}ᵀ μ_{j+2}` from a backward sweep (fixed-size blocks). The
 /// dynamics have the held-input form written by [`StageWork::evaluate`] (`A = [[F, G], [0, I]]`,
 /// `B = [G; I]`), so the zero and identity rows are skipped: the same nonzero terms in the same
 /// order as the slice version (equal values).
-#[inline(always)]
 fn adjoint_stationarity<const NX: usize, const NU: usize>(
     qp: &RiccatiQp,
     grad: &[f64],
@@ -973,12 +924,6 @@ mod tests {
             let a = adjoint_stationarity::<6, 2>(&w2.qp, &w2.grad, np, nc);
             assert_eq!(a, w2.stationarity_any_size(), "N = 2");
             assert!(a > 0.0);
-            #[cfg(target_arch = "x86_64")]
-            if has_avx() {
-                // SAFETY: AVX checked just above.
-                let v = unsafe { adjoint_stationarity_avx::<6, 2>(&w2.qp, &w2.grad, np, nc) };
-                assert_eq!(v.to_bits(), a.to_bits(), "N = 2, AVX build");
-            }
         }
     }
 
@@ -994,15 +939,6 @@ mod tests {
             let b = w2.max_condensed_diagonal_any_size();
             assert!((a - b).abs() <= 1e-12 * b.abs(), "N = 2: {a} vs {b}");
             assert!(b > w2.r_t);
-            // The AVX build of the same code gives the same bits (and is what `N = 2` runs
-            // on a CPU with AVX).
-            #[cfg(target_arch = "x86_64")]
-            if has_avx() {
-                // SAFETY: AVX checked just above.
-                let v = unsafe { max_condensed_diagonal_avx::<2, 6, 2>(&w2) };
-                assert_eq!(v.to_bits(), a.to_bits());
-                assert_eq!(w2.max_condensed_diagonal().to_bits(), a.to_bits());
-            }
         }
     }
 }

@@ -219,7 +219,7 @@ impl RiccatiQp {
         };
         match (self.nx, self.nu) {
             (3, 1) if self.held => self.factor_held::<3, 1>(),
-            (6, 2) if self.held => self.factor_held_simd::<6, 2>(),
+            (6, 2) if self.held => self.factor_held::<6, 2>(),
             (3, 1) => self.factor_fixed::<3, 1>(),
             (6, 2) => self.factor_fixed::<6, 2>(),
             (nx, nu) => self.factor_dims(nx, nu),
@@ -256,26 +256,11 @@ impl RiccatiQp {
         true
     }
 
-    /// [`Self::factor_held`] compiled for AVX (4-wide) when the CPU has it, else the baseline
-    /// (SSE2) build of the same code. Same operations in the same order either way (no fused
-    /// multiply-add: Rust does not contract `a * b + c`), so the same numbers (unit test
-    /// `simd_factor_equals_the_baseline_bitwise`).
-    #[inline(always)]
-    fn factor_held_simd<const NX: usize, const NU: usize>(&mut self) -> bool {
-        #[cfg(target_arch = "x86_64")]
-        if has_avx() {
-            // SAFETY: the CPU supports AVX (checked at run time).
-            return unsafe { factor_held_avx::<NX, NU>(self) };
-        }
-        self.factor_held::<NX, NU>()
-    }
-
     /// The Riccati recursion of [`Self::factor_fixed`] for the held-input form of
     /// [`Self::held_input_structure`], which skips the zero and identity blocks of `A_j` and
     /// reads `Bᵀ P A`, `Bᵀ P B` off `Aᵀ P A` (about half the multiply-adds of the general
     /// stage). Equals the general recursion to rounding (unit test against
     /// [`Self::factor_dims`]).
-    #[inline(always)]
     fn factor_held<const NX: usize, const NU: usize>(&mut self) -> bool {
         let ns = NX - NU;
         let (np, nc) = (self.np, self.nc);
@@ -505,15 +490,7 @@ impl RiccatiQp {
     fn sweep(&mut self, use_unit: bool, top: usize, out_is_yp: bool) {
         match (self.nx, self.nu, self.held) {
             (3, 1, true) => self.sweep_fixed::<3, 1, true>(use_unit, top, out_is_yp),
-            (6, 2, true) => {
-                #[cfg(target_arch = "x86_64")]
-                if has_avx() {
-                    // SAFETY: the CPU supports AVX (checked at run time).
-                    unsafe { sweep_held_avx::<6, 2>(self, use_unit, top, out_is_yp) };
-                    return;
-                }
-                self.sweep_fixed::<6, 2, true>(use_unit, top, out_is_yp)
-            }
+            (6, 2, true) => self.sweep_fixed::<6, 2, true>(use_unit, top, out_is_yp),
             (3, 1, false) => self.sweep_fixed::<3, 1, false>(use_unit, top, out_is_yp),
             (6, 2, false) => self.sweep_fixed::<6, 2, false>(use_unit, top, out_is_yp),
             (nx, nu, _) => self.sweep_dims(nx, nu, use_unit, top, out_is_yp),
@@ -524,7 +501,6 @@ impl RiccatiQp {
     /// (identical results). With `HELD` (data of the held-input form, see
     /// [`Self::held_input_structure`]) the zero and identity blocks of `A_j` are skipped (equal
     /// to rounding).
-    #[inline(always)]
     fn sweep_fixed<const NX: usize, const NU: usize, const HELD: bool>(
         &mut self,
         use_unit: bool,
@@ -1004,45 +980,6 @@ impl RiccatiQp {
     }
 }
 
-/// Whether the CPU supports AVX (`std` caches the answer after the first query).
-#[inline]
-pub(crate) fn has_avx() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::arch::is_x86_feature_detected!("avx")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
-}
-
-/// [`RiccatiQp::factor_held`] compiled with AVX enabled.
-///
-/// # Safety
-/// The CPU must support AVX ([`has_avx`]).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx")]
-unsafe fn factor_held_avx<const NX: usize, const NU: usize>(qp: &mut RiccatiQp) -> bool {
-    qp.factor_held::<NX, NU>()
-}
-
-/// [`RiccatiQp::sweep_fixed`] of the held-input form compiled with AVX enabled (same
-/// operations in the same order as the baseline build).
-///
-/// # Safety
-/// The CPU must support AVX ([`has_avx`]).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx")]
-unsafe fn sweep_held_avx<const NX: usize, const NU: usize>(
-    qp: &mut RiccatiQp,
-    use_unit: bool,
-    top: usize,
-    out_is_yp: bool,
-) {
-    qp.sweep_fixed::<NX, NU, true>(use_unit, top, out_is_yp)
-}
-
 /// `P ← base(r, c) + [with_input] S̄ᵀ K` on the upper triangle, mirrored: the last step of one
 /// Riccati stage (`base` = `Q + Aᵀ P A` in the caller's summation order).
 #[inline(always)]
@@ -1390,38 +1327,6 @@ mod tests {
         run::<3, 1>(11);
         run::<6, 2>(12);
         run::<4, 1>(13);
-    }
-
-    /// The AVX builds of the held-input factor and sweep (run-time dispatch) give the same bits
-    /// as the baseline build: factor, full and truncated sweeps.
-    #[test]
-    #[cfg(target_arch = "x86_64")]
-    fn simd_factor_equals_the_baseline_bitwise() {
-        if !has_avx() {
-            return;
-        }
-        for (np, nc, seed) in [(1, 1, 21), (7, 4, 22), (20, 20, 23), (50, 50, 24)] {
-            let mut a = random_held_qp(6, 2, np, nc, seed);
-            a.held = true;
-            let mut b = a.clone();
-            assert!(a.factor_held::<6, 2>());
-            // SAFETY: AVX checked above.
-            assert!(unsafe { factor_held_avx::<6, 2>(&mut b) });
-            assert_eq!((&a.lchol, &a.kgain, &a.sbar), (&b.lchol, &b.kgain, &b.sbar));
-            for top in [np - 1, np / 2, 0] {
-                for use_unit in [false, true] {
-                    a.unit.fill(0.0);
-                    b.unit.fill(0.0);
-                    let id = a.len() / 2;
-                    a.unit[id] = 1.0;
-                    b.unit[id] = 1.0;
-                    a.sweep_fixed::<6, 2, true>(use_unit, top, use_unit);
-                    // SAFETY: AVX checked above.
-                    unsafe { sweep_held_avx::<6, 2>(&mut b, use_unit, top, use_unit) };
-                    assert_eq!((&a.sol, &a.yp, &a.kff), (&b.sol, &b.yp, &b.kff));
-                }
-            }
-        }
     }
 
     /// The branch-free scans answer as the loops they replace: `any(v != 0)` and the bound-pair
