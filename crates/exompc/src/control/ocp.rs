@@ -117,6 +117,9 @@ struct StageWork<const N: usize> {
     maxdiag: f64,
     /// Inertia correction of the exact Hessian (shared rule with the dense back-end).
     shift: HessianShift,
+    /// `qp.a`, `qp.b` hold the constant zero and identity entries of the held-input form, so a
+    /// linearisation writes only `F_j`, `G_j` (false after `projection_qp`, which zeroes them).
+    layout: bool,
 }
 
 impl<const N: usize> StructuredSqp<N> {
@@ -126,6 +129,8 @@ impl<const N: usize> StructuredSqp<N> {
         let (np, nc) = (s.np, s.nc);
         let nx = 3 * N;
         let mut qp = RiccatiQp::new(nx, N, np, nc, s.sqp.qp)?;
+        // `evaluate` and `projection_qp` write A_j = [[F, G], [0, I]], B_j = [G; I] only.
+        qp.assume_held_input_form();
         // Q = diag(I, r_d I, 0) for every state; R set per solve.
         for j in 0..np {
             let qj = &mut qp.q[j * nx * nx..(j + 1) * nx * nx];
@@ -167,6 +172,7 @@ impl<const N: usize> StructuredSqp<N> {
                 lam: vec![(SVector::zeros(), SVector::zeros()); np],
                 maxdiag: 0.0,
                 shift: HessianShift::default(),
+                layout: false,
             },
         })
     }
@@ -374,6 +380,9 @@ impl<const N: usize> StageWork<N> {
         let mut finite = true;
         let off = nc * N;
         let consts = problem.model.jacobian_constants();
+        if jac && !self.layout {
+            self.write_held_layout();
+        }
         for j in 0..np {
             if j < nc {
                 for a in 0..N {
@@ -399,8 +408,8 @@ impl<const N: usize> StageWork<N> {
                     }
                 }
                 finite &= nan == 0.0;
+                // The zero and identity entries are in place (`write_held_layout`).
                 let aj = &mut self.qp.a[j * nx * nx..(j + 1) * nx * nx];
-                aj.fill(0.0);
                 for c in 0..N {
                     for r in 0..N {
                         aj[c * nx + r] = g.qq[(r, c)];
@@ -410,17 +419,14 @@ impl<const N: usize> StageWork<N> {
                         aj[(2 * N + c) * nx + r] = g.qu[(r, c)];
                         aj[(2 * N + c) * nx + N + r] = g.vu[(r, c)];
                     }
-                    aj[(2 * N + c) * nx + 2 * N + c] = 1.0;
                 }
                 if j < nc {
                     let bj = &mut self.qp.b[j * nx * N..(j + 1) * nx * N];
-                    bj.fill(0.0);
                     for c in 0..N {
                         for r in 0..N {
                             bj[c * nx + r] = g.qu[(r, c)];
                             bj[c * nx + N + r] = g.vu[(r, c)];
                         }
-                        bj[c * nx + 2 * N + c] = 1.0;
                     }
                 }
                 xn
@@ -454,6 +460,26 @@ impl<const N: usize> StageWork<N> {
         } else {
             f64::NAN
         }
+    }
+
+    /// Writes the constant part of the held-input form into every `A_j`, `B_j`: zeros, and the
+    /// identity `I` of `A_j`'s last block and `B_j`'s last rows (the linearisation fills in `F_j`
+    /// and `G_j`).
+    fn write_held_layout(&mut self) {
+        let nx = 3 * N;
+        self.qp.a.fill(0.0);
+        self.qp.b.fill(0.0);
+        for aj in self.qp.a.chunks_exact_mut(nx * nx) {
+            for c in 0..N {
+                aj[(2 * N + c) * nx + 2 * N + c] = 1.0;
+            }
+        }
+        for bj in self.qp.b.chunks_exact_mut(nx * N) {
+            for c in 0..N {
+                bj[c * nx + 2 * N + c] = 1.0;
+            }
+        }
+        self.layout = true;
     }
 
     /// Restores the Gauss–Newton stage costs `Q_j = diag(I, r_d I, 0)`, `S_j = 0` if the last
@@ -744,6 +770,7 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
         let w = &mut *self.w;
         w.reset_curvature();
         let nx = 3 * N;
+        w.layout = false;
         w.qp.a.fill(0.0);
         w.qp.b.fill(0.0);
         for j in 0..w.np {

@@ -45,10 +45,26 @@ pub(crate) trait BoxDual {
     fn normal_solve(&mut self, id: usize, sigma: f64);
 }
 
+/// Whether every bound pair is usable: neither bound NaN, `lo ≤ hi`, `lo < +∞`, `hi > −∞`
+/// (one pass without a branch per entry; [`bounds_status`] finds the offending pair when not).
+#[inline]
+pub(crate) fn bounds_ordered(lo: &[f64], hi: &[f64]) -> bool {
+    let mut ok = true;
+    for (l, h) in lo.iter().zip(hi) {
+        // `l <= h` is false when either is NaN.
+        ok &= (*l <= *h) & (*l != f64::INFINITY) & (*h != f64::NEG_INFINITY);
+    }
+    ok
+}
+
 /// The status a bound pair `[l, h]` gives a QP before it is solved: `NonFiniteInput` for a NaN,
 /// `Infeasible` for `l > h` or a bound that excludes every finite value; `None` when every
 /// pair is usable.
 pub(crate) fn bounds_status(lo: &[f64], hi: &[f64]) -> Option<QpStatus> {
+    if bounds_ordered(lo, hi) {
+        return None;
+    }
+    // Some pair is NaN or crossed: the first one decides.
     for (&l, &h) in lo.iter().zip(hi) {
         if l.is_nan() || h.is_nan() {
             return Some(QpStatus::NonFiniteInput);

@@ -83,6 +83,9 @@ pub struct RiccatiQp {
     held: bool,
     /// Some cross term `S_j` of the last factorisation is nonzero.
     cross: bool,
+    /// The owner writes only data of the held-input form (see
+    /// [`Self::assume_held_input_form`]): the factorisation skips detecting it.
+    held_known: bool,
 }
 
 impl RiccatiQp {
@@ -149,6 +152,7 @@ impl RiccatiQp {
             rvec: vec![0.0; cap],
             held: false,
             cross: false,
+            held_known: false,
         })
     }
 
@@ -189,15 +193,30 @@ impl RiccatiQp {
         self.act.len()
     }
 
+    /// Declares that every `A_j`, `B_j` this solver will be given has the held-input form of
+    /// [`Self::held_input_structure`] (the NMPC's stages, `control::ocp`, which write it by
+    /// construction): factorisations then use the held-input kernels without comparing the data
+    /// (24 comparisons a stage). Only for the stage sizes with those kernels (`nx × nu` = 3 × 1,
+    /// 6 × 2); ignored for others. Debug builds still check the form.
+    pub(crate) fn assume_held_input_form(&mut self) {
+        self.held_known = matches!((self.nx, self.nu), (3, 1) | (6, 2));
+    }
+
     /// Factorises the reduced Hessian by the backward Riccati recursion. Returns `false` when a
     /// reduced input Hessian `R + BᵀPB` is not numerically positive definite.
     fn factor(&mut self) -> bool {
-        self.cross = self.s.iter().any(|v| *v != 0.0);
+        self.cross = any_nonzero(&self.s);
         // The NMPC's stage sizes (1-DOF, 2-DOF) as constants: unrolled, bounds checks removed.
-        self.held = match (self.nx, self.nu) {
-            (3, 1) => self.held_input_structure::<3, 1>(),
-            (6, 2) => self.held_input_structure::<6, 2>(),
+        let detect = |qp: &Self| match (qp.nx, qp.nu) {
+            (3, 1) => qp.held_input_structure::<3, 1>(),
+            (6, 2) => qp.held_input_structure::<6, 2>(),
             _ => false,
+        };
+        self.held = if self.held_known {
+            debug_assert!(detect(self), "data not of the held-input form");
+            true
+        } else {
+            detect(self)
         };
         match (self.nx, self.nu) {
             (3, 1) if self.held => self.factor_held::<3, 1>(),
@@ -215,17 +234,23 @@ impl RiccatiQp {
     fn held_input_structure<const NX: usize, const NU: usize>(&self) -> bool {
         let ns = NX - NU;
         let n2 = NX * NX;
+        // Branch-free within a stage (every comparison is made; the answer is the same).
         for j in 0..self.np {
             let a = &self.a[j * n2..(j + 1) * n2];
+            let mut differ = false;
             for c in 0..NX {
                 for r in ns..NX {
                     let want = if c == r { 1.0 } else { 0.0 };
-                    if a[c * NX + r] != want {
-                        return false;
-                    }
+                    differ |= a[c * NX + r] != want;
                 }
             }
-            if j < self.nc && self.b[j * NX * NU..(j + 1) * NX * NU] != a[ns * NX..] {
+            if j < self.nc {
+                let b = &self.b[j * NX * NU..(j + 1) * NX * NU];
+                for (bv, av) in b.iter().zip(&a[ns * NX..]) {
+                    differ |= bv != av;
+                }
+            }
+            if differ {
                 return false;
             }
         }
@@ -275,7 +300,7 @@ impl RiccatiQp {
             let qj = &self.q[(j - 1) * n2..j * n2];
             riccati_update(&mut p, j < nc, &sb, &kg, |r, c| qj[c * NX + r] + w[(r, c)]);
         }
-        self.lchol.iter().all(|v| v.is_finite()) && self.kgain.iter().all(|v| v.is_finite())
+        all_finite(&self.lchol) && all_finite(&self.kgain)
     }
 
     /// [`Self::factor_dims`] with fixed-size blocks on the stack for the NMPC's `nx × nu` stages:
@@ -329,7 +354,7 @@ impl RiccatiQp {
                 s
             });
         }
-        self.lchol.iter().all(|v| v.is_finite()) && self.kgain.iter().all(|v| v.is_finite())
+        all_finite(&self.lchol) && all_finite(&self.kgain)
     }
 
     /// `S̄ ← S̄ + S_j` (the stage cross term).
@@ -457,7 +482,7 @@ impl RiccatiQp {
                 }
             }
         }
-        self.lchol.iter().all(|v| v.is_finite()) && self.kgain.iter().all(|v| v.is_finite())
+        all_finite(&self.lchol) && all_finite(&self.kgain)
     }
 
     /// Minimiser of `½wᵀHw + linᵀw` over the dynamics (trajectory layout) into `out`, where
@@ -867,6 +892,11 @@ pub(crate) fn held_congruence<const NX: usize, const NU: usize>(
     let mut x = SMatrix::<f64, NX, NX>::zeros();
     for c in 0..NX {
         for r in 0..NX {
+            // `X[ns.., ..ns]` feeds only the lower triangle of `Aᵀ X`, which the mirror below
+            // overwrites: left at zero.
+            if r >= ns && c < ns {
+                continue;
+            }
             let mut s = if c >= ns { p[(r, c)] } else { 0.0 };
             for k in 0..ns {
                 s += p[(r, k)] * a[(k, c)];
@@ -912,6 +942,23 @@ fn all_finite(v: &[f64]) -> bool {
         acc[0] += x - x;
     }
     (acc[0] + acc[1] + acc[2] + acc[3]) == 0.0
+}
+
+/// Whether some entry is nonzero (NaN counts as nonzero), without a branch per entry.
+#[inline]
+fn any_nonzero(v: &[f64]) -> bool {
+    let mut acc = [false; 4];
+    let chunks = v.chunks_exact(4);
+    let rest = chunks.remainder();
+    for c in chunks {
+        for l in 0..4 {
+            acc[l] |= c[l] != 0.0;
+        }
+    }
+    for x in rest {
+        acc[0] |= *x != 0.0;
+    }
+    acc[0] | acc[1] | acc[2] | acc[3]
 }
 
 /// In-place lower Cholesky factor of the `n × n` column-major `m` (upper part ignored).
@@ -1009,6 +1056,7 @@ impl BoxDual for RiccatiQp {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::solver::active_set::bounds_ordered;
 
     /// A QP with pseudo-random stage data (deterministic LCG), `Q`, `R` positive definite.
     fn random_qp(nx: usize, nu: usize, np: usize, nc: usize, seed: u64) -> RiccatiQp {
@@ -1079,6 +1127,136 @@ mod tests {
         ]));
     }
 
+    /// The full-square `held_congruence` of the fifth pass (every entry of `X = P A`).
+    fn held_congruence_square<const NX: usize, const NU: usize>(
+        p: &SMatrix<f64, NX, NX>,
+        a: &SMatrix<f64, NX, NX>,
+    ) -> SMatrix<f64, NX, NX> {
+        let ns = NX - NU;
+        let mut x = SMatrix::<f64, NX, NX>::zeros();
+        for c in 0..NX {
+            for r in 0..NX {
+                let mut s = if c >= ns { p[(r, c)] } else { 0.0 };
+                for k in 0..ns {
+                    s += p[(r, k)] * a[(k, c)];
+                }
+                x[(r, c)] = s;
+            }
+        }
+        let mut w = SMatrix::<f64, NX, NX>::zeros();
+        let at = a.transpose();
+        for c in 0..NX {
+            for r in 0..NX {
+                let mut s = if r >= ns { x[(r, c)] } else { 0.0 };
+                for k in 0..ns {
+                    s += at[(r, k)] * x[(k, c)];
+                }
+                w[(r, c)] = s;
+            }
+        }
+        for c in 0..NX {
+            for r in c + 1..NX {
+                w[(r, c)] = w[(c, r)];
+            }
+        }
+        w
+    }
+
+    /// `held_congruence` without the block of `X` that only the mirrored-over triangle reads is
+    /// bit-identical to the full square (random symmetric `P`, held `A`, zeros of both signs).
+    #[test]
+    fn held_congruence_equals_the_full_square_bitwise() {
+        fn run<const NX: usize, const NU: usize>(seed: u64) {
+            let mut st = seed;
+            let mut next = || {
+                st = st
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                let v = ((st >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0;
+                if v.abs() < 0.05 {
+                    if v < 0.0 {
+                        -0.0
+                    } else {
+                        0.0
+                    }
+                } else {
+                    v
+                }
+            };
+            let ns = NX - NU;
+            for _ in 0..500 {
+                let mut p = SMatrix::<f64, NX, NX>::zeros();
+                for c in 0..NX {
+                    for r in 0..=c {
+                        let v = next();
+                        p[(r, c)] = v;
+                        p[(c, r)] = v;
+                    }
+                }
+                let mut a = SMatrix::<f64, NX, NX>::zeros();
+                for c in 0..NX {
+                    for r in 0..ns {
+                        a[(r, c)] = next();
+                    }
+                }
+                for i in ns..NX {
+                    a[(i, i)] = 1.0;
+                }
+                let w = held_congruence::<NX, NU>(&p, &a);
+                let v = held_congruence_square::<NX, NU>(&p, &a);
+                for (x, y) in w.iter().zip(v.iter()) {
+                    assert_eq!(x.to_bits(), y.to_bits());
+                }
+            }
+        }
+        run::<3, 1>(11);
+        run::<6, 2>(12);
+        run::<4, 1>(13);
+    }
+
+    /// The branch-free scans answer as the loops they replace: `any(v != 0)` and the bound-pair
+    /// test of `solve` (NaN, crossed and infinite bounds at every position).
+    #[test]
+    fn branch_free_scans_equal_the_loops() {
+        let specials = [
+            0.0,
+            -0.0,
+            1.0,
+            -2.5,
+            f64::NAN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ];
+        for len in [0, 1, 3, 4, 5, 9] {
+            for pos in 0..len.max(1) {
+                for &x in &specials {
+                    let mut v = vec![0.0; len];
+                    if len > 0 {
+                        v[pos] = x;
+                    }
+                    assert_eq!(any_nonzero(&v), v.iter().any(|e| *e != 0.0));
+                    for &y in &specials {
+                        let mut lo = vec![-1.0; len];
+                        let mut hi = vec![1.0; len];
+                        if len > 0 {
+                            lo[pos] = x;
+                            hi[pos] = y;
+                        }
+                        // The loop's two tests: NaN first, then crossed or infinite.
+                        let usable = |l: &f64, h: &f64| {
+                            if l.is_nan() || h.is_nan() {
+                                return false;
+                            }
+                            !(l > h || *l == f64::INFINITY || *h == f64::NEG_INFINITY)
+                        };
+                        let want = lo.iter().zip(&hi).all(|(l, h)| usable(l, h));
+                        assert_eq!(bounds_ordered(&lo, &hi), want, "{x} {y}");
+                    }
+                }
+            }
+        }
+    }
+
     /// The held-input recursion equals the general one to rounding, and is only chosen for
     /// data of that form.
     #[test]
@@ -1092,7 +1270,12 @@ mod tests {
                     _ => a.held_input_structure::<6, 2>(),
                 };
                 assert!(held);
+                // Declared held form: the same factor without the detection.
+                let mut c = a.clone();
+                c.assume_held_input_form();
+                assert!(c.factor() && c.held);
                 assert!(a.factor() && b.factor_dims(nx, nu));
+                assert_eq!((&c.lchol, &c.kgain, &c.sbar), (&a.lchol, &a.kgain, &a.sbar));
                 let close = |x: &[f64], y: &[f64]| {
                     let scale = y.iter().fold(1.0f64, |m, v| m.max(v.abs()));
                     x.iter().zip(y).all(|(u, v)| (u - v).abs() <= 1e-12 * scale)
