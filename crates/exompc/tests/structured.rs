@@ -14,7 +14,7 @@ use exompc::config::{ControllerKind, Formulation, Scenario};
 use exompc::control::{NmpcCore, NmpcSettings, QpBackend, TorqueLimits};
 use exompc::scenario::{intent, limits, nmpc_settings, prediction_model, Dof, OneDof, TwoDof};
 use exompc::solver::{HessianModel, QpSettings, QpStatus, RiccatiQp, SqpStatus};
-use nalgebra::{DMatrix, DVector, SVector};
+use nalgebra::{DMatrix, SVector};
 
 /// A random stage QP and its condensed dense form `(H, g, lb, ub, A, bl, bu)`.
 struct Instance {
@@ -51,33 +51,13 @@ fn random_instance(rng: &mut Rng, nx: usize, nu: usize, np: usize, nc: usize) ->
     for v in qp.g.iter_mut() {
         *v = rng.uniform(-3.0, 3.0);
     }
-    let nuv = nc * nu;
     // Bounds: inputs boxed (tight enough to bind), one state component boxed per stage.
     let rows = common::random_stage_bounds(&mut qp, rng, nx, nu, np, nc);
     // Condense: T maps u to the trajectory.
     let t = common::condensing_map(&qp, nx, nu, np, nc);
     let w = common::trajectory_hessian(&qp, nx, nu, np, nc);
-    let h = t.transpose() * &w * &t;
-    let h = (&h + h.transpose()) * 0.5;
-    let g = t.transpose() * DVector::from_column_slice(&qp.g);
-    let lb = DVector::from_fn(nuv, |k, _| qp.lo[k]);
-    let ub = DVector::from_fn(nuv, |k, _| qp.hi[k]);
-    let a = DMatrix::from_fn(rows.len(), nuv, |r, c| t[(rows[r], c)]);
-    let bl = DVector::from_fn(rows.len(), |r, _| qp.lo[rows[r]]);
-    let bu = DVector::from_fn(rows.len(), |r, _| qp.hi[rows[r]]);
-    Instance {
-        qp,
-        dense: Condensed {
-            h,
-            g,
-            lb,
-            ub,
-            a,
-            bl,
-            bu,
-            rows,
-        },
-    }
+    let dense = Condensed::new(&t, &w, &qp.g, &qp.lo, &qp.hi, rows);
+    Instance { qp, dense }
 }
 
 fn clarabel(inst: &Instance) -> Vec<f64> {

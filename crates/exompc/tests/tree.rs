@@ -141,27 +141,8 @@ fn random_tree(
             );
         }
     }
-    let h = t.transpose() * &w * &t;
-    let h = (&h + h.transpose()) * 0.5;
-    let g = t.transpose() * DVector::from_column_slice(&qp.g);
-    let lb = DVector::from_fn(nv, |k, _| qp.lo[k]);
-    let ub = DVector::from_fn(nv, |k, _| qp.hi[k]);
-    let a = DMatrix::from_fn(rows.len(), nv, |r, c| t[(rows[r], c)]);
-    let bl = DVector::from_fn(rows.len(), |r, _| qp.lo[rows[r]]);
-    let bu = DVector::from_fn(rows.len(), |r, _| qp.hi[rows[r]]);
-    Instance {
-        qp,
-        dense: Condensed {
-            h,
-            g,
-            lb,
-            ub,
-            a,
-            bl,
-            bu,
-            rows,
-        },
-    }
+    let dense = Condensed::new(&t, &w, &qp.g, &qp.lo, &qp.hi, rows);
+    Instance { qp, dense }
 }
 
 #[test]

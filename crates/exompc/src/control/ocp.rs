@@ -466,19 +466,7 @@ impl<const N: usize> StageWork<N> {
     /// identity `I` of `A_j`'s last block and `B_j`'s last rows (the linearisation fills in `F_j`
     /// and `G_j`).
     fn write_held_layout(&mut self) {
-        let nx = 3 * N;
-        self.qp.a.fill(0.0);
-        self.qp.b.fill(0.0);
-        for aj in self.qp.a.chunks_exact_mut(nx * nx) {
-            for c in 0..N {
-                aj[(2 * N + c) * nx + 2 * N + c] = 1.0;
-            }
-        }
-        for bj in self.qp.b.chunks_exact_mut(nx * N) {
-            for c in 0..N {
-                bj[c * nx + 2 * N + c] = 1.0;
-            }
-        }
+        held_layout(&mut self.qp.a, &mut self.qp.b, N);
         self.layout = true;
     }
 
@@ -873,6 +861,27 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
 
     fn kkt(&mut self, z: &DVector<f64>) -> (f64, f64) {
         self.w.kkt(z)
+    }
+}
+
+/// The held-input form's constant part of the stage matrices of an `n`-joint chain
+/// (`x = (q, qd, T)`, `nx = 3n`, `nu = n`), written into every `A_j` and `B_j` (column-major,
+/// concatenated): zeros, with the identity in `A_j`'s last diagonal block and in `B_j`'s last
+/// rows. The linearisation fills in the rest; with nothing else written it is the projection
+/// QP's dynamics `T_j = T_{j−1} + u_j`.
+pub(crate) fn held_layout(a: &mut [f64], b: &mut [f64], n: usize) {
+    let nx = 3 * n;
+    a.fill(0.0);
+    b.fill(0.0);
+    for aj in a.chunks_exact_mut(nx * nx) {
+        for c in 0..n {
+            aj[(2 * n + c) * nx + 2 * n + c] = 1.0;
+        }
+    }
+    for bj in b.chunks_exact_mut(nx * n) {
+        for c in 0..n {
+            bj[c * nx + 2 * n + c] = 1.0;
+        }
     }
 }
 

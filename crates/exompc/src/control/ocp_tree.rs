@@ -461,19 +461,7 @@ impl<const N: usize> SqpSteps for TreeSteps<'_, N> {
     fn projection_qp(&mut self, z: &DVector<f64>) -> QpInfo {
         // min ½|d|² with the same QP: dynamics reduced to T_j = T_{j−1} + u_j.
         let w = &mut *self.w;
-        let nx = 3 * N;
-        w.qp.a.fill(0.0);
-        w.qp.b.fill(0.0);
-        for aj in w.qp.a.chunks_exact_mut(nx * nx) {
-            for a in 0..N {
-                aj[(2 * N + a) * nx + 2 * N + a] = 1.0;
-            }
-        }
-        for bj in w.qp.b.chunks_exact_mut(nx * N) {
-            for a in 0..N {
-                bj[a * nx + 2 * N + a] = 1.0;
-            }
-        }
+        super::ocp::held_layout(&mut w.qp.a, &mut w.qp.b, N);
         w.set_input_weights(1.0, false, 0.0);
         w.qp.g.fill(0.0);
         w.shift_bounds(z);

@@ -57,6 +57,35 @@ pub(crate) fn bounds_ordered(lo: &[f64], hi: &[f64]) -> bool {
     ok
 }
 
+/// Implements [`BoxDual`] for a solver whose workspace fields carry the names of
+/// [`BoxParts`] and which has an inherent `normal_solve(&mut self, id, sigma)`.
+macro_rules! box_dual_from_fields {
+    ($qp:ty) => {
+        impl $crate::solver::active_set::BoxDual for $qp {
+            fn parts(&mut self) -> $crate::solver::active_set::BoxParts<'_> {
+                $crate::solver::active_set::BoxParts {
+                    lo: &self.lo,
+                    hi: &self.hi,
+                    sol: &mut self.sol,
+                    mult: &mut self.mult,
+                    act: &mut self.act,
+                    mu: &mut self.mu,
+                    ycols: &mut self.ycols,
+                    yp: &self.yp,
+                    zdir: &mut self.zdir,
+                    mmat: &mut self.mmat,
+                    rvec: &mut self.rvec,
+                }
+            }
+
+            fn normal_solve(&mut self, id: usize, sigma: f64) {
+                <$qp>::normal_solve(self, id, sigma);
+            }
+        }
+    };
+}
+pub(crate) use box_dual_from_fields;
+
 /// The status a bound pair `[l, h]` gives a QP before it is solved: `NonFiniteInput` for a NaN,
 /// `Infeasible` for `l > h` or a bound that excludes every finite value; `None` when every
 /// pair is usable.

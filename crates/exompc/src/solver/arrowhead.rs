@@ -26,7 +26,7 @@
 //! iterates are those of the dense method on the condensed QP and the solution agrees with
 //! [`super::DenseQp`] to rounding.
 
-use super::active_set::{add_violated_bounds, bounds_status, BoxDual, BoxParts};
+use super::active_set::{add_violated_bounds, bounds_status, box_dual_from_fields};
 use super::qp::{QpInfo, QpSettings, QpStatus};
 use super::riccati::{chol_solve, cholesky};
 use super::SolverError;
@@ -774,24 +774,4 @@ impl TreeQp {
     }
 }
 
-impl BoxDual for TreeQp {
-    fn parts(&mut self) -> BoxParts<'_> {
-        BoxParts {
-            lo: &self.lo,
-            hi: &self.hi,
-            sol: &mut self.sol,
-            mult: &mut self.mult,
-            act: &mut self.act,
-            mu: &mut self.mu,
-            ycols: &mut self.ycols,
-            yp: &self.yp,
-            zdir: &mut self.zdir,
-            mmat: &mut self.mmat,
-            rvec: &mut self.rvec,
-        }
-    }
-
-    fn normal_solve(&mut self, id: usize, sigma: f64) {
-        TreeQp::normal_solve(self, id, sigma);
-    }
-}
+box_dual_from_fields!(TreeQp);

@@ -24,7 +24,7 @@
 //! Goldfarb–Idnani method on the condensed QP (same `H`, `g`, constraints), so the solution agrees
 //! with [`super::DenseQp`] to rounding.
 
-use super::active_set::{add_violated_bounds, bounds_status, BoxDual, BoxParts};
+use super::active_set::{add_violated_bounds, bounds_status, box_dual_from_fields};
 use super::qp::{QpInfo, QpSettings, QpStatus};
 use super::SolverError;
 use nalgebra::{SMatrix, SVector};
@@ -1031,27 +1031,7 @@ fn chol_solve_n(l: &[f64], n: usize, b: &mut [f64]) {
     }
 }
 
-impl BoxDual for RiccatiQp {
-    fn parts(&mut self) -> BoxParts<'_> {
-        BoxParts {
-            lo: &self.lo,
-            hi: &self.hi,
-            sol: &mut self.sol,
-            mult: &mut self.mult,
-            act: &mut self.act,
-            mu: &mut self.mu,
-            ycols: &mut self.ycols,
-            yp: &self.yp,
-            zdir: &mut self.zdir,
-            mmat: &mut self.mmat,
-            rvec: &mut self.rvec,
-        }
-    }
-
-    fn normal_solve(&mut self, id: usize, sigma: f64) {
-        RiccatiQp::normal_solve(self, id, sigma);
-    }
-}
+box_dual_from_fields!(RiccatiQp);
 
 #[cfg(test)]
 mod tests {

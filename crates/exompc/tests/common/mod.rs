@@ -388,6 +388,37 @@ pub struct Condensed {
     pub rows: Vec<usize>,
 }
 
+#[allow(dead_code)]
+impl Condensed {
+    /// The condensed form of a QP with trajectory Hessian `w`, linear term `g`, bounds `lo`,
+    /// `hi` (trajectory layout) and condensing map `t` (inputs → trajectory; its first
+    /// `t.ncols()` trajectory entries are the inputs): `H = sym(Tᵀ W T)`, `g = Tᵀ g`, the inputs'
+    /// boxes, and one general row per bounded trajectory index in `rows`.
+    pub fn new(
+        t: &nalgebra::DMatrix<f64>,
+        w: &nalgebra::DMatrix<f64>,
+        g: &[f64],
+        lo: &[f64],
+        hi: &[f64],
+        rows: Vec<usize>,
+    ) -> Self {
+        use nalgebra::{DMatrix, DVector};
+        let nv = t.ncols();
+        let h = t.transpose() * w * t;
+        let h = (&h + h.transpose()) * 0.5;
+        Condensed {
+            h,
+            g: t.transpose() * DVector::from_column_slice(g),
+            lb: DVector::from_fn(nv, |k, _| lo[k]),
+            ub: DVector::from_fn(nv, |k, _| hi[k]),
+            a: DMatrix::from_fn(rows.len(), nv, |r, c| t[(rows[r], c)]),
+            bl: DVector::from_fn(rows.len(), |r, _| lo[rows[r]]),
+            bu: DVector::from_fn(rows.len(), |r, _| hi[rows[r]]),
+            rows,
+        }
+    }
+}
+
 /// Solves `c` with `DenseQp` and asserts that a structured solver's trajectory `sol` (inputs
 /// first), multipliers `mult` (trajectory layout) and objective match it: inputs to
 /// `1e-8·(1 + max|x|)`, box and row multipliers to `1e-7·(1 + |m|)`, the objective to
