@@ -16,14 +16,11 @@
 
 use super::PredictionModel;
 
-/// Largest number of scenarios the gate keeps without allocating (more are not gated).
-const MAX_SCENARIOS: usize = 16;
-
-/// Which scenarios count as heavy; see the module documentation.
-#[derive(Clone, Copy, Debug)]
+/// Which scenarios count as heavy; see the module documentation. Allocated in
+/// [`InertiaGate::new`]; [`InertiaGate::update`] does not allocate.
+#[derive(Clone, Debug)]
 pub(crate) struct InertiaGate {
-    heavy: [bool; MAX_SCENARIOS],
-    len: usize,
+    heavy: Vec<bool>,
     /// Consecutive steps needed, the current run of heavy steps, and whether it is open.
     need: usize,
     run: usize,
@@ -38,19 +35,12 @@ impl InertiaGate {
         ratio: f64,
         need: usize,
     ) -> Self {
-        let mut heavy = [false; MAX_SCENARIOS];
-        let len = if ratio > 0.0 && models.len() <= MAX_SCENARIOS {
-            models.len()
-        } else {
-            0
-        };
-        let ratios = inertia_ratios(models);
-        for (h, r) in heavy.iter_mut().zip(&ratios).take(len) {
-            *h = *r >= ratio;
-        }
+        let heavy = inertia_ratios(models)
+            .iter()
+            .map(|r| ratio > 0.0 && *r >= ratio)
+            .collect();
         InertiaGate {
             heavy,
-            len,
             need: need.max(1),
             run: 0,
             latched: false,
@@ -70,7 +60,7 @@ impl InertiaGate {
 
     /// Whether the heavy scenarios hold at least half of the probabilities `mu`.
     fn heavy(&self, mu: &[f64]) -> bool {
-        if self.len == 0 || mu.len() != self.len {
+        if mu.len() != self.heavy.len() {
             return false;
         }
         let p: f64 = mu
