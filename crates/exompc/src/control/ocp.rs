@@ -118,7 +118,7 @@ struct StageWork<const N: usize> {
     /// Inertia correction of the exact Hessian (shared rule with the dense back-end).
     shift: HessianShift,
     /// `qp.a`, `qp.b` hold the constant zero and identity entries of the held-input form, so a
-    /// linearisation writes only `F_j`, `G_j` (false after `projection_qp`, which zeroes them).
+    /// linearisation writes only `F_j`, `G_j` (`projection_qp` writes the layout alone).
     layout: bool,
 }
 
@@ -757,22 +757,8 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
         // min ½|d|² with the same QP: dynamics reduced to T_j = T_{j−1} + u_j, Q = 0 on T.
         let w = &mut *self.w;
         w.reset_curvature();
-        let nx = 3 * N;
-        w.layout = false;
-        w.qp.a.fill(0.0);
-        w.qp.b.fill(0.0);
-        for j in 0..w.np {
-            let aj = &mut w.qp.a[j * nx * nx..(j + 1) * nx * nx];
-            for a in 0..N {
-                aj[(2 * N + a) * nx + 2 * N + a] = 1.0;
-            }
-        }
-        for j in 0..w.nc {
-            let bj = &mut w.qp.b[j * nx * N..(j + 1) * nx * N];
-            for a in 0..N {
-                bj[a * nx + 2 * N + a] = 1.0;
-            }
-        }
+        // The held layout alone (F_j = G_j = 0) is these dynamics.
+        w.write_held_layout();
         w.set_input_weight(1.0);
         w.qp.g.fill(0.0);
         w.shift_bounds(z);
