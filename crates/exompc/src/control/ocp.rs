@@ -26,7 +26,7 @@ use super::nmpc::{NmpcProblem, NmpcSettings};
 use super::prediction::StepJacobian;
 use super::TorqueLimits;
 use crate::model::JointState;
-use crate::solver::engine::{self, finite_or_inf, BoundCheck, HessianShift, SqpSteps};
+use crate::solver::engine::{self, finite_or_inf, BoundCheck, HessianShift, KktTest, SqpSteps};
 use crate::solver::riccati::held_congruence;
 use crate::solver::{
     HessianModel, QpInfo, QpStatus, RiccatiQp, SolverError, SqpInfo, SqpSettings, SqpStatus,
@@ -113,8 +113,11 @@ struct StageWork<const N: usize> {
     held_trial: Vec<SVector<f64, N>>,
     /// Costates `λ_{j+1}` of `(q, qd)`.
     lam: Vec<(SVector<f64, N>, SVector<f64, N>)>,
-    /// Largest diagonal entry of the condensed `JᵀJ` at the last Gauss–Newton QP.
+    /// Largest diagonal entry of the condensed `JᵀJ` at the solve's first Gauss–Newton QP (at
+    /// the current QP with the exact Hessian).
     maxdiag: f64,
+    /// `maxdiag` was computed in this solve.
+    maxdiag_known: bool,
     /// Inertia correction of the exact Hessian (shared rule with the dense back-end).
     shift: HessianShift,
     /// `qp.a`, `qp.b` hold the constant zero and identity entries of the held-input form, so a
@@ -171,6 +174,7 @@ impl<const N: usize> StructuredSqp<N> {
                 held_trial: vec![SVector::zeros(); np],
                 lam: vec![(SVector::zeros(), SVector::zeros()); np],
                 maxdiag: 0.0,
+                maxdiag_known: false,
                 shift: HessianShift::default(),
                 layout: false,
             },
@@ -219,9 +223,16 @@ impl<const N: usize> StageWork<N> {
     }
 
     /// `R = (r_t + δ) I` with the regularisation of the dense path,
-    /// `δ = hessian_regularization · (1 + max diag JᵀJ)`, so both back-ends solve the same QP.
+    /// `δ = hessian_regularization · (1 + max diag JᵀJ)`. With the Gauss–Newton Hessian the
+    /// diagonal is that of the solve's first QP (the later linearisations of a solve move `δ` by
+    /// `hessian_regularization` times the change of the diagonal, ~1e-14 by default, so both
+    /// back-ends solve the same QPs to ~1e-12 relative); with the exact Hessian it is that of the
+    /// current linearisation in every QP, since it also scales the inertia correction.
     fn gauss_newton_input_weight(&mut self) -> f64 {
-        self.maxdiag = self.max_condensed_diagonal();
+        if self.exact || !self.maxdiag_known {
+            self.maxdiag = self.max_condensed_diagonal();
+            self.maxdiag_known = true;
+        }
         self.r_t + self.hessian_regularization * (1.0 + self.maxdiag)
     }
 
@@ -626,14 +637,18 @@ impl<const N: usize> StageWork<N> {
     /// (at `z`) and `torques`: stationarity by an adjoint sweep, box and cumulative violation,
     /// complementarity. Returns `(kkt, violation)`.
     fn kkt(&mut self, z: &DVector<f64>) -> (f64, f64) {
+        let t = self.kkt_test(z, f64::INFINITY, f64::INFINITY);
+        (t.kkt, t.violation)
+    }
+
+    /// [`Self::kkt`] for the termination test `kkt ≤ kkt_tol`, `violation ≤ feas_tol`: the
+    /// bounds first, then the adjoint sweep, which stops at the first input whose stationarity
+    /// residual exceeds `kkt_tol` (the test has failed; `kkt` is then a lower bound and `exact`
+    /// false). When the test passes, the same numbers as the full computation.
+    fn kkt_test(&mut self, z: &DVector<f64>, kkt_tol: f64, feas_tol: f64) -> KktTest {
         let nx = 3 * N;
         let (np, nc) = (self.np, self.nc);
         let off = nc * N;
-        let stat = match N {
-            1 => adjoint_stationarity::<3, 1>(&self.qp, &self.grad, np, nc),
-            2 => adjoint_stationarity::<6, 2>(&self.qp, &self.grad, np, nc),
-            _ => self.stationarity_any_size(),
-        };
         let mult = self.qp.multipliers();
         let mut check = BoundCheck::default();
         for k in 0..off {
@@ -649,8 +664,25 @@ impl<const N: usize> StageWork<N> {
                 );
             }
         }
+        let bounds = check.violation.max(check.complementarity);
+        if !(bounds <= kkt_tol && check.violation <= feas_tol) {
+            return KktTest {
+                kkt: finite_or_inf(bounds),
+                violation: check.violation,
+                exact: false,
+            };
+        }
+        let (stat, exact) = match N {
+            1 => adjoint_stationarity::<3, 1>(&self.qp, &self.grad, np, nc, kkt_tol),
+            2 => adjoint_stationarity::<6, 2>(&self.qp, &self.grad, np, nc, kkt_tol),
+            _ => (self.stationarity_any_size(), true),
+        };
         let k = stat.max(check.violation).max(check.complementarity);
-        (finite_or_inf(k), check.violation)
+        KktTest {
+            kkt: finite_or_inf(k),
+            violation: check.violation,
+            exact,
+        }
     }
 }
 
@@ -658,13 +690,15 @@ impl<const N: usize> StageWork<N> {
 /// `μ_{j+1} = g_x + mult_x + A_{j+1}ᵀ μ_{j+2}` from a backward sweep (fixed-size blocks). The
 /// dynamics have the held-input form written by [`StageWork::evaluate`] (`A = [[F, G], [0, I]]`,
 /// `B = [G; I]`), so the zero and identity rows are skipped: the same nonzero terms in the same
-/// order as the slice version (equal values).
+/// order as the slice version (equal values). The sweep stops once the residual exceeds `limit`
+/// (`∞`: never), returning `(residual so far, false)`; `(residual, true)` when complete.
 fn adjoint_stationarity<const NX: usize, const NU: usize>(
     qp: &RiccatiQp,
     grad: &[f64],
     np: usize,
     nc: usize,
-) -> f64 {
+    limit: f64,
+) -> (f64, bool) {
     let ns = NX - NU;
     let nn = NX * NX;
     let off = nc * NU;
@@ -703,10 +737,13 @@ fn adjoint_stationarity<const NX: usize, const NU: usize>(
                 s += mu[ns + i];
                 stat = stat.max(s.abs());
             }
+            if stat > limit {
+                return (stat, false);
+            }
         }
         next = mu;
     }
-    stat
+    (stat, true)
 }
 
 impl<const N: usize> SqpSteps for StageSteps<'_, N> {
@@ -730,6 +767,7 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
         w.ru = rate;
         w.tmax = tmax;
         w.shift.reset();
+        w.maxdiag_known = false;
         Ok(())
     }
 
@@ -848,6 +886,10 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
     fn kkt(&mut self, z: &DVector<f64>) -> (f64, f64) {
         self.w.kkt(z)
     }
+
+    fn kkt_test(&mut self, z: &DVector<f64>, kkt_tol: f64, feas_tol: f64) -> KktTest {
+        self.w.kkt_test(z, kkt_tol, feas_tol)
+    }
 }
 
 /// The held-input form's constant part of the stage matrices of an `n`-joint chain
@@ -912,13 +954,69 @@ mod tests {
             let mut w1 = random_work::<1>(np, nc, seed);
             let mut next = crate::test_rng::lcg(seed + 100);
             w1.grad.iter_mut().for_each(|g| *g = next());
-            let a = adjoint_stationarity::<3, 1>(&w1.qp, &w1.grad, np, nc);
+            let (a, complete) =
+                adjoint_stationarity::<3, 1>(&w1.qp, &w1.grad, np, nc, f64::INFINITY);
+            assert!(complete);
             assert_eq!(a, w1.stationarity_any_size(), "N = 1");
             let mut w2 = random_work::<2>(np, nc, seed);
             w2.grad.iter_mut().for_each(|g| *g = next());
-            let a = adjoint_stationarity::<6, 2>(&w2.qp, &w2.grad, np, nc);
+            let (a, complete) =
+                adjoint_stationarity::<6, 2>(&w2.qp, &w2.grad, np, nc, f64::INFINITY);
+            assert!(complete);
             assert_eq!(a, w2.stationarity_any_size(), "N = 2");
             assert!(a > 0.0);
+        }
+    }
+
+    /// The termination test's early exit: the same verdict as the full residual for every
+    /// tolerance, and the same numbers whenever the test passes.
+    #[test]
+    fn kkt_test_stops_early_only_when_the_test_fails() {
+        fn run<const N: usize>(np: usize, nc: usize, seed: u64) {
+            let mut w = random_work::<N>(np, nc, seed);
+            let mut next = crate::test_rng::lcg(seed + 7);
+            // Small gradients so that some tolerances pass.
+            w.grad.iter_mut().for_each(|g| *g = 1e-6 * next());
+            w.rl = -1.0;
+            w.ru = 1.0;
+            w.tmax = 10.0;
+            let z = DVector::from_fn(nc * N, |_, _| 0.5 * next());
+            for (k, t) in w.torques.iter_mut().enumerate() {
+                *t = if k == 1 { 10.0 + 1e-7 } else { 9.0 * next() };
+            }
+            let (kkt, viol) = w.kkt(&z);
+            assert!(viol > 0.0 && kkt > viol);
+            let mut passed = 0;
+            let mut early = 0;
+            for kkt_tol in [
+                0.0,
+                0.5 * viol,
+                viol,
+                0.5 * (viol + kkt),
+                kkt,
+                2.0 * kkt,
+                1e3,
+            ] {
+                for feas_tol in [0.0, viol, 1.0] {
+                    let t = w.kkt_test(&z, kkt_tol, feas_tol);
+                    let pass = kkt <= kkt_tol && viol <= feas_tol;
+                    assert_eq!(t.kkt <= kkt_tol && t.violation <= feas_tol, pass);
+                    assert_eq!(t.violation, viol);
+                    if pass {
+                        passed += 1;
+                        assert!(t.exact);
+                        assert_eq!(t.kkt, kkt);
+                    } else if !t.exact {
+                        early += 1;
+                        assert!(t.kkt <= kkt);
+                    }
+                }
+            }
+            assert!(passed > 0 && early > 0, "{passed} passed, {early} early");
+        }
+        for (np, nc, seed) in [(5, 3, 11), (20, 20, 12), (50, 12, 13)] {
+            run::<1>(np, nc, seed);
+            run::<2>(np, nc, seed);
         }
     }
 

@@ -48,6 +48,31 @@ pub(crate) trait SqpSteps {
     /// KKT residual of the nonlinear problem at `z` (current point) with the last QP
     /// multipliers: `(max(stationarity, violation, complementarity), violation)`; `∞` for NaN.
     fn kkt(&mut self, z: &DVector<f64>) -> (f64, f64);
+    /// The termination test's use of [`Self::kkt`]: the same `(kkt, violation)` whenever
+    /// `kkt ≤ kkt_tol` and `violation ≤ feas_tol` (the test passes), and the same verdict
+    /// otherwise; a back-end may then stop early and return a `kkt` that is only a lower bound
+    /// above `kkt_tol` (or the exact violation above `feas_tol`), with `exact = false`. The
+    /// default computes [`Self::kkt`] in full.
+    fn kkt_test(&mut self, z: &DVector<f64>, kkt_tol: f64, feas_tol: f64) -> KktTest {
+        let _ = (kkt_tol, feas_tol);
+        let (kkt, violation) = self.kkt(z);
+        KktTest {
+            kkt,
+            violation,
+            exact: true,
+        }
+    }
+}
+
+/// Outcome of [`SqpSteps::kkt_test`].
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct KktTest {
+    /// The KKT residual, or a lower bound of it when not `exact`.
+    pub kkt: f64,
+    /// The constraint violation (always exact).
+    pub violation: f64,
+    /// Whether `kkt` is the full residual of [`SqpSteps::kkt`].
+    pub exact: bool,
 }
 
 /// Runs the engine on `steps` from the warm start `z` (overwritten with the result); `z_trial`
@@ -106,8 +131,10 @@ fn run<B: SqpSteps + ?Sized>(
             QpStatus::NonFiniteInput => return SqpStatus::NonFiniteInput,
             _ => return SqpStatus::QpFailed,
         }
-        // KKT at the current point with the fresh multipliers.
-        if terminated(b, s, z, info) {
+        // KKT at the current point with the fresh multipliers (in full when the solve ends
+        // here with a real-time iteration).
+        let (passed, exact) = terminated(b, s, z, info, !s.real_time_iteration);
+        if passed {
             return SqpStatus::Converged;
         }
         if s.real_time_iteration {
@@ -118,16 +145,37 @@ fn run<B: SqpSteps + ?Sized>(
         b.before_line_search();
         cost = match line_search(b, s, cost, z_trial, z) {
             Ok(c) => c,
-            Err(status) => return status,
+            Err(status) => {
+                exact_residual(b, z, info, exact);
+                return status;
+            }
         };
         info.cost = cost;
         // KKT at the new point with the last multipliers (exact for linear residuals after a
-        // full step; avoids one QP per solve near convergence).
-        if terminated(b, s, z, info) {
+        // full step; avoids one QP per solve near convergence). In full: the solve may end
+        // after the next QP, which replaces the multipliers.
+        if terminated(b, s, z, info, false).0 {
             return SqpStatus::Converged;
         }
     }
     SqpStatus::MaxIterations
+}
+
+/// After a failed line search: makes `info.kkt_residual` the full residual at `z` when the
+/// termination test before it stopped early (`exact == false`). The trial evaluations replaced
+/// the linearisation at `z`, so `z` is evaluated again with it (the QP multipliers are still
+/// the last ones).
+fn exact_residual<B: SqpSteps + ?Sized>(
+    b: &mut B,
+    z: &DVector<f64>,
+    info: &mut SqpInfo,
+    exact: bool,
+) {
+    if exact {
+        return;
+    }
+    b.evaluate(z, true);
+    info.kkt_residual = b.kkt(z).0;
 }
 
 /// Whether the wall-clock budget of the solve is spent.
@@ -172,16 +220,30 @@ fn project_feasible<B: SqpSteps + ?Sized>(
 }
 
 /// Termination test: KKT residual within `kkt_tolerance` and violation within
-/// `feasibility_tolerance`; records the residual in `info`.
+/// `feasibility_tolerance`; records the residual in `info`. With `early`, a back-end may stop
+/// once the test has failed ([`SqpSteps::kkt_test`]); returns `(passed, residual exact)`.
 fn terminated<B: SqpSteps + ?Sized>(
     b: &mut B,
     s: &SqpSettings,
     z: &DVector<f64>,
     info: &mut SqpInfo,
-) -> bool {
-    let (kkt, viol) = b.kkt(z);
-    info.kkt_residual = kkt;
-    kkt <= s.kkt_tolerance && viol <= s.feasibility_tolerance
+    early: bool,
+) -> (bool, bool) {
+    let t = if early {
+        b.kkt_test(z, s.kkt_tolerance, s.feasibility_tolerance)
+    } else {
+        let (kkt, violation) = b.kkt(z);
+        KktTest {
+            kkt,
+            violation,
+            exact: true,
+        }
+    };
+    info.kkt_residual = t.kkt;
+    (
+        t.kkt <= s.kkt_tolerance && t.violation <= s.feasibility_tolerance,
+        t.exact,
+    )
 }
 
 /// Armijo backtracking on `φ(α) = ½‖r(z + α d)‖²` (trial points clamped into the box); the full
@@ -335,6 +397,88 @@ pub(crate) fn finite_or_inf(k: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A back-end whose QP step always increases the cost (the line search fails) and whose
+    /// termination test stops early; its full residual is right only at the point of the last
+    /// linearisation.
+    struct UphillSteps {
+        step: DVector<f64>,
+        linearised_at: f64,
+        early_tests: usize,
+    }
+
+    impl SqpSteps for UphillSteps {
+        fn check_inputs(&mut self, _z: &DVector<f64>) -> Result<(), SqpStatus> {
+            Ok(())
+        }
+        fn clamp(&self, _z: &mut DVector<f64>) {}
+        fn general_violation(&mut self, _z: &DVector<f64>) -> f64 {
+            0.0
+        }
+        fn projection_qp(&mut self, _z: &DVector<f64>) -> QpInfo {
+            qp(QpStatus::Solved)
+        }
+        fn evaluate(&mut self, z: &DVector<f64>, jacobian: bool) -> f64 {
+            if jacobian {
+                self.linearised_at = z[0];
+            }
+            1.0 + z[0] * z[0]
+        }
+        fn accept(&mut self, _z_old: Option<&DVector<f64>>, _z_new: &DVector<f64>) -> bool {
+            true
+        }
+        fn solve_qp(&mut self, _z: &DVector<f64>) -> QpInfo {
+            qp(QpStatus::Solved)
+        }
+        fn step(&self) -> &DVector<f64> {
+            &self.step
+        }
+        fn slope(&self) -> f64 {
+            -1.0
+        }
+        fn kkt(&mut self, z: &DVector<f64>) -> (f64, f64) {
+            (if self.linearised_at == z[0] { 0.5 } else { 9.0 }, 0.0)
+        }
+        fn kkt_test(&mut self, _z: &DVector<f64>, _kkt_tol: f64, _feas_tol: f64) -> KktTest {
+            self.early_tests += 1;
+            KktTest {
+                kkt: 0.25,
+                violation: 0.0,
+                exact: false,
+            }
+        }
+    }
+
+    #[test]
+    fn a_failed_line_search_reports_the_full_residual_at_the_point() {
+        let mut b = UphillSteps {
+            step: DVector::from_element(1, 1.0),
+            linearised_at: f64::NAN,
+            early_tests: 0,
+        };
+        let s = SqpSettings {
+            max_line_search_steps: 3,
+            ..SqpSettings::default()
+        };
+        let mut z = DVector::zeros(1);
+        let mut z_trial = DVector::zeros(1);
+        let info = solve(&mut b, &s, &mut z_trial, &mut z);
+        assert_eq!(info.status, SqpStatus::LineSearchFailed);
+        assert_eq!(b.early_tests, 1);
+        assert_eq!(z[0], 0.0);
+        // Not the early test's lower bound (0.25), nor the residual with the trial point's
+        // linearisation (9.0).
+        assert_eq!(info.kkt_residual, 0.5);
+        // A real-time iteration reports the full residual without an early test.
+        b.early_tests = 0;
+        let rti = SqpSettings {
+            real_time_iteration: true,
+            ..s
+        };
+        let info = solve(&mut b, &rti, &mut z_trial, &mut z);
+        assert_eq!(info.status, SqpStatus::RealTimeIteration);
+        assert_eq!((b.early_tests, info.kkt_residual), (0, 0.5));
+    }
 
     fn qp(status: QpStatus) -> QpInfo {
         QpInfo {
