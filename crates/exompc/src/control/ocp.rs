@@ -134,6 +134,9 @@ impl<const N: usize> StructuredSqp<N> {
         let mut qp = RiccatiQp::new(nx, N, np, nc, s.sqp.qp)?;
         // `evaluate` and `projection_qp` write A_j = [[F, G], [0, I]], B_j = [G; I] only.
         qp.assume_held_input_form();
+        // `evaluate` fills them only from finite linearisations that `accept` then takes, and
+        // `add_curvature` keeps only finite blocks.
+        qp.assume_finite_stage_data();
         // Q = diag(I, r_d I, 0) for every state; R set per solve.
         for j in 0..np {
             let qj = &mut qp.q[j * nx * nx..(j + 1) * nx * nx];
