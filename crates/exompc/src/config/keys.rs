@@ -422,6 +422,8 @@ pub const KEYS: &[KeyDoc] = &[
     k("controller.robust.inertia_engage_ratio", "-", NONNEG, ROB, "Inertia ratio (a scenario's diagonal mass-matrix entry at the stretched leg over the lightest scenario's, largest over the joints) from which the filter-aware mode is used while such scenarios hold half the probability; 0 = off."),
     k("controller.robust.inertia_engage_s", "s", real(closed(0.0), closed(10.0)), ROB, "How long the heavy scenarios must hold half the probability without a break before the inertia gate opens (then it stays open)."),
     k("controller.robust.weight_smoothing_s", "s", real(closed(0.0), closed(10.0)), ROB, "Time constant of the low-pass on the scenario probabilities that weight the MS-NMPC's costs; 0 = the probabilities as they are."),
+    k("controller.robust.intent_estimate", "", Allowed::Choice(&["strap_observer", "paper"]), ROB, "Human-intent estimate of the robust method: the strap model inverted as an observer of the stretch and its rate, moved over the sensor filter's lag, with the NMPC started from the EKF bank's velocity; or the paper's eqs. 5-6."),
+    k("controller.robust.observer_velocity_gain", "1/s", real(closed(0.0), closed(1000.0)), ROB, "With intent_estimate = \"strap_observer\": gain of the human-robot angle error in the reference velocity, qd_ref = q̂d_H + kv (q̂_H - q_R)."),
     k("controller.robust.intent_gains", "", Allowed::Choice(&["strap_model", "configured"]), ROB, "Intent gains of the robust method: controller.k1/k2 scaled by 937.5 N/m / straps.stiffness (equal at the default straps), or as configured."),
     // [multistage]
     table("multistage", M8, "Scenario tree and probabilities of the multi-stage NMPC (paper eqs. 10-13)."),

@@ -131,6 +131,26 @@ pub struct RobustSettings {
     /// (`control/weights.rs`). In [0, 10]; 0 = the probabilities as they are (the paper's).
     /// Default 0.15.
     pub weight_smoothing_s: f64,
+    /// The human-intent estimate of the robust method while the filter-aware mode is off:
+    /// `"paper"` (eqs. 5-6, `q̂_H = q_R + K1 F̄`, `q̂d_H = qd̄_R + K2 F̄`) or
+    /// `"strap_observer"` (the strap model inverted as a first-order observer of the stretch
+    /// and its rate, moved forward over the sensor filter's lag; `control/strap_intent.rs`).
+    pub intent_estimate: IntentEstimate,
+    /// With `intent_estimate = "strap_observer"`: gain `kv` (1/s) of the human-robot angle
+    /// error in the reference velocity, `qd_ref = q̂d_H + kv (q̂_H − q_R)` (the encoder angle
+    /// `q_R` is exact, so this feedback has no filter delay). In [0, 1000]. Default 25.
+    pub observer_velocity_gain: f64,
+}
+
+/// The human-intent estimate of the robust method ([`RobustSettings::intent_estimate`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum IntentEstimate {
+    /// The paper's eqs. 5-6 with the robust method's gains.
+    Paper,
+    /// The strap-model observer of `control/strap_intent.rs` (the default).
+    #[default]
+    StrapObserver,
 }
 
 /// The strap stiffness (N/m) at which the paper's intent gains hold (paper Table 1,
@@ -184,6 +204,8 @@ impl Default for RobustSettings {
             inertia_engage_ratio: 3.0,
             inertia_engage_s: 0.1,
             weight_smoothing_s: 0.15,
+            intent_estimate: IntentEstimate::StrapObserver,
+            observer_velocity_gain: 25.0,
         }
     }
 }
