@@ -24,8 +24,18 @@
 //! `control/lag.rs` does for the robot: `q̂_H = q̄_H + τ qd̄_H + (τ² − c₂) a_H`,
 //! `q̂d_H = qd̄_H + τ a_H`, `c₂ = dt² (w−1)(2w−1)/12`.
 //!
+//! The reference velocity of the horizon adds the angle error,
+//! `qd_ref = q̂d_H + kv (q̂_H − q_R)` ([`RobustSettings::observer_velocity_gain`], 25/s): the
+//! paper's `K2 F̄` did that implicitly (`K2 ks J` ≈ 13/s on the thigh), and without it the NMPC
+//! (whose velocity weight `r_d` dominates over its 30 ms horizon) matches the human's velocity
+//! but closes an angle error only slowly. `q_R` is the exact encoder angle, so this feedback
+//! carries no filter delay. With the observer the NMPC starts from the EKF bank's lag-free
+//! velocity (`control/multistage.rs`), as in the filter-aware mode.
+//!
 //! Each scenario uses its own strap model (`Jᵢ`, `ksᵢ`, `csᵢ`). Allocation-free after
 //! [`StrapIntent::new`].
+//!
+//! [`RobustSettings::observer_velocity_gain`]: super::robust::RobustSettings::observer_velocity_gain
 //!
 //! [`RobustSettings::intent_estimate`]: super::robust::RobustSettings::intent_estimate
 //! [`RobustSettings::human_bandwidth_hz`]: super::robust::RobustSettings::human_bandwidth_hz
@@ -239,15 +249,15 @@ mod tests {
     fn observer_recovers_the_human_without_the_robots_motion() {
         // No filter: the strap model alone (first-order-hold error only).
         let (eq, ev) = track(1, 0.0);
-        assert!(eq < 2e-4 && ev < 2e-2, "{eq} {ev}");
-        // A 4 Hz robot wiggle of 0.05 rad does not enter the estimate.
+        assert!(eq < 2e-5 && ev < 2e-4, "{eq} {ev}");
+        // A 4 Hz robot wiggle of 0.05 rad (1.26 rad/s) does not enter the estimate: what is left
+        // is the first-order hold's error, 1 % of the wiggle.
         let (eq_w, ev_w) = track(1, 0.05);
-        assert!(eq_w < 2e-4 && ev_w < 3e-2, "{eq_w} {ev_w}");
-        // Behind a 9-sample moving average the window mean is moved forward over its lag:
-        // the errors are those of a constant-acceleration extrapolation over 40 ms, not the
-        // 0.05 rad of the wiggle.
+        assert!(eq_w < 5e-4 && ev_w < 5e-3, "{eq_w} {ev_w}");
+        // Behind a 9-sample moving average the window mean is moved forward over its 40 ms lag
+        // with the low-passed acceleration: a few per cent of the wiggle, not the wiggle.
         let (eq9, ev9) = track(9, 0.05);
-        assert!(eq9 < 3e-3 && ev9 < 0.15, "{eq9} {ev9}");
+        assert!(eq9 < 3e-3 && ev9 < 0.2, "{eq9} {ev9}");
     }
 
     #[test]
