@@ -410,7 +410,7 @@ pub const KEYS: &[KeyDoc] = &[
     k("controller.robust.oscillation_window_s", "s", real(open(0.0), closed(10.0)), ROB, "Averaging time of the oscillation detector."),
     k("controller.robust.oscillation_fraction", "-", real(open(0.0), open(1.0)), ROB, "Share of strap-force power above the cut-off that counts as oscillation."),
     k("controller.robust.oscillation_min_force_n", "N", NONNEG, ROB, "Smallest RMS of the high-passed strap forces that counts as oscillation."),
-    k("controller.robust.human_bandwidth_hz", "Hz", POS, ROB, "Bandwidth of the human's motion in the Smith predictor."),
+    k("controller.robust.human_bandwidth_hz", "Hz", POS, ROB, "Bandwidth of the human's motion in the Smith predictor and the strap observer."),
     k("controller.robust.release_s", "s", real(closed(0.0), closed(1e6)), ROB, "Return to the paper's estimate after this long without oscillation; 0 = stay engaged."),
     k("controller.robust.ekf_force_lead", "-", real(closed(0.0), closed(3.0)), ROB, "Lead of the EKF's strap-force input, as a share of the moving average's delay (w-1)/2 samples; 0 = the filtered force."),
     k("controller.robust.disturbance_lead", "-", real(closed(0.0), closed(3.0)), ROB, "Lead of the disturbance bank's strap-force input (the second EKF bank whose d̂ the predictions take), as a share of the moving average's delay (w-1)/2 samples."),
