@@ -426,7 +426,9 @@ impl Default for Timing {
 pub use controller_kind::ControllerKind;
 
 pub use crate::control::Interaction;
-pub use crate::control::{FilterAware, GainSetting, Method, RobustIntentGains, RobustSettings};
+pub use crate::control::{
+    FilterAware, GainSetting, IntentEstimate, Method, RobustIntentGains, RobustSettings,
+};
 use crate::solver::{SolverError, SqpSettings};
 use std::time::Duration;
 
@@ -885,6 +887,11 @@ impl Scenario {
                     "weight_smoothing_s",
                     rb.weight_smoothing_s,
                     R::Closed(0.0, 10.0),
+                ),
+                (
+                    "observer_velocity_gain",
+                    rb.observer_velocity_gain,
+                    R::Closed(0.0, 1000.0),
                 ),
             ],
         )?;

@@ -107,12 +107,12 @@ fn acceptance_figures_of_the_default_scenario() {
     pin("nmpc 0 kg shank", shank(n0), 4.77, tol, f);
     pin("nmpc 2 kg thigh", thigh(n2), 6.28, tol, f);
     pin("nmpc 2 kg shank", shank(n2), 11.11, tol, f);
-    pin("msnmpc 0 kg thigh", thigh(m0), 2.23, tol, f);
-    pin("msnmpc 0 kg shank", shank(m0), 4.90, tol, f);
-    pin("msnmpc 1 kg thigh", thigh(m1), 2.66, tol, f);
-    pin("msnmpc 1 kg shank", shank(m1), 4.46, tol, f);
-    pin("msnmpc 2 kg thigh", thigh(m2), 3.00, tol, f);
-    pin("msnmpc 2 kg shank", shank(m2), 4.35, tol, f);
+    pin("msnmpc 0 kg thigh", thigh(m0), 1.574, tol, f);
+    pin("msnmpc 0 kg shank", shank(m0), 2.889, tol, f);
+    pin("msnmpc 1 kg thigh", thigh(m1), 1.863, tol, f);
+    pin("msnmpc 1 kg shank", shank(m1), 3.100, tol, f);
+    pin("msnmpc 2 kg thigh", thigh(m2), 2.083, tol, f);
+    pin("msnmpc 2 kg shank", shank(m2), 3.291, tol, f);
     for (name, s, want) in [
         ("nmpc 0 kg", n0, DELTA_NMPC_0),
         ("nmpc 2 kg", n2, DELTA_NMPC_2),
@@ -137,7 +137,7 @@ fn acceptance_figures_of_the_default_scenario() {
     }
     let ptol = 0.01;
     for (name, s, want) in [
-        ("msnmpc 0 kg", m0, [0.972, 0.026, 0.001]),
+        ("msnmpc 0 kg", m0, [0.998, 0.0016, 0.0008]),
         ("msnmpc 1 kg", m1, MU_MS_1),
         ("msnmpc 2 kg", m2, MU_MS_2),
     ] {
@@ -183,11 +183,13 @@ fn acceptance_figures_of_the_default_scenario() {
             );
         }
     }
+    // At 0 kg the plain NMPC has the exact model; the robust MS-NMPC must be no worse than
+    // 1.1× its forces (issue 10's bound; with the strap observer of the seventh pass it is
+    // lower: 1.57 / 2.89 N against 2.12 / 4.77 N).
     check(
-        (thigh(m0) - thigh(n0)).abs() <= 0.1 * thigh(n0)
-            && (shank(m0) - shank(n0)).abs() <= 0.1 * shank(n0),
+        thigh(m0) <= 1.1 * thigh(n0) && shank(m0) <= 1.1 * shank(n0),
         format!(
-            "msnmpc at 0 kg not within 10 % of nmpc: {:.3}/{:.3} vs {:.3}/{:.3}",
+            "msnmpc at 0 kg above 1.1× nmpc: {:.3}/{:.3} vs {:.3}/{:.3}",
             thigh(m0),
             shank(m0),
             thigh(n0),
@@ -253,11 +255,13 @@ fn one_dof_identifies_the_payload() {
 }
 
 // Measured on the default scenario (δmax in degrees; MODEL.md §9 gives the forces and the matching
-// probabilities, the rest was measured when this test was written).
+// probabilities, the rest was measured when this test was written). The MS-NMPC values are
+// the robust default's since issue 10's seventh pass (strap observer; before: δmax 0.968 /
+// 2.178, 1.138 / 1.730, 1.281 / 1.533 deg at 0 / 1 / 2 kg, μ at 1 kg 0.001 / 0.987 / 0.012).
 const DELTA_NMPC_0: [f64; 2] = [0.924, 2.018];
 const DELTA_NMPC_2: [f64; 2] = [3.144, 8.249];
-const DELTA_MS_0: [f64; 2] = [0.968, 2.178];
-const DELTA_MS_1: [f64; 2] = [1.138, 1.730];
-const DELTA_MS_2: [f64; 2] = [1.281, 1.533];
-const MU_MS_1: [f64; 3] = [0.001, 0.987, 0.012];
-const MU_MS_2: [f64; 3] = [0.0003, 0.0020, 0.998];
+const DELTA_MS_0: [f64; 2] = [0.644, 0.930];
+const DELTA_MS_1: [f64; 2] = [0.760, 0.924];
+const DELTA_MS_2: [f64; 2] = [0.847, 0.920];
+const MU_MS_1: [f64; 3] = [0.0003, 0.9995, 0.0003];
+const MU_MS_2: [f64; 3] = [0.0003, 0.0036, 0.9962];

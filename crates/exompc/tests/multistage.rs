@@ -3,7 +3,7 @@
 
 mod common;
 use common::{closed_loop, measurement};
-use exompc::config::{ControllerKind, Formulation, Scenario};
+use exompc::config::{ControllerKind, Formulation, IntentEstimate, Scenario};
 use exompc::control::{horizon_inputs, Controller, NmpcCore};
 use exompc::model::JointState;
 use exompc::scenario::build_multistage;
@@ -38,6 +38,8 @@ fn controller(s: &Scenario) -> Box<dyn Controller<2>> {
 fn coupled_with_one_scenario_equals_plain_nmpc() {
     let mut s = ms_scenario(&[0.0], Formulation::Coupled);
     s.uncertainty.payload_kg = 1.0;
+    // The plain NMPC below takes the paper's intent estimate (eqs. 5-6).
+    s.controller.robust.intent_estimate = IntentEstimate::Paper;
     let mut ms = controller(&s);
     let model = prediction_model::<TwoDof, 2>(&s, 0.0);
     let mut core = NmpcCore::new(model, &nmpc_settings(&s)).unwrap();

@@ -410,7 +410,7 @@ pub const KEYS: &[KeyDoc] = &[
     k("controller.robust.oscillation_window_s", "s", real(open(0.0), closed(10.0)), ROB, "Averaging time of the oscillation detector."),
     k("controller.robust.oscillation_fraction", "-", real(open(0.0), open(1.0)), ROB, "Share of strap-force power above the cut-off that counts as oscillation."),
     k("controller.robust.oscillation_min_force_n", "N", NONNEG, ROB, "Smallest RMS of the high-passed strap forces that counts as oscillation."),
-    k("controller.robust.human_bandwidth_hz", "Hz", POS, ROB, "Bandwidth of the human's motion in the Smith predictor."),
+    k("controller.robust.human_bandwidth_hz", "Hz", POS, ROB, "Bandwidth of the human's motion in the Smith predictor and the strap observer."),
     k("controller.robust.release_s", "s", real(closed(0.0), closed(1e6)), ROB, "Return to the paper's estimate after this long without oscillation; 0 = stay engaged."),
     k("controller.robust.ekf_force_lead", "-", real(closed(0.0), closed(3.0)), ROB, "Lead of the EKF's strap-force input, as a share of the moving average's delay (w-1)/2 samples; 0 = the filtered force."),
     k("controller.robust.disturbance_lead", "-", real(closed(0.0), closed(3.0)), ROB, "Lead of the disturbance bank's strap-force input (the second EKF bank whose d̂ the predictions take), as a share of the moving average's delay (w-1)/2 samples."),
@@ -422,6 +422,8 @@ pub const KEYS: &[KeyDoc] = &[
     k("controller.robust.inertia_engage_ratio", "-", NONNEG, ROB, "Inertia ratio (a scenario's diagonal mass-matrix entry at the stretched leg over the lightest scenario's, largest over the joints) from which the filter-aware mode is used while such scenarios hold half the probability; 0 = off."),
     k("controller.robust.inertia_engage_s", "s", real(closed(0.0), closed(10.0)), ROB, "How long the heavy scenarios must hold half the probability without a break before the inertia gate opens (then it stays open)."),
     k("controller.robust.weight_smoothing_s", "s", real(closed(0.0), closed(10.0)), ROB, "Time constant of the low-pass on the scenario probabilities that weight the MS-NMPC's costs; 0 = the probabilities as they are."),
+    k("controller.robust.intent_estimate", "", Allowed::Choice(&["strap_observer", "paper"]), ROB, "Human-intent estimate of the robust method: the strap model inverted as an observer of the stretch and its rate, moved over the sensor filter's lag, with the NMPC started from the EKF bank's velocity; or the paper's eqs. 5-6."),
+    k("controller.robust.observer_velocity_gain", "1/s", real(closed(0.0), closed(1000.0)), ROB, "With intent_estimate = \"strap_observer\": gain of the human-robot angle error in the reference velocity, qd_ref = q̂d_H + kv (q̂_H - q_R)."),
     k("controller.robust.intent_gains", "", Allowed::Choice(&["strap_model", "configured"]), ROB, "Intent gains of the robust method: controller.k1/k2 scaled by 937.5 N/m / straps.stiffness (equal at the default straps), or as configured."),
     // [multistage]
     table("multistage", M8, "Scenario tree and probabilities of the multi-stage NMPC (paper eqs. 10-13)."),

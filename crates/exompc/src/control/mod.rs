@@ -35,6 +35,7 @@ mod pd;
 mod prediction;
 mod robust;
 mod safety;
+mod strap_intent;
 mod weights;
 
 pub use fallback::{FallbackSettings, FallbackSettingsError, Transparent};
@@ -50,7 +51,9 @@ pub use ocp::{QpBackend, StructuredSqp, AUTO_STRUCTURED_MIN_VARS};
 pub use ocp_tree::{TreeSqp, AUTO_TREE_MIN_VARS};
 pub use pd::PdController;
 pub use prediction::{HorizonInputs, Interaction, PredictionModel, StepJacobian};
-pub use robust::{FilterAware, Method, RobustIntentGains, RobustSettings, PAPER_STRAP_STIFFNESS};
+pub use robust::{
+    FilterAware, IntentEstimate, Method, RobustIntentGains, RobustSettings, PAPER_STRAP_STIFFNESS,
+};
 pub use safety::{
     MonitorAction, MonitorEvent, MonitorKind, MonitorResponse, Monitors, OscillationDetector,
     SafetyReport, SafetySettings, StrapAngleEstimate, Supervisor, OSCILLATION_MIN_HALF_CYCLES,

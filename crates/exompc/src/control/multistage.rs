@@ -5,7 +5,8 @@ use super::limits::LimitsError;
 use super::nmpc::{classify, horizon_inputs, NmpcCore, NmpcProblem, NmpcSettings};
 use super::ocp_tree::{tree_is_structured, TreeSqp};
 use super::prediction::{HorizonInputs, PredictionModel};
-use super::robust::{RobustSettings, RobustState};
+use super::robust::{IntentEstimate, RobustSettings, RobustState};
+use super::strap_intent::StrapIntent;
 use super::weights::WeightSmoother;
 use super::{ControlOutput, Controller, IntentEstimator, Measurement, StepStatus, TorqueLimits};
 use crate::estimate::{EkfBank, EkfSettings, EstimateError, EstimatorOptions};
@@ -357,6 +358,9 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     /// The robust method's smoothed scenario weights ([`RobustSettings::weight_smoothing_s`]);
     /// `None` = the bank's probabilities (the paper's).
     smoother: Option<WeightSmoother>,
+    /// The robust method's strap-model intent observer
+    /// ([`RobustSettings::intent_estimate`]); `None` = the paper's eqs. 5-6.
+    strap_intent: Option<StrapIntent<N>>,
     ekf: EkfSettings,
     estimator: EstimatorOptions,
 }
@@ -423,6 +427,7 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             gate: None,
             filter_aware_prev: false,
             smoother: None,
+            strap_intent: None,
             ekf: *ekf,
             estimator: *estimator,
         })
@@ -451,6 +456,16 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
                 (settings.inertia_engage_s / dt).round() as usize,
             ));
         }
+        self.strap_intent =
+            (settings.intent_estimate == IntentEstimate::StrapObserver).then(|| {
+                StrapIntent::new(
+                    self.models.iter().map(|m| &m.straps),
+                    window,
+                    self.models[0].dt,
+                    settings.human_bandwidth_hz,
+                    settings.observer_velocity_gain,
+                )
+            });
         self.robust = Some(r);
         self.smoother = WeightSmoother::new(
             self.models.len(),
@@ -575,6 +590,21 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
                 }
             }
         }
+        if let Some(si) = self.strap_intent.as_mut() {
+            si.update(m, gap);
+            // With the strap observer every scenario's NMPC starts from the bank's
+            // probability-weighted (lag-free) velocity, as in the filter-aware mode.
+            if stretch.is_none() {
+                let p = self.bank.probabilities();
+                let mut qd = SVector::<f64, N>::zeros();
+                for (f, pi) in self.bank.filters().iter().zip(p) {
+                    qd += f.velocities() * *pi;
+                }
+                if qd.iter().all(|v| v.is_finite()) {
+                    x0.qd = qd;
+                }
+            }
+        }
         let (ekf_force, dist_force) = match self.robust.as_mut() {
             Some(r) => r.ekf_forces(&m.force),
             None => (m.force, m.force),
@@ -593,6 +623,12 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
                 None => self.bank.disturbance(i),
             };
             self.inputs[i] = horizon_inputs(&self.intent, &self.models[i], &mi, self.dist[i]);
+            if let Some(si) = self.strap_intent.as_ref() {
+                if let Some((q_h, qd_h)) = si.estimate(i, m) {
+                    self.inputs[i].q_h = q_h;
+                    self.inputs[i].qd_h = qd_h;
+                }
+            }
         }
         match self.smoother.as_mut() {
             Some(sm) => sm.apply(self.bank.probabilities(), &mut self.weights),

@@ -67,7 +67,8 @@ pub struct RobustSettings {
     /// Default 1.5.
     pub oscillation_min_force_n: f64,
     /// Bandwidth (Hz) of the human's motion in the Smith predictor: the human's acceleration
-    /// is taken as the robot's low-passed at this frequency, > 0. Default 3.
+    /// is taken as the robot's low-passed at this frequency, > 0; the strap observer
+    /// ([`Self::intent_estimate`]) low-passes its human acceleration at it too. Default 3.
     pub human_bandwidth_hz: f64,
     /// With `"on_oscillation"`: return to the paper's estimate after this long (s) without a
     /// detected oscillation; 0 = stay engaged for the rest of the run. >= 0. Default 0.
@@ -131,6 +132,28 @@ pub struct RobustSettings {
     /// (`control/weights.rs`). In [0, 10]; 0 = the probabilities as they are (the paper's).
     /// Default 0.15.
     pub weight_smoothing_s: f64,
+    /// The human-intent estimate of the robust method: `"paper"` (eqs. 5-6,
+    /// `q̂_H = q_R + K1 F̄`, `q̂d_H = qd̄_R + K2 F̄`, with the filtered velocity as the NMPC's start
+    /// state until the filter-aware mode engages) or `"strap_observer"` (the strap model
+    /// inverted as a first-order observer of the stretch and its rate, moved forward over the
+    /// sensor filter's lag, in both modes, with the EKF bank's lag-free velocity as the start
+    /// state; `control/strap_intent.rs`). Default `"strap_observer"`.
+    pub intent_estimate: IntentEstimate,
+    /// With `intent_estimate = "strap_observer"`: gain `kv` (1/s) of the human-robot angle
+    /// error in the reference velocity, `qd_ref = q̂d_H + kv (q̂_H − q_R)` (the encoder angle
+    /// `q_R` is exact, so this feedback has no filter delay). In [0, 1000]. Default 25.
+    pub observer_velocity_gain: f64,
+}
+
+/// The human-intent estimate of the robust method ([`RobustSettings::intent_estimate`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum IntentEstimate {
+    /// The paper's eqs. 5-6 with the robust method's gains.
+    Paper,
+    /// The strap-model observer of `control/strap_intent.rs` (the default).
+    #[default]
+    StrapObserver,
 }
 
 /// The strap stiffness (N/m) at which the paper's intent gains hold (paper Table 1,
@@ -184,6 +207,8 @@ impl Default for RobustSettings {
             inertia_engage_ratio: 3.0,
             inertia_engage_s: 0.1,
             weight_smoothing_s: 0.15,
+            intent_estimate: IntentEstimate::StrapObserver,
+            observer_velocity_gain: 25.0,
         }
     }
 }
