@@ -39,7 +39,8 @@ fn trips(rep: &SafetyReport) -> Vec<(MonitorKind, f64)> {
 }
 
 /// A reading at full scale (−70 N from 1 s on) trips the strap-force monitor on that very
-/// step, as a handover; a force ramped to 98 % of the range does not trip it.
+/// step, as a handover, unless `force_max_n` is above the range; a force ramped to 98 % of the
+/// range does not trip it.
 #[test]
 fn a_reading_at_the_sensors_full_scale_trips_the_strap_force_monitor_at_once() {
     let s = Scenario::default();
@@ -51,6 +52,20 @@ fn a_reading_at_the_sensors_full_scale_trips_the_strap_force_monitor_at_once() {
     assert_eq!(tr[0].0, MonitorKind::StrapForce, "{:?}", rep.events);
     assert!((tr[0].1 - 1.0).abs() < 1e-9, "{:?}", rep.events);
     assert_eq!(rep.handovers, 1, "{:?}", rep.events);
+
+    // A threshold above the range (the bare scan's `--no-monitors`): full scale cannot tell.
+    let mut above = s.clone();
+    above.monitors.force_max_n = 1000.0;
+    let rep = feed(
+        &above,
+        1.5,
+        |t| if t >= 1.0 - 1e-9 { -sat } else { 5.0 + t },
+    );
+    assert!(
+        !trips(&rep).iter().any(|e| e.0 == MonitorKind::StrapForce),
+        "{:?}",
+        rep.events
+    );
 
     let inside = feed(&s, 1.5, |t| -0.98 * sat * t.min(1.0) - 0.01 * t);
     // (It trips the tracking-error monitor, 0.35 rad ≈ 70 N of strap stretch; not the others.)
