@@ -73,7 +73,9 @@ pub struct Monitors {
     /// docs/MODEL.md §4), exceeds this (rad), > 0. Default 0.35 (20°; the default scenario
     /// stays below 0.15).
     pub tracking_error_max_rad: f64,
-    /// Trip when any measured strap force exceeds this (N), > 0. Default 70.
+    /// Trip when any measured strap force exceeds this (N), > 0; when this is at most the
+    /// force sensor's range (`[faults] saturation_n`, 70 N), a reading at full scale trips
+    /// too. Default 70.
     pub force_max_n: f64,
     /// Trip when a channel has delivered no valid sample for this long (s), > 0. Default 0.05.
     pub sensor_timeout_s: f64,
@@ -188,7 +190,9 @@ impl Monitors {
 pub enum MonitorKind {
     /// Estimated `|q_H − q_R| > tracking_error_max_rad` on some joint.
     TrackingError,
-    /// `|F| > force_max_n` on some strap.
+    /// `|F| > force_max_n` on some strap, or, when `force_max_n ≤ saturation_n`, a reading at
+    /// the force sensor's full scale (`|F| ≥ saturation_n`: the true force is at least the
+    /// range, which a clipped reading can never exceed).
     StrapForce,
     /// A channel without a fresh valid sample for longer than `sensor_timeout_s`.
     SensorTimeout,
@@ -480,7 +484,8 @@ pub struct SafetyReport {
 /// * **Monitors.** The human-robot angle error `|q_H − q_R|` (q_H is not measured: it is
 ///   estimated from the measured strap forces by inverting the strap model
 ///   `F = ks J (Δq + τ Δqd)`, `τ = cs/ks`, docs/MODEL.md §4, see [`StrapAngleEstimate`])
-///   above `tracking_error_max_rad`, strap force above `force_max_n`, and any sensor channel
+///   above `tracking_error_max_rad`, strap force above `force_max_n` or (when
+///   `force_max_n ≤ saturation_n`) at the sensor's full scale, and any sensor channel
 ///   without a fresh valid sample (non-finite, implausible, or bit-for-bit repeated) for longer
 ///   than `sensor_timeout_s`. A tripped monitor applies the configured response (`hold` the
 ///   last torque, or `ramp_to_zero` at the rate limit; status
@@ -757,7 +762,10 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         let values = [track, force, silent, force_osc, torque_osc];
         let cond = [
             track > mo.tracking_error_max_rad,
-            force > mo.force_max_n,
+            // A reading at the sensor's full scale (the sensor clips there) is a force of at
+            // least `saturation_n`: over a limit `force_max_n ≤ saturation_n` (70 N both by
+            // default), which no reading could exceed.
+            force > mo.force_max_n || force >= self.s.saturation_n.max(mo.force_max_n),
             silent > mo.sensor_timeout_s + 1e-9,
             self.force_osc
                 .is_oscillating(mo.oscillation_force_rms_n, OSCILLATION_MIN_HALF_CYCLES),
