@@ -578,11 +578,7 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
             }
             self.filter_aware_prev = engaged;
             if engaged {
-                let p = self.bank.probabilities();
-                let mut qd = SVector::<f64, N>::zeros();
-                for (f, pi) in self.bank.filters().iter().zip(p) {
-                    qd += f.velocities() * *pi;
-                }
+                let qd = self.bank.weighted_velocity();
                 if qd.iter().all(|v| v.is_finite()) {
                     x0.qd = qd;
                     mi.qd = qd;
@@ -595,11 +591,7 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
             // With the strap observer every scenario's NMPC starts from the bank's
             // probability-weighted (lag-free) velocity, as in the filter-aware mode.
             if stretch.is_none() {
-                let p = self.bank.probabilities();
-                let mut qd = SVector::<f64, N>::zeros();
-                for (f, pi) in self.bank.filters().iter().zip(p) {
-                    qd += f.velocities() * *pi;
-                }
+                let qd = self.bank.weighted_velocity();
                 if qd.iter().all(|v| v.is_finite()) {
                     x0.qd = qd;
                 }

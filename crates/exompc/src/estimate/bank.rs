@@ -259,6 +259,16 @@ impl<const N: usize, const NA: usize, const NY: usize> EkfBank<N, NA, NY> {
         self.filters[i].disturbance()
     }
 
+    /// Probability-weighted joint velocity `Σᵢ μᵢ q̇̂ᵢ` of the scenario filters (rad/s): the
+    /// bank's lag-free velocity estimate (the probabilities of eqs. 10-11 on the EKF states).
+    pub fn weighted_velocity(&self) -> SVector<f64, N> {
+        let mut qd = SVector::<f64, N>::zeros();
+        for (f, p) in self.filters.iter().zip(&self.probabilities) {
+            qd += f.velocities() * *p;
+        }
+        qd
+    }
+
     /// The scenario filters.
     pub fn filters(&self) -> &[ScenarioEkf<N, NA, NY>] {
         &self.filters
