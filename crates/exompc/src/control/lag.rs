@@ -26,12 +26,59 @@ pub struct ForceLag<const N: usize> {
     next: usize,
     len: usize,
     dt: f64,
-    /// Low-pass coefficient of the human acceleration estimate.
+    /// Low-passed robot acceleration (from the lag-free velocity), the human's acceleration
+    /// estimate `a_H`.
+    acc: LowPassAcceleration<N>,
+}
+
+/// The acceleration of a velocity signal: successive samples differenced and low-passed
+/// (first order, `a ← a + γ (Δv/dt − a)`, `γ = 1 − exp(−2π f dt)`). The human acceleration
+/// `a_H` of the Smith predictor ([`ForceLag`]) and of the strap observer
+/// (`control/strap_intent.rs`).
+#[derive(Clone, Debug)]
+pub(crate) struct LowPassAcceleration<const N: usize> {
+    dt: f64,
     gamma: f64,
-    /// Previous lag-free velocity (`None` after a reset).
-    qd_prev: Option<SVector<f64, N>>,
-    /// Low-passed robot acceleration, the human's acceleration estimate `a_H`.
+    /// Previous velocity (`None` after a restart).
+    prev: Option<SVector<f64, N>>,
     acc: SVector<f64, N>,
+}
+
+impl<const N: usize> LowPassAcceleration<N> {
+    /// For samples `dt` (s) apart, low-passed at `bandwidth_hz` (> 0); starts at zero.
+    pub(crate) fn new(dt: f64, bandwidth_hz: f64) -> Self {
+        LowPassAcceleration {
+            dt,
+            gamma: 1.0 - (-2.0 * std::f64::consts::PI * bandwidth_hz * dt).exp(),
+            prev: None,
+            acc: SVector::zeros(),
+        }
+    }
+
+    /// Record this period's velocity (the first after a restart only sets the reference).
+    pub(crate) fn push(&mut self, v: &SVector<f64, N>) {
+        if let Some(p) = self.prev {
+            let a = (v - p) / self.dt;
+            self.acc += (a - self.acc) * self.gamma;
+        }
+        self.prev = Some(*v);
+    }
+
+    /// Forget the previous velocity, keep the acceleration.
+    pub(crate) fn restart(&mut self) {
+        self.prev = None;
+    }
+
+    /// Forget the previous velocity and the acceleration.
+    pub(crate) fn reset(&mut self) {
+        self.prev = None;
+        self.acc = SVector::zeros();
+    }
+
+    /// The low-passed acceleration.
+    pub(crate) fn value(&self) -> SVector<f64, N> {
+        self.acc
+    }
 }
 
 impl<const N: usize> ForceLag<N> {
@@ -43,25 +90,19 @@ impl<const N: usize> ForceLag<N> {
             next: 0,
             len: 0,
             dt,
-            gamma: 1.0 - (-2.0 * std::f64::consts::PI * human_bandwidth_hz * dt).exp(),
-            qd_prev: None,
-            acc: SVector::zeros(),
+            acc: LowPassAcceleration::new(dt, human_bandwidth_hz),
         }
     }
 
     /// Record the lag-free joint velocity of this period (updates `a_H`).
     pub fn push_velocity(&mut self, qd: &SVector<f64, N>) {
-        if let Some(p) = self.qd_prev {
-            let a = (qd - p) / self.dt;
-            self.acc += (a - self.acc) * self.gamma;
-        }
-        self.qd_prev = Some(*qd);
+        self.acc.push(qd);
     }
 
     /// Forget the last velocity (the next [`Self::push_velocity`] starts the acceleration
     /// estimate afresh), e.g. after periods in which no velocity was pushed.
     pub fn restart_velocity(&mut self) {
-        self.qd_prev = None;
+        self.acc.restart();
     }
 
     /// The filter window `w` (samples).
@@ -73,8 +114,7 @@ impl<const N: usize> ForceLag<N> {
     pub fn reset(&mut self) {
         self.len = 0;
         self.next = 0;
-        self.qd_prev = None;
-        self.acc = SVector::zeros();
+        self.acc.reset();
     }
 
     /// Record the encoder angles of this period.
@@ -97,6 +137,17 @@ impl<const N: usize> ForceLag<N> {
             s += self.buf[(self.next + w - 1 - i) % w];
         }
         (s / self.len as f64, (self.len - 1) as f64 * 0.5 * self.dt)
+    }
+
+    /// The constant-acceleration shift of the window mean to the present, `(τ, τ² − c₂)`,
+    /// `c₂ = dt² (w−1)(2w−1)/12` over the `w` recorded samples (at least one): a signal whose
+    /// window-mean rate is `v̄` and acceleration `a` is `τ v̄ + (τ² − c₂) a` ahead of its mean,
+    /// and its rate `τ a` ahead.
+    pub fn lag_coefficients(&self) -> (f64, f64) {
+        let w = self.len.max(1) as f64;
+        let tau = (w - 1.0) * 0.5 * self.dt;
+        let c2 = self.dt * self.dt * (w - 1.0) * (2.0 * w - 1.0) / 12.0;
+        (tau, tau * tau - c2)
     }
 
     /// `F̂(k)` of the module documentation, from the filtered measurement `m` (its angles
@@ -124,13 +175,13 @@ impl<const N: usize> ForceLag<N> {
         if self.len == 0 {
             return None;
         }
-        let (q_mean, tau) = self.mean();
-        let w = self.len as f64;
+        let (q_mean, _) = self.mean();
         // Constant-acceleration human over the window: q_H(k) − q̄_H = τ qd̄_H + (τ² − c2) a_H,
-        // qd_H(k) − qd̄_H = τ a_H, c2 = dt² (w−1)(2w−1)/12, with qd̄_H ≈ qd̄_R.
-        let c2 = self.dt * self.dt * (w - 1.0) * (2.0 * w - 1.0) / 12.0;
-        let dq_h = m.qd * tau + self.acc * (tau * tau - c2);
-        let dqd_h = self.acc * tau;
+        // qd_H(k) − qd̄_H = τ a_H, with qd̄_H ≈ qd̄_R.
+        let (tau, k2) = self.lag_coefficients();
+        let acc = self.acc.value();
+        let dq_h = m.qd * tau + acc * k2;
+        let dqd_h = acc * tau;
         Some((m.q - q_mean - dq_h, qd_now - m.qd - dqd_h))
     }
 }

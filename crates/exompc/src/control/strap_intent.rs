@@ -40,7 +40,7 @@
 //! [`RobustSettings::intent_estimate`]: super::robust::RobustSettings::intent_estimate
 //! [`RobustSettings::human_bandwidth_hz`]: super::robust::RobustSettings::human_bandwidth_hz
 
-use super::lag::ForceLag;
+use super::lag::{ForceLag, LowPassAcceleration};
 use super::Measurement;
 use crate::model::Straps;
 use nalgebra::{SMatrix, SVector};
@@ -59,13 +59,12 @@ struct Observer<const N: usize> {
     stretch: SVector<f64, N>,
     rate: SVector<f64, N>,
     u_prev: SVector<f64, N>,
-    /// Previous window-mean human velocity and the low-passed human acceleration.
-    vh_prev: Option<SVector<f64, N>>,
-    acc: SVector<f64, N>,
+    /// The human acceleration: the window-mean human velocity differenced and low-passed.
+    acc: LowPassAcceleration<N>,
 }
 
 impl<const N: usize> Observer<N> {
-    fn new(straps: &Straps<N>, dt: f64) -> Self {
+    fn new(straps: &Straps<N>, dt: f64, bandwidth_hz: f64) -> Self {
         let ks = straps.stiffness;
         let inverse = if ks > 0.0 && ks.is_finite() {
             (straps.j * ks)
@@ -95,8 +94,7 @@ impl<const N: usize> Observer<N> {
             stretch: SVector::zeros(),
             rate: SVector::zeros(),
             u_prev: SVector::zeros(),
-            vh_prev: None,
-            acc: SVector::zeros(),
+            acc: LowPassAcceleration::new(dt, bandwidth_hz),
         }
     }
 }
@@ -108,8 +106,6 @@ pub(crate) struct StrapIntent<const N: usize> {
     angles: ForceLag<N>,
     observers: Vec<Observer<N>>,
     dt: f64,
-    /// Low-pass coefficient of the human acceleration.
-    gamma: f64,
     started: bool,
     /// Gain (1/s) of the angle error in the reference velocity.
     kv: f64,
@@ -128,9 +124,8 @@ impl<const N: usize> StrapIntent<N> {
     ) -> Self {
         StrapIntent {
             angles: ForceLag::new(window, dt, bandwidth_hz),
-            observers: straps.map(|s| Observer::new(s, dt)).collect(),
+            observers: straps.map(|s| Observer::new(s, dt, bandwidth_hz)).collect(),
             dt,
-            gamma: 1.0 - (-2.0 * std::f64::consts::PI * bandwidth_hz * dt).exp(),
             started: false,
             kv: velocity_gain,
         }
@@ -151,8 +146,7 @@ impl<const N: usize> StrapIntent<N> {
             if restart {
                 o.stretch = u;
                 o.rate = SVector::zeros();
-                o.vh_prev = None;
-                o.acc = SVector::zeros();
+                o.acc.reset();
             } else if o.tau > 0.0 {
                 o.stretch =
                     o.stretch * o.decay + o.u_prev * (1.0 - o.decay) + (u - o.u_prev) * o.ramp;
@@ -162,12 +156,7 @@ impl<const N: usize> StrapIntent<N> {
                 o.stretch = u;
             }
             o.u_prev = u;
-            let vh = m.qd + o.rate;
-            if let Some(p) = o.vh_prev {
-                let a = (vh - p) / self.dt;
-                o.acc += (a - o.acc) * self.gamma;
-            }
-            o.vh_prev = Some(vh);
+            o.acc.push(&(m.qd + o.rate));
         }
     }
 
@@ -184,12 +173,11 @@ impl<const N: usize> StrapIntent<N> {
         if !self.started {
             return None;
         }
-        let (q_mean, tau) = self.angles.mean();
-        let w = tau / self.dt * 2.0 + 1.0;
-        let c2 = self.dt * self.dt * (w - 1.0) * (2.0 * w - 1.0) / 12.0;
-        let vh = m.qd + o.rate;
-        let q_h = q_mean + o.stretch + vh * tau + o.acc * (tau * tau - c2);
-        let qd_h = vh + o.acc * tau + (q_h - m.q) * self.kv;
+        let (q_mean, _) = self.angles.mean();
+        let (tau, k2) = self.angles.lag_coefficients();
+        let (vh, acc) = (m.qd + o.rate, o.acc.value());
+        let q_h = q_mean + o.stretch + vh * tau + acc * k2;
+        let qd_h = vh + acc * tau + (q_h - m.q) * self.kv;
         Some((q_h, qd_h))
     }
 }
