@@ -129,8 +129,10 @@ pub struct RobustSettings {
     /// weight the scenarios' costs (paper eq. 12); the probabilities themselves (reported,
     /// and the filter-aware velocity blend) stay the bank's. Where no scenario fits, the
     /// posteriors chatter between 0 and 1 and each switch steps the torque
-    /// (`control/weights.rs`). In [0, 10]; 0 = the probabilities as they are (the paper's).
-    /// Default 0.15.
+    /// (`control/weights.rs`). The low-pass starts once one scenario first holds more than
+    /// half of the probability; until then the weights are the probabilities (the bank's
+    /// uniform prior is not smoothed in). In [0, 10]; 0 = the probabilities as they are (the
+    /// paper's). Default 0.15.
     pub weight_smoothing_s: f64,
     /// The human-intent estimate of the robust method: `"paper"` (eqs. 5-6,
     /// `q̂_H = q_R + K1 F̄`, `q̂d_H = qd̄_R + K2 F̄`, with the filtered velocity as the NMPC's start
