@@ -486,6 +486,7 @@ pub const KEYS: &[KeyDoc] = &[
     k("monitors.oscillation_torque_rms_nm", "N·m", POS, REL2, "Oscillation monitor: the same on the commanded joint torques."),
     k("monitors.oscillation_cutoff_hz", "Hz", POS, REL2, "Oscillation monitor high-pass cut-off (taken just below Nyquist if above it)."),
     k("monitors.oscillation_window_s", "s", real(open(0.0), closed(10.0)), REL2, "Oscillation monitor sliding window."),
+    k("monitors.oscillation_cutoff_gait_ratio", "-", real(closed(0.0), closed(20.0)), REL2, "Gait-following cut-off: the oscillation monitors high-pass at max(oscillation_cutoff_hz, this × the gait frequency estimated from the human's joint angles, at most 2 Hz), so a fast gait's own torque is not an oscillation; 0: fixed cut-off."),
     k("monitors.oscillation_clear_s", "s", real(closed(0.0), closed(1e6)), REL2, "A tripped oscillation monitor clears after its condition has been absent this long."),
     k("monitors.latch_trips", "trips", int(0, 1000), REL2, "Latch after this many handovers (a tracking-error, strap-force or oscillation monitor taking the torque from the controller) within latch_window_s: the response then keeps the torque until an operator's reset; 0: never latch."),
     k("monitors.latch_window_s", "s", real(open(0.0), closed(1e6)), REL2, "The window of latch_trips."),

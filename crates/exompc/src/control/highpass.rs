@@ -19,6 +19,28 @@ impl<const N: usize> HighPass<N> {
     /// Cut-off `cutoff_hz` for samples every `dt` s; out-of-range values are brought into
     /// range (`dt` ≤ 0 or non-finite → 0.01 s, the cut-off into (0, Nyquist)).
     pub fn new(cutoff_hz: f64, dt: f64) -> Self {
+        let (b, a) = Self::coefficients(cutoff_hz, dt);
+        HighPass {
+            b,
+            a,
+            x: [SVector::zeros(); 2],
+            y: [SVector::zeros(); 2],
+            started: false,
+        }
+    }
+
+    /// Moves the cut-off to `cutoff_hz` (brought into range as by [`HighPass::new`]) and keeps
+    /// the filter's state (its last two inputs and outputs), so that a cut-off that follows a
+    /// slowly varying frequency (the supervisor's gait-following cut-off,
+    /// `safety::OscillationDetector::set_cutoff`) filters on without a restart.
+    pub fn set_cutoff(&mut self, cutoff_hz: f64, dt: f64) {
+        (self.b, self.a) = Self::coefficients(cutoff_hz, dt);
+    }
+
+    /// Numerator `b` and denominator `a` (without the leading 1) of the pre-warped bilinear
+    /// Butterworth high-pass: `k = tan(π f_c dt)`, `b = [1, −2, 1] / n`,
+    /// `a = [2 (k² − 1), 1 − √2 k + k²] / n`, `n = 1 + √2 k + k²`.
+    fn coefficients(cutoff_hz: f64, dt: f64) -> ([f64; 3], [f64; 2]) {
         let dt = if dt.is_finite() && dt > 0.0 { dt } else { 0.01 };
         let nyquist = 0.5 / dt;
         let fc = if cutoff_hz.is_finite() {
@@ -29,13 +51,10 @@ impl<const N: usize> HighPass<N> {
         let k = (std::f64::consts::PI * fc * dt).tan();
         let r2 = std::f64::consts::SQRT_2;
         let norm = 1.0 / (1.0 + r2 * k + k * k);
-        HighPass {
-            b: [norm, -2.0 * norm, norm],
-            a: [2.0 * (k * k - 1.0) * norm, (1.0 - r2 * k + k * k) * norm],
-            x: [SVector::zeros(); 2],
-            y: [SVector::zeros(); 2],
-            started: false,
-        }
+        (
+            [norm, -2.0 * norm, norm],
+            [2.0 * (k * k - 1.0) * norm, (1.0 - r2 * k + k * k) * norm],
+        )
     }
 
     /// Restart: the next sample is taken as the initial value.

@@ -55,8 +55,9 @@ pub use robust::{
     FilterAware, IntentEstimate, Method, RobustIntentGains, RobustSettings, PAPER_STRAP_STIFFNESS,
 };
 pub use safety::{
-    MonitorAction, MonitorEvent, MonitorKind, MonitorResponse, Monitors, OscillationDetector,
-    SafetyReport, SafetySettings, StrapAngleEstimate, Supervisor, OSCILLATION_MIN_HALF_CYCLES,
+    GaitFrequency, MonitorAction, MonitorEvent, MonitorKind, MonitorResponse, Monitors,
+    OscillationDetector, SafetyReport, SafetySettings, StrapAngleEstimate, Supervisor,
+    GAIT_BAND_RAD, GAIT_MAX_HZ, GAIT_MEAN_TAU_S, OSCILLATION_MIN_HALF_CYCLES,
 };
 
 use nalgebra::SVector;

@@ -93,6 +93,18 @@ pub struct Monitors {
     pub oscillation_cutoff_hz: f64,
     /// Oscillation monitor sliding window (s), in (0, 10]; at least one sample. Default 0.5.
     pub oscillation_window_s: f64,
+    /// Gait-following cut-off: the oscillation monitors high-pass at
+    /// `max(oscillation_cutoff_hz, oscillation_cutoff_gait_ratio · f̂)`, `f̂` the gait frequency
+    /// estimated from the human's joint angles ([`GaitFrequency`]: encoder angle plus the
+    /// strap-model angle error, at most [`GAIT_MAX_HZ`]), so that a fast gait's own torque and
+    /// force (its fundamental, which a second-order high-pass passes with gain
+    /// `1/√(1 + (f_c/f)⁴)`) is not taken for an oscillation (docs/ROBUSTNESS.md §4, eighth
+    /// pass). Until a gait frequency is estimated (one gait period after the first upward
+    /// crossing) the cut-off is
+    /// `oscillation_cutoff_hz`. 0 keeps the cut-off fixed; in [0, 20]. Default 3: the default
+    /// cut-off's ratio to the default gait's fastest frequency (3 Hz / 1.0 Hz), so the default
+    /// scenario keeps its 3 Hz.
+    pub oscillation_cutoff_gait_ratio: f64,
     /// A tripped oscillation monitor (which applies `response`) clears after its condition
     /// has been absent this long (s), in [0, 1e6]: longer than the other monitors' 0.1 s so
     /// that a limit cycle does not restart at once. Default 2.
@@ -122,6 +134,7 @@ impl Default for Monitors {
             oscillation_torque_rms_nm: 10.0,
             oscillation_cutoff_hz: 3.0,
             oscillation_window_s: 0.5,
+            oscillation_cutoff_gait_ratio: 3.0,
             oscillation_clear_s: 2.0,
             latch_trips: 2,
             latch_window_s: 60.0,
@@ -134,8 +147,8 @@ impl Monitors {
     /// Largest `latch_trips`.
     pub const MAX_LATCH_TRIPS: usize = 1000;
 
-    /// Checks every threshold, cutoff and time (finite, > 0; the window in (0, 10], the clear
-    /// time in [0, 1e6], the latch window in (0, 1e6], `latch_trips` in 0..=1000); the error
+    /// Checks every threshold, cutoff and time (finite, > 0; the window in (0, 10], the
+    /// gait ratio in [0, 20], the clear time in [0, 1e6], the latch window in (0, 1e6], `latch_trips` in 0..=1000); the error
     /// names the key (`force_max_n`, ...).
     pub fn validate(&self) -> Result<(), InvalidField> {
         check::reals(&[
@@ -165,6 +178,11 @@ impl Monitors {
                 "oscillation_window_s",
                 self.oscillation_window_s,
                 Range::OpenClosed(0.0, 10.0),
+            ),
+            (
+                "oscillation_cutoff_gait_ratio",
+                self.oscillation_cutoff_gait_ratio,
+                Range::Closed(0.0, 20.0),
             ),
             (
                 "oscillation_clear_s",
@@ -283,6 +301,12 @@ impl<const N: usize> OscillationDetector<N> {
         self.turn_sum.map(|s| s.max(0.0).round())
     }
 
+    /// Moves the high-pass cut-off to `cutoff_hz` for samples every `dt` s, keeping the
+    /// filter's state and the window ([`HighPass::set_cutoff`]).
+    pub fn set_cutoff(&mut self, cutoff_hz: f64, dt: f64) {
+        self.hp.set_cutoff(cutoff_hz, dt);
+    }
+
     /// Window length (samples).
     pub fn window(&self) -> usize {
         self.ring.len()
@@ -349,6 +373,102 @@ impl<const N: usize> OscillationDetector<N> {
         (0..N).any(|j| {
             rms[j] > threshold && (self.band <= 0.0 || cycles[j] >= f64::from(min_half_cycles))
         })
+    }
+}
+
+/// Fastest gait frequency (Hz) the gait-following cut-off follows (`[monitors]
+/// oscillation_cutoff_gait_ratio`): estimates above it count as this, so the cut-off never
+/// exceeds `ratio · GAIT_MAX_HZ` (6 Hz with the default ratio 3).
+pub const GAIT_MAX_HZ: f64 = 2.0;
+
+/// Hysteresis band (rad) of [`GaitFrequency`]'s mean crossings: a joint must swing beyond
+/// `±GAIT_BAND_RAD` around its running mean to complete a half-cycle.
+pub const GAIT_BAND_RAD: f64 = 0.05;
+
+/// Time constant (s) of [`GaitFrequency`]'s running mean of each joint angle.
+pub const GAIT_MEAN_TAU_S: f64 = 2.0;
+
+/// The gait's frequency from the human's joint angles `q̂_H = q_R + Δq̂` (encoder angle plus
+/// the strap-model angle error of [`StrapAngleEstimate`], which follows the person and not a
+/// robot oscillating against the straps), per joint: a running mean (first-order, time
+/// constant [`GAIT_MEAN_TAU_S`]), upward crossings of it with hysteresis `±`[`GAIT_BAND_RAD`],
+/// and the time `p` between the last two upward crossings (one period). A joint's estimate is
+/// `1 / max(p, t − t_up)` (`t_up` the last upward crossing), so it falls at once when the gait
+/// slows or stops; the estimate is the smallest over the joints that have one (the lower
+/// cut-off), at most [`GAIT_MAX_HZ`]. On a sine gait it is the gait frequency within the period's
+/// quantisation (one sample; test `gait_frequency_follows_a_sine_gait_and_ignores_a_small_4_hz_ripple`).
+#[derive(Clone, Copy, Debug)]
+pub struct GaitFrequency<const N: usize> {
+    alpha: f64,
+    mean: SVector<f64, N>,
+    started: bool,
+    side: SVector<f64, N>,
+    /// Last upward crossing time per joint (NaN: none yet).
+    up: SVector<f64, N>,
+    /// The last period per joint (NaN: not yet).
+    period: SVector<f64, N>,
+}
+
+impl<const N: usize> GaitFrequency<N> {
+    /// For samples every `dt` s (non-positive or non-finite: 0.01 s).
+    pub fn new(dt: f64) -> Self {
+        let dt = if dt.is_finite() && dt > 0.0 { dt } else { 0.01 };
+        GaitFrequency {
+            alpha: 1.0 - (-dt / GAIT_MEAN_TAU_S).exp(),
+            mean: SVector::zeros(),
+            started: false,
+            side: SVector::zeros(),
+            up: SVector::repeat(f64::NAN),
+            period: SVector::repeat(f64::NAN),
+        }
+    }
+
+    /// Feed the human's joint angles `q_h` (rad) at time `t` (s); a sample with a non-finite
+    /// entry (or time) is skipped.
+    pub fn update(&mut self, q_h: &SVector<f64, N>, t: f64) {
+        if !t.is_finite() || !q_h.iter().all(|v| v.is_finite()) {
+            return;
+        }
+        if !self.started {
+            self.mean = *q_h;
+            self.started = true;
+        }
+        self.mean += (q_h - self.mean) * self.alpha;
+        for j in 0..N {
+            let e = q_h[j] - self.mean[j];
+            let side = if e > GAIT_BAND_RAD {
+                1.0
+            } else if e < -GAIT_BAND_RAD {
+                -1.0
+            } else {
+                0.0
+            };
+            if side != 0.0 && side != self.side[j] {
+                if side > 0.0 && self.side[j] < 0.0 {
+                    if self.up[j].is_finite() {
+                        self.period[j] = t - self.up[j];
+                    }
+                    self.up[j] = t;
+                }
+                self.side[j] = side;
+            }
+        }
+    }
+
+    /// The gait frequency (Hz) at time `t`, at most [`GAIT_MAX_HZ`]; `None` until some joint
+    /// has completed a period (two upward crossings).
+    pub fn frequency(&self, t: f64) -> Option<f64> {
+        let mut best: Option<f64> = None;
+        for j in 0..N {
+            let p = self.period[j];
+            if !(p.is_finite() && p > 0.0) {
+                continue;
+            }
+            let slowest = p.max(t - self.up[j]);
+            let f = (1.0 / slowest).min(GAIT_MAX_HZ);
+            best = Some(best.map_or(f, |b: f64| b.min(f)));
+        }
+        best
     }
 }
 
@@ -533,6 +653,9 @@ pub struct Supervisor<const N: usize, C> {
     angle: StrapAngleEstimate<N>,
     force_osc: OscillationDetector<N>,
     torque_osc: OscillationDetector<N>,
+    /// The gait frequency of the gait-following cut-off, and the detectors' cut-off now (Hz).
+    gait: GaitFrequency<N>,
+    cutoff_hz: f64,
     fallback: Option<Transparent<N>>,
     /// A controller-failure monitor (or the latch) had the torque on the previous step.
     engaged: bool,
@@ -569,6 +692,8 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             settings.strap_damping,
             settings.dt,
         );
+        let gait = GaitFrequency::new(settings.dt);
+        let cutoff_hz = settings.monitors.oscillation_cutoff_hz;
         let mut sup = Supervisor {
             inner,
             s: settings,
@@ -582,6 +707,8 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             angle,
             force_osc,
             torque_osc,
+            gait,
+            cutoff_hz,
             fallback: None,
             engaged: false,
             latched: false,
@@ -693,6 +820,19 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         }
     }
 
+    /// The oscillation monitors' high-pass cut-off now (Hz): `oscillation_cutoff_hz`, or the
+    /// gait-following one once a gait frequency is estimated
+    /// (`[monitors] oscillation_cutoff_gait_ratio`).
+    pub fn oscillation_cutoff_hz(&self) -> f64 {
+        self.cutoff_hz
+    }
+
+    /// The estimated gait frequency (Hz) at the last step, if any ([`GaitFrequency`]).
+    pub fn gait_frequency_hz(&self) -> Option<f64> {
+        let now = self.t0 + self.k.saturating_sub(1) as f64 * self.dt();
+        self.gait.frequency(now)
+    }
+
     /// True while an oscillation monitor is tripped.
     pub fn is_oscillation_tripped(&self) -> bool {
         OSCILLATION.iter().any(|&i| self.tripped[i])
@@ -756,7 +896,22 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         } else {
             SVector::repeat(f64::NAN)
         };
-        let track = self.angle.update(&forces).amax();
+        let dq = self.angle.update(&forces);
+        let track = dq.amax();
+        // The gait-following cut-off (`oscillation_cutoff_gait_ratio`): the human's angles are
+        // the encoders' plus the strap-model angle error.
+        self.gait.update(&(m.q + dq), now);
+        let cutoff = match self.gait.frequency(now) {
+            Some(f) if mo.oscillation_cutoff_gait_ratio > 0.0 => mo
+                .oscillation_cutoff_hz
+                .max(mo.oscillation_cutoff_gait_ratio * f),
+            _ => mo.oscillation_cutoff_hz,
+        };
+        if cutoff != self.cutoff_hz {
+            self.cutoff_hz = cutoff;
+            self.force_osc.set_cutoff(cutoff, self.s.dt);
+            self.torque_osc.set_cutoff(cutoff, self.s.dt);
+        }
         let force_osc = self.force_osc.push(&forces);
         let torque_osc = self.torque_osc.push(&self.prev);
         let values = [track, force, silent, force_osc, torque_osc];
