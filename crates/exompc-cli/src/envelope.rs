@@ -244,7 +244,7 @@ impl EnvelopeVerdict {
         if !v.no_worse_than_nmpc {
             f.push("worse than NMPC");
         }
-        if !v.no_monitor_trip && !v.trips_waived {
+        if !v.no_monitor_trip {
             f.push("monitor trips");
         }
         f.join(", ")
@@ -470,13 +470,13 @@ pub fn markdown(env: &Envelope) -> String {
                     .iter()
                     .find(|v| v.cell == i && v.payload_kg == p);
                 out += &match v {
-                    Some(v) if v.pass() => match v.verdict.as_ref() {
-                        Some(x) if x.trips_waived => {
-                            " pass (torque-limited; monitor trips, the NMPC's too) |".to_string()
+                    Some(v) if v.pass() => {
+                        if v.verdict.as_ref().is_some_and(|x| x.rms_waived) {
+                            " pass (torque-limited) |".to_string()
+                        } else {
+                            " pass |".to_string()
                         }
-                        Some(x) if x.rms_waived => " pass (torque-limited) |".to_string(),
-                        _ => " pass |".to_string(),
-                    },
+                    }
                     Some(v) => format!(" **fail**: {} |", v.failures()),
                     None => " – |".to_string(),
                 };
@@ -486,16 +486,10 @@ pub fn markdown(env: &Envelope) -> String {
     }
     if judged {
         let fail = env.failing();
-        let trip_free = env
-            .verdicts
-            .iter()
-            .filter(|v| v.pass() && v.verdict.as_ref().is_some_and(|x| x.no_monitor_trip))
-            .count();
         out += &format!(
-            "\n{} of {} cells pass, {} of them without a monitor trip (MS-NMPC against NMPC: power above {} Hz < {:.0} %, last {} s RMS ≤ {}× the first, RMS < {} N unless on the torque limit in > {:.0} % of the steps, no limit violation, RMS ≤ NMPC's at ≥ 1 kg and ≤ 1.1× at 0 kg unless only the NMPC run tripped a monitor, no monitor trip unless torque-limited and the NMPC tripped too).\n",
+            "\n{} of {} cells pass (MS-NMPC against NMPC: power above {} Hz < {:.0} %, last {} s RMS ≤ {}× the first, RMS < {} N unless on the torque limit in > {:.0} % of the steps, no limit violation, RMS ≤ NMPC's at ≥ 1 kg and ≤ 1.1× at 0 kg unless only the NMPC run tripped a monitor, no monitor trip).\n",
             env.verdicts.len() - fail.len(),
             env.verdicts.len(),
-            trip_free,
             env.criteria.cutoff_hz,
             100.0 * env.criteria.max_high_frequency_fraction,
             env.criteria.window_s,

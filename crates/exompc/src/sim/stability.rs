@@ -307,16 +307,7 @@ pub struct CellVerdict {
     pub no_worse_than_nmpc: bool,
     /// No safety monitor tripped (a run that needs the safety layer does not hold).
     pub no_monitor_trip: bool,
-    /// The run tripped a monitor, but the cell is torque-limited (`rms_waived`) and the NMPC's
-    /// run tripped one as well: the task is beyond the actuator for either controller (in the
-    /// standard envelope's gait 1.3 Hz 3 kg cell the bare MS-NMPC drives the true strap
-    /// forces to 161 N, over the sensor's 70 N range on 244 steps), and the trips are the
-    /// safety layer catching it. There the issue's acceptance — stability and "no worse than
-    /// NMPC" suffice — applies; the trips are still counted and reported.
-    #[serde(default)]
-    pub trips_waived: bool,
-    /// Stable, RMS ok, within the limits, no worse than the NMPC, and no monitor trip unless
-    /// `trips_waived`.
+    /// All of the above.
     pub pass: bool,
 }
 
@@ -349,21 +340,14 @@ pub fn cell_verdict(
                 .zip(nmpc_rms)
                 .all(|(s, &n)| s.rms_n <= ratio * n));
     let within_limits = violations == 0;
-    let no_monitor_trip = monitor_trips == 0;
-    let trips_waived = !no_monitor_trip && rms_waived && nmpc_trips > 0;
     CellVerdict {
         stable,
         rms_ok,
         rms_waived,
         within_limits,
         no_worse_than_nmpc,
-        no_monitor_trip,
-        trips_waived,
-        pass: stable
-            && rms_ok
-            && within_limits
-            && no_worse_than_nmpc
-            && (no_monitor_trip || trips_waived),
+        no_monitor_trip: monitor_trips == 0,
+        pass: stable && rms_ok && within_limits && no_worse_than_nmpc && monitor_trips == 0,
     }
 }
 
@@ -479,17 +463,5 @@ mod tests {
         assert!(v.no_worse_than_nmpc && v.pass);
         let v = cell_verdict(&ms(5.0, 0.0), &[0.5 * a, 0.5 * a], 3, 0, 1, 1.0, &c);
         assert!(!v.no_worse_than_nmpc && !v.pass);
-        // Torque-limited (20 % of the steps on the limit) with trips on both sides: stability
-        // and "no worse than NMPC" decide; the trips are reported, not failed.
-        let v = cell_verdict(&ms(30.0, 0.2), &[big, big], 40, 0, 38, 3.0, &c);
-        assert!(v.trips_waived && !v.no_monitor_trip && v.pass);
-        // ... but not when only the robust run trips, nor below the torque-limit share, nor
-        // when it is worse than the NMPC.
-        let v = cell_verdict(&ms(30.0, 0.2), &[big, big], 0, 0, 38, 3.0, &c);
-        assert!(!v.trips_waived && !v.pass);
-        let v = cell_verdict(&ms(5.0, 0.04), &[a, a], 40, 0, 38, 3.0, &c);
-        assert!(!v.trips_waived && !v.pass);
-        let v = cell_verdict(&ms(30.0, 0.2), &[0.9 * big, big], 40, 0, 38, 3.0, &c);
-        assert!(v.trips_waived && !v.no_worse_than_nmpc && !v.pass);
     }
 }
