@@ -28,26 +28,46 @@ fn describe_failures(env: &Envelope) -> String {
 /// torque-limited), within the limits, no worse than the NMPC, and trips no monitor.
 ///
 /// FAILS today (robust default with the fallback monitor response and the latch, measured
-/// with `exompc envelope`) in 2 of 72 cells: gait 1.3 Hz 3 kg (30 trips, among them strap
-/// forces beyond the sensor's 70 N range; 37.7 / 20.9 N, growing 2.61, on the torque limit in
-/// 34 % of the steps; the leg needs up to 75 N·m); 1-DOF, payload at 0.43 m, 0 kg (0.49 N RMS
-/// against the NMPC's 0.92 N, but 46 % of its power above 3 Hz: a start-up swing of the
-/// scenario probabilities
-/// in the first 0.25 s and the plant's 100-rad/s disturbance on a 0.4 N force). (Straps ×2 pass since the robust
-/// method scales the intent gains with the strap stiffness; a cell where only the NMPC
-/// reference trips a monitor is not "worse than NMPC"; the disturbance bank and the torque
-/// detector of the fifth pass took the failures from 14 to 9, the sixth pass's weight
-/// smoothing and inertia gate to 6, the seventh pass's strap observer to 3 — payload at
-/// 0.10 m 1 / 2 kg, 0.43 m 3 kg and filter window 9 1 kg pass, 1-DOF 0.43 m 0 kg fails —
-/// and the eighth pass's gait-following oscillation cut-off to 2 (gait 1.3 Hz 2 kg passes,
-/// torque-limited, no trip); docs/ROBUSTNESS.md §4.) The paper-method default failed 26.
+/// with `exompc envelope`) in 1 of 72 cells: gait 1.3 Hz 3 kg, where the gait needs up to
+/// 75 N·m of a ±30 N·m actuator (30 trips, among them strap forces beyond the sensor's 70 N
+/// range; 37.7 / 20.8 N against the NMPC's 40.2 / 13.4 N, growing 2.61, on the torque limit in
+/// 34 % of the steps; the transparent fallback, clipped at the limit, puts the shortfall on
+/// the thigh strap). The history: the disturbance bank and the torque detector of the fifth
+/// pass took the failures from 14 to 9, the sixth pass's weight smoothing and inertia gate to
+/// 6, the seventh pass's strap observer to 3 (payload at 0.10 m 1 / 2 kg, 0.43 m 3 kg and
+/// filter window 9 1 kg pass), the eighth pass's gait-following oscillation cut-off (gait
+/// 1.3 Hz 2 kg passes, torque-limited, no trip) and the weight low-pass started at the first
+/// majority posterior (1-DOF, payload at 0.43 m, 0 kg: 46 % → 10 % of its power above 3 Hz)
+/// to 1; docs/ROBUSTNESS.md §4. (Straps ×2 pass since the robust method scales the intent
+/// gains with the strap stiffness; a cell where only the NMPC reference trips a monitor is not
+/// "worse than NMPC".) The paper-method default failed 26.
 #[test]
-#[ignore = "2 of 72 standard-envelope cells fail with today's default controller (see doc)"]
+#[ignore = "1 of 72 standard-envelope cells fails with today's default controller (see doc)"]
 fn standard_envelope_meets_the_acceptance() {
     let env = run(&Grid::standard());
     assert_eq!(env.verdicts.len(), 72);
     assert!(
         env.failing().is_empty(),
+        "failing cells:\n{}",
+        describe_failures(&env)
+    );
+}
+
+/// The standard envelope as CI sees it: every cell passes but the one overloaded cell above
+/// (gait 1.3 Hz, 3 kg), so a regression in any of the other 71 fails this test, and a fix of
+/// that cell shows here too (then un-ignore the test above).
+#[test]
+fn standard_envelope_fails_only_the_overloaded_cell() {
+    let env = run(&Grid::standard());
+    assert_eq!(env.verdicts.len(), 72);
+    let failing: Vec<(String, f64)> = env
+        .failing()
+        .iter()
+        .map(|v| (v.name.clone(), v.payload_kg))
+        .collect();
+    assert_eq!(
+        failing,
+        vec![("gait 1.3 Hz".to_string(), 3.0)],
         "failing cells:\n{}",
         describe_failures(&env)
     );
