@@ -832,7 +832,7 @@ impl<const N: usize> StageConstants<N> {
 fn eye_plus<const N: usize>(h: f64, m: &SMatrix<f64, N, N>) -> SMatrix<f64, N, N> {
     let mut out = m * h;
     for i in 0..N {
-        out[(i, i)] = 1.0 + out[(i, i)];
+        out[(i, i)] += 1.0;
     }
     out
 }
