@@ -259,25 +259,41 @@ impl<const N: usize> PredictionModel<N> {
                 self.stage_sens(consts, t, &s, u, inp, &sens)
             };
             let x2 = s.add_scaled(0.5 * h, &k1);
-            let s2 = sens.add_scaled(0.5 * h, &d1);
+            // From the identity sensitivity, `sens + c·d` adds nothing to the zero entries of
+            // `sens` and of `d1` and one to the diagonal: the sums are formed only where they
+            // are not exact (`0 + y = y`, `1·c = c`; same values).
             let (k2, d2) = if i == 0 {
-                self.stage_sens_second(consts, t + 0.5 * h, &x2, u, inp, &s2)
+                let s2 = StepJacobian::identity_plus_first(0.5 * h, &d1);
+                self.stage_sens_second(consts, t + 0.5 * h, &x2, u, inp, 0.5 * h, &s2)
             } else {
+                let s2 = sens.add_scaled(0.5 * h, &d1);
                 self.stage_sens(consts, t + 0.5 * h, &x2, u, inp, &s2)
             };
             let x3 = s.add_scaled(0.5 * h, &k2);
-            let s3 = sens.add_scaled(0.5 * h, &d2);
+            let s3 = if i == 0 {
+                StepJacobian::identity_plus(0.5 * h, &d2)
+            } else {
+                sens.add_scaled(0.5 * h, &d2)
+            };
             let (k3, d3) = self.stage_sens(consts, t + 0.5 * h, &x3, u, inp, &s3);
             let x4 = s.add_scaled(h, &k3);
-            let s4 = sens.add_scaled(h, &d3);
+            let s4 = if i == 0 {
+                StepJacobian::identity_plus(h, &d3)
+            } else {
+                sens.add_scaled(h, &d3)
+            };
             let (k4, d4) = self.stage_sens(consts, t + h, &x4, u, inp, &s4);
             s = s
                 .add_scaled(h / 6.0, &k1)
                 .add_scaled(h / 3.0, &k2)
                 .add_scaled(h / 3.0, &k3)
                 .add_scaled(h / 6.0, &k4);
-            sens = sens
-                .add_scaled(h / 6.0, &d1)
+            let first = if i == 0 {
+                StepJacobian::identity_plus_first(h / 6.0, &d1)
+            } else {
+                sens.add_scaled(h / 6.0, &d1)
+            };
+            sens = first
                 .add_scaled(h / 3.0, &d2)
                 .add_scaled(h / 3.0, &d3)
                 .add_scaled(h / 6.0, &d4);
@@ -335,10 +351,11 @@ impl<const N: usize> PredictionModel<N> {
         (k, dk)
     }
 
-    /// [`Self::stage_sens`] for the second RK4 stage of the first substep, where `sx.qq = I`
-    /// and `sx.qu = 0` exactly (identity plus `h/2` times the zero blocks of the first stage):
-    /// the products with them are left out (same values).
+    /// [`Self::stage_sens`] for the second RK4 stage of the first substep, where `sx.qq = I`,
+    /// `sx.qu = 0` and `sx.qv = h2·I` exactly (identity plus `h2 = h/2` times the first stage's
+    /// blocks `0`, `I`, `0`): the products with them are left out or scalar (same values).
     #[inline(always)]
+    #[allow(clippy::too_many_arguments)] // `stage_sens`'s arguments and the known `sx.qv`
     fn stage_sens_second(
         &self,
         consts: &StageConstants<N>,
@@ -346,6 +363,7 @@ impl<const N: usize> PredictionModel<N> {
         x: &JointState<f64, N>,
         u: &SVector<f64, N>,
         inp: &HorizonInputs<N>,
+        h2: f64,
         sx: &StepJacobian<N>,
     ) -> (JointState<f64, N>, StepJacobian<N>) {
         let d = self.derivative_jacobian(consts, tau, x, u, inp);
@@ -355,7 +373,7 @@ impl<const N: usize> PredictionModel<N> {
             qv: sx.vv,
             qu: sx.vu,
             vq: d.a_q + d.a_v * sx.vq,
-            vv: d.a_q * sx.qv + d.a_v * sx.vv,
+            vv: d.a_q * h2 + d.a_v * sx.vv,
             vu: d.a_v * sx.vu + d.minv,
         };
         (k, dk)
@@ -809,7 +827,45 @@ impl<const N: usize> StageConstants<N> {
     }
 }
 
+/// `I + h·m`, adding one on the diagonal only (`0 + y = y` off it; same values).
+#[inline(always)]
+fn eye_plus<const N: usize>(h: f64, m: &SMatrix<f64, N, N>) -> SMatrix<f64, N, N> {
+    let mut out = m * h;
+    for i in 0..N {
+        out[(i, i)] += 1.0;
+    }
+    out
+}
+
 impl<const N: usize> StepJacobian<N> {
+    /// `[[I, 0, 0], [0, I, 0]] + h · d` (the identity sensitivity plus a stage's), formed
+    /// without the exact additions of zero: the values of `identity.add_scaled(h, d)`.
+    #[inline(always)]
+    fn identity_plus(h: f64, d: &Self) -> Self {
+        StepJacobian {
+            qq: eye_plus(h, &d.qq),
+            qv: d.qv * h,
+            vq: d.vq * h,
+            vv: eye_plus(h, &d.vv),
+            qu: d.qu * h,
+            vu: d.vu * h,
+        }
+    }
+
+    /// [`Self::identity_plus`] for the first stage of a substep from the identity, whose
+    /// `d.qq = 0`, `d.qv = I`, `d.qu = 0` (`stage_sens_first`): `qq = I`, `qv = h·I`, `qu = 0`.
+    #[inline(always)]
+    fn identity_plus_first(h: f64, d: &Self) -> Self {
+        StepJacobian {
+            qq: SMatrix::identity(),
+            qv: SMatrix::identity() * h,
+            vq: d.vq * h,
+            vv: eye_plus(h, &d.vv),
+            qu: SMatrix::zeros(),
+            vu: d.vu * h,
+        }
+    }
+
     /// `self + h · d`, block-wise.
     #[inline(always)]
     fn add_scaled(&self, h: f64, d: &Self) -> Self {
