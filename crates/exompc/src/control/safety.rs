@@ -100,8 +100,8 @@ pub struct Monitors {
     /// force (its fundamental, which a second-order high-pass passes with gain
     /// `1/√(1 + (f_c/f)⁴)`) is not taken for an oscillation (docs/ROBUSTNESS.md §4, eighth
     /// pass). Until a gait frequency is estimated (one gait period after the first upward
-    /// crossing) the cut-off is
-    /// `oscillation_cutoff_hz`. 0 keeps the cut-off fixed; in [0, 20]. Default 3: the default
+    /// crossing) the cut-off is `oscillation_cutoff_hz`. 0 keeps the cut-off fixed; in
+    /// [0, 20]. Default 3: the default
     /// cut-off's ratio to the default gait's fastest frequency (3 Hz / 1.0 Hz), so the default
     /// scenario keeps its 3 Hz.
     pub oscillation_cutoff_gait_ratio: f64,
@@ -147,9 +147,9 @@ impl Monitors {
     /// Largest `latch_trips`.
     pub const MAX_LATCH_TRIPS: usize = 1000;
 
-    /// Checks every threshold, cutoff and time (finite, > 0; the window in (0, 10], the
-    /// gait ratio in [0, 20], the clear time in [0, 1e6], the latch window in (0, 1e6], `latch_trips` in 0..=1000); the error
-    /// names the key (`force_max_n`, ...).
+    /// Checks every threshold, cutoff and time (finite, > 0; the window in (0, 10], the gait
+    /// ratio in [0, 20], the clear time in [0, 1e6], the latch window in (0, 1e6],
+    /// `latch_trips` in 0..=1000); the error names the key (`force_max_n`, ...).
     pub fn validate(&self) -> Result<(), InvalidField> {
         check::reals(&[
             (
