@@ -11,6 +11,11 @@
 //!
 //! [`RobustSettings::weight_smoothing_s`]: super::robust::RobustSettings::weight_smoothing_s
 
+/// The probability one scenario must exceed before [`WeightSmoother`] starts low-passing
+/// (more than half: that scenario is more likely than all the others together). Any value
+/// from 0.35 to 0.99 gives the same standard envelope (docs/ROBUSTNESS.md, eighth pass).
+pub(crate) const START_PROBABILITY: f64 = 0.5;
+
 /// First-order low-pass of the scenario probabilities, `w ← w + β (μ − w)`,
 /// `β = min(dt / τ, 1)`. The weights keep summing to one. Buffers are allocated in
 /// [`WeightSmoother::new`]; [`WeightSmoother::apply`] does not allocate.
@@ -25,11 +30,6 @@
 /// the start (1-DOF, payload at 0.43 m, 0 kg: ±8 N in the first 0.25 s, 46 % of the run's
 /// strap-force power above 3 Hz; docs/ROBUSTNESS.md, eighth pass). The smoothing is for the
 /// chatter of an established bank, not for its first identification.
-/// The probability one scenario must exceed before [`WeightSmoother`] starts low-passing
-/// (more than half: that scenario is more likely than all the others together). Any value
-/// from 0.35 to 0.99 gives the same standard envelope (docs/ROBUSTNESS.md, eighth pass).
-pub(crate) const START_PROBABILITY: f64 = 0.5;
-
 #[derive(Clone, Debug)]
 pub(crate) struct WeightSmoother {
     beta: f64,
