@@ -9,10 +9,10 @@ use crate::error::CliError;
 use crate::io::{parse_value, set_key};
 use exompc::config::{ControllerKind, Scenario};
 use exompc::control::{MonitorAction, SafetyReport};
-use exompc::scenario::{limits, run_experiment_report, OneDof, TwoDof};
+use exompc::scenario::{gait_demand, limits, run_experiment_report, OneDof, TwoDof};
 use exompc::sim::{
-    cell_verdict, classify_run, CellVerdict, RunClass, RunStability, StabilityCriteria, Summary,
-    TraceLog,
+    cell_verdict, classify_run, ActuatorDemand, CellVerdict, RunClass, RunStability,
+    StabilityCriteria, Summary, TraceLog,
 };
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -251,6 +251,51 @@ impl EnvelopeVerdict {
     }
 }
 
+/// What the gait of one (cell, payload) asks of the actuator ([`exompc::sim::actuator_demand`]):
+/// the torque the robot needs to move exactly with the human's desired motion, so that the
+/// straps carry nothing. It depends on the cell and payload, not on the controller; where it
+/// exceeds the torque limit, no controller can keep the strap forces small.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EnvelopeDemand {
+    /// Cell index.
+    pub cell: usize,
+    /// True payload (kg).
+    pub payload_kg: f64,
+    /// Largest required `|T|` per joint (N·m), hip then knee (1-DOF: knee).
+    pub peak_nm: Vec<f64>,
+    /// RMS of the required torque per joint (N·m).
+    pub rms_nm: Vec<f64>,
+    /// Share of the control instants at which some joint needs more than `torque_max_nm`.
+    pub beyond_limit_fraction: f64,
+    /// The torque limit (`controller.torque_max`, N·m).
+    pub torque_max_nm: f64,
+}
+
+impl EnvelopeDemand {
+    fn of(s: &Scenario, cell: usize, dof: u8) -> Self {
+        match dof {
+            1 => Self::from_demand(gait_demand::<OneDof, 1>(s), cell, s.uncertainty.payload_kg),
+            _ => Self::from_demand(gait_demand::<TwoDof, 2>(s), cell, s.uncertainty.payload_kg),
+        }
+    }
+
+    fn from_demand<const N: usize>(d: ActuatorDemand<N>, cell: usize, payload_kg: f64) -> Self {
+        EnvelopeDemand {
+            cell,
+            payload_kg,
+            peak_nm: d.peak_nm.iter().copied().collect(),
+            rms_nm: d.rms_nm.iter().copied().collect(),
+            beyond_limit_fraction: d.beyond_limit_fraction,
+            torque_max_nm: d.torque_max,
+        }
+    }
+
+    /// Whether the gait needs more than the torque limit at some instant.
+    pub fn exceeds_limit(&self) -> bool {
+        self.beyond_limit_fraction > 0.0
+    }
+}
+
 /// The result of a scan (`envelope.json`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Envelope {
@@ -262,6 +307,9 @@ pub struct Envelope {
     pub runs: Vec<EnvelopeRun>,
     /// Every (cell, payload) with both `msnmpc` and `nmpc` runs.
     pub verdicts: Vec<EnvelopeVerdict>,
+    /// What each (cell, payload)'s gait asks of the actuator, cell-major.
+    #[serde(default)]
+    pub demands: Vec<EnvelopeDemand>,
 }
 
 impl Envelope {
@@ -270,6 +318,13 @@ impl Envelope {
         self.runs
             .iter()
             .find(|r| r.cell == cell && r.payload_kg == payload && r.controller == controller)
+    }
+
+    /// What the gait of `(cell, payload)` asks of the actuator.
+    pub fn demand(&self, cell: usize, payload: f64) -> Option<&EnvelopeDemand> {
+        self.demands
+            .iter()
+            .find(|d| d.cell == cell && d.payload_kg == payload)
     }
 
     /// The verdicts that fail.
@@ -330,6 +385,7 @@ pub fn scan(
     progress: &(dyn Fn() + Sync),
 ) -> Result<Envelope, CliError> {
     let mut jobs = Vec::new();
+    let mut demands = Vec::new();
     for (i, cell) in grid.cells.iter().enumerate() {
         if !(1..=2).contains(&cell.dof) {
             return Err(CliError::Config(format!(
@@ -339,6 +395,12 @@ pub fn scan(
         }
         let s = Grid::scenario(base, cell)?;
         for &p in &grid.payloads_kg {
+            let mut sp = s.clone();
+            sp.uncertainty.payload_kg = p;
+            sp.validate().map_err(|e| {
+                CliError::Config(format!("cell `{}`, payload {p} kg: {e}", cell.name))
+            })?;
+            demands.push(EnvelopeDemand::of(&sp, i, cell.dof));
             for c in &grid.controllers {
                 let mut s = s.clone();
                 s.controller.kind = controller_kind(c)?;
@@ -382,6 +444,7 @@ pub fn scan(
         grid: grid.clone(),
         runs,
         verdicts: Vec::new(),
+        demands,
     };
     if grid.controllers.iter().any(|c| c == "msnmpc")
         && grid.controllers.iter().any(|c| c == "nmpc")
@@ -426,7 +489,8 @@ fn pair(v: &[f64]) -> String {
 /// The Markdown report (`envelope.md`): one row per (cell, payload).
 pub fn markdown(env: &Envelope) -> String {
     let ctrls = &env.grid.controllers;
-    let mut out = String::from("| cell | payload (kg) |");
+    let mut out =
+        String::from("| cell | payload (kg) | gait needs, peak (N·m) | beyond ±T_max (%) |");
     for c in ctrls {
         out += &format!(
             " {c} RMS F (N) | {c} class | {c} HF % | {c} growth | {c} T-lim % | {c} trips |"
@@ -436,7 +500,7 @@ pub fn markdown(env: &Envelope) -> String {
     if judged {
         out += " verdict |";
     }
-    out += "\n|---|---:|";
+    out += "\n|---|---:|---:|---:|";
     out += &"---:|---|---:|---:|---:|---:|".repeat(ctrls.len());
     if judged {
         out += "---|";
@@ -445,6 +509,14 @@ pub fn markdown(env: &Envelope) -> String {
     for (i, cell) in env.grid.cells.iter().enumerate() {
         for &p in &env.grid.payloads_kg {
             out += &format!("| {} | {p} |", cell.name);
+            out += &match env.demand(i, p) {
+                Some(d) => format!(
+                    " {} | {:.1} |",
+                    pair(&d.peak_nm),
+                    100.0 * d.beyond_limit_fraction
+                ),
+                None => " – | – |".to_string(),
+            };
             for c in ctrls {
                 match env.run(i, p, c) {
                     Some(r) => match &r.stability {
@@ -497,6 +569,32 @@ pub fn markdown(env: &Envelope) -> String {
             env.criteria.max_rms_n,
             100.0 * env.criteria.max_limit_fraction
         );
+        let beyond: Vec<String> = fail
+            .iter()
+            .filter_map(|v| {
+                let d = env.demand(v.cell, v.payload_kg)?;
+                d.exceeds_limit().then(|| {
+                    format!(
+                        "{} at {} kg (up to {} N·m against ±{} N·m, {:.0} % of the time)",
+                        v.name,
+                        v.payload_kg,
+                        d.peak_nm
+                            .iter()
+                            .map(|x| format!("{x:.0}"))
+                            .collect::<Vec<_>>()
+                            .join(" / "),
+                        d.torque_max_nm,
+                        100.0 * d.beyond_limit_fraction
+                    )
+                })
+            })
+            .collect();
+        if !beyond.is_empty() {
+            out += &format!(
+                "Failing cells whose gait needs more torque than the actuator has (the straps carry the shortfall whatever the controller does): {}.\n",
+                beyond.join("; ")
+            );
+        }
     }
     out
 }

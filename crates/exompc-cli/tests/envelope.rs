@@ -4,7 +4,7 @@
 
 use exompc::config::Scenario;
 use exompc::sim::{RunClass, StabilityCriteria};
-use exompc_cli::envelope::{scan, without_monitors, Envelope, Grid};
+use exompc_cli::envelope::{markdown, scan, without_monitors, Envelope, Grid};
 use std::process::Command;
 
 fn run(grid: &Grid) -> Envelope {
@@ -29,8 +29,10 @@ fn describe_failures(env: &Envelope) -> String {
 ///
 /// FAILS today (robust default with the fallback monitor response and the latch, measured
 /// with `exompc envelope`) in 1 of 72 cells: gait 1.3 Hz 3 kg, where the gait needs up to
-/// 75 N·m of a ±30 N·m actuator (30 trips, among them strap forces beyond the sensor's 70 N
-/// range; 37.7 / 20.8 N against the NMPC's 40.2 / 13.4 N, growing 2.61, on the torque limit in
+/// 67 N·m of a ±30 N·m actuator (the robot with its 3 kg moving exactly with the human's
+/// desired motion; beyond ±30 N·m on 40 % of the instants: `envelope.md`'s demand columns).
+/// It has 30 trips, among them strap forces beyond the sensor's 70 N range; 37.7 / 20.8 N
+/// against the NMPC's 40.2 / 13.4 N, growing 2.69, on the torque limit in
 /// 34 % of the steps; the transparent fallback, clipped at the limit, puts the shortfall on
 /// the thigh strap). The history: the disturbance bank and the torque detector of the fifth
 /// pass took the failures from 14 to 9, the sixth pass's weight smoothing and inertia gate to
@@ -71,6 +73,21 @@ fn standard_envelope_fails_only_the_overloaded_cell() {
         "failing cells:\n{}",
         describe_failures(&env)
     );
+    // That cell's gait needs more than twice the actuator's torque at the hip (the robot with
+    // its payload moving exactly with the human's desired motion), on ~40 % of the instants;
+    // the default cell's gait stays within the limit at every payload.
+    let cell = |name: &str| env.grid.cells.iter().position(|c| c.name == name).unwrap();
+    let d = env.demand(cell("gait 1.3 Hz"), 3.0).unwrap();
+    assert!(d.exceeds_limit(), "{d:?}");
+    assert!(d.peak_nm[0] > 2.0 * d.torque_max_nm, "{d:?}");
+    assert!((0.3..0.5).contains(&d.beyond_limit_fraction), "{d:?}");
+    for p in [0.0, 1.0, 2.0, 3.0] {
+        let d = env.demand(cell("default"), p).unwrap();
+        assert!(!d.exceeds_limit(), "{p} kg: {d:?}");
+        assert!(d.peak_nm.iter().all(|&t| t > 0.0 && t < d.torque_max_nm));
+    }
+    assert_eq!(env.demands.len(), 72);
+    assert!(markdown(&env).contains("gait needs more torque than the actuator has"));
 }
 
 /// The machinery on a reduced grid: cells that pass today pass, and a cell that limit-cycles

@@ -13,8 +13,8 @@ use crate::control::{AUTO_K1_PER_STIFFNESS, AUTO_K2_PER_STIFFNESS};
 use crate::estimate::EstimatorOptions;
 use crate::model::{Friction, HumanSegment, Link, RobotModel, Straps};
 use crate::sim::{
-    robot_model, GaitTrajectory, HumanLeg, KneeTrajectory, PlantParams, SwingTrajectory,
-    Trajectory, Uncertainty,
+    actuator_demand, robot_model, ActuatorDemand, GaitTrajectory, HumanLeg, KneeTrajectory,
+    PlantParams, SwingTrajectory, Trajectory, Uncertainty,
 };
 use nalgebra::SVector;
 
@@ -121,6 +121,19 @@ pub fn plant_params<D: Dof<N>, const N: usize>(s: &Scenario) -> PlantParams<N> {
         dt: s.timing.dt,
         substeps: s.timing.plant_substeps,
     }
+}
+
+/// What the gait of `s` asks of the actuator in layout `D`: [`crate::sim::actuator_demand`]
+/// of the desired trajectory on the true robot (payload `uncertainty.payload_kg`, mass
+/// perturbation, friction, disturbance) at the run's control instants, against
+/// `controller.torque_max`. It depends on the scenario, not on the controller.
+pub fn gait_demand<D: Dof<N>, const N: usize>(s: &Scenario) -> ActuatorDemand<N> {
+    actuator_demand(
+        &plant_params::<D, N>(s),
+        &D::trajectory(s),
+        s.control_steps(D::DOF),
+        s.controller.torque_max,
+    )
 }
 
 /// The controller's robot model for a payload scenario `payload_kg` (smooth friction).

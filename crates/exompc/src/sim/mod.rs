@@ -5,6 +5,7 @@
 //! controller, hand every part's values to the recorders, advance the plant.
 
 mod closed_loop;
+mod demand;
 mod faults;
 mod gait;
 mod human;
@@ -19,6 +20,7 @@ mod uncertainty;
 
 pub use crate::check::InvalidField;
 pub use closed_loop::{run_closed_loop, Recorder, StepRecord, TraceLog, TraceRow};
+pub use demand::{actuator_demand, required_torque, ActuatorDemand};
 pub use faults::{
     channel_index, default_schedule, repeat_schedule, Channel, FaultEvent, FaultInjector,
     FaultKind, Faults, SoakStats,

@@ -42,6 +42,22 @@ pub struct PlantParams<const N: usize> {
     pub substeps: usize,
 }
 
+impl<const N: usize> PlantParams<N> {
+    /// The true robot at time `t`: `m_dis(t)` on each bare link, then the payload merged into
+    /// the last link (MODEL.md §8a), Coulomb `sign` friction.
+    pub fn true_robot(&self, t: f64) -> RobotModel<N> {
+        robot_model(
+            &self.robot_links,
+            self.viscous,
+            self.coulomb,
+            Friction::Sign,
+            self.payload_kg,
+            self.payload_position,
+            self.uncertainty.mass_perturbation(t),
+        )
+    }
+}
+
 /// Robot and human joint states together.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PlantState<const N: usize> {
@@ -134,15 +150,7 @@ impl<const N: usize, Tr: Trajectory<N>> Plant<N, Tr> {
     /// The true robot at time `t`: `m_dis(t)` on each bare link, then the payload merged into
     /// the last link (MODEL.md §8a), Coulomb `sign` friction.
     pub fn true_robot(&self, t: f64) -> RobotModel<N> {
-        robot_model(
-            &self.params.robot_links,
-            self.params.viscous,
-            self.params.coulomb,
-            Friction::Sign,
-            self.params.payload_kg,
-            self.params.payload_position,
-            self.params.uncertainty.mass_perturbation(t),
-        )
+        self.params.true_robot(t)
     }
 
     /// Plant body mass at `t` (kg).
