@@ -11,7 +11,7 @@ mod common;
 use clarabel::solver::{DefaultSolver, IPSolver, SolverStatus, SupportedConeT};
 use common::{Condensed, Rng};
 use exompc::config::{ControllerKind, Formulation, Scenario};
-use exompc::control::{NmpcCore, NmpcSettings, QpBackend, TorqueLimits};
+use exompc::control::{NmpcCore, NmpcSettings, QpBackend, TorqueLimits, VelocityTracking};
 use exompc::scenario::{intent, limits, nmpc_settings, prediction_model, Dof, OneDof, TwoDof};
 use exompc::solver::{HessianModel, QpSettings, QpStatus, RiccatiQp, SqpStatus};
 use nalgebra::{DMatrix, SVector};
@@ -160,15 +160,23 @@ fn settings_with(s: &Scenario, qp: QpBackend) -> NmpcSettings {
 }
 
 /// Random instances for a `D`-DOF scenario with horizon `n`; half built to hit the limits.
-fn compare_random<D: Dof<N>, const N: usize>(n: usize, seed: u64) -> (usize, usize) {
+fn compare_random<D: Dof<N>, const N: usize>(
+    n: usize,
+    seed: u64,
+    tracking: VelocityTracking,
+) -> (usize, usize) {
     let mut s = Scenario::default();
     s.controller.np = n;
     s.controller.nc = n;
     let model = prediction_model::<D, N>(&s, 0.0);
     let lim: TorqueLimits = limits(&s);
     let int = intent(&s);
-    let mut dense = NmpcCore::new(model, &settings_with(&s, QpBackend::Dense)).unwrap();
-    let mut st = NmpcCore::new(model, &settings_with(&s, QpBackend::Structured)).unwrap();
+    let settings = |qp| NmpcSettings {
+        velocity_tracking: tracking,
+        ..settings_with(&s, qp)
+    };
+    let mut dense = NmpcCore::new(model, &settings(QpBackend::Dense)).unwrap();
+    let mut st = NmpcCore::new(model, &settings(QpBackend::Structured)).unwrap();
     assert!(st.is_structured() && !dense.is_structured());
     let mut rng = Rng::new(seed);
     let (mut rate_active, mut cum_active) = (0, 0);
@@ -248,10 +256,15 @@ fn structured_nmpc_equals_dense_gauss_newton_on_random_instances() {
     let mut rate = 0;
     let mut cum = 0;
     for (i, n) in [3usize, 10, 25].into_iter().enumerate() {
-        let (r, c) = compare_random::<TwoDof, 2>(n, 100 + i as u64);
+        let (r, c) = compare_random::<TwoDof, 2>(n, 100 + i as u64, VelocityTracking::Joint);
         rate += r;
         cum += c;
-        let (r, c) = compare_random::<OneDof, 1>(n, 200 + i as u64);
+        let (r, c) = compare_random::<OneDof, 1>(n, 200 + i as u64, VelocityTracking::Joint);
+        rate += r;
+        cum += c;
+        // The robust method's strap-space velocity residual (`Q_j`'s velocity block
+        // `r_d LᵀL` is not diagonal in 2-DOF).
+        let (r, c) = compare_random::<TwoDof, 2>(n, 300 + i as u64, VelocityTracking::Strap);
         rate += r;
         cum += c;
     }

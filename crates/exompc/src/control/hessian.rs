@@ -219,7 +219,8 @@ impl<const N: usize> CurvatureWork<N> {
 
     /// Adds `Σ_j Γ_jᵀ W_j Γ_j` to `hess` (`N·Nc` square) for the increments `z`, with the
     /// trajectory simulated from `x0`, `t_prev` and the cost gradient at the states read off the
-    /// residuals `r` (layout of `NmpcProblem`: per step `q − q_ref`, `√r_d (qd − qd_ref)`).
+    /// residuals `r` (layout of `NmpcProblem`: per step `q − q_ref`, `√r_d L (qd − qd_ref)`, so
+    /// the velocity gradient is `√r_d Lᵀ r_v`).
     /// Returns `false` (leaving `hess` partly updated) when anything is non-finite, and (leaving it
     /// unchanged) when the dimensions do not match the horizons.
     #[allow(clippy::too_many_arguments)]
@@ -230,6 +231,7 @@ impl<const N: usize> CurvatureWork<N> {
         t_prev: &SVector<f64, N>,
         inp: &HorizonInputs<N>,
         sqrt_rd: f64,
+        lv: &SMatrix<f64, N, N>,
         z: &[f64],
         r: &[f64],
         hess: &mut DMatrix<f64>,
@@ -260,9 +262,10 @@ impl<const N: usize> CurvatureWork<N> {
             np,
             |j| {
                 let base = j * 2 * N;
+                let rv = SVector::<f64, N>::from_fn(|a, _| r[base + N + a]);
                 (
                     SVector::from_fn(|a, _| r[base + a]),
-                    SVector::from_fn(|a, _| sqrt_rd * r[base + N + a]),
+                    lv.tr_mul(&rv) * sqrt_rd,
                 )
             },
             |j| jac[j],

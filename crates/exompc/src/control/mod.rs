@@ -46,7 +46,10 @@ pub use intent::{GainSetting, IntentGain, AUTO_K1_PER_STIFFNESS, AUTO_K2_PER_STI
 pub use lag::{ForceLag, HfShareDetector};
 pub use limits::{LimitsError, TorqueLimits};
 pub use multistage::{CoupledProblem, Formulation, MultiStage, MultiStageError, MultiStageOptions};
-pub use nmpc::{classify, horizon_inputs, Nmpc, NmpcCore, NmpcError, NmpcProblem, NmpcSettings};
+pub use nmpc::{
+    classify, horizon_inputs, velocity_metric, Nmpc, NmpcCore, NmpcError, NmpcProblem,
+    NmpcSettings, VelocityTracking,
+};
 pub use ocp::{QpBackend, StructuredSqp, AUTO_STRUCTURED_MIN_VARS};
 pub use ocp_tree::{TreeSqp, AUTO_TREE_MIN_VARS};
 pub use pd::PdController;

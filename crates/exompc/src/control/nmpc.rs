@@ -8,6 +8,7 @@ use super::{ControlOutput, Controller, IntentEstimator, Measurement, StepStatus,
 use crate::model::JointState;
 use crate::solver::{Constraints, LeastSquares, SolverError, Sqp, SqpInfo, SqpSettings, SqpStatus};
 use nalgebra::{DMatrix, DVector, SMatrix, SVector};
+use serde::{Deserialize, Serialize};
 
 /// Horizon and weights of eq. 7 (MODEL.md §8).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -24,6 +25,46 @@ pub struct NmpcSettings {
     pub sqp: SqpSettings,
     /// QP solver of the SQP (dense condensed or structured Riccati).
     pub qp: QpBackend,
+    /// Where the velocity residual is measured: joint space (the paper's eq. 7) or at the
+    /// straps ([`VelocityTracking::Strap`]).
+    pub velocity_tracking: VelocityTracking,
+}
+
+/// Where the velocity-tracking residual `√r_d (qd − qd_ref)` of eq. 7 is measured
+/// (`[controller.robust] velocity_tracking`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VelocityTracking {
+    /// Joint space, `√r_d (qd − qd_ref)`: the paper's eq. 7.
+    #[default]
+    Joint,
+    /// At the straps: `√r_d L (qd − qd_ref)` with `L = diag(J)⁻¹ J`, `J` the strap lever
+    /// matrix of paper eqs. 3-4 (docs/MODEL.md §4). Row `i` is strap `i`'s stretch rate
+    /// `J_i (qd − qd_ref)` in its own link's angle units (`/ J_ii`): the thigh row is the hip's
+    /// residual, the shank row `(Ls1/Ls2)·e_hip + e_knee`. Where `qd_ref` can be followed both
+    /// measures have the same minimiser; where the hip cannot (its torque on the limit) the
+    /// knee then turns so that the shank strap does not carry the hip's lag
+    /// (docs/ROBUSTNESS.md, ninth pass). With one joint `L = 1`.
+    Strap,
+}
+
+/// The velocity-residual metric `L` of `tracking` for strap levers `j` (`N × N`, lower
+/// triangular): the identity, or `diag(J)⁻¹ J` ([`VelocityTracking::Strap`]; the identity
+/// where a diagonal lever is not positive and finite).
+pub fn velocity_metric<const N: usize>(
+    tracking: VelocityTracking,
+    j: &SMatrix<f64, N, N>,
+) -> SMatrix<f64, N, N> {
+    match tracking {
+        VelocityTracking::Joint => SMatrix::identity(),
+        VelocityTracking::Strap => {
+            if (0..N).all(|i| j[(i, i)] > 0.0 && j[(i, i)].is_finite()) {
+                SMatrix::from_fn(|r, c| j[(r, c)] / j[(r, r)])
+            } else {
+                SMatrix::identity()
+            }
+        }
+    }
 }
 
 impl Default for NmpcSettings {
@@ -35,12 +76,13 @@ impl Default for NmpcSettings {
             r_t: 1e-5,
             sqp: SqpSettings::default(),
             qp: QpBackend::default(),
+            velocity_tracking: VelocityTracking::default(),
         }
     }
 }
 
 /// The least-squares form of eq. 7 for one scenario: decision variables the torque increments
-/// `dT(k..k+Nc−1)`, residuals `q(k+j) − q_ref(k+j)`, `√r_d (qd(k+j) − qd_ref)` for `j = 1..Np`
+/// `dT(k..k+Nc−1)`, residuals `q(k+j) − q_ref(k+j)`, `√r_d L (qd(k+j) − qd_ref)` for `j = 1..Np`
 /// and `√r_t dT(k+j)` for `j = 0..Nc−1`, with `q_ref(k+j) = q̂_H + j dt q̂d_H`, `qd_ref = q̂d_H`
 /// (MODEL.md §8). The Jacobian is condensed by forward sensitivity propagation through the exact
 /// RK4 step Jacobians, at cost O(Np·Nc).
@@ -61,6 +103,9 @@ pub struct NmpcProblem<const N: usize> {
     // Sensitivities of the current state w.r.t. each increment block.
     sq: Vec<SMatrix<f64, N, N>>,
     sv: Vec<SMatrix<f64, N, N>>,
+    /// Velocity-residual metric `L` ([`velocity_metric`]) and whether it is the identity.
+    lv: SMatrix<f64, N, N>,
+    lv_identity: bool,
     // Workspace of the exact Hessian's second-order term.
     curvature: CurvatureWork<N>,
 }
@@ -87,6 +132,9 @@ impl<const N: usize> NmpcProblem<N> {
             },
             sq: vec![SMatrix::zeros(); s.nc],
             sv: vec![SMatrix::zeros(); s.nc],
+            lv: velocity_metric(s.velocity_tracking, &model.straps.j),
+            lv_identity: velocity_metric(s.velocity_tracking, &model.straps.j)
+                == SMatrix::<f64, N, N>::identity(),
             curvature: CurvatureWork::new(s.np, s.nc),
         }
     }
@@ -99,6 +147,12 @@ impl<const N: usize> NmpcProblem<N> {
     /// Control horizon.
     pub fn nc(&self) -> usize {
         self.nc
+    }
+
+    /// The velocity-residual metric `L`: the residual is `√r_d L (qd − qd_ref)`
+    /// ([`VelocityTracking`]).
+    pub fn velocity_metric(&self) -> &SMatrix<f64, N, N> {
+        &self.lv
     }
 
     /// Torque applied over step `j` of the horizon: `T(k−1) + Σ_{i ≤ min(j, Nc−1)} dT(k+i)`.
@@ -118,7 +172,16 @@ impl<const N: usize> NmpcProblem<N> {
         let tj = j as f64 * self.model.dt;
         for a in 0..N {
             r[base + a] = x.q[a] - (inp.q_h[a] + tj * inp.qd_h[a]);
-            r[base + N + a] = self.sqrt_rd * (x.qd[a] - inp.qd_h[a]);
+        }
+        if self.lv_identity {
+            for a in 0..N {
+                r[base + N + a] = self.sqrt_rd * (x.qd[a] - inp.qd_h[a]);
+            }
+        } else {
+            let ev = self.lv * (x.qd - inp.qd_h);
+            for a in 0..N {
+                r[base + N + a] = self.sqrt_rd * ev[a];
+            }
         }
     }
 
@@ -223,6 +286,7 @@ impl<const N: usize> LeastSquares for NmpcProblem<N> {
                 self.sq[i] = sq;
                 self.sv[i] = sv;
                 finite += sq + sv;
+                let sv = if self.lv_identity { sv } else { self.lv * sv };
                 for b in 0..N {
                     let col = &mut js[(i * N + b) * m + row..(i * N + b) * m + row + 2 * N];
                     for a in 0..N {
@@ -256,6 +320,7 @@ impl<const N: usize> LeastSquares for NmpcProblem<N> {
             &self.t_prev,
             &self.inputs,
             self.sqrt_rd,
+            &self.lv,
             z,
             r,
             hess,

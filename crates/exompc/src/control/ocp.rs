@@ -10,7 +10,7 @@
 //!
 //! so the rate bound of eq. 9 is an input box and the cumulative torque bound of eq. 8 a box on the
 //! `T` part of `x_1 … x_Nc`; stages after `Nc` have no input (`T` held). The step-space QP of one
-//! Gauss–Newton iteration has stage costs `Q = diag(I, r_d I, 0)`, `R = r_t I` and the linearised
+//! Gauss–Newton iteration has stage costs `Q = diag(I, r_d LᵀL, 0)` (`L` the velocity metric, `NmpcProblem::velocity_metric`; the identity in the paper's eq. 7), `R = r_t I` and the linearised
 //! dynamics `A_j = [[Φ_x, Φ_u], [0, I]]`, `B_j = [Φ_u; I]`; its condensed form is exactly the dense
 //! QP `min ½dᵀ(JᵀJ)d + (Jᵀr)ᵀd` of [`crate::solver::Sqp`] with the Gauss–Newton Hessian.
 //!
@@ -123,6 +123,11 @@ struct StageWork<const N: usize> {
     /// `qp.a`, `qp.b` hold the constant zero and identity entries of the held-input form, so a
     /// linearisation writes only `F_j`, `G_j` (`projection_qp` writes the layout alone).
     layout: bool,
+    /// The problem's velocity-residual metric `L` (`NmpcProblem::velocity_metric`), whether it
+    /// is the identity, and the Gauss–Newton velocity block `r_d LᵀL` of `Q_j`.
+    lv: SMatrix<f64, N, N>,
+    lv_identity: bool,
+    qv: SMatrix<f64, N, N>,
 }
 
 impl<const N: usize> StructuredSqp<N> {
@@ -137,7 +142,7 @@ impl<const N: usize> StructuredSqp<N> {
         // `evaluate` fills them only from finite linearisations that `accept` then takes, and
         // `add_curvature` keeps only finite blocks.
         qp.assume_finite_stage_data();
-        // Q = diag(I, r_d I, 0) for every state; R set per solve.
+        // Q = diag(I, r_d I, 0) for every state until `use_velocity_metric` (L = I); R set per solve.
         for j in 0..np {
             let qj = &mut qp.q[j * nx * nx..(j + 1) * nx * nx];
             for a in 0..N {
@@ -180,6 +185,9 @@ impl<const N: usize> StructuredSqp<N> {
                 maxdiag_known: false,
                 shift: HessianShift::default(),
                 layout: false,
+                lv: SMatrix::identity(),
+                lv_identity: true,
+                qv: SMatrix::identity() * s.r_d,
             },
         })
     }
@@ -197,6 +205,7 @@ impl<const N: usize> StructuredSqp<N> {
         limits: &TorqueLimits,
         z: &mut DVector<f64>,
     ) -> SqpInfo {
+        self.w.use_velocity_metric(problem.velocity_metric());
         let mut steps = StageSteps {
             w: &mut self.w,
             problem,
@@ -214,6 +223,20 @@ struct StageSteps<'a, const N: usize> {
 }
 
 impl<const N: usize> StageWork<N> {
+    /// Takes the velocity-residual metric `L` of the problem to solve: the Gauss–Newton stage
+    /// costs become `Q_j = diag(I, r_d LᵀL, 0)` (rewritten only when `L` changes).
+    fn use_velocity_metric(&mut self, lv: &SMatrix<f64, N, N>) {
+        if *lv == self.lv {
+            return;
+        }
+        self.lv = *lv;
+        self.lv_identity = *lv == SMatrix::<f64, N, N>::identity();
+        self.qv = lv.tr_mul(lv) * self.r_d;
+        // Rewrite the Gauss–Newton blocks with the new `r_d LᵀL`.
+        self.curved = true;
+        self.reset_curvature();
+    }
+
     /// Writes `R = diag(r)` into every input stage of the QP.
     fn set_input_weight(&mut self, r: f64) {
         for j in 0..self.nc {
@@ -450,15 +473,31 @@ impl<const N: usize> StageWork<N> {
             x = xn;
             let tj = (j + 1) as f64 * dt;
             let xo = off + j * nx;
-            for a in 0..N {
-                let rq = x.q[a] - (inp.q_h[a] + tj * inp.qd_h[a]);
-                let rv = sqrt_rd * (x.qd[a] - inp.qd_h[a]);
-                sum += rq * rq + rv * rv;
-                finite &= rq.is_finite() && rv.is_finite();
-                if jac {
-                    self.qp.g[xo + a] = rq;
-                    self.qp.g[xo + N + a] = sqrt_rd * rv;
-                    self.qp.g[xo + 2 * N + a] = 0.0;
+            if self.lv_identity {
+                for a in 0..N {
+                    let rq = x.q[a] - (inp.q_h[a] + tj * inp.qd_h[a]);
+                    let rv = sqrt_rd * (x.qd[a] - inp.qd_h[a]);
+                    sum += rq * rq + rv * rv;
+                    finite &= rq.is_finite() && rv.is_finite();
+                    if jac {
+                        self.qp.g[xo + a] = rq;
+                        self.qp.g[xo + N + a] = sqrt_rd * rv;
+                        self.qp.g[xo + 2 * N + a] = 0.0;
+                    }
+                }
+            } else {
+                // r_v = √r_d L (qd − qd_ref), gradient √r_d Lᵀ r_v.
+                let rv = self.lv * (x.qd - inp.qd_h) * sqrt_rd;
+                let gv = self.lv.tr_mul(&rv) * sqrt_rd;
+                for a in 0..N {
+                    let rq = x.q[a] - (inp.q_h[a] + tj * inp.qd_h[a]);
+                    sum += rq * rq + rv[a] * rv[a];
+                    finite &= rq.is_finite() && rv[a].is_finite();
+                    if jac {
+                        self.qp.g[xo + a] = rq;
+                        self.qp.g[xo + N + a] = gv[a];
+                        self.qp.g[xo + 2 * N + a] = 0.0;
+                    }
                 }
             }
         }
@@ -484,7 +523,7 @@ impl<const N: usize> StageWork<N> {
         self.layout = true;
     }
 
-    /// Restores the Gauss–Newton stage costs `Q_j = diag(I, r_d I, 0)`, `S_j = 0` if the last
+    /// Restores the Gauss–Newton stage costs `Q_j = diag(I, r_d LᵀL, 0)`, `S_j = 0` if the last
     /// QP had curvature (`R` is set by the caller).
     fn reset_curvature(&mut self) {
         if !self.curved {
@@ -496,7 +535,9 @@ impl<const N: usize> StageWork<N> {
             let qj = &mut self.qp.q[j * nx * nx..(j + 1) * nx * nx];
             for a in 0..N {
                 qj[a * nx + a] = 1.0;
-                qj[(N + a) * nx + N + a] = self.r_d;
+                for b in 0..N {
+                    qj[(N + b) * nx + N + a] = self.qv[(a, b)];
+                }
             }
         }
         self.qp.s.fill(0.0);

@@ -145,6 +145,12 @@ pub struct RobustSettings {
     /// error in the reference velocity, `qd_ref = q̂d_H + kv (q̂_H − q_R)` (the encoder angle
     /// `q_R` is exact, so this feedback has no filter delay). In [0, 1000]. Default 25.
     pub observer_velocity_gain: f64,
+    /// Where the NMPC's velocity residual is measured: `"strap"` (`√r_d L (qd − qd_ref)`,
+    /// `L = diag(J)⁻¹ J`: each strap's stretch rate in its link's angle units, so a hip held on
+    /// its torque limit does not load the shank strap as well; [`super::VelocityTracking`]) or
+    /// `"joint"` (the paper's eq. 7). Applies to every MS-NMPC scenario (the plain NMPC is the
+    /// paper's); no effect with one joint. Default `"strap"`.
+    pub velocity_tracking: super::VelocityTracking,
 }
 
 /// The human-intent estimate of the robust method ([`RobustSettings::intent_estimate`]).
@@ -211,6 +217,7 @@ impl Default for RobustSettings {
             weight_smoothing_s: 0.15,
             intent_estimate: IntentEstimate::StrapObserver,
             observer_velocity_gain: 25.0,
+            velocity_tracking: super::VelocityTracking::Strap,
         }
     }
 }

@@ -7,7 +7,7 @@ use super::RunError;
 use crate::config::{ControllerKind, Method, MonitorResponse, Scenario};
 use crate::control::{
     Controller, IntentEstimator, MultiStage, MultiStageOptions, Nmpc, NmpcSettings, PdController,
-    PredictionModel, SafetySettings, Supervisor, TorqueLimits, Transparent,
+    PredictionModel, SafetySettings, Supervisor, TorqueLimits, Transparent, VelocityTracking,
 };
 use crate::control::{AUTO_K1_PER_STIFFNESS, AUTO_K2_PER_STIFFNESS};
 use crate::estimate::EstimatorOptions;
@@ -175,7 +175,20 @@ pub fn nmpc_settings(s: &Scenario) -> NmpcSettings {
         r_t: c.r_t,
         sqp: c.sqp.settings(),
         qp: c.sqp.qp,
+        // The paper's eq. 7 (the multi-stage NMPC of the robust method sets its own,
+        // `multistage_nmpc_settings`).
+        velocity_tracking: VelocityTracking::Joint,
     }
+}
+
+/// The NMPC settings of every scenario of the multi-stage NMPC: [`nmpc_settings`] with the
+/// robust method's `[controller.robust] velocity_tracking` (the paper's method: joint space).
+pub fn multistage_nmpc_settings(s: &Scenario) -> NmpcSettings {
+    let mut st = nmpc_settings(s);
+    if s.controller.method == Method::Robust {
+        st.velocity_tracking = s.controller.robust.velocity_tracking;
+    }
+    st
 }
 
 /// Torque limits of a scenario (paper eqs. 8-9).
@@ -309,7 +322,7 @@ where
     };
     let ms = MultiStage::<N, NA, NY>::new(
         models,
-        &nmpc_settings(s),
+        &multistage_nmpc_settings(s),
         &ekf,
         &est,
         options,

@@ -12,8 +12,8 @@ mod run;
 
 pub use build::{
     build_controller, build_multistage, build_nmpc, build_pd, build_supervised, fallback,
-    gait_demand, initial_torque, intent, limits, nmpc_settings, plant_params, prediction_model,
-    scenario_robot, uncertainty, Dof, OneDof, TwoDof,
+    gait_demand, initial_torque, intent, limits, multistage_nmpc_settings, nmpc_settings,
+    plant_params, prediction_model, scenario_robot, uncertainty, Dof, OneDof, TwoDof,
 };
 pub use registry::{
     controller_by_name, controller_info, controllers, register_controller, validate, Builder,

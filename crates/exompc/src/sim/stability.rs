@@ -305,8 +305,17 @@ pub struct CellVerdict {
     /// the NMPC's run tripped a safety monitor while the robust one did not (the reference's
     /// forces are then the safety layer's, and the NMPC failed the cell by itself).
     pub no_worse_than_nmpc: bool,
-    /// No safety monitor tripped (a run that needs the safety layer does not hold).
+    /// No safety monitor tripped (a run that needs the safety layer does not hold), or the
+    /// trips were waived (see `trips_waived`).
     pub no_monitor_trip: bool,
+    /// The trips were waived: the cell's gait needs more torque than the actuator has on more
+    /// than `max_limit_fraction` of the instants ([`crate::sim::actuator_demand`]), so the
+    /// straps must carry the shortfall and the strap-force monitor must trip whatever the
+    /// controller does, and the NMPC's run tripped as well. The run must still be stable,
+    /// within the limits and no worse than the NMPC's (the issue's rule for torque-limited
+    /// cells).
+    #[serde(default)]
+    pub trips_waived: bool,
     /// All of the above.
     pub pass: bool,
 }
@@ -314,7 +323,9 @@ pub struct CellVerdict {
 /// The acceptance of one cell: `ms` is the robust run classified, `nmpc_rms` the NMPC run's
 /// per-strap RMS forces and `nmpc_trips` its safety-monitor trips, `violations` and
 /// `monitor_trips` the robust run's limit violations and safety-monitor trips, `payload_kg`
-/// the true payload.
+/// the true payload, `gait_beyond_limit` the share of the instants at which the cell's gait
+/// needs more than the torque limit ([`crate::sim::ActuatorDemand::beyond_limit_fraction`]).
+#[allow(clippy::too_many_arguments)]
 pub fn cell_verdict(
     ms: &RunStability,
     nmpc_rms: &[f64],
@@ -322,6 +333,7 @@ pub fn cell_verdict(
     violations: u64,
     monitor_trips: u64,
     payload_kg: f64,
+    gait_beyond_limit: f64,
     c: &StabilityCriteria,
 ) -> CellVerdict {
     let stable = ms
@@ -340,14 +352,18 @@ pub fn cell_verdict(
                 .zip(nmpc_rms)
                 .all(|(s, &n)| s.rms_n <= ratio * n));
     let within_limits = violations == 0;
+    let trips_waived =
+        monitor_trips > 0 && gait_beyond_limit > c.max_limit_fraction && nmpc_trips > 0;
+    let no_monitor_trip = monitor_trips == 0 || trips_waived;
     CellVerdict {
         stable,
         rms_ok,
         rms_waived,
         within_limits,
         no_worse_than_nmpc,
-        no_monitor_trip: monitor_trips == 0,
-        pass: stable && rms_ok && within_limits && no_worse_than_nmpc && monitor_trips == 0,
+        no_monitor_trip,
+        trips_waived,
+        pass: stable && rms_ok && within_limits && no_worse_than_nmpc && no_monitor_trip,
     }
 }
 
@@ -443,25 +459,48 @@ mod tests {
             classify(vec![strap(&x), strap(&x)], tl, 0.0, n, &c)
         };
         let a = 5.0 / 2f64.sqrt(); // RMS of the 5 N sine
-        assert!(cell_verdict(&ms(5.0, 0.0), &[a, a], 0, 0, 0, 1.0, &c).pass);
+        assert!(cell_verdict(&ms(5.0, 0.0), &[a, a], 0, 0, 0, 1.0, 0.0, &c).pass);
         // At ≥ 1 kg no worse than NMPC; at 0 kg within 1.1×.
-        let v = cell_verdict(&ms(5.0, 0.0), &[0.95 * a, a], 0, 0, 0, 1.0, &c);
+        let v = cell_verdict(&ms(5.0, 0.0), &[0.95 * a, a], 0, 0, 0, 1.0, 0.0, &c);
         assert!(!v.pass && !v.no_worse_than_nmpc && v.stable);
-        assert!(cell_verdict(&ms(5.0, 0.0), &[0.95 * a, a], 0, 0, 0, 0.0, &c).pass);
-        assert!(!cell_verdict(&ms(5.0, 0.0), &[a, a], 0, 1, 0, 0.0, &c).pass);
+        assert!(cell_verdict(&ms(5.0, 0.0), &[0.95 * a, a], 0, 0, 0, 0.0, 0.0, &c).pass);
+        assert!(!cell_verdict(&ms(5.0, 0.0), &[a, a], 0, 1, 0, 0.0, 0.0, &c).pass);
         // 30 N amplitude: RMS 21 N fails unless the torque limit waives it.
         let big = 30.0 / 2f64.sqrt() + 0.01;
-        let v = cell_verdict(&ms(30.0, 0.0), &[big, big], 0, 0, 0, 2.0, &c);
+        let v = cell_verdict(&ms(30.0, 0.0), &[big, big], 0, 0, 0, 2.0, 0.0, &c);
         assert!(!v.rms_ok && !v.pass);
-        let v = cell_verdict(&ms(30.0, 0.2), &[big, big], 0, 0, 0, 2.0, &c);
+        let v = cell_verdict(&ms(30.0, 0.2), &[big, big], 0, 0, 0, 2.0, 0.0, &c);
         assert!(v.rms_ok && v.rms_waived && v.pass);
-        let v = cell_verdict(&ms(5.0, 0.0), &[a, a], 0, 0, 1, 1.0, &c);
+        let v = cell_verdict(&ms(5.0, 0.0), &[a, a], 0, 0, 1, 1.0, 0.0, &c);
         assert!(!v.pass && !v.no_monitor_trip);
         // A reference that needed the safety layer (its forces are the fallback's) does not
         // make a robust run without trips worse; with trips on both sides forces decide.
-        let v = cell_verdict(&ms(5.0, 0.0), &[0.5 * a, 0.5 * a], 3, 0, 0, 1.0, &c);
+        let v = cell_verdict(&ms(5.0, 0.0), &[0.5 * a, 0.5 * a], 3, 0, 0, 1.0, 0.0, &c);
         assert!(v.no_worse_than_nmpc && v.pass);
-        let v = cell_verdict(&ms(5.0, 0.0), &[0.5 * a, 0.5 * a], 3, 0, 1, 1.0, &c);
+        let v = cell_verdict(&ms(5.0, 0.0), &[0.5 * a, 0.5 * a], 3, 0, 1, 1.0, 0.0, &c);
         assert!(!v.no_worse_than_nmpc && !v.pass);
+        // Trips are waived only where the gait needs more than the actuator on more than
+        // `max_limit_fraction` of the instants and the NMPC tripped too; stability and "no
+        // worse than NMPC" still decide.
+        let beyond = c.max_limit_fraction + 0.01;
+        let v = cell_verdict(&ms(5.0, 0.0), &[a, a], 2, 0, 1, 1.0, beyond, &c);
+        assert!(v.trips_waived && v.no_monitor_trip && v.pass, "{v:?}");
+        let v = cell_verdict(
+            &ms(5.0, 0.0),
+            &[a, a],
+            2,
+            0,
+            1,
+            1.0,
+            c.max_limit_fraction,
+            &c,
+        );
+        assert!(!v.trips_waived && !v.pass);
+        let v = cell_verdict(&ms(5.0, 0.0), &[a, a], 0, 0, 1, 1.0, beyond, &c);
+        assert!(!v.trips_waived && !v.pass, "the NMPC did not trip");
+        let v = cell_verdict(&ms(5.0, 0.0), &[0.9 * a, a], 2, 0, 1, 1.0, beyond, &c);
+        assert!(v.trips_waived && !v.no_worse_than_nmpc && !v.pass);
+        let v = cell_verdict(&ms(5.0, 0.0), &[a, a], 0, 0, 0, 1.0, beyond, &c);
+        assert!(!v.trips_waived && v.pass, "nothing to waive");
     }
 }
