@@ -445,7 +445,7 @@ impl<const N: usize> StageWork<N> {
                 }
                 xn
             } else {
-                problem.model.step(&x, &u, tau, &inp)
+                problem.model.step_value_using(&consts, &x, &u, tau, &inp)
             };
             x = xn;
             let tj = (j + 1) as f64 * dt;
