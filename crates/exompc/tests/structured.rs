@@ -281,10 +281,15 @@ fn closed_loop_diff(kind: ControllerKind, formulation: Formulation, n: usize, st
     s.controller.np = n;
     s.controller.nc = n;
     s.controller.sqp.hessian = HessianModel::GaussNewton;
-    // Both solved to a KKT residual of 1e-12: converged solutions then agree to ~1e-10 (at the
-    // default 1e-8 they agree only to the accuracy that tolerance implies, ~1e-7 N·m).
+    // Both solved to a KKT residual of 2e-9, which every step of the Np ≤ 10 loops attains
+    // (at most 82 iterations a step for the NMPC and 291 for the three-scenario MS-NMPC at
+    // Np = 10). At 1e-10 (the tolerance until issue 12's ninth pass) the Gauss–Newton SQP
+    // stalled below its rounding floor on 4 of the 400 NMPC steps and 1 MS-NMPC step at
+    // Np = 10 (1000 iterations, the iterates wandering within the Armijo slack), on main as
+    // well, and the loops agreed only as long as both back-ends wandered alike; with 2e-9 they
+    // agree to ~1e-11 N·m (docs/PERFORMANCE.md, ninth pass).
     s.controller.sqp.max_iterations = 1000;
-    s.controller.sqp.kkt_tolerance = 1e-10;
+    s.controller.sqp.kkt_tolerance = 2e-9;
     s.multistage.formulation = formulation;
     common::dense_vs_structured_torque_diff::<TwoDof, 2>(&s, kind, steps)
 }
@@ -293,10 +298,11 @@ fn closed_loop_diff(kind: ControllerKind, formulation: Formulation, n: usize, st
 fn structured_closed_loops_equal_dense() {
     // (controller, formulation, horizon, tolerance on the torque difference). Both back-ends
     // build the same QP (same Hessian regularisation) and take the same steps to ~1e-12. At
-    // Np = Nc = 20 the Gauss–Newton SQP stalls on some steps of this loop (both backends hit
-    // 1000 iterations without reaching the KKT tolerance 1e-10): the iterates then wander
-    // within the rounding floor of the KKT test, and the loops drift apart by ~1e-7 N·m; the
-    // tolerance says so (docs/PERFORMANCE.md, closed-loop agreement). With the exact Hessian
+    // Np = Nc = 20 the Gauss–Newton SQP of the NMPC stalls on some steps of this loop (both
+    // backends hit 1000 iterations without reaching the KKT tolerance, 1e-10 as well as 2e-9 or
+    // 1e-8): the iterates then wander within the rounding floor of the KKT test, and the loops
+    // drift apart by ~1e-7 N·m; the tolerance says so (docs/PERFORMANCE.md, closed-loop
+    // agreement). With the exact Hessian
     // (`hessian = "exact"`) every step of the Np = 10 and 20 loops converges and they agree to
     // 1e-8 (tests/exact_hessian.rs).
     for (kind, formulation, n, tol) in [

@@ -246,11 +246,16 @@ impl<const N: usize> LeastSquares for NmpcProblem<N> {
     fn residuals(&mut self, z: &[f64], r: &mut [f64]) -> bool {
         let mut x = self.x0;
         let mut u = self.t_prev;
+        let consts = self.model.jacobian_constants();
         for j in 0..self.np {
             self.torque(z, j, &mut u);
-            x = self
-                .model
-                .step(&x, &u, j as f64 * self.model.dt, &self.inputs);
+            x = self.model.step_value_using(
+                &consts,
+                &x,
+                &u,
+                j as f64 * self.model.dt,
+                &self.inputs,
+            );
             self.write_step_residuals(j + 1, &x, r);
         }
         self.write_increment_residuals(z, r);

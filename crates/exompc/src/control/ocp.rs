@@ -468,7 +468,7 @@ impl<const N: usize> StageWork<N> {
                 }
                 xn
             } else {
-                problem.model.step(&x, &u, tau, &inp)
+                problem.model.step_value_using(&consts, &x, &u, tau, &inp)
             };
             x = xn;
             let tj = (j + 1) as f64 * dt;
@@ -694,20 +694,23 @@ impl<const N: usize> StageWork<N> {
         let (np, nc) = (self.np, self.nc);
         let off = nc * N;
         let mult = self.qp.multipliers();
+        // The increments' and the torques' bounds as two independent chains, then merged.
         let mut check = BoundCheck::default();
+        let mut check_t = BoundCheck::default();
         for k in 0..off {
             check.add(self.rl - z[k], z[k] - self.ru, mult[k]);
         }
         for j in 0..nc {
             for a in 0..N {
                 let t = self.torques[j * N + a];
-                check.add(
+                check_t.add(
                     -self.tmax - t,
                     t - self.tmax,
                     mult[off + j * nx + 2 * N + a],
                 );
             }
         }
+        check.merge(&check_t);
         let bounds = check.violation.max(check.complementarity);
         if !(bounds <= kkt_tol && check.violation <= feas_tol) {
             return KktTest {

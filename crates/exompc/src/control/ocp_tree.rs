@@ -257,7 +257,7 @@ impl<const N: usize> TreeWork<N> {
                     }
                     xn
                 } else {
-                    problem.model.step(&x, &u, tau, &inp)
+                    problem.model.step_value_using(&consts, &x, &u, tau, &inp)
                 };
                 let tj = (j + 1) as f64 * dt;
                 let xo = nv + (i * np + j) * nx;

@@ -2,7 +2,8 @@
 //! and the strap torque predicted from the human-intent estimate inside every RK4 stage.
 
 use crate::model::{
-    c, rk4_step, sin_cos, tanh, Friction, JointState, Real, RkState, RobotModel, Straps,
+    c, rk4_step, sin_cos, sin_cos_near, tanh, Friction, JointState, Real, RkState, RobotModel,
+    Straps,
 };
 use nalgebra::{SMatrix, SVector};
 use num_dual::{DualSVec64, DualStruct};
@@ -251,12 +252,15 @@ impl<const N: usize> PredictionModel<N> {
         };
         for i in 0..n {
             let t = tau0 + i as f64 * h;
+            // The substep's first stage evaluates `sin`/`cos` of the link angles; the later
+            // stages rotate them by the small angle increments (`LinkTrig`).
+            let mut trig = None;
             // The first substep starts from the identity sensitivity: its first stage has no
             // products and its second stage two fewer (`stage_sens_first`, `stage_sens_second`).
             let (k1, d1) = if i == 0 {
-                self.stage_sens_first(consts, t, &s, u, inp)
+                self.stage_sens_first(consts, t, &s, u, inp, &mut trig)
             } else {
-                self.stage_sens(consts, t, &s, u, inp, &sens)
+                self.stage_sens(consts, t, &s, u, inp, &sens, &mut trig)
             };
             let x2 = s.add_scaled(0.5 * h, &k1);
             // From the identity sensitivity, `sens + c·d` adds nothing to the zero entries of
@@ -264,10 +268,10 @@ impl<const N: usize> PredictionModel<N> {
             // are not exact (`0 + y = y`, `1·c = c`; same values).
             let (k2, d2) = if i == 0 {
                 let s2 = StepJacobian::identity_plus_first(0.5 * h, &d1);
-                self.stage_sens_second(consts, t + 0.5 * h, &x2, u, inp, 0.5 * h, &s2)
+                self.stage_sens_second(consts, t + 0.5 * h, &x2, u, inp, 0.5 * h, &s2, &mut trig)
             } else {
                 let s2 = sens.add_scaled(0.5 * h, &d1);
-                self.stage_sens(consts, t + 0.5 * h, &x2, u, inp, &s2)
+                self.stage_sens(consts, t + 0.5 * h, &x2, u, inp, &s2, &mut trig)
             };
             let x3 = s.add_scaled(0.5 * h, &k2);
             let s3 = if i == 0 {
@@ -275,14 +279,14 @@ impl<const N: usize> PredictionModel<N> {
             } else {
                 sens.add_scaled(0.5 * h, &d2)
             };
-            let (k3, d3) = self.stage_sens(consts, t + 0.5 * h, &x3, u, inp, &s3);
+            let (k3, d3) = self.stage_sens(consts, t + 0.5 * h, &x3, u, inp, &s3, &mut trig);
             let x4 = s.add_scaled(h, &k3);
             let s4 = if i == 0 {
                 StepJacobian::identity_plus(h, &d3)
             } else {
                 sens.add_scaled(h, &d3)
             };
-            let (k4, d4) = self.stage_sens(consts, t + h, &x4, u, inp, &s4);
+            let (k4, d4) = self.stage_sens(consts, t + h, &x4, u, inp, &s4, &mut trig);
             s = s
                 .add_scaled(h / 6.0, &k1)
                 .add_scaled(h / 3.0, &k2)
@@ -301,9 +305,54 @@ impl<const N: usize> PredictionModel<N> {
         (s, sens)
     }
 
+    /// The state of [`Self::step_with_jacobian_using`] without the sensitivities, for the
+    /// rollouts that need no Jacobian (the line search's backtracking trials, the dense
+    /// back-end's residuals). With two links the stages use the written-out two-link
+    /// acceleration and the trigonometry of the Jacobian code (its derivative terms,
+    /// unused, are left out by the compiler), so the state equals that of
+    /// `step_with_jacobian_using` to the bit and [`Self::step`] to rounding; other link counts
+    /// take [`Self::step`].
+    #[inline]
+    pub(crate) fn step_value_using(
+        &self,
+        consts: &StageConstants<N>,
+        x: &JointState<f64, N>,
+        u: &SVector<f64, N>,
+        tau0: f64,
+        inp: &HorizonInputs<N>,
+    ) -> JointState<f64, N> {
+        if N != 2 {
+            return self.step(x, u, tau0, inp);
+        }
+        let n = self.substeps.max(1);
+        let h = self.dt / n as f64;
+        let f = |t: f64, y: &JointState<f64, N>, trig: &mut Option<LinkTrig>| JointState {
+            q: y.qd,
+            qd: self
+                .derivative_jacobian_two_links(consts, t, y, u, inp, trig)
+                .qdd,
+        };
+        let mut s = *x;
+        for i in 0..n {
+            let t = tau0 + i as f64 * h;
+            let mut trig = None;
+            let k1 = f(t, &s, &mut trig);
+            let k2 = f(t + 0.5 * h, &s.add_scaled(0.5 * h, &k1), &mut trig);
+            let k3 = f(t + 0.5 * h, &s.add_scaled(0.5 * h, &k2), &mut trig);
+            let k4 = f(t + h, &s.add_scaled(h, &k3), &mut trig);
+            s = s
+                .add_scaled(h / 6.0, &k1)
+                .add_scaled(h / 3.0, &k2)
+                .add_scaled(h / 3.0, &k3)
+                .add_scaled(h / 6.0, &k4);
+        }
+        s
+    }
+
     /// One RK4 stage `k = f(τ, X, u)` and its sensitivity `∂k/∂(x₀, u)` given the stage state's
     /// sensitivity `sx = ∂X/∂(x₀, u)`.
     #[inline(always)]
+    #[allow(clippy::too_many_arguments)] // the stage's arguments and the substep's trigonometry
     fn stage_sens(
         &self,
         consts: &StageConstants<N>,
@@ -312,8 +361,9 @@ impl<const N: usize> PredictionModel<N> {
         u: &SVector<f64, N>,
         inp: &HorizonInputs<N>,
         sx: &StepJacobian<N>,
+        trig: &mut Option<LinkTrig>,
     ) -> (JointState<f64, N>, StepJacobian<N>) {
-        let d = self.derivative_jacobian(consts, tau, x, u, inp);
+        let d = self.derivative_jacobian(consts, tau, x, u, inp, trig);
         let k = JointState { q: x.qd, qd: d.qdd };
         let dk = StepJacobian {
             qq: sx.vq,
@@ -337,8 +387,9 @@ impl<const N: usize> PredictionModel<N> {
         x: &JointState<f64, N>,
         u: &SVector<f64, N>,
         inp: &HorizonInputs<N>,
+        trig: &mut Option<LinkTrig>,
     ) -> (JointState<f64, N>, StepJacobian<N>) {
-        let d = self.derivative_jacobian(consts, tau, x, u, inp);
+        let d = self.derivative_jacobian(consts, tau, x, u, inp, trig);
         let k = JointState { q: x.qd, qd: d.qdd };
         let dk = StepJacobian {
             qq: SMatrix::zeros(),
@@ -365,8 +416,9 @@ impl<const N: usize> PredictionModel<N> {
         inp: &HorizonInputs<N>,
         h2: f64,
         sx: &StepJacobian<N>,
+        trig: &mut Option<LinkTrig>,
     ) -> (JointState<f64, N>, StepJacobian<N>) {
-        let d = self.derivative_jacobian(consts, tau, x, u, inp);
+        let d = self.derivative_jacobian(consts, tau, x, u, inp, trig);
         let k = JointState { q: x.qd, qd: d.qdd };
         let dk = StepJacobian {
             qq: sx.vq,
@@ -389,9 +441,10 @@ impl<const N: usize> PredictionModel<N> {
         x: &JointState<f64, N>,
         u: &SVector<f64, N>,
         inp: &HorizonInputs<N>,
+        trig: &mut Option<LinkTrig>,
     ) -> AccelJacobian<N> {
         if N == 2 {
-            self.derivative_jacobian_two_links(k, tau, x, u, inp)
+            self.derivative_jacobian_two_links(k, tau, x, u, inp, trig)
         } else {
             self.derivative_jacobian_chain(k, tau, x, u, inp)
         }
@@ -598,14 +651,15 @@ impl<const N: usize> PredictionModel<N> {
         x: &JointState<f64, N>,
         u: &SVector<f64, N>,
         inp: &HorizonInputs<N>,
+        trig: &mut Option<LinkTrig>,
     ) -> AccelJacobian<N> {
         debug_assert_eq!(N, 2);
         let (q, v) = (&x.q, &x.qd);
         let (v0, v1) = (v[0], v[1]);
         let th0 = 0.0 + q[0];
         let th1 = th0 + q[1];
-        let (s0, c0) = sin_cos(th0);
-        let (s1, c1) = sin_cos(th1);
+        let t = LinkTrig::at(th0, th1, trig);
+        let (s0, c0, s1, c1) = (t.s[0], t.c[0], t.s[1], t.c[1]);
         // sin and cos of θ0 − θ1.
         let sn = s0 * c1 - c0 * s1;
         let co = c0 * c1 + s0 * s1;
@@ -760,6 +814,47 @@ fn spd_inverse<const N: usize>(m: &SMatrix<f64, N, N>) -> SMatrix<f64, N, N> {
             .cholesky()
             .map(|ch| ch.inverse())
             .unwrap_or_else(|| SMatrix::from_element(f64::NAN)),
+    }
+}
+
+/// `sin` and `cos` of the two absolute link angles `θ0 = q0`, `θ1 = q0 + q1` at the first RK4
+/// stage of a substep, the base from which the substep's later stages rotate theirs.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct LinkTrig {
+    th: [f64; 2],
+    s: [f64; 2],
+    c: [f64; 2],
+}
+
+impl LinkTrig {
+    /// `sin`/`cos` of `θ0`, `θ1`: by [`sin_cos`] when `base` is empty (the substep's first stage;
+    /// the result becomes the base), else rotated from the base by the increments
+    /// ([`sin_cos_near`]: the later stages lie within `h·q̇` of the first stage's angles; within
+    /// a few units in the last place of `sin_cos`, which a larger increment takes).
+    #[inline(always)]
+    fn at(th0: f64, th1: f64, base: &mut Option<LinkTrig>) -> LinkTrig {
+        match base {
+            None => {
+                let (s0, c0) = sin_cos(th0);
+                let (s1, c1) = sin_cos(th1);
+                let t = LinkTrig {
+                    th: [th0, th1],
+                    s: [s0, s1],
+                    c: [c0, c1],
+                };
+                *base = Some(t);
+                t
+            }
+            Some(b) => {
+                let (s0, c0) = sin_cos_near(th0, b.th[0], b.s[0], b.c[0]);
+                let (s1, c1) = sin_cos_near(th1, b.th[1], b.s[1], b.c[1]);
+                LinkTrig {
+                    th: [th0, th1],
+                    s: [s0, s1],
+                    c: [c0, c1],
+                }
+            }
+        }
     }
 }
 
@@ -1019,7 +1114,7 @@ mod tests {
                 disturbance: rng.vec(2.0),
             };
             let tau = 0.01 * (case % 4) as f64;
-            let a = m.derivative_jacobian_two_links(&k, tau, &x, &u, &inp);
+            let a = m.derivative_jacobian_two_links(&k, tau, &x, &u, &inp, &mut None);
             let b = m.derivative_jacobian_chain(&k, tau, &x, &u, &inp);
             assert_eq!(a.qdd, b.qdd, "case {case}");
             assert_eq!(a.a_q, b.a_q, "case {case}");
@@ -1079,13 +1174,14 @@ mod tests {
             };
             for i in 0..n {
                 let t = tau0 + i as f64 * h;
-                let (k1, d1) = m.stage_sens(&consts, t, &s, u, inp, &sens);
+                let mut tr = None;
+                let (k1, d1) = m.stage_sens(&consts, t, &s, u, inp, &sens, &mut tr);
                 let (x2, s2) = (s.add_scaled(0.5 * h, &k1), sens.add_scaled(0.5 * h, &d1));
-                let (k2, d2) = m.stage_sens(&consts, t + 0.5 * h, &x2, u, inp, &s2);
+                let (k2, d2) = m.stage_sens(&consts, t + 0.5 * h, &x2, u, inp, &s2, &mut tr);
                 let (x3, s3) = (s.add_scaled(0.5 * h, &k2), sens.add_scaled(0.5 * h, &d2));
-                let (k3, d3) = m.stage_sens(&consts, t + 0.5 * h, &x3, u, inp, &s3);
+                let (k3, d3) = m.stage_sens(&consts, t + 0.5 * h, &x3, u, inp, &s3, &mut tr);
                 let (x4, s4) = (s.add_scaled(h, &k3), sens.add_scaled(h, &d3));
-                let (k4, d4) = m.stage_sens(&consts, t + h, &x4, u, inp, &s4);
+                let (k4, d4) = m.stage_sens(&consts, t + h, &x4, u, inp, &s4, &mut tr);
                 s = s
                     .add_scaled(h / 6.0, &k1)
                     .add_scaled(h / 3.0, &k2)
@@ -1131,6 +1227,60 @@ mod tests {
         run::<1>(21);
         run::<2>(22);
         run::<3>(23);
+    }
+
+    /// The value-only step equals the state of `step_with_jacobian` to the bit (two links; the
+    /// other link counts take `step`) and the generic `step` to rounding.
+    #[test]
+    fn value_step_equals_the_jacobian_step_state() {
+        fn run<const N: usize>(seed: u64) {
+            let mut rng = Lcg(seed);
+            for case in 0..300 {
+                let interaction = if case % 3 == 2 {
+                    Interaction::Hold
+                } else {
+                    Interaction::Predict
+                };
+                let friction = if case % 5 == 4 {
+                    Friction::Sign
+                } else {
+                    Friction::Tanh { width: 0.1 }
+                };
+                let m = model::<N>(&mut rng, interaction, friction, 1 + case % 3);
+                let consts = m.jacobian_constants();
+                let x = JointState {
+                    q: rng.vec(1.5),
+                    qd: rng.vec(3.0),
+                };
+                let u = rng.vec(20.0);
+                let inp = HorizonInputs {
+                    q_h: x.q + rng.vec(0.05),
+                    qd_h: x.qd + rng.vec(0.5),
+                    t_int_measured: rng.vec(5.0),
+                    disturbance: rng.vec(2.0),
+                };
+                let tau0 = 0.01 * (case % 4) as f64;
+                let v = m.step_value_using(&consts, &x, &u, tau0, &inp);
+                let p = m.step(&x, &u, tau0, &inp);
+                if N == 2 {
+                    let (s, _) = m.step_with_jacobian_using(&consts, &x, &u, tau0, &inp);
+                    assert_eq!(v, s, "N = {N} case {case}");
+                } else {
+                    assert_eq!(v, p, "N = {N} case {case}");
+                }
+                assert!(
+                    (v.q - p.q).amax() <= 1e-12 * (1.0 + p.q.amax()),
+                    "case {case}"
+                );
+                assert!(
+                    (v.qd - p.qd).amax() <= 1e-12 * (1.0 + p.qd.amax()),
+                    "case {case}"
+                );
+            }
+        }
+        run::<1>(41);
+        run::<2>(42);
+        run::<3>(43);
     }
 
     #[test]

@@ -16,7 +16,7 @@ pub use human::HumanSegment;
 pub use rk4::{rk4_step, JointState, RkState};
 pub use robot::{tanh, Friction, RobotModel};
 pub use straps::Straps;
-pub use trig::sin_cos;
+pub use trig::{sin_cos, sin_cos_near};
 
 use num_dual::DualNum;
 

@@ -102,3 +102,36 @@ pub fn sin_cos(x: f64) -> (f64, f64) {
         _ => (-c, s),
     }
 }
+
+/// Largest increment `|x − x0|` that [`sin_cos_near`] rotates by; beyond it, [`sin_cos`].
+pub const NEAR: f64 = 0.0625;
+
+/// `(sin x, cos x)` from `(s0, c0) = (sin x0, cos x0)` of a nearby angle: for `d = x − x0` with
+/// `|d| ≤ 1/16` by the angle-sum formulas `sin x = s0 + (s0·(cos d − 1) + c0·sin d)`,
+/// `cos x = c0 + (c0·(cos d − 1) − s0·sin d)`, with `sin d` and `cos d − 1` from their Taylor
+/// series to `d¹¹` and `d¹⁰` (truncation below `|d|¹²/12! < 8e-24`); otherwise (and for
+/// non-finite arguments, whose `d` is not a number) [`sin_cos`] of `x`. With `s0`, `c0` from
+/// [`sin_cos`] the absolute error stays within `2·2⁻⁵³` (one in 400,000 random cases of
+/// crates/exompc/tests/model.rs against `f64::sin_cos`).
+#[inline(always)]
+pub fn sin_cos_near(x: f64, x0: f64, s0: f64, c0: f64) -> (f64, f64) {
+    let d = x - x0;
+    if d.abs() > NEAR || d.is_nan() {
+        return sin_cos(x);
+    }
+    let z = d * d;
+    // sin d = d + d·z·(−1/3! + z(1/5! + z(−1/7! + z(1/9! − z/11!)))).
+    let sd = d + d
+        * z
+        * (-1.666_666_666_666_666_6e-1
+            + z * (8.333_333_333_333_333e-3
+                + z * (-1.984_126_984_126_984e-4
+                    + z * (2.755_731_922_398_589e-6 - z * 2.505_210_838_544_172e-8))));
+    // cos d − 1 = z·(−1/2 + z(1/4! + z(−1/6! + z(1/8! − z/10!)))).
+    let cm1 = z
+        * (-0.5
+            + z * (4.166_666_666_666_666_4e-2
+                + z * (-1.388_888_888_888_889e-3
+                    + z * (2.480_158_730_158_730_2e-5 - z * 2.755_731_922_398_589e-7))));
+    (s0 + (s0 * cm1 + c0 * sd), c0 + (c0 * cm1 - s0 * sd))
+}

@@ -373,14 +373,39 @@ pub(crate) struct BoundCheck {
 impl BoundCheck {
     /// Adds the bound pair with gaps `lo = l − v`, `hi = v − u` and multiplier `λ` (negative on
     /// the lower bound, positive on the upper one).
+    ///
+    /// The running maxima are never NaN (they start at zero and a NaN argument is ignored, as by
+    /// `f64::max`), so each is updated by one comparison ([`max_into`]) with `lo.max(hi)`, formed
+    /// beside the chain: the same maxima as `violation.max(lo).max(hi)`, with a dependency chain
+    /// of one `maxsd` a pair instead of two NaN-testing `f64::max`.
     #[inline]
     pub fn add(&mut self, lo: f64, hi: f64, l: f64) {
-        self.violation = self.violation.max(lo).max(hi);
+        self.violation = max_into(self.violation, lo.max(hi));
         if l < 0.0 {
-            self.complementarity = self.complementarity.max(-l * (-lo).max(0.0));
+            self.complementarity = max_into(self.complementarity, -l * (-lo).max(0.0));
         } else if l > 0.0 {
-            self.complementarity = self.complementarity.max(l * (-hi).max(0.0));
+            self.complementarity = max_into(self.complementarity, l * (-hi).max(0.0));
         }
+    }
+
+    /// The maxima over the pairs of `self` and of `other` (checks of disjoint pair sets, built
+    /// as independent chains).
+    #[inline]
+    pub fn merge(&mut self, other: &BoundCheck) {
+        self.violation = max_into(self.violation, other.violation);
+        self.complementarity = max_into(self.complementarity, other.complementarity);
+    }
+}
+
+/// `max(v, x)` for a `v` that is not NaN: `x` when larger, else `v` (a NaN `x` is ignored, as by
+/// `f64::max`; of `±0` either may be returned, as by `f64::max`). One comparison, where `f64::max`
+/// also tests `v` for NaN.
+#[inline(always)]
+fn max_into(v: f64, x: f64) -> f64 {
+    if x > v {
+        x
+    } else {
+        v
     }
 }
 

@@ -1017,8 +1017,10 @@ fn cholesky_n(m: &mut [f64], n: usize) -> bool {
     true
 }
 
-/// Solves `L Lᵀ x = b` in place with the factor of [`cholesky`].
-/// Unrolled for `n = 1, 2` like [`cholesky`] (same arithmetic).
+/// Solves `L Lᵀ x = b` in place with the factor of [`cholesky`], multiplying by the
+/// reciprocals `1/L_ii` (one division per diagonal entry, shared by the two triangular solves and
+/// hoisted out of a caller's loop over right-hand sides; the substitutions' chains then hold no
+/// division). Unrolled for `n = 1, 2` like [`cholesky`] (same arithmetic).
 #[inline]
 pub(super) fn chol_solve(l: &[f64], n: usize, b: &mut [f64]) {
     match n {
@@ -1036,14 +1038,14 @@ fn chol_solve_n(l: &[f64], n: usize, b: &mut [f64]) {
         for k in 0..i {
             s -= l[k * n + i] * b[k];
         }
-        b[i] = s / l[i * n + i];
+        b[i] = s * (1.0 / l[i * n + i]);
     }
     for i in (0..n).rev() {
         let mut s = b[i];
         for k in i + 1..n {
             s -= l[i * n + k] * b[k];
         }
-        b[i] = s / l[i * n + i];
+        b[i] = s * (1.0 / l[i * n + i]);
     }
 }
 
