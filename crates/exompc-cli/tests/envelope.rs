@@ -39,7 +39,7 @@ fn describe_failures(env: &Envelope) -> String {
 /// observer to 3, the eighth pass's gait-following oscillation cut-off and the weight
 /// low-pass's start to 1, the ninth pass's strap-space velocity residual (that cell 37.7 /
 /// 20.8 N growing → 39.8 / 11.9 N) and the demand waiver to 0; docs/ROBUSTNESS.md §4. The
-/// paper-method default fails 25 of 72.
+/// paper-method default fails 22 of 72.
 #[test]
 fn standard_envelope_meets_the_acceptance() {
     let env = run(&Grid::standard());

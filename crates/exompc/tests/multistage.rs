@@ -8,8 +8,8 @@ use exompc::control::{horizon_inputs, Controller, NmpcCore};
 use exompc::model::JointState;
 use exompc::scenario::build_multistage;
 use exompc::scenario::{
-    initial_torque, intent, limits, nmpc_settings, plant_params, prediction_model, run_experiment,
-    uncertainty, Dof, TwoDof,
+    initial_torque, intent, limits, multistage_nmpc_settings, plant_params, prediction_model,
+    run_experiment, uncertainty, Dof, TwoDof,
 };
 use exompc::sim::{Plant, Sensors, TraceLog};
 use nalgebra::Vector2;
@@ -42,7 +42,9 @@ fn coupled_with_one_scenario_equals_plain_nmpc() {
     s.controller.robust.intent_estimate = IntentEstimate::Paper;
     let mut ms = controller(&s);
     let model = prediction_model::<TwoDof, 2>(&s, 0.0);
-    let mut core = NmpcCore::new(model, &nmpc_settings(&s)).unwrap();
+    // The same NMPC settings as the multi-stage NMPC's scenarios (the robust method's
+    // strap-space velocity residual included).
+    let mut core = NmpcCore::new(model, &multistage_nmpc_settings(&s)).unwrap();
     let (lim, int) = (limits(&s), intent(&s));
     let mut worst = 0.0f64;
     closed_loop(&s, ms.as_mut(), 500, |k, m, prev, torque, c| {
