@@ -113,6 +113,7 @@ pub struct NmpcProblem<const N: usize> {
 impl<const N: usize> NmpcProblem<N> {
     /// A problem for `model` with the horizon and weights of `s`.
     pub fn new(model: PredictionModel<N>, s: &NmpcSettings) -> Self {
+        let lv = velocity_metric(s.velocity_tracking, &model.straps.j);
         NmpcProblem {
             model,
             np: s.np,
@@ -132,9 +133,8 @@ impl<const N: usize> NmpcProblem<N> {
             },
             sq: vec![SMatrix::zeros(); s.nc],
             sv: vec![SMatrix::zeros(); s.nc],
-            lv: velocity_metric(s.velocity_tracking, &model.straps.j),
-            lv_identity: velocity_metric(s.velocity_tracking, &model.straps.j)
-                == SMatrix::<f64, N, N>::identity(),
+            lv,
+            lv_identity: lv == SMatrix::<f64, N, N>::identity(),
             curvature: CurvatureWork::new(s.np, s.nc),
         }
     }
@@ -155,6 +155,25 @@ impl<const N: usize> NmpcProblem<N> {
         &self.lv
     }
 
+    /// The velocity residual `r_v = √r_d L (qd − qd_ref)` at the predicted velocity `qd` for
+    /// the weight `sqrt_rd`, and `Lᵀ r_v` (the cost gradient's velocity part is `√r_d Lᵀ r_v`);
+    /// with `L = I` exactly the paper's `√r_d (qd_a − qd_ref,a)` and `r_v` itself.
+    #[inline]
+    pub(crate) fn velocity_residual(
+        &self,
+        qd: &SVector<f64, N>,
+        sqrt_rd: f64,
+    ) -> (SVector<f64, N>, SVector<f64, N>) {
+        let e = qd - self.inputs.qd_h;
+        if self.lv_identity {
+            let rv = e * sqrt_rd;
+            (rv, rv)
+        } else {
+            let rv = self.lv * e * sqrt_rd;
+            (rv, self.lv.tr_mul(&rv))
+        }
+    }
+
     /// Torque applied over step `j` of the horizon: `T(k−1) + Σ_{i ≤ min(j, Nc−1)} dT(k+i)`.
     #[inline]
     fn torque(&self, z: &[f64], j: usize, acc: &mut SVector<f64, N>) {
@@ -170,18 +189,10 @@ impl<const N: usize> NmpcProblem<N> {
         let inp = &self.inputs;
         let base = (j - 1) * 2 * N;
         let tj = j as f64 * self.model.dt;
+        let (rv, _) = self.velocity_residual(&x.qd, self.sqrt_rd);
         for a in 0..N {
             r[base + a] = x.q[a] - (inp.q_h[a] + tj * inp.qd_h[a]);
-        }
-        if self.lv_identity {
-            for a in 0..N {
-                r[base + N + a] = self.sqrt_rd * (x.qd[a] - inp.qd_h[a]);
-            }
-        } else {
-            let ev = self.lv * (x.qd - inp.qd_h);
-            for a in 0..N {
-                r[base + N + a] = self.sqrt_rd * ev[a];
-            }
+            r[base + N + a] = rv[a];
         }
     }
 

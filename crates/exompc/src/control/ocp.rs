@@ -123,10 +123,9 @@ struct StageWork<const N: usize> {
     /// `qp.a`, `qp.b` hold the constant zero and identity entries of the held-input form, so a
     /// linearisation writes only `F_j`, `G_j` (`projection_qp` writes the layout alone).
     layout: bool,
-    /// The problem's velocity-residual metric `L` (`NmpcProblem::velocity_metric`), whether it
-    /// is the identity, and the Gauss–Newton velocity block `r_d LᵀL` of `Q_j`.
+    /// The problem's velocity-residual metric `L` (`NmpcProblem::velocity_metric`) and the
+    /// Gauss–Newton velocity block `r_d LᵀL` of `Q_j`.
     lv: SMatrix<f64, N, N>,
-    lv_identity: bool,
     qv: SMatrix<f64, N, N>,
 }
 
@@ -142,20 +141,12 @@ impl<const N: usize> StructuredSqp<N> {
         // `evaluate` fills them only from finite linearisations that `accept` then takes, and
         // `add_curvature` keeps only finite blocks.
         qp.assume_finite_stage_data();
-        // Q = diag(I, r_d I, 0) for every state until `use_velocity_metric` (L = I); R set per solve.
-        for j in 0..np {
-            let qj = &mut qp.q[j * nx * nx..(j + 1) * nx * nx];
-            for a in 0..N {
-                qj[a * nx + a] = 1.0;
-                qj[(N + a) * nx + N + a] = s.r_d;
-            }
-        }
         let len = qp.len();
         let zero_state = JointState {
             q: SVector::zeros(),
             qd: SVector::zeros(),
         };
-        Ok(Self {
+        let mut sqp = Self {
             settings: s.sqp,
             z_trial: DVector::zeros(nc * N),
             w: StageWork {
@@ -186,10 +177,14 @@ impl<const N: usize> StructuredSqp<N> {
                 shift: HessianShift::default(),
                 layout: false,
                 lv: SMatrix::identity(),
-                lv_identity: true,
                 qv: SMatrix::identity() * s.r_d,
             },
-        })
+        };
+        // Q = diag(I, r_d I, 0) for every state until `use_velocity_metric` (L = I); R set per
+        // solve.
+        sqp.w.curved = true;
+        sqp.w.reset_curvature();
+        Ok(sqp)
     }
 
     /// The QP solver (its last solution and multipliers).
@@ -230,7 +225,6 @@ impl<const N: usize> StageWork<N> {
             return;
         }
         self.lv = *lv;
-        self.lv_identity = *lv == SMatrix::<f64, N, N>::identity();
         self.qv = lv.tr_mul(lv) * self.r_d;
         // Rewrite the Gauss–Newton blocks with the new `r_d LᵀL`.
         self.curved = true;
@@ -473,31 +467,15 @@ impl<const N: usize> StageWork<N> {
             x = xn;
             let tj = (j + 1) as f64 * dt;
             let xo = off + j * nx;
-            if self.lv_identity {
-                for a in 0..N {
-                    let rq = x.q[a] - (inp.q_h[a] + tj * inp.qd_h[a]);
-                    let rv = sqrt_rd * (x.qd[a] - inp.qd_h[a]);
-                    sum += rq * rq + rv * rv;
-                    finite &= rq.is_finite() && rv.is_finite();
-                    if jac {
-                        self.qp.g[xo + a] = rq;
-                        self.qp.g[xo + N + a] = sqrt_rd * rv;
-                        self.qp.g[xo + 2 * N + a] = 0.0;
-                    }
-                }
-            } else {
-                // r_v = √r_d L (qd − qd_ref), gradient √r_d Lᵀ r_v.
-                let rv = self.lv * (x.qd - inp.qd_h) * sqrt_rd;
-                let gv = self.lv.tr_mul(&rv) * sqrt_rd;
-                for a in 0..N {
-                    let rq = x.q[a] - (inp.q_h[a] + tj * inp.qd_h[a]);
-                    sum += rq * rq + rv[a] * rv[a];
-                    finite &= rq.is_finite() && rv[a].is_finite();
-                    if jac {
-                        self.qp.g[xo + a] = rq;
-                        self.qp.g[xo + N + a] = gv[a];
-                        self.qp.g[xo + 2 * N + a] = 0.0;
-                    }
+            let (rv, ltrv) = problem.velocity_residual(&x.qd, sqrt_rd);
+            for a in 0..N {
+                let rq = x.q[a] - (inp.q_h[a] + tj * inp.qd_h[a]);
+                sum += rq * rq + rv[a] * rv[a];
+                finite &= rq.is_finite() && rv[a].is_finite();
+                if jac {
+                    self.qp.g[xo + a] = rq;
+                    self.qp.g[xo + N + a] = sqrt_rd * ltrv[a];
+                    self.qp.g[xo + 2 * N + a] = 0.0;
                 }
             }
         }

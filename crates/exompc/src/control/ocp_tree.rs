@@ -215,8 +215,6 @@ impl<const N: usize> TreeWork<N> {
             let mut u = problem.t_prev;
             let mut sum = 0.0;
             let consts = problem.model.jacobian_constants();
-            let lv = *problem.velocity_metric();
-            let lv_identity = lv == nalgebra::SMatrix::<f64, N, N>::identity();
             for j in 0..np {
                 if j < nc {
                     for a in 0..N {
@@ -261,21 +259,14 @@ impl<const N: usize> TreeWork<N> {
                 };
                 let tj = (j + 1) as f64 * dt;
                 let xo = nv + (i * np + j) * nx;
-                // r_v = √r_d L (qd − qd_ref), gradient √r_d Lᵀ r_v.
-                let rv = lv * (x.qd - inp.qd_h) * sqrt_rd;
-                let gv = lv.tr_mul(&rv) * sqrt_rd;
+                let (rv, ltrv) = problem.velocity_residual(&x.qd, sqrt_rd);
                 for a in 0..N {
                     let rq = x.q[a] - (inp.q_h[a] + tj * inp.qd_h[a]);
                     sum += rq * rq + rv[a] * rv[a];
                     finite &= rq.is_finite() && rv[a].is_finite();
                     if jac {
                         self.qp.g[xo + a] = mu * rq;
-                        // (the identity metric keeps the paper's operation order)
-                        self.qp.g[xo + N + a] = if lv_identity {
-                            mu * sqrt_rd * rv[a]
-                        } else {
-                            mu * gv[a]
-                        };
+                        self.qp.g[xo + N + a] = mu * sqrt_rd * ltrv[a];
                         self.qp.g[xo + 2 * N + a] = 0.0;
                     }
                 }
@@ -434,15 +425,21 @@ impl<const N: usize> SqpSteps for TreeSteps<'_, N> {
         // Q_i = μ_i diag(I, r_d LᵢᵀLᵢ, 0) on every state (Lᵢ the velocity metric of
         // scenario i's problem, the identity in the paper's eq. 7).
         let nx = 3 * N;
-        for (k, qk) in w.qp.q.chunks_exact_mut(nx * nx).enumerate() {
-            let mu = w.weights[k / w.np];
-            let lv = ps[k / w.np].velocity_metric();
+        for ((qi, &mu), p) in
+            w.qp.q
+                .chunks_exact_mut(w.np * nx * nx)
+                .zip(&w.weights)
+                .zip(ps)
+        {
+            let lv = p.velocity_metric();
             let qv = lv.tr_mul(lv) * w.r_d;
-            qk.fill(0.0);
-            for a in 0..N {
-                qk[a * nx + a] = mu;
-                for b in 0..N {
-                    qk[(N + b) * nx + N + a] = mu * qv[(a, b)];
+            for qk in qi.chunks_exact_mut(nx * nx) {
+                qk.fill(0.0);
+                for a in 0..N {
+                    qk[a * nx + a] = mu;
+                    for b in 0..N {
+                        qk[(N + b) * nx + N + a] = mu * qv[(a, b)];
+                    }
                 }
             }
         }

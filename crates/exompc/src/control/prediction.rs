@@ -993,6 +993,35 @@ mod tests {
         fn vec<const N: usize>(&mut self, scale: f64) -> SVector<f64, N> {
             SVector::from_fn(|_, _| scale * self.next())
         }
+        /// A state (angles within `±q`, velocities within `±qd`), a torque and horizon inputs
+        /// near that state.
+        fn point<const N: usize>(
+            &mut self,
+            q: f64,
+            qd: f64,
+        ) -> (JointState<f64, N>, SVector<f64, N>, HorizonInputs<N>) {
+            let x = JointState {
+                q: self.vec(q),
+                qd: self.vec(qd),
+            };
+            let u = self.vec(20.0);
+            let inp = HorizonInputs {
+                q_h: x.q + self.vec(0.05),
+                qd_h: x.qd + self.vec(0.5),
+                t_int_measured: self.vec(5.0),
+                disturbance: self.vec(2.0),
+            };
+            (x, u, inp)
+        }
+    }
+
+    /// Every third case holds the interaction torque, the others predict it.
+    fn interaction_of(case: usize) -> Interaction {
+        if case % 3 == 2 {
+            Interaction::Hold
+        } else {
+            Interaction::Predict
+        }
     }
 
     fn model<const N: usize>(
@@ -1037,11 +1066,7 @@ mod tests {
     fn check<const N: usize>(seed: u64) {
         let mut rng = Lcg(seed);
         for case in 0..200 {
-            let interaction = if case % 3 == 2 {
-                Interaction::Hold
-            } else {
-                Interaction::Predict
-            };
+            let interaction = interaction_of(case);
             let friction = if case % 5 == 4 {
                 Friction::Sign
             } else {
@@ -1051,17 +1076,7 @@ mod tests {
             };
             let substeps = 1 + case % 3;
             let m = model::<N>(&mut rng, interaction, friction, substeps);
-            let x = JointState {
-                q: rng.vec(1.5),
-                qd: rng.vec(3.0),
-            };
-            let u = rng.vec(20.0);
-            let inp = HorizonInputs {
-                q_h: x.q + rng.vec(0.05),
-                qd_h: x.qd + rng.vec(0.5),
-                t_int_measured: rng.vec(5.0),
-                disturbance: rng.vec(2.0),
-            };
+            let (x, u, inp) = rng.point(1.5, 3.0);
             let tau0 = 0.01 * (case % 4) as f64;
             let (xa, ja) = m.step_with_jacobian(&x, &u, tau0, &inp);
             let (xb, jb) = m.step_with_jacobian_dual(&x, &u, tau0, &inp);
@@ -1090,11 +1105,7 @@ mod tests {
     fn two_link_jacobian_equals_the_chain_code() {
         let mut rng = Lcg(11);
         for case in 0..2000 {
-            let interaction = if case % 3 == 2 {
-                Interaction::Hold
-            } else {
-                Interaction::Predict
-            };
+            let interaction = interaction_of(case);
             let friction = if case % 5 == 4 {
                 Friction::Sign
             } else {
@@ -1102,17 +1113,7 @@ mod tests {
             };
             let m = model::<2>(&mut rng, interaction, friction, 1);
             let k = StageConstants::new(&m);
-            let x = JointState {
-                q: rng.vec(4.0),
-                qd: rng.vec(6.0),
-            };
-            let u = rng.vec(20.0);
-            let inp = HorizonInputs {
-                q_h: x.q + rng.vec(0.05),
-                qd_h: x.qd + rng.vec(0.5),
-                t_int_measured: rng.vec(5.0),
-                disturbance: rng.vec(2.0),
-            };
+            let (x, u, inp) = rng.point(4.0, 6.0);
             let tau = 0.01 * (case % 4) as f64;
             let a = m.derivative_jacobian_two_links(&k, tau, &x, &u, &inp, &mut None);
             let b = m.derivative_jacobian_chain(&k, tau, &x, &u, &inp);
@@ -1198,28 +1199,14 @@ mod tests {
         fn run<const N: usize>(seed: u64) {
             let mut rng = Lcg(seed);
             for case in 0..300 {
-                let interaction = if case % 3 == 2 {
-                    Interaction::Hold
-                } else {
-                    Interaction::Predict
-                };
+                let interaction = interaction_of(case);
                 let m = model::<N>(
                     &mut rng,
                     interaction,
                     Friction::Tanh { width: 0.1 },
                     1 + case % 3,
                 );
-                let x = JointState {
-                    q: rng.vec(1.5),
-                    qd: rng.vec(3.0),
-                };
-                let u = rng.vec(20.0);
-                let inp = HorizonInputs {
-                    q_h: x.q + rng.vec(0.05),
-                    qd_h: x.qd + rng.vec(0.5),
-                    t_int_measured: rng.vec(5.0),
-                    disturbance: rng.vec(2.0),
-                };
+                let (x, u, inp) = rng.point(1.5, 3.0);
                 let a = m.step_with_jacobian(&x, &u, 0.01, &inp);
                 assert_eq!(a, plain(&m, &x, &u, 0.01, &inp), "N = {N} case {case}");
             }
@@ -1236,11 +1223,7 @@ mod tests {
         fn run<const N: usize>(seed: u64) {
             let mut rng = Lcg(seed);
             for case in 0..300 {
-                let interaction = if case % 3 == 2 {
-                    Interaction::Hold
-                } else {
-                    Interaction::Predict
-                };
+                let interaction = interaction_of(case);
                 let friction = if case % 5 == 4 {
                     Friction::Sign
                 } else {
@@ -1248,17 +1231,7 @@ mod tests {
                 };
                 let m = model::<N>(&mut rng, interaction, friction, 1 + case % 3);
                 let consts = m.jacobian_constants();
-                let x = JointState {
-                    q: rng.vec(1.5),
-                    qd: rng.vec(3.0),
-                };
-                let u = rng.vec(20.0);
-                let inp = HorizonInputs {
-                    q_h: x.q + rng.vec(0.05),
-                    qd_h: x.qd + rng.vec(0.5),
-                    t_int_measured: rng.vec(5.0),
-                    disturbance: rng.vec(2.0),
-                };
+                let (x, u, inp) = rng.point(1.5, 3.0);
                 let tau0 = 0.01 * (case % 4) as f64;
                 let v = m.step_value_using(&consts, &x, &u, tau0, &inp);
                 let p = m.step(&x, &u, tau0, &inp);

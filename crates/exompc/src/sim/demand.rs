@@ -109,45 +109,31 @@ mod tests {
     fn a_still_pendulum_needs_its_gravity_torque() {
         // One link (mass m, COM c from the joint) held at θ: τ = m g c sin θ, the closed form.
         let (m, c, theta) = (2.5, 0.18, 0.7);
-        let robot = robot_model(
-            &[link(m, 0.43, c, 0.02)],
-            0.0,
-            0.0,
-            Friction::Sign,
-            0.0,
-            0.2,
-            0.0,
-        );
+        // The link with viscous / Coulomb friction and a payload of `mp` kg at `d` m.
+        let pendulum = |viscous, coulomb, mp, d| {
+            robot_model(
+                &[link(m, 0.43, c, 0.02)],
+                viscous,
+                coulomb,
+                Friction::Sign,
+                mp,
+                d,
+                0.0,
+            )
+        };
         let q = SVector::<f64, 1>::new(theta);
         let z = SVector::<f64, 1>::zeros();
+        let robot = pendulum(0.0, 0.0, 0.0, 0.2);
         let tau = required_torque(&robot, &q, &z, &z, 0.0);
         let g = robot.chain.gravity;
         assert!((tau[0] - m * g * c * theta.sin()).abs() < 1e-12, "{tau}");
         // A payload of m_p at d adds m_p g d sin θ.
-        let robot = robot_model(
-            &[link(m, 0.43, c, 0.02)],
-            0.0,
-            0.0,
-            Friction::Sign,
-            3.0,
-            0.3,
-            0.0,
-        );
-        let tau = required_torque(&robot, &q, &z, &z, 0.0);
+        let tau = required_torque(&pendulum(0.0, 0.0, 3.0, 0.3), &q, &z, &z, 0.0);
         let want = (m * c + 3.0 * 0.3) * g * theta.sin();
         assert!((tau[0] - want).abs() < 1e-12, "{tau} vs {want}");
         // Friction and the lumped disturbance add as in paper eq. 1.
-        let robot = robot_model(
-            &[link(m, 0.43, c, 0.02)],
-            0.5,
-            0.2,
-            Friction::Sign,
-            0.0,
-            0.2,
-            0.0,
-        );
         let qd = SVector::<f64, 1>::new(2.0);
-        let tau = required_torque(&robot, &q, &qd, &z, 0.1);
+        let tau = required_torque(&pendulum(0.5, 0.2, 0.0, 0.2), &q, &qd, &z, 0.1);
         let want = m * g * c * theta.sin() + 0.5 * 2.0 + 0.2 + 0.1;
         assert!((tau[0] - want).abs() < 1e-12, "{tau} vs {want}");
     }
