@@ -245,6 +245,80 @@ fn scenario_jacobian_matches_central_differences() {
     }
 }
 
+/// The hand-derived `F` of `predict_with_jacobian` equals the dual-number `F`
+/// (`predict_with_jacobian_dual`) to rounding on random states, `d` columns and `[0 0 I]` rows
+/// included, for one and two links, smooth and sign friction and several substep counts.
+#[test]
+fn scenario_jacobian_equals_dual_numbers() {
+    fn run<const N: usize, const NA: usize, const NY: usize>(
+        model: impl Fn(usize) -> RobotModel<N>,
+        rng: &mut Rng,
+    ) {
+        for case in 0..300 {
+            let opts = EstimatorOptions {
+                substeps: 1 + case % 4,
+                ..Default::default()
+            };
+            let q0 = SVector::<f64, N>::zeros();
+            let f = ScenarioEkf::<N, NA, NY>::new(
+                model(case),
+                &EkfSettings::default(),
+                &opts,
+                &q0,
+                &q0,
+            )
+            .unwrap();
+            let x = SVector::<f64, NA>::from_fn(|i, _| match i / N {
+                0 => rng.uniform(-2.0, 2.0),
+                1 => rng.uniform(-8.0, 8.0),
+                _ => rng.uniform(-3.0, 3.0),
+            });
+            let u = SVector::<f64, N>::from_fn(|_, _| rng.uniform(-20.0, 20.0));
+            let ti = SVector::<f64, N>::from_fn(|_, _| rng.uniform(-5.0, 5.0));
+            let (xa, ja) = f.predict_with_jacobian(&x, &u, &ti);
+            let (xb, jb) = f.predict_with_jacobian_dual(&x, &u, &ti);
+            let err = (ja - jb).amax();
+            assert!(
+                err <= 1e-12 * (1.0 + jb.amax()),
+                "N = {N} case {case}: err {err:e}\n{ja}{jb}"
+            );
+            assert!(
+                (xa - xb).amax() <= 1e-13 * (1.0 + xb.amax()),
+                "N = {N} case {case}"
+            );
+            for r in 2 * N..NA {
+                assert_eq!(xa[r], x[r]);
+                for c in 0..NA {
+                    assert_eq!(ja[(r, c)], if r == c { 1.0 } else { 0.0 });
+                }
+            }
+        }
+    }
+    let friction = |case: usize| {
+        if case % 5 == 4 {
+            Friction::Sign
+        } else {
+            Friction::Tanh {
+                width: [0.01, 0.1, 1.0][case % 3],
+            }
+        }
+    };
+    let mut rng = Rng::new(12);
+    run::<2, 6, 4>(
+        |case| robot([0.0, 1.0, 2.0, 3.0][case % 4], friction(case)),
+        &mut rng,
+    );
+    run::<1, 3, 2>(
+        |case| RobotModel {
+            chain: Chain::new([robot_links()[1].with_point_mass(case as f64 % 3.0, 0.215)]),
+            viscous: 0.000899,
+            coulomb: 0.05048,
+            friction: friction(case),
+        },
+        &mut rng,
+    );
+}
+
 #[test]
 fn scenario_prediction_is_rk4_of_the_robot_model() {
     // Oracle: the model crate's own acceleration (tanh friction) under RK4 with d added to tau.

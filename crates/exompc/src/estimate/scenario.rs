@@ -3,7 +3,9 @@
 use super::{
     Ekf, EkfError, EkfSettings, EstimateError, EstimatorOptions, Innovation, InnovationStats,
 };
-use crate::model::{rk4_step, JointState, Real, RobotModel};
+use crate::model::{
+    rk4_step, ChainConstants, HeldTorque, JointState, Real, RobotModel, TailoredRk4,
+};
 use nalgebra::{Const, SMatrix, SVector, U1};
 use num_dual::DualSVec64;
 
@@ -23,16 +25,20 @@ pub type ScenarioUpdate<const NY: usize> = Result<InnovationStats<NY>, EkfError>
 /// (`d(k) = d(k−1) + w`). The model should use the smooth `tanh` Coulomb law (MODEL.md §3) so that
 /// its Jacobian is meaningful.
 ///
-/// **Jacobian.** `F = ∂x(k|k−1)/∂x(k−1|k−1)` is exact: the RK4 prediction runs once on
-/// forward-mode dual numbers `DualSVec64<NA>` seeded on every component of `q`, `qd` and `d`.
-/// (The model's `tanh` friction is the overflow-safe [`crate::model::tanh`], so the
-/// Jacobian stays finite at any joint speed.)
+/// **Jacobian.** `F = ∂x(k|k−1)/∂x(k−1|k−1)` is exact: the hand-derived RK4 sensitivity of the
+/// robot model that the NMPC prediction uses ([`crate::model::StepJacobian`]; per stage the
+/// analytic derivatives of `qdd`, chained through the stages), with `∂/∂d = ∂/∂T_R` since `d`
+/// enters like the torque, and `[0 0 I]` rows for the random walk. It equals forward-mode
+/// dual numbers through the generic RK4 (`predict_with_jacobian_dual`, the tests' oracle) to
+/// rounding at about a tenth of the cost. (The `tanh` friction's derivative uses the
+/// overflow-safe [`crate::model::tanh`], so the Jacobian stays finite at any joint speed.)
 ///
 /// **Step** ([`ScenarioEkf::step`]): `x̂(k|k−1) = f(x̂(k−1|k−1))`, `P = F P Fᵀ + Q`, then the
 /// standard EKF update with `v = y(k) − H x̂(k|k−1)` (see [`Ekf`]).
 #[derive(Clone, Copy, Debug)]
 pub struct ScenarioEkf<const N: usize, const NA: usize, const NY: usize> {
     model: RobotModel<N>,
+    consts: ChainConstants<N>,
     dt: f64,
     substeps: usize,
     mode: Innovation,
@@ -96,6 +102,7 @@ impl<const N: usize, const NA: usize, const NY: usize> ScenarioEkf<N, NA, NY> {
         );
         let h = SMatrix::<f64, NY, NA>::from_fn(|r, c| if r == c { 1.0 } else { 0.0 });
         Ok(Self {
+            consts: ChainConstants::new(&model),
             model,
             dt: options.dt,
             substeps: options.substeps,
@@ -218,9 +225,57 @@ impl<const N: usize, const NA: usize, const NY: usize> ScenarioEkf<N, NA, NY> {
         xn
     }
 
-    /// [`predict`](Self::predict) together with its exact Jacobian `F = ∂f/∂x` (one dual-number
-    /// pass seeded on all `NA` state components).
+    /// [`predict`](Self::predict) (to rounding) together with its exact Jacobian `F = ∂f/∂x`,
+    /// hand-derived: the RK4 sensitivity of the robot model ([`crate::model::StepJacobian`],
+    /// the tailored Jacobian of the NMPC prediction model with the strap torque held), with
+    /// `∂/∂d = ∂/∂u` (the disturbance enters like the torque) and the random walk's `[0 0 I]`
+    /// rows: `F = [[∂q⁺/∂q, ∂q⁺/∂qd, ∂q⁺/∂u], [∂qd⁺/∂q, ∂qd⁺/∂qd, ∂qd⁺/∂u], [0, 0, I]]`.
+    /// Equals [`predict_with_jacobian_dual`](Self::predict_with_jacobian_dual) to rounding
+    /// (crates/exompc/tests/estimate.rs).
     pub fn predict_with_jacobian(
+        &self,
+        x: &SVector<f64, NA>,
+        u: &SVector<f64, N>,
+        t_int: &SVector<f64, N>,
+    ) -> (SVector<f64, NA>, SMatrix<f64, NA, NA>) {
+        let s = JointState {
+            q: SVector::<f64, N>::from_fn(|i, _| x[i]),
+            qd: SVector::<f64, N>::from_fn(|i, _| x[N + i]),
+        };
+        let d = SVector::<f64, N>::from_fn(|i, _| x[2 * N + i]);
+        let (out, j) = TailoredRk4 {
+            robot: &self.model,
+            consts: &self.consts,
+            disturbance: &d,
+            torque: HeldTorque(*t_int),
+            dt: self.dt,
+            substeps: self.substeps,
+        }
+        .step_with_jacobian(&s, u, 0.0);
+        let mut xn = *x;
+        let mut f = SMatrix::<f64, NA, NA>::zeros();
+        for i in 0..N {
+            xn[i] = out.q[i];
+            xn[N + i] = out.qd[i];
+            for c in 0..N {
+                f[(i, c)] = j.qq[(i, c)];
+                f[(i, N + c)] = j.qv[(i, c)];
+                f[(i, 2 * N + c)] = j.qu[(i, c)];
+                f[(N + i, c)] = j.vq[(i, c)];
+                f[(N + i, N + c)] = j.vv[(i, c)];
+                f[(N + i, 2 * N + c)] = j.vu[(i, c)];
+            }
+            f[(2 * N + i, 2 * N + i)] = 1.0;
+        }
+        (xn, f)
+    }
+
+    /// [`predict`](Self::predict) together with its exact Jacobian `F = ∂f/∂x` by one
+    /// forward-mode dual-number pass seeded on all `NA` state components: the reference for
+    /// [`predict_with_jacobian`](Self::predict_with_jacobian) (same values to rounding), about
+    /// ten times slower. A test oracle, hidden from the docs.
+    #[doc(hidden)]
+    pub fn predict_with_jacobian_dual(
         &self,
         x: &SVector<f64, NA>,
         u: &SVector<f64, N>,

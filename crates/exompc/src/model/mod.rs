@@ -7,6 +7,7 @@
 mod chain;
 mod human;
 mod rk4;
+mod rk4_jacobian;
 mod robot;
 mod straps;
 mod trig;
@@ -14,6 +15,8 @@ mod trig;
 pub use chain::{Chain, Link};
 pub use human::HumanSegment;
 pub use rk4::{rk4_step, JointState, RkState};
+pub use rk4_jacobian::StepJacobian;
+pub(crate) use rk4_jacobian::{ChainConstants, HeldTorque, StageTorque, TailoredRk4};
 pub use robot::{tanh, Friction, RobotModel};
 pub use straps::Straps;
 pub use trig::{sin_cos, sin_cos_near};
