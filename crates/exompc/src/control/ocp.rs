@@ -431,14 +431,15 @@ impl<const N: usize> StageWork<N> {
                     .model
                     .step_with_jacobian_using(&consts, &x, &u, tau, &inp);
                 // The only non-constant entries of A_j and B_j.
-                // Branch-free: `v − v` is 0 for a finite `v` and NaN otherwise.
-                let mut nan = 0.0;
+                // Branch-free: `v − v` is 0 for a finite `v` and NaN otherwise; one lane per
+                // entry (six adds deep instead of one chain of 6·N² adds).
+                let mut nan = SMatrix::<f64, N, N>::zeros();
                 for m in [g.qq, g.qv, g.vq, g.vv, g.qu, g.vu] {
-                    for v in m.iter() {
-                        nan += v - v;
+                    for (l, v) in nan.iter_mut().zip(m.iter()) {
+                        *l += v - v;
                     }
                 }
-                finite &= nan == 0.0;
+                finite &= nan.sum() == 0.0;
                 // The zero and identity entries are in place (`write_held_layout`).
                 let aj = &mut self.qp.a[j * nx * nx..(j + 1) * nx * nx];
                 for c in 0..N {
