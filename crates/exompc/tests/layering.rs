@@ -9,6 +9,13 @@
 //! layer and use nothing of each other; below them, `check` (the range checks every settings
 //! type's `validate()` shares) and `test_rng` (the unit tests' random numbers, `cfg(test)`)
 //! use nothing of the crate.
+//!
+//! Inside a module, the files must not import each other in a circle
+//! ([`no_import_circle_between_files`]): a file's `super::x` and `crate::module::x` paths are
+//! edges to the sibling file `x.rs`, or, for a name the module root re-exports
+//! (`pub use x::{Name, …}` in `mod.rs` or `module.rs`), to the file that defines it. The module
+//! root itself (it declares and re-exports its files; items defined there are the module's face)
+//! and each file's `#[cfg(test)] mod tests` are not part of this graph.
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -198,4 +205,234 @@ fn the_scan_finds_upward_and_grouped_imports() {
         "use crate::{config::Scenario, sim::Plant};"
     ))
     .is_empty());
+}
+
+/// Source text without line comments and without a trailing `#[cfg(test)] mod …` block.
+fn code_of(text: &str) -> String {
+    let lines: Vec<&str> = text.lines().collect();
+    let end = (0..lines.len())
+        .find(|&i| {
+            lines[i].trim() == "#[cfg(test)]"
+                && lines
+                    .get(i + 1)
+                    .is_some_and(|l| l.trim_start().starts_with("mod "))
+        })
+        .unwrap_or(lines.len());
+    strip_comments(&lines[..end].join("\n"))
+}
+
+/// The first identifier of every item of the path that starts at `rest` (after `super::` or
+/// `crate::module::`): `x` for `x::Y`, `a` and `B` for `{a::c, B}`.
+fn path_heads(rest: &str) -> Vec<String> {
+    let Some(group) = rest.strip_prefix('{') else {
+        let name = ident_at(rest);
+        return if name.is_empty() {
+            Vec::new()
+        } else {
+            vec![name.to_string()]
+        };
+    };
+    let mut out = Vec::new();
+    let (mut depth, mut item_start) = (0usize, true);
+    for (j, c) in group.char_indices() {
+        match c {
+            '{' => depth += 1,
+            '}' if depth == 0 => break,
+            '}' => depth -= 1,
+            ',' if depth == 0 => item_start = true,
+            c if item_start && (c.is_ascii_alphabetic() || c == '_') => {
+                out.push(ident_at(&group[j..]).to_string());
+                item_start = false;
+            }
+            _ => {}
+        }
+    }
+    out
+}
+
+/// Heads of every path that starts with `prefix` in `code` (not inside a longer identifier or a
+/// macro's `$crate`).
+fn paths_after(code: &str, prefix: &str) -> Vec<String> {
+    let mut out = Vec::new();
+    for (i, _) in code.match_indices(prefix) {
+        let prev = code[..i].chars().next_back().unwrap_or(' ');
+        if prev.is_ascii_alphanumeric() || prev == '_' || prev == '$' {
+            continue;
+        }
+        out.extend(path_heads(&code[i + prefix.len()..]));
+    }
+    out
+}
+
+/// Names a module root re-exports, mapped to the file they come from: `pub use x::{A, b::C}`
+/// and `pub(crate) use x::A` give `A → x`, `C → x`.
+fn reexports(root: &str) -> Vec<(String, String)> {
+    let mut out = Vec::new();
+    for stmt in root.split(';') {
+        let t = stmt.trim();
+        let Some(rest) = t
+            .strip_prefix("pub use ")
+            .or_else(|| t.strip_prefix("pub(crate) use "))
+        else {
+            continue;
+        };
+        let file = ident_at(rest).to_string();
+        let names = rest[file.len()..]
+            .split(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
+            .filter(|w| !w.is_empty() && *w != "self" && *w != "as");
+        out.extend(names.map(|n| (n.to_string(), file.clone())));
+    }
+    out
+}
+
+/// The import edges between the files of each module: `(module, from, to)`.
+fn file_edges(files: &[(String, String)]) -> Vec<(String, String, String)> {
+    let mut edges = Vec::new();
+    let modules: BTreeSet<&str> = files
+        .iter()
+        .filter_map(|(rel, _)| rel.split_once('/').map(|(m, _)| m))
+        .collect();
+    for m in modules {
+        let root = files
+            .iter()
+            .find(|(rel, _)| *rel == format!("{m}/mod.rs") || *rel == format!("{m}.rs"));
+        let exported = root
+            .map(|(_, t)| reexports(&code_of(t)))
+            .unwrap_or_default();
+        let children: Vec<(&str, &str)> = files
+            .iter()
+            .filter_map(|(rel, t)| {
+                let stem = rel.strip_prefix(&format!("{m}/"))?.strip_suffix(".rs")?;
+                (stem != "mod" && !stem.contains('/')).then_some((stem, t.as_str()))
+            })
+            .collect();
+        let resolve = |name: &str| -> Option<String> {
+            if children.iter().any(|(s, _)| *s == name) {
+                return Some(name.to_string());
+            }
+            exported
+                .iter()
+                .find(|(n, _)| n == name)
+                .map(|(_, f)| f.clone())
+        };
+        for (stem, text) in &children {
+            let code = code_of(text);
+            let mut heads = paths_after(&code, "super::");
+            heads.extend(paths_after(&code, &format!("crate::{m}::")));
+            let targets: BTreeSet<String> = heads.iter().filter_map(|h| resolve(h)).collect();
+            for t in targets.into_iter().filter(|t| t != stem) {
+                edges.push((m.to_string(), stem.to_string(), t));
+            }
+        }
+    }
+    edges
+}
+
+/// The import circles, one per set of files, as `module: a → b → … → a`.
+fn circles(edges: &[(String, String, String)]) -> Vec<String> {
+    /// A path from `f` back to `start` (depth first, each file entered once).
+    fn back_to<'a>(
+        start: &str,
+        f: &'a str,
+        next: &dyn Fn(&str) -> Vec<&'a str>,
+        seen: &mut BTreeSet<&'a str>,
+    ) -> Option<Vec<&'a str>> {
+        for g in next(f) {
+            if g == start {
+                return Some(vec![f]);
+            }
+            if seen.insert(g) {
+                if let Some(mut p) = back_to(start, g, next, seen) {
+                    p.insert(0, f);
+                    return Some(p);
+                }
+            }
+        }
+        None
+    }
+    let mut found = Vec::new();
+    let mut sets: Vec<(String, BTreeSet<String>)> = Vec::new();
+    for (m, start, _) in edges {
+        let next = |f: &str| -> Vec<&str> {
+            edges
+                .iter()
+                .filter(|(mm, a, _)| mm == m && a == f)
+                .map(|(_, _, b)| b.as_str())
+                .collect()
+        };
+        let Some(mut path) = back_to(start, start, &next, &mut BTreeSet::new()) else {
+            continue;
+        };
+        let set: BTreeSet<String> = path.iter().map(|s| s.to_string()).collect();
+        if sets.iter().any(|(mm, s)| mm == m && *s == set) {
+            continue;
+        }
+        sets.push((m.clone(), set));
+        path.push(start);
+        found.push(format!("{m}: {}", path.join(" → ")));
+    }
+    found
+}
+
+fn library_files() -> Vec<(String, String)> {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut paths = Vec::new();
+    rust_files(&src, &mut paths);
+    paths
+        .iter()
+        .map(|p| {
+            let rel = p
+                .strip_prefix(&src)
+                .unwrap()
+                .to_string_lossy()
+                .replace('\\', "/");
+            (rel, std::fs::read_to_string(p).unwrap())
+        })
+        .collect()
+}
+
+#[test]
+fn no_import_circle_between_files() {
+    let files = library_files();
+    let edges = file_edges(&files);
+    assert!(edges.len() > 50, "found only {} file imports", edges.len());
+    let found = circles(&edges);
+    assert!(
+        found.is_empty(),
+        "import circles between files (move the shared piece where both can use it):\n{}",
+        found.join("\n")
+    );
+}
+
+#[test]
+fn the_file_scan_finds_circles_through_files_and_reexports() {
+    let f = |v: &[(&str, &str)]| -> Vec<(String, String)> {
+        v.iter()
+            .map(|(a, b)| (a.to_string(), b.to_string()))
+            .collect()
+    };
+    // Direct: a uses b's file, b uses a's file.
+    let direct = f(&[
+        ("m/mod.rs", "mod a; mod b;"),
+        ("m/a.rs", "use super::b::X;"),
+        ("m/b.rs", "use super::{a::Y, Z};"),
+    ]);
+    assert_eq!(circles(&file_edges(&direct)), ["m: a → b → a"]);
+    // Through the root's re-export and a `crate::m::` path; tests and comments do not count.
+    let via_root = f(&[
+        ("m/mod.rs", "mod a; mod b;\npub use b::{Bee, Other};"),
+        ("m/a.rs", "fn f(x: crate::m::Bee) {}"),
+        ("m/b.rs", "use super::a::Ay;"),
+    ]);
+    assert_eq!(circles(&file_edges(&via_root)).len(), 1);
+    let one_way = f(&[
+        ("m/mod.rs", "mod a; mod b;\npub use b::Bee;"),
+        ("m/a.rs", "use super::Bee;"),
+        (
+            "m/b.rs",
+            "// use super::a::Ay;\n#[cfg(test)]\nmod tests {\n    use super::super::a::Ay;\n}",
+        ),
+    ]);
+    assert_eq!(file_edges(&one_way).len(), 1);
+    assert!(circles(&file_edges(&one_way)).is_empty());
 }

@@ -29,6 +29,7 @@ mod lag;
 mod limits;
 mod multistage;
 mod nmpc;
+mod nmpc_problem;
 mod ocp;
 mod ocp_tree;
 mod pd;
@@ -46,11 +47,12 @@ pub use intent::{GainSetting, IntentGain, AUTO_K1_PER_STIFFNESS, AUTO_K2_PER_STI
 pub use lag::{ForceLag, HfShareDetector};
 pub use limits::{LimitsError, TorqueLimits};
 pub use multistage::{CoupledProblem, Formulation, MultiStage, MultiStageError, MultiStageOptions};
-pub use nmpc::{
-    classify, horizon_inputs, velocity_metric, Nmpc, NmpcCore, NmpcError, NmpcProblem,
-    NmpcSettings, VelocityTracking,
+pub use nmpc::{classify, horizon_inputs, Nmpc, NmpcCore, NmpcError};
+pub use nmpc_problem::{
+    velocity_metric, NmpcProblem, NmpcSettings, QpBackend, VelocityTracking,
+    AUTO_STRUCTURED_MIN_VARS,
 };
-pub use ocp::{QpBackend, StructuredSqp, AUTO_STRUCTURED_MIN_VARS};
+pub use ocp::StructuredSqp;
 pub use ocp_tree::{TreeSqp, AUTO_TREE_MIN_VARS};
 pub use pd::PdController;
 pub use prediction::{HorizonInputs, Interaction, PredictionModel, StepJacobian};

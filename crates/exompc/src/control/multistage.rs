@@ -2,7 +2,8 @@
 
 use super::heavy::InertiaGate;
 use super::limits::LimitsError;
-use super::nmpc::{classify, horizon_inputs, NmpcCore, NmpcProblem, NmpcSettings};
+use super::nmpc::{classify, horizon_inputs, NmpcCore};
+use super::nmpc_problem::{NmpcProblem, NmpcSettings};
 use super::ocp_tree::{tree_is_structured, TreeSqp};
 use super::prediction::{HorizonInputs, PredictionModel};
 use super::robust::{IntentEstimate, RobustSettings, RobustState};

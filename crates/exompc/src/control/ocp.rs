@@ -22,7 +22,7 @@
 //! Hessian not positive definite, so both back-ends take the same steps.
 
 use super::hessian::costates;
-use super::nmpc::{NmpcProblem, NmpcSettings};
+use super::nmpc_problem::{NmpcProblem, NmpcSettings};
 use super::prediction::StepJacobian;
 use super::TorqueLimits;
 use crate::model::JointState;
@@ -32,37 +32,6 @@ use crate::solver::{
     HessianModel, QpInfo, QpStatus, RiccatiQp, SolverError, SqpInfo, SqpSettings, SqpStatus,
 };
 use nalgebra::{DVector, SMatrix, SVector};
-use serde::{Deserialize, Serialize};
-
-/// Which QP solver the NMPC's SQP uses (`[controller.sqp] qp`).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum QpBackend {
-    /// Condensed dense Goldfarb–Idnani QP ([`crate::solver::DenseQp`]) with the configured
-    /// Hessian model: `O((N·Nc)³)` per iteration. The oracle.
-    Dense,
-    /// Multiple-shooting stages with the Riccati QP ([`crate::solver::RiccatiQp`]) and the
-    /// Gauss–Newton or exact Hessian: `O(Np·N³)` per iteration.
-    Structured,
-    /// `Structured` when `N·Nc ≥` [`AUTO_STRUCTURED_MIN_VARS`], else `Dense` (the default).
-    #[default]
-    Auto,
-}
-
-/// Smallest number of decision variables `N·Nc` for which [`QpBackend::Auto`] picks the
-/// structured solver (measured with `exompc bench --qp`, docs/PERFORMANCE.md).
-pub const AUTO_STRUCTURED_MIN_VARS: usize = 16;
-
-impl QpBackend {
-    /// Whether this backend resolves to the structured solver for `n_vars = N·Nc` variables.
-    pub fn is_structured(self, n_vars: usize) -> bool {
-        match self {
-            QpBackend::Dense => false,
-            QpBackend::Structured => true,
-            QpBackend::Auto => n_vars >= AUTO_STRUCTURED_MIN_VARS,
-        }
-    }
-}
 
 /// SQP (Gauss–Newton or exact Hessian) over the multiple-shooting form of eq. 7 with the
 /// Riccati QP. It runs the same SQP engine as [`crate::solver::Sqp`] (input checks, warm-start

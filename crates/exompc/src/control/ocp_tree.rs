@@ -13,8 +13,8 @@
 //! eq. 8 on a shared stage is imposed once (scenario 1's copy), the other copies are
 //! identical.
 
-use super::nmpc::{NmpcProblem, NmpcSettings};
-use super::ocp::QpBackend;
+use super::nmpc_problem::QpBackend;
+use super::nmpc_problem::{NmpcProblem, NmpcSettings};
 use super::prediction::StepJacobian;
 use super::TorqueLimits;
 use crate::model::JointState;

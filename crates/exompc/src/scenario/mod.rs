@@ -6,19 +6,24 @@
 //! [`crate::estimate`] and [`crate::sim`]; nothing below it imports it.
 
 mod build;
+mod error;
+mod info;
+mod layout;
 pub mod multistage;
 mod registry;
 mod run;
 
 pub use build::{
-    build_controller, build_multistage, build_nmpc, build_pd, build_supervised, fallback,
-    gait_demand, initial_torque, intent, limits, multistage_nmpc_settings, nmpc_settings,
-    plant_params, prediction_model, scenario_robot, uncertainty, Dof, OneDof, TwoDof,
+    build_multistage, build_nmpc, build_pd, fallback, initial_torque, intent, limits,
+    multistage_nmpc_settings, nmpc_settings,
+};
+pub use error::RunError;
+pub use info::{Builder, ControllerInfo};
+pub use layout::{
+    gait_demand, plant_params, prediction_model, scenario_robot, uncertainty, Dof, OneDof, TwoDof,
 };
 pub use registry::{
-    controller_by_name, controller_info, controllers, register_controller, validate, Builder,
-    ControllerInfo, DuplicateController, BUILTIN,
+    build_controller, build_supervised, controller_by_name, controller_info, controllers,
+    register_controller, validate, DuplicateController, BUILTIN,
 };
-pub use run::{
-    run_experiment, run_experiment_report, run_soak, soak_scenario, RunError, SoakReport,
-};
+pub use run::{run_experiment, run_experiment_report, run_soak, soak_scenario, SoakReport};

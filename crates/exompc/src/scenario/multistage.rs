@@ -3,7 +3,7 @@
 //! The configuration types, resolution and validation live in [`crate::config::scenarios`] and
 //! are re-exported here, so `exompc::scenario::multistage` is the one path users need.
 
-use super::build::{prediction_model, Dof, OneDof, TwoDof};
+use super::layout::{prediction_model, Dof, OneDof, TwoDof};
 pub use crate::config::scenarios::*;
 use crate::config::Scenario;
 use crate::control::PredictionModel;

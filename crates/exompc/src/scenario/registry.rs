@@ -8,46 +8,13 @@
 //! ([`build_controller`](super::build_controller), [`run_experiment`](super::run_experiment)),
 //! the CLI's `--controller` values and help, folder names, figure colours and legends.
 
-use super::build::{build_multistage, build_nmpc, build_pd, OneDof, TwoDof};
-use super::RunError;
-use crate::config::{ConfigError, ControllerKind, Scenario};
-use crate::control::Controller;
-use nalgebra::SVector;
+use super::build::{build_multistage, build_nmpc, build_pd, fallback, initial_torque};
+use super::error::RunError;
+use super::info::ControllerInfo;
+use super::layout::{Dof, OneDof, TwoDof};
+use crate::config::{ConfigError, ControllerKind, MonitorResponse, Scenario};
+use crate::control::{Controller, SafetySettings, Supervisor};
 use std::sync::{PoisonError, RwLock};
-
-/// Builds a controller of scenario `s` with `N` joints and initial previous torque `t0`.
-pub type Builder<const N: usize> =
-    fn(&Scenario, SVector<f64, N>) -> Result<Box<dyn Controller<N>>, RunError>;
-
-/// One registered controller.
-#[derive(Clone, Copy, Debug)]
-pub struct ControllerInfo {
-    /// The name (`controller.kind`): in config files, on the command line, in folder names, in
-    /// summaries; [`Controller::name`] of what the builders build.
-    pub kind: ControllerKind,
-    /// Legend label in figures.
-    pub label: &'static str,
-    /// One-line description (command-line help).
-    pub description: &'static str,
-    /// Index of the controller's colour in the figures' palette.
-    pub colour: usize,
-    /// Whether the controller blends the `[multistage]` scenarios: it reports their
-    /// probabilities (trace columns `mu_<scenario>`, `summary.json` `scenarios`), warns about
-    /// scenarios the estimator cannot tell apart, and takes `multistage.formulation`
-    /// (`--formulation`).
-    pub multistage: bool,
-    /// Builder for the 2-DOF hip-knee layout ([`TwoDof`]).
-    pub build_2dof: Builder<2>,
-    /// Builder for the 1-DOF knee layout ([`OneDof`]).
-    pub build_1dof: Builder<1>,
-}
-
-impl ControllerInfo {
-    /// The name ([`ControllerInfo::kind`] as text).
-    pub fn name(&'static self) -> &'static str {
-        self.kind.as_str()
-    }
-}
 
 /// The controllers of exompc, in the order help texts, tables and legends list them.
 pub const BUILTIN: &[ControllerInfo] = &[
@@ -158,4 +125,33 @@ pub fn controller_info(kind: ControllerKind) -> Result<&'static ControllerInfo, 
 pub fn validate(s: &Scenario) -> Result<(), ConfigError> {
     s.validate()?;
     controller_info(s.controller.kind).map(|_| ())
+}
+
+/// The controller `kind` for scenario `s`, built by its registry entry
+/// ([`controllers`](super::controllers)); [`RunError::Config`] naming `controller.kind` if no
+/// controller of that name is registered.
+pub fn build_controller<D: Dof<N>, const N: usize>(
+    s: &Scenario,
+    kind: ControllerKind,
+) -> Result<Box<dyn Controller<N>>, RunError> {
+    let info = controller_info(kind)?;
+    let t0 = initial_torque::<D, N>(s);
+    D::builder(info)(s, t0)
+}
+
+/// The controller `kind` of scenario `s` wrapped in the safety [`Supervisor`]
+/// (plausibility checks and the `[monitors]` of `s`).
+pub fn build_supervised<D: Dof<N>, const N: usize>(
+    s: &Scenario,
+    kind: ControllerKind,
+) -> Result<Supervisor<N, Box<dyn Controller<N>>>, RunError> {
+    let sup = Supervisor::new(
+        build_controller::<D, N>(s, kind)?,
+        SafetySettings::from_scenario(s),
+    );
+    Ok(if s.monitors.response == MonitorResponse::Fallback {
+        sup.with_fallback(fallback::<D, N>(s))
+    } else {
+        sup
+    })
 }

@@ -1,9 +1,12 @@
 //! Running one experiment of a [`Scenario`] (closed loop, metrics, safety report) and the
 //! fault-injected soak run.
 
-use super::build::{build_supervised, limits, plant_params, uncertainty, Dof, TwoDof};
-use crate::config::{ConfigError, ControllerKind, Scenario};
-use crate::control::{Controller, MonitorEvent, MultiStageError, NmpcError, SafetyReport};
+use super::build::limits;
+use super::error::RunError;
+use super::layout::{plant_params, uncertainty, Dof, TwoDof};
+use super::registry::build_supervised;
+use crate::config::{ControllerKind, Scenario};
+use crate::control::{Controller, MonitorEvent, SafetyReport};
 use crate::sim::{
     default_schedule, repeat_schedule, run_closed_loop, Metrics, Plant, Recorder, SafetySummary,
     Sensors, SoakStats, StepRecord, Summary,
@@ -11,33 +14,6 @@ use crate::sim::{
 use nalgebra::SVector;
 use serde::Serialize;
 use std::time::Instant;
-
-/// Why an experiment could not run.
-#[derive(Debug, thiserror::Error)]
-pub enum RunError {
-    /// The scenario is invalid.
-    #[error(transparent)]
-    Config(#[from] ConfigError),
-    /// The NMPC controller could not be built (invalid limits or solver settings).
-    #[error("controller: {0}")]
-    Nmpc(#[from] NmpcError),
-    /// The multi-stage controller could not be built (invalid limits, estimator or solver
-    /// settings, or no scenario).
-    #[error("multi-stage controller: {0}")]
-    MultiStage(#[from] MultiStageError),
-    /// The simulated plant diverged (its state stopped being finite) at time `t`.
-    #[error(
-        "the simulated plant diverged at t = {t} s (its state is no longer finite); \
-         a shorter plant step (timing.dt / timing.plant_substeps) keeps RK4 stable"
-    )]
-    Diverged {
-        /// Time (s) of the first non-finite state.
-        t: f64,
-    },
-    /// A recorder failed (e.g. a trace file could not be written).
-    #[error("recording failed: {0}")]
-    Io(#[from] std::io::Error),
-}
 
 /// Run the closed loop of scenario `s` with controller `s.controller.kind` in layout `D` for
 /// `s.duration_s(D::DOF)`, feeding every step to `recorders`; returns the summary (paper

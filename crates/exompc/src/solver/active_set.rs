@@ -8,8 +8,8 @@
 //! its multipliers and the columns `H⁻¹ nᵢ` live in the solver's workspace, reached through
 //! [`BoxDual::parts`]; nothing here allocates.
 
+use super::cholesky::{chol_solve, cholesky};
 use super::qp::{QpInfo, QpSettings, QpStatus};
-use super::riccati::{chol_solve, cholesky};
 
 /// The workspace the loop reads and writes, borrowed from the solver.
 pub(crate) struct BoxParts<'a> {

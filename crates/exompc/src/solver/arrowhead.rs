@@ -27,8 +27,8 @@
 //! [`super::DenseQp`] to rounding.
 
 use super::active_set::{add_violated_bounds, bounds_status, box_dual_from_fields};
+use super::cholesky::{chol_solve, cholesky};
 use super::qp::{QpInfo, QpSettings, QpStatus};
-use super::riccati::{chol_solve, cholesky};
 use super::SolverError;
 
 /// The scenario-tree QP described in the module documentation, with all workspace allocated at

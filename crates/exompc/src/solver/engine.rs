@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use nalgebra::DVector;
 
 use super::qp::{QpInfo, QpStatus};
-use super::sqp::{SqpInfo, SqpSettings, SqpStatus};
+use super::settings::{SqpInfo, SqpSettings, SqpStatus};
 
 /// What an SQP back-end provides to [`solve`]. Every method allocates nothing and never panics.
 pub(crate) trait SqpSteps {

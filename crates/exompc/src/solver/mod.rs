@@ -19,15 +19,18 @@
 
 mod active_set;
 pub mod arrowhead;
+mod cholesky;
 pub(crate) mod engine;
 pub mod qp;
 pub mod riccati;
+mod settings;
 pub mod sqp;
 
 pub use arrowhead::TreeQp;
 pub use qp::{DenseQp, QpInfo, QpSettings, QpStatus};
 pub use riccati::RiccatiQp;
-pub use sqp::{Constraints, HessianModel, LeastSquares, Sqp, SqpInfo, SqpSettings, SqpStatus};
+pub use settings::{HessianModel, SqpInfo, SqpSettings, SqpStatus};
+pub use sqp::{Constraints, LeastSquares, Sqp};
 
 /// Error returned when a solver is configured with invalid settings or dimensions.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
