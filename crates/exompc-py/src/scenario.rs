@@ -56,8 +56,7 @@ impl PyScenario {
     #[staticmethod]
     fn load(path: PathBuf) -> PyResult<Self> {
         catch(|| {
-            let text = std::fs::read(&path)
-                .map_err(|e| os_error("cannot read scenario file", &path, &e))?;
+            let text = read_capped(&path)?;
             let text = String::from_utf8(text).map_err(|_| {
                 config_err(format!(
                     "config file {}: not UTF-8 text (a TOML file is expected)",
@@ -129,13 +128,15 @@ impl PyScenario {
         updates: Option<&Bound<'_, PyDict>>,
         kwargs: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
-        let mut s = self.clone();
-        for d in [updates, kwargs].into_iter().flatten() {
-            for (k, v) in d.iter() {
-                s.set(&k.extract::<String>()?, &v)?;
+        catch(|| {
+            let mut s = self.clone();
+            for d in [updates, kwargs].into_iter().flatten() {
+                for (k, v) in d.iter() {
+                    s.set(&k.extract::<String>()?, &v)?;
+                }
             }
-        }
-        Ok(s)
+            Ok(s)
+        })
     }
 
     /// Every settable leaf key as a dotted path, in file order.
@@ -180,10 +181,12 @@ impl PyScenario {
 
     /// Pickles as TOML text (so scenarios travel to Ray workers and processes).
     fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<Bound<'py, PyTuple>> {
-        let py = slf.py();
-        let text = slf.borrow().to_toml()?;
-        let ctor = py.get_type::<PyScenario>().getattr("from_toml")?;
-        PyTuple::new(py, [ctor, PyTuple::new(py, [text])?.into_any()])
+        catch(|| {
+            let py = slf.py();
+            let text = slf.borrow().to_toml()?;
+            let ctor = py.get_type::<PyScenario>().getattr("from_toml")?;
+            PyTuple::new(py, [ctor, PyTuple::new(py, [text])?.into_any()])
+        })
     }
 
     fn __repr__(&self) -> String {
@@ -222,6 +225,30 @@ impl PyScenario {
         walk(&tree, "", &mut out);
         Ok(out)
     }
+}
+
+/// Largest scenario file `Scenario.load` reads (a scenario is a few kB; recorded gaits are
+/// separate files).
+const MAX_SCENARIO_BYTES: u64 = 16 << 20;
+
+/// The bytes of the file at `path`, refusing one larger than [`MAX_SCENARIO_BYTES`] (e.g.
+/// `/dev/zero`) instead of reading until memory runs out.
+fn read_capped(path: &Path) -> PyResult<Vec<u8>> {
+    use std::io::Read;
+    let err = |e: std::io::Error| os_error("cannot read scenario file", path, &e);
+    let f = std::fs::File::open(path).map_err(err)?;
+    let mut bytes = Vec::new();
+    f.take(MAX_SCENARIO_BYTES + 1)
+        .read_to_end(&mut bytes)
+        .map_err(err)?;
+    if bytes.len() as u64 > MAX_SCENARIO_BYTES {
+        return Err(config_err(format!(
+            "config file {}: larger than {} MiB (a scenario file is a few kB)",
+            path.display(),
+            MAX_SCENARIO_BYTES >> 20
+        )));
+    }
+    Ok(bytes)
 }
 
 /// Writes `bytes` to `path` through a temporary file in the same folder (synced, renamed over

@@ -104,6 +104,8 @@ def test_file_errors_are_os_errors(tmp_path):
     bad.write_bytes(b"\xff\xfe[timing]\n")
     with pytest.raises(exompc.ConfigError, match="not UTF-8"):
         exompc.Scenario.load(bad)
+    with pytest.raises(exompc.ConfigError, match="/dev/zero: larger than 16 MiB"):
+        exompc.Scenario.load("/dev/zero")
     # A read-only folder: PermissionError (as root, where permissions do not bind, a
     # file system that refuses new files stands in).
     ro = tmp_path / "ro"
