@@ -574,7 +574,8 @@ pub fn envelope_json<'py>(
             }
             None => {}
         }
-        // Every run in flight keeps its whole trace (for the stability classification).
+        // Every run in flight keeps its whole trace (for the stability classification; the
+        // multi-stage runs' probabilities on the heap).
         let mut longest: Option<(u64, String, Scenario, u8)> = None;
         for cell in &grid.cells {
             let s = Grid::scenario(&base, cell).map_err(|e| ConfigError::new_err(e.to_string()))?;
@@ -583,20 +584,21 @@ pub fn envelope_json<'py>(
                 longest = Some((steps, cell.name.clone(), s, cell.dof.clamp(1, 2)));
             }
         }
+        let jobs = grid.cells.len() * grid.payloads_kg.len() * grid.controllers.len();
         if let Some((_, name, s, d)) = longest {
             let row = if d == 1 {
                 std::mem::size_of::<exompc::sim::TraceRow<1>>()
             } else {
                 std::mem::size_of::<exompc::sim::TraceRow<2>>()
             };
-            let per_step =
-                (row + 8 * memory::scenario_count(&s) + 32) as u64 + memory::METRICS_PER_STEP;
+            let per_step = (row + 8 * exompc::config::scenarios::count(&s) + 32) as u64
+                + memory::METRICS_PER_STEP;
             memory::check(
                 &format!("cell `{name}`: {}", duration_key(d)),
                 &s,
                 d,
                 per_step,
-                rayon::current_num_threads().min(grid.cells.len()) as u64,
+                rayon::current_num_threads().min(jobs) as u64,
                 "use a shorter duration or a longer timing.dt",
             )?;
         }
