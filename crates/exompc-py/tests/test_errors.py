@@ -126,6 +126,18 @@ def test_file_errors_are_os_errors(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["bad.toml", "file", "ok.toml", "ro"]
 
 
+def test_diverged_run_is_a_run_error():
+    """A plant step too long for RK4 diverges: RunError (a RuntimeError) with the time."""
+    s = SHORT.replace({"timing.dt": 0.2, "timing.plant_substeps": 1,
+                       "timing.duration_2dof_s": 10.0})
+    with pytest.raises(exompc.RunError, match="diverged at t = 0.8 s"):
+        exompc.simulate(s, trace=False)
+    with pytest.raises(RuntimeError, match=r"run 1: the simulated plant diverged"):
+        exompc.run_many([SHORT, s])
+    rows = exompc.run_many([SHORT, s], errors="return")
+    assert rows[0]["steps"] == 50 and "diverged" in rows[1]["error"]
+
+
 def test_rust_panic_is_a_runtime_error():
     """A Rust panic (a bug) reaches Python as RuntimeError, with the GIL held or inside a run."""
     for in_run in (False, True):
