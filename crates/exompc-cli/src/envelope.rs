@@ -12,7 +12,7 @@ use exompc::control::{MonitorAction, SafetyReport};
 use exompc::scenario::{gait_demand, limits, run_experiment_report, OneDof, TwoDof};
 use exompc::sim::{
     cell_verdict, classify_run, ActuatorDemand, CellVerdict, RunClass, RunStability,
-    StabilityCriteria, Summary, TraceLog,
+    StabilityCriteria, StopWhen, Summary, TraceLog,
 };
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -344,19 +344,21 @@ fn run_one(
     s: &Scenario,
     dof: u8,
     c: &StabilityCriteria,
+    stop: &(dyn Fn() -> bool + Sync),
 ) -> Result<(Summary, RunStability, SafetyReport), String> {
     let lim = limits(s);
     let dt = s.timing.dt;
+    let mut stop = StopWhen(stop);
     match dof {
         1 => {
             let mut log = TraceLog::<1>::default();
-            let (sum, rep) = run_experiment_report::<OneDof, 1>(s, &mut [&mut log])
+            let (sum, rep) = run_experiment_report::<OneDof, 1>(s, &mut [&mut log, &mut stop])
                 .map_err(|e| e.to_string())?;
             Ok((sum, classify_run(&log, &lim, dt, c), rep))
         }
         _ => {
             let mut log = TraceLog::<2>::default();
-            let (sum, rep) = run_experiment_report::<TwoDof, 2>(s, &mut [&mut log])
+            let (sum, rep) = run_experiment_report::<TwoDof, 2>(s, &mut [&mut log, &mut stop])
                 .map_err(|e| e.to_string())?;
             Ok((sum, classify_run(&log, &lim, dt, c), rep))
         }
@@ -384,6 +386,21 @@ pub fn scan(
     criteria: &StabilityCriteria,
     progress: &(dyn Fn() + Sync),
 ) -> Result<Envelope, CliError> {
+    scan_until(base, grid, criteria, progress, &|| false)
+}
+
+/// [`scan`] that can be cancelled: once `stop()` returns true (polled before each cell's gait
+/// demand and once per control step of every run), the scan ends with
+/// [`CliError::Interrupted`] before its runs, or the running runs end between two steps and
+/// the runs not started yet are skipped, all with an error entry (the caller discards that
+/// partial envelope).
+pub fn scan_until(
+    base: &Scenario,
+    grid: &Grid,
+    criteria: &StabilityCriteria,
+    progress: &(dyn Fn() + Sync),
+    stop: &(dyn Fn() -> bool + Sync),
+) -> Result<Envelope, CliError> {
     let mut jobs = Vec::new();
     let mut demands = Vec::new();
     for (i, cell) in grid.cells.iter().enumerate() {
@@ -400,6 +417,11 @@ pub fn scan(
             sp.validate().map_err(|e| {
                 CliError::Config(format!("cell `{}`, payload {p} kg: {e}", cell.name))
             })?;
+            if stop() {
+                return Err(CliError::Interrupted(
+                    "envelope scan stopped before its runs".into(),
+                ));
+            }
             demands.push(EnvelopeDemand::of(&sp, i, cell.dof));
             for c in &grid.controllers {
                 let mut s = s.clone();
@@ -415,7 +437,11 @@ pub fn scan(
     let runs: Vec<EnvelopeRun> = jobs
         .par_iter()
         .map(|(i, p, c, s, dof)| {
-            let r = run_one(s, *dof, criteria);
+            let r = if stop() {
+                Err("not run: the scan was stopped".to_string())
+            } else {
+                run_one(s, *dof, criteria, stop)
+            };
             progress();
             let (summary, stability, trips, first, error) = match r {
                 Ok((sum, st, rep)) => (

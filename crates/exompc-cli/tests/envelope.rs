@@ -4,8 +4,10 @@
 
 use exompc::config::Scenario;
 use exompc::sim::{RunClass, StabilityCriteria};
-use exompc_cli::envelope::{markdown, scan, without_monitors, Envelope, Grid};
+use exompc_cli::envelope::{markdown, scan, scan_until, without_monitors, Envelope, Grid};
+use exompc_cli::error::CliError;
 use std::process::Command;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 fn run(grid: &Grid) -> Envelope {
     run_on(&Scenario::default(), grid)
@@ -124,6 +126,44 @@ fn envelope_scan_judges_cells() {
             .class,
         RunClass::Stable
     );
+}
+
+/// `scan_until` stops when asked: before the runs (an `Interrupted` error), or during them
+/// (every run ends between two control steps with an error entry, none completes).
+#[test]
+fn scan_until_stops_when_asked() {
+    let mut s = Scenario::default();
+    s.timing.duration_2dof_s = 2.0;
+    let mut g = Grid::standard();
+    g.cells.retain(|c| c.name == "default");
+    g.payloads_kg = vec![0.0, 1.0];
+    let crit = StabilityCriteria::default();
+    let before = scan_until(&s, &g, &crit, &|| {}, &|| true);
+    assert!(
+        matches!(before, Err(CliError::Interrupted(_))),
+        "{before:?}"
+    );
+    // Polls 1-2 are the two payloads' gait demands; from poll 50 on the runs are asked to stop.
+    let polls = AtomicUsize::new(0);
+    let stop = || polls.fetch_add(1, Ordering::SeqCst) >= 50;
+    let env = scan_until(&s, &g, &crit, &|| {}, &stop).unwrap();
+    assert_eq!(env.runs.len(), 4);
+    assert!(env
+        .runs
+        .iter()
+        .all(|r| r.summary.is_none() && r.error.is_some()));
+    // 200 control steps per run: without the stop each run would poll 200 times.
+    assert!(polls.load(Ordering::SeqCst) <= 50 + 4 * 2, "{polls:?}");
+    let full = scan_until(&s, &g, &crit, &|| {}, &|| false).unwrap();
+    let plain = scan(&s, &g, &crit, &|| {}).unwrap();
+    let rms = |e: &Envelope| -> Vec<_> {
+        e.runs
+            .iter()
+            .map(|r| r.summary.as_ref().map(|x| x.rms_force_n.clone()))
+            .collect()
+    };
+    assert!(full.runs.iter().all(|r| r.error.is_none()));
+    assert_eq!(rms(&full), rms(&plain));
 }
 
 #[test]

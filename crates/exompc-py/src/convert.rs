@@ -54,9 +54,22 @@ pub fn toml_to_py<'py>(py: Python<'py>, v: &toml::Value) -> PyResult<Bound<'py, 
     })
 }
 
+/// Deepest nesting of lists and dicts accepted as a key's value (scenario values nest at most
+/// two levels; the limit keeps a deeply nested argument from overflowing the stack).
+const MAX_DEPTH: usize = 16;
+
 /// A Python value as TOML, for setting a scenario key. Strings go through
 /// [`exompc_cli::io::parse_value`] exactly as a value typed on the command line.
 pub fn py_to_toml(key: &str, v: &Bound<'_, PyAny>) -> PyResult<toml::Value> {
+    to_toml_at(key, v, 0)
+}
+
+fn to_toml_at(key: &str, v: &Bound<'_, PyAny>, depth: usize) -> PyResult<toml::Value> {
+    if depth > MAX_DEPTH {
+        return Err(crate::ConfigError::new_err(format!(
+            "invalid value for {key}: nested deeper than {MAX_DEPTH} levels"
+        )));
+    }
     if v.is_instance_of::<PyBool>() {
         return Ok(toml::Value::Boolean(v.extract()?));
     }
@@ -76,7 +89,7 @@ pub fn py_to_toml(key: &str, v: &Bound<'_, PyAny>) -> PyResult<toml::Value> {
         for (k, x) in d.iter() {
             let k: String = k.extract()?;
             let sub = format!("{key}.{k}");
-            t.insert(k, py_to_toml(&sub, &x)?);
+            t.insert(k, to_toml_at(&sub, &x, depth + 1)?);
         }
         return Ok(toml::Value::Table(t));
     }
@@ -84,12 +97,12 @@ pub fn py_to_toml(key: &str, v: &Bound<'_, PyAny>) -> PyResult<toml::Value> {
         let items = v
             .try_iter()?
             .enumerate()
-            .map(|(i, x)| py_to_toml(&format!("{key}[{i}]"), &x?))
+            .map(|(i, x)| to_toml_at(&format!("{key}[{i}]"), &x?, depth + 1))
             .collect::<PyResult<Vec<_>>>()?;
         return Ok(toml::Value::Array(items));
     }
     if v.is_instance_of::<PyUntypedArray>() {
-        return py_to_toml(key, &v.call_method0("tolist")?);
+        return to_toml_at(key, &v.call_method0("tolist")?, depth + 1);
     }
     // numpy scalars and other number-likes.
     if v.hasattr("__index__")? {
@@ -125,7 +138,10 @@ pub fn vector<const N: usize>(name: &str, v: &Bound<'_, PyAny>) -> PyResult<SVec
                 shape(arr.shape())
             )));
         }
-        let a = arr.cast::<PyArray1<f64>>()?.readonly();
+        let a = arr
+            .cast::<PyArray1<f64>>()?
+            .try_readonly()
+            .map_err(|e| PyValueError::new_err(format!("{name}: cannot read the array ({e})")))?;
         for (o, x) in out.iter_mut().zip(a.as_array().iter()) {
             *o = *x;
         }
@@ -175,7 +191,11 @@ pub fn write_into<const N: usize>(out: &Bound<'_, PyAny>, v: &SVector<f64, N>) -
             shape(arr.shape())
         )));
     }
-    let mut w = arr.readwrite();
+    let mut w = arr.try_readwrite().map_err(|e| {
+        PyValueError::new_err(format!(
+            "out: cannot write into the array: {e} (pass a writeable float64 array, or no out=)"
+        ))
+    })?;
     for (o, x) in w.as_array_mut().iter_mut().zip(v.iter()) {
         *o = *x;
     }

@@ -2,13 +2,17 @@
 //! `python/exompc/__init__.py`): scenarios with the CLI's key checks, the closed-loop
 //! simulator, the controllers with one `step` call, and parallel batches of runs.
 //!
-//! Long runs release the GIL (`Python::detach`); the control step itself allocates nothing in
-//! Rust (its fixed-size buffers live in the controller).
+//! Long runs release the GIL (`Python::detach`) and poll Ctrl-C (`guard::interruptible`); the
+//! control step itself allocates nothing in Rust (its fixed-size buffers live in the
+//! controller). Every entry point runs under `guard::catch`: a Rust panic reaches Python as a
+//! `RuntimeError`, never as a `PanicException`.
 
 use pyo3::prelude::*;
 
 mod controller;
 mod convert;
+mod guard;
+mod memory;
 mod scenario;
 mod simulate;
 
@@ -37,6 +41,8 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<scenario::PyScenario>()?;
     m.add_class::<controller::PyController>()?;
     m.add_class::<simulate::PySimulator>()?;
+    m.add_class::<guard::CancelToken>()?;
+    m.add_function(wrap_pyfunction!(guard::_raise_panic, m)?)?;
     m.add_function(wrap_pyfunction!(simulate::simulate, m)?)?;
     m.add_function(wrap_pyfunction!(simulate::run_many, m)?)?;
     m.add_function(wrap_pyfunction!(simulate::envelope_json, m)?)?;

@@ -2,12 +2,14 @@
 //! key with the CLI's checks and messages (`exompc_cli::io`).
 
 use crate::convert::{py_to_toml, toml_to_py};
+use crate::guard::{catch, os_error};
 use crate::ConfigError;
 use exompc::config::Scenario;
 use exompc_cli::io;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyTuple};
-use std::path::PathBuf;
+use std::io::Write;
+use std::path::{Path, PathBuf};
 
 /// A complete, validated scenario (plant, human, controller, estimator, faults, monitors).
 ///
@@ -33,10 +35,10 @@ impl PyScenario {
     #[new]
     #[pyo3(signature = (toml = None))]
     fn new(toml: Option<&str>) -> PyResult<Self> {
-        match toml {
+        catch(|| match toml {
             None => Ok(Self::default()),
             Some(t) => Self::from_toml(t),
-        }
+        })
     }
 
     /// The embedded default scenario (2-DOF swing, MS-NMPC, 20 s).
@@ -48,51 +50,74 @@ impl PyScenario {
         }
     }
 
-    /// Loads a TOML scenario file (keys it names override the default); validated.
+    /// Loads a TOML scenario file (keys it names override the default); validated. A file
+    /// that cannot be read raises ``OSError`` (``FileNotFoundError``, ``PermissionError``,
+    /// ...); bad content raises ``ConfigError`` naming the file and the key.
     #[staticmethod]
     fn load(path: PathBuf) -> PyResult<Self> {
-        io::load_scenario(Some(&path))
-            .map(|inner| PyScenario { inner })
-            .map_err(|e| config_err(e.to_string()))
+        catch(|| {
+            let text = read_capped(&path)?;
+            let text = String::from_utf8(text).map_err(|_| {
+                config_err(format!(
+                    "config file {}: not UTF-8 text (a TOML file is expected)",
+                    path.display()
+                ))
+            })?;
+            let base = path.parent().unwrap_or(Path::new(""));
+            io::parse_scenario_with_origins_in(&text, base)
+                .map(|(inner, _)| PyScenario { inner })
+                .map_err(|m| config_err(format!("config file {}: {m}", path.display())))
+        })
     }
 
     /// Parses TOML text (keys it names override the default); validated.
     #[staticmethod]
     fn from_toml(text: &str) -> PyResult<Self> {
-        io::parse_scenario(text)
-            .map(|inner| PyScenario { inner })
-            .map_err(config_err)
+        catch(|| {
+            io::parse_scenario(text)
+                .map(|inner| PyScenario { inner })
+                .map_err(config_err)
+        })
     }
 
     /// The scenario as TOML text (every key), loadable by ``Scenario.from_toml`` and the CLI.
     fn to_toml(&self) -> PyResult<String> {
-        toml::to_string_pretty(&self.inner)
-            .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))
+        catch(|| {
+            toml::to_string_pretty(&self.inner)
+                .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))
+        })
     }
 
-    /// Writes the scenario as TOML to `path` (atomically: a temporary file renamed).
+    /// Writes the scenario as TOML to `path` atomically (a temporary file next to it, synced
+    /// and renamed; removed on failure). A folder that is missing or read-only raises
+    /// ``OSError`` (``FileNotFoundError``, ``PermissionError``, ...) naming the path.
     fn save(&self, path: PathBuf) -> PyResult<()> {
-        let text = self.to_toml()?;
-        io::write_atomic(&path, text.as_bytes())
-            .map_err(|e| pyo3::exceptions::PyOSError::new_err(e.to_string()))
+        catch(|| {
+            let text = self.to_toml()?;
+            write_atomic(&path, text.as_bytes())
+        })
     }
 
     /// The value of a key by dotted path (a dict for a table, ``None`` for an unset optional
     /// key). Unknown keys raise ``ConfigError`` with the closest valid name.
     fn get<'py>(&self, py: Python<'py>, key: &str) -> PyResult<Bound<'py, PyAny>> {
-        match io::get_key(&self.inner, key).map_err(config_err)? {
-            Some(v) => toml_to_py(py, &v),
-            None => Ok(py.None().into_bound(py)),
-        }
+        catch(
+            || match io::get_key(&self.inner, key).map_err(config_err)? {
+                Some(v) => toml_to_py(py, &v),
+                None => Ok(py.None().into_bound(py)),
+            },
+        )
     }
 
     /// Sets a key by dotted path to `value` (number, bool, string, list or dict; a string is
     /// read like a command-line value, e.g. ``"coupled"`` or ``"0.5"``), then validates the
     /// whole scenario. On error the scenario is unchanged and ``ConfigError`` names the field.
     fn set(&mut self, key: &str, value: &Bound<'_, PyAny>) -> PyResult<()> {
-        let v = py_to_toml(key, value)?;
-        self.inner = io::set_key(&self.inner, key, v).map_err(config_err)?;
-        Ok(())
+        catch(|| {
+            let v = py_to_toml(key, value)?;
+            self.inner = io::set_key(&self.inner, key, v).map_err(config_err)?;
+            Ok(())
+        })
     }
 
     /// A copy with the given keys set: ``s.replace({"uncertainty.payload_kg": 1.0})`` or
@@ -103,49 +128,34 @@ impl PyScenario {
         updates: Option<&Bound<'_, PyDict>>,
         kwargs: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
-        let mut s = self.clone();
-        for d in [updates, kwargs].into_iter().flatten() {
-            for (k, v) in d.iter() {
-                s.set(&k.extract::<String>()?, &v)?;
+        catch(|| {
+            let mut s = self.clone();
+            for d in [updates, kwargs].into_iter().flatten() {
+                for (k, v) in d.iter() {
+                    s.set(&k.extract::<String>()?, &v)?;
+                }
             }
-        }
-        Ok(s)
+            Ok(s)
+        })
     }
 
     /// Every settable leaf key as a dotted path, in file order.
     fn keys(&self) -> PyResult<Vec<String>> {
-        let tree = toml::Value::try_from(&self.inner)
-            .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))?;
-        let mut out = Vec::new();
-        fn walk(v: &toml::Value, prefix: &str, out: &mut Vec<String>) {
-            match v {
-                toml::Value::Table(t) => {
-                    for (k, x) in t {
-                        let p = if prefix.is_empty() {
-                            k.clone()
-                        } else {
-                            format!("{prefix}.{k}")
-                        };
-                        walk(x, &p, out);
-                    }
-                }
-                _ => out.push(prefix.to_string()),
-            }
-        }
-        walk(&tree, "", &mut out);
-        Ok(out)
+        catch(|| self.keys_impl())
     }
 
     /// The whole scenario as nested dicts.
     fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        let tree = toml::Value::try_from(&self.inner)
-            .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))?;
-        toml_to_py(py, &tree)
+        catch(|| {
+            let tree = toml::Value::try_from(&self.inner)
+                .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))?;
+            toml_to_py(py, &tree)
+        })
     }
 
     /// Checks every field again (always true for a Scenario built through this API).
     fn validate(&self) -> PyResult<()> {
-        exompc::scenario::validate(&self.inner).map_err(|e| config_err(e.to_string()))
+        catch(|| exompc::scenario::validate(&self.inner).map_err(|e| config_err(e.to_string())))
     }
 
     /// An independent copy.
@@ -171,10 +181,12 @@ impl PyScenario {
 
     /// Pickles as TOML text (so scenarios travel to Ray workers and processes).
     fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<Bound<'py, PyTuple>> {
-        let py = slf.py();
-        let text = slf.borrow().to_toml()?;
-        let ctor = py.get_type::<PyScenario>().getattr("from_toml")?;
-        PyTuple::new(py, [ctor, PyTuple::new(py, [text])?.into_any()])
+        catch(|| {
+            let py = slf.py();
+            let text = slf.borrow().to_toml()?;
+            let ctor = py.get_type::<PyScenario>().getattr("from_toml")?;
+            PyTuple::new(py, [ctor, PyTuple::new(py, [text])?.into_any()])
+        })
     }
 
     fn __repr__(&self) -> String {
@@ -190,8 +202,83 @@ impl PyScenario {
     }
 }
 
+impl PyScenario {
+    fn keys_impl(&self) -> PyResult<Vec<String>> {
+        let tree = toml::Value::try_from(&self.inner)
+            .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))?;
+        let mut out = Vec::new();
+        fn walk(v: &toml::Value, prefix: &str, out: &mut Vec<String>) {
+            match v {
+                toml::Value::Table(t) => {
+                    for (k, x) in t {
+                        let p = if prefix.is_empty() {
+                            k.clone()
+                        } else {
+                            format!("{prefix}.{k}")
+                        };
+                        walk(x, &p, out);
+                    }
+                }
+                _ => out.push(prefix.to_string()),
+            }
+        }
+        walk(&tree, "", &mut out);
+        Ok(out)
+    }
+}
+
+/// Largest scenario file `Scenario.load` reads (a scenario is a few kB; recorded gaits are
+/// separate files).
+const MAX_SCENARIO_BYTES: u64 = 16 << 20;
+
+/// The bytes of the file at `path`, refusing one larger than [`MAX_SCENARIO_BYTES`] (e.g.
+/// `/dev/zero`) instead of reading until memory runs out.
+fn read_capped(path: &Path) -> PyResult<Vec<u8>> {
+    use std::io::Read;
+    let err = |e: std::io::Error| os_error("cannot read scenario file", path, &e);
+    let f = std::fs::File::open(path).map_err(err)?;
+    let mut bytes = Vec::new();
+    f.take(MAX_SCENARIO_BYTES + 1)
+        .read_to_end(&mut bytes)
+        .map_err(err)?;
+    if bytes.len() as u64 > MAX_SCENARIO_BYTES {
+        return Err(config_err(format!(
+            "config file {}: larger than {} MiB (a scenario file is a few kB)",
+            path.display(),
+            MAX_SCENARIO_BYTES >> 20
+        )));
+    }
+    Ok(bytes)
+}
+
+/// Writes `bytes` to `path` through a temporary file in the same folder (synced, renamed over
+/// `path`; removed on failure), with `OSError`s naming the path.
+fn write_atomic(path: &Path, bytes: &[u8]) -> PyResult<()> {
+    let name = path
+        .file_name()
+        .ok_or_else(|| config_err(format!("save: {} names no file", path.display())))?;
+    let mut tmp_name = std::ffi::OsString::from(".");
+    tmp_name.push(name);
+    tmp_name.push(format!(".tmp.{}", std::process::id()));
+    let tmp = path.with_file_name(tmp_name);
+    let result = (|| {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        drop(f);
+        std::fs::rename(&tmp, path)
+    })();
+    result.map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        os_error("cannot save scenario to", path, &e)
+    })
+}
+
 /// The default scenario as commented TOML (the output of ``exompc config``).
 #[pyfunction]
 pub fn default_config_toml() -> PyResult<String> {
-    io::default_config_toml().map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))
+    catch(|| {
+        io::default_config_toml()
+            .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))
+    })
 }

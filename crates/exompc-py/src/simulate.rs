@@ -1,13 +1,16 @@
 //! `simulate`, `run_many` and the `Simulator` (plant + sensors) of the closed loop.
 
 use crate::convert::{array, status_code, vector};
+use crate::guard::{catch, interruptible, CancelToken, Outcome};
+use crate::memory;
 use crate::scenario::PyScenario;
 use crate::{ConfigError, RunError};
 use exompc::config::Scenario;
 use exompc::scenario::{plant_params, run_experiment, uncertainty, Dof, OneDof, TwoDof};
-use exompc::sim::{Plant, Recorder, Sensors, StepRecord, Summary, Trajectory};
+use exompc::sim::{Plant, Recorder, Sensors, StepRecord, StopWhen, Summary, Trajectory};
 use exompc_cli::io::{parse_value, set_key};
 use numpy::{PyArray1, PyArrayMethods};
+use pyo3::exceptions::PyMemoryError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use rayon::prelude::*;
@@ -78,6 +81,28 @@ impl<const N: usize> Recorder<N> for Columns {
 }
 
 impl Columns {
+    /// Empty columns with room for `steps` rows of `n` joints and `scenarios` scenarios,
+    /// reserved up front (a `MemoryError` if the system refuses, never an abort).
+    fn with_capacity(steps: usize, n: usize, scenarios: usize) -> PyResult<Self> {
+        let mut c = Columns::default();
+        let oom = |_| PyMemoryError::new_err(format!("cannot allocate the trace of {steps} steps"));
+        c.t.try_reserve_exact(steps).map_err(oom)?;
+        for v in &mut c.vec {
+            v.try_reserve_exact(steps.saturating_mul(n)).map_err(oom)?;
+        }
+        c.probabilities
+            .try_reserve_exact(steps.saturating_mul(scenarios))
+            .map_err(oom)?;
+        c.disturbances
+            .try_reserve_exact(steps.saturating_mul(scenarios).saturating_mul(n))
+            .map_err(oom)?;
+        c.status.try_reserve_exact(steps).map_err(oom)?;
+        c.iterations.try_reserve_exact(steps).map_err(oom)?;
+        c.step_time_us.try_reserve_exact(steps).map_err(oom)?;
+        c.within_limits.try_reserve_exact(steps).map_err(oom)?;
+        Ok(c)
+    }
+
     fn into_dict(self, py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
         let d = PyDict::new(py);
         let steps = self.t.len();
@@ -107,6 +132,26 @@ impl Columns {
     }
 }
 
+/// The `dof` argument checked: 1 or 2, else `ConfigError` (a `ValueError`).
+pub fn dof_arg(dof: i64) -> PyResult<u8> {
+    match dof {
+        1 => Ok(1),
+        2 => Ok(2),
+        _ => Err(ConfigError::new_err(format!(
+            "dof: {dof} (allowed: 1 or 2)"
+        ))),
+    }
+}
+
+/// The duration key of the `dof` layout.
+fn duration_key(dof: u8) -> &'static str {
+    if dof == 1 {
+        "timing.duration_1dof_s"
+    } else {
+        "timing.duration_2dof_s"
+    }
+}
+
 /// Applies the keyword overrides of `simulate` through the CLI's key setter (same checks and
 /// messages), naming the argument on error.
 pub fn overrides(
@@ -117,11 +162,6 @@ pub fn overrides(
     payload: Option<f64>,
     duration: Option<f64>,
 ) -> PyResult<Scenario> {
-    if dof != 1 && dof != 2 {
-        return Err(ConfigError::new_err(format!(
-            "dof: {dof} (allowed: 1 or 2)"
-        )));
-    }
     let mut s = s.clone();
     let mut apply = |arg: &str, key: &str, v: toml::Value| -> PyResult<()> {
         s = set_key(&s, key, v).map_err(|e| ConfigError::new_err(format!("{arg}: {e}")))?;
@@ -137,34 +177,41 @@ pub fn overrides(
         apply("payload", "uncertainty.payload_kg", toml::Value::Float(p))?;
     }
     if let Some(d) = duration {
-        let key = if dof == 1 {
-            "timing.duration_1dof_s"
-        } else {
-            "timing.duration_2dof_s"
-        };
-        apply("duration", key, toml::Value::Float(d))?;
+        apply("duration", duration_key(dof), toml::Value::Float(d))?;
     }
     Ok(s)
 }
 
-/// One closed-loop run (no Python involved: called with the GIL released).
-fn run(s: &Scenario, dof: u8, trace: bool) -> Result<(Summary, Option<Columns>), String> {
-    let mut cols = trace.then(Columns::default);
-    let summary = if dof == 1 {
-        let mut recs: Vec<&mut dyn Recorder<1>> = Vec::new();
-        if let Some(c) = cols.as_mut() {
+/// One closed-loop run (no Python involved: called with the GIL released), stopping between
+/// two control steps once `stop()` is true.
+fn run(
+    s: &Scenario,
+    dof: u8,
+    cols: Option<&mut Columns>,
+    stop: &(dyn Fn() -> bool + Sync),
+) -> Result<Summary, String> {
+    let mut stop = StopWhen(stop);
+    if dof == 1 {
+        let mut recs: Vec<&mut dyn Recorder<1>> = vec![&mut stop];
+        if let Some(c) = cols {
             recs.push(c);
         }
         run_experiment::<OneDof, 1>(s, &mut recs)
     } else {
-        let mut recs: Vec<&mut dyn Recorder<2>> = Vec::new();
-        if let Some(c) = cols.as_mut() {
+        let mut recs: Vec<&mut dyn Recorder<2>> = vec![&mut stop];
+        if let Some(c) = cols {
             recs.push(c);
         }
         run_experiment::<TwoDof, 2>(s, &mut recs)
     }
-    .map_err(|e| e.to_string())?;
-    Ok((summary, cols))
+    .map_err(|e| e.to_string())
+}
+
+/// `RunError` of a call stopped by its `CancelToken`.
+fn cancelled(what: &str) -> PyErr {
+    RunError::new_err(format!(
+        "{what}: cancelled (CancelToken.cancel() was called)"
+    ))
 }
 
 fn summary_dict<'py>(py: Python<'py>, s: &Summary) -> PyResult<Bound<'py, PyDict>> {
@@ -179,50 +226,99 @@ fn summary_dict<'py>(py: Python<'py>, s: &Summary) -> PyResult<Bound<'py, PyDict
 /// ``trace=False``, a ``"trace"`` dict of numpy columns (one row per control step).
 ///
 /// ``controller`` (``"pd"``, ``"nmpc"``, ``"msnmpc"``), ``formulation``, ``payload`` (kg) and
-/// ``duration`` (s) override the scenario like the CLI flags. The GIL is released during the run.
+/// ``duration`` (s) override the scenario like the CLI flags. The run goes on a helper thread
+/// with the GIL released; Ctrl-C (from the main thread) raises ``KeyboardInterrupt`` within
+/// about 50 ms, and ``cancel`` (a ``CancelToken``) stops it from another thread (``RunError``).
+/// A run whose trace (or summary) would not fit in 80 % of the available memory raises
+/// ``ConfigError`` naming the duration and the limit before anything is allocated.
 #[pyfunction]
-#[pyo3(signature = (scenario = None, *, controller = None, payload = None, dof = 2, duration = None, formulation = None, trace = true))]
+#[pyo3(signature = (scenario = None, *, controller = None, payload = None, dof = 2, duration = None, formulation = None, trace = true, cancel = None))]
 #[allow(clippy::too_many_arguments)]
 pub fn simulate<'py>(
     py: Python<'py>,
     scenario: Option<PyRef<'py, PyScenario>>,
     controller: Option<&str>,
     payload: Option<f64>,
-    dof: u8,
+    dof: i64,
     duration: Option<f64>,
     formulation: Option<&str>,
     trace: bool,
+    cancel: Option<PyRef<'py, CancelToken>>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let base = scenario.map_or_else(Scenario::default, |s| s.inner.clone());
-    let s = overrides(&base, dof, controller, formulation, payload, duration)?;
-    let (summary, cols) = py
-        .detach(|| run(&s, dof, trace))
-        .map_err(RunError::new_err)?;
-    let d = summary_dict(py, &summary)?;
-    if let Some(c) = cols {
-        d.set_item("trace", c.into_dict(py)?)?;
-    }
-    Ok(d)
+    catch(|| {
+        let dof = dof_arg(dof)?;
+        let base = scenario.map_or_else(Scenario::default, |s| s.inner.clone());
+        let s = overrides(&base, dof, controller, formulation, payload, duration)?;
+        let n = usize::from(dof);
+        let scenarios = memory::scenario_count(&s);
+        let arg = if duration.is_some() {
+            "duration"
+        } else {
+            duration_key(dof)
+        };
+        let (per_step, hint) = if trace {
+            (
+                memory::trace_per_step(n, scenarios) + memory::METRICS_PER_STEP,
+                "pass trace=False (the summary alone keeps 16 B per step), a shorter duration \
+                 or a longer timing.dt",
+            )
+        } else {
+            (
+                memory::METRICS_PER_STEP,
+                "use a shorter duration or a longer timing.dt",
+            )
+        };
+        memory::check(arg, &s, dof, per_step, 1, hint)?;
+        let mut cols = if trace {
+            Some(Columns::with_capacity(s.control_steps(n), n, scenarios)?)
+        } else {
+            None
+        };
+        let out = interruptible(py, cancel.as_deref(), |stop| {
+            run(&s, dof, cols.as_mut(), stop)
+        })?;
+        let summary = match out {
+            Outcome::Done(r) => r.map_err(RunError::new_err)?,
+            Outcome::Cancelled => return Err(cancelled("simulate")),
+        };
+        let d = summary_dict(py, &summary)?;
+        if let Some(c) = cols {
+            d.set_item("trace", c.into_dict(py)?)?;
+        }
+        Ok(d)
+    })
 }
+
+/// Most threads `run_many` accepts.
+const MAX_THREADS: i64 = 1024;
 
 /// Runs every scenario of `scenarios` (in parallel on `threads` threads, default all cores,
 /// with the GIL released) and returns their summaries in order. With ``errors="raise"`` the
 /// first failed run raises ``RunError``; with ``errors="return"`` a failed run's entry is
-/// ``{"error": message}``.
+/// ``{"error": message}``. Ctrl-C raises ``KeyboardInterrupt`` (the runs stop between two
+/// control steps); ``cancel`` stops them from another thread (``RunError``).
 #[pyfunction]
-#[pyo3(signature = (scenarios, *, dof = 2, threads = None, errors = "raise"))]
+#[pyo3(signature = (scenarios, *, dof = 2, threads = None, errors = "raise", cancel = None))]
 pub fn run_many<'py>(
     py: Python<'py>,
     scenarios: Vec<PyRef<'py, PyScenario>>,
-    dof: u8,
-    threads: Option<usize>,
+    dof: i64,
+    threads: Option<i64>,
     errors: &str,
+    cancel: Option<PyRef<'py, CancelToken>>,
 ) -> PyResult<Vec<Bound<'py, PyDict>>> {
-    if dof != 1 && dof != 2 {
-        return Err(ConfigError::new_err(format!(
-            "dof: {dof} (allowed: 1 or 2)"
-        )));
-    }
+    catch(|| run_many_impl(py, scenarios, dof, threads, errors, cancel))
+}
+
+fn run_many_impl<'py>(
+    py: Python<'py>,
+    scenarios: Vec<PyRef<'py, PyScenario>>,
+    dof: i64,
+    threads: Option<i64>,
+    errors: &str,
+    cancel: Option<PyRef<'py, CancelToken>>,
+) -> PyResult<Vec<Bound<'py, PyDict>>> {
+    let dof = dof_arg(dof)?;
     let raise = match errors {
         "raise" => true,
         "return" => false,
@@ -232,15 +328,46 @@ pub fn run_many<'py>(
             )))
         }
     };
-    if threads == Some(0) {
-        return Err(ConfigError::new_err("threads: 0 (allowed: >= 1)"));
-    }
+    let threads = match threads {
+        None => None,
+        Some(n) if (1..=MAX_THREADS).contains(&n) => Some(n as usize),
+        Some(n) => {
+            return Err(ConfigError::new_err(format!(
+                "threads: {n} (allowed: 1 to {MAX_THREADS}, or None for all cores)"
+            )))
+        }
+    };
     let list: Vec<Scenario> = scenarios.iter().map(|s| s.inner.clone()).collect();
-    let results: Vec<Result<Summary, String>> = py.detach(|| {
+    // The summaries of the runs in flight keep their step times: check the longest run.
+    let at_once = threads
+        .unwrap_or_else(rayon::current_num_threads)
+        .min(list.len());
+    if let Some((i, s)) = list
+        .iter()
+        .enumerate()
+        .rev() // the first of the longest
+        .max_by_key(|(_, s)| s.control_steps(usize::from(dof)))
+    {
+        memory::check(
+            &format!("scenarios[{i}]: {}", duration_key(dof)),
+            s,
+            dof,
+            memory::METRICS_PER_STEP,
+            at_once as u64,
+            "use shorter durations, a longer timing.dt or fewer threads",
+        )?;
+    }
+    let out = interruptible(py, cancel.as_deref(), |stop| {
         let go = || {
             list.par_iter()
-                .map(|s| run(s, dof, false).map(|(summary, _)| summary))
-                .collect()
+                .map(|s| {
+                    if stop() {
+                        Err("not run: stopped".to_string())
+                    } else {
+                        run(s, dof, None, stop)
+                    }
+                })
+                .collect::<Vec<Result<Summary, String>>>()
         };
         match threads {
             Some(n) => rayon::ThreadPoolBuilder::new()
@@ -250,7 +377,11 @@ pub fn run_many<'py>(
                 .unwrap_or_else(|_| go()),
             None => go(),
         }
-    });
+    })?;
+    let results = match out {
+        Outcome::Done(r) => r,
+        Outcome::Cancelled => return Err(cancelled("run_many")),
+    };
     results
         .into_iter()
         .enumerate()
@@ -294,7 +425,9 @@ fn parts<D: Dof<N>, const N: usize>(s: &Scenario) -> (Plant<N, D::Traj>, Sensors
 /// ``advance(torque)`` (the torque held over one control period).
 ///
 /// ``Simulator(s)`` driven by ``Controller(s)`` reproduces ``simulate(s)`` step for step.
-#[pyclass(module = "exompc", name = "Simulator", unsendable)]
+///
+/// Thread-safe: it may be passed to and used from any thread (its calls hold the GIL).
+#[pyclass(module = "exompc", name = "Simulator")]
 pub struct PySimulator {
     inner: Loop,
     steps: usize,
@@ -315,22 +448,26 @@ impl PySimulator {
     /// The plant of `scenario` (default: the default scenario) in the `dof` layout.
     #[new]
     #[pyo3(signature = (scenario = None, *, dof = 2))]
-    fn new(scenario: Option<PyRef<'_, PyScenario>>, dof: u8) -> PyResult<Self> {
-        let s = scenario.map_or_else(Scenario::default, |s| s.inner.clone());
-        let s = overrides(&s, dof, None, None, None, None)?;
-        s.validate()
-            .map_err(|e| ConfigError::new_err(e.to_string()))?;
-        let inner = if dof == 1 {
-            let (p, se) = parts::<OneDof, 1>(&s);
-            Loop::One(p, se)
-        } else {
-            let (p, se) = parts::<TwoDof, 2>(&s);
-            Loop::Two(p, se)
-        };
-        Ok(PySimulator {
-            inner,
-            steps: s.control_steps(usize::from(dof)),
-            dt: s.timing.dt,
+    fn new(scenario: Option<PyRef<'_, PyScenario>>, dof: i64) -> PyResult<Self> {
+        catch(|| {
+            let dof = dof_arg(dof)?;
+            let s = scenario.map_or_else(Scenario::default, |s| s.inner.clone());
+            s.validate()
+                .map_err(|e| ConfigError::new_err(e.to_string()))?;
+            s.check_trajectory(usize::from(dof))
+                .map_err(|e| ConfigError::new_err(e.to_string()))?;
+            let inner = if dof == 1 {
+                let (p, se) = parts::<OneDof, 1>(&s);
+                Loop::One(p, se)
+            } else {
+                let (p, se) = parts::<TwoDof, 2>(&s);
+                Loop::Two(p, se)
+            };
+            Ok(PySimulator {
+                inner,
+                steps: s.control_steps(usize::from(dof)),
+                dt: s.timing.dt,
+            })
         })
     }
 
@@ -348,87 +485,131 @@ impl PySimulator {
 
     /// Current time (s).
     #[getter]
-    fn t(&mut self) -> f64 {
-        with_loop!(self, p, _s, p.time())
+    fn t(&mut self) -> PyResult<f64> {
+        catch(|| Ok(with_loop!(self, p, _s, p.time())))
     }
 
     /// Samples the sensors at the current time; returns the filtered ``(t, q, qd, force)``
     /// (numpy float64 arrays). Call once per period: the filters advance on every call.
-    fn measure<'py>(&mut self, py: Python<'py>) -> Sample<'py> {
-        with_loop!(self, p, s, {
-            let st = *p.state();
-            let (_raw, m) = s.read(p.time(), &st.robot.q, &st.robot.qd, &p.strap_force());
-            (m.t, array(py, &m.q), array(py, &m.qd), array(py, &m.force))
+    fn measure<'py>(&mut self, py: Python<'py>) -> PyResult<Sample<'py>> {
+        catch(|| {
+            Ok(with_loop!(self, p, s, {
+                let st = *p.state();
+                let (_raw, m) = s.read(p.time(), &st.robot.q, &st.robot.qd, &p.strap_force());
+                (m.t, array(py, &m.q), array(py, &m.qd), array(py, &m.force))
+            }))
         })
     }
 
     /// Advances the plant by one control period with robot torque `torque` (N·m) held.
     fn advance(&mut self, torque: &Bound<'_, PyAny>) -> PyResult<()> {
-        match &mut self.inner {
-            Loop::One(p, _) => p.step(&vector::<1>("torque", torque)?),
-            Loop::Two(p, _) => p.step(&vector::<2>("torque", torque)?),
-        }
-        Ok(())
+        catch(|| {
+            match &mut self.inner {
+                Loop::One(p, _) => p.step(&vector::<1>("torque", torque)?),
+                Loop::Two(p, _) => p.step(&vector::<2>("torque", torque)?),
+            }
+            Ok(())
+        })
     }
 
     /// The true state: dict of robot and human angles/velocities, desired angles, true strap
     /// forces and human torque (numpy arrays).
     fn state<'py>(&mut self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let d = PyDict::new(py);
-        with_loop!(self, p, _s, {
-            let st = *p.state();
-            d.set_item("t", p.time())?;
-            d.set_item("q_robot", array(py, &st.robot.q))?;
-            d.set_item("qd_robot", array(py, &st.robot.qd))?;
-            d.set_item("q_human", array(py, &st.human.q))?;
-            d.set_item("qd_human", array(py, &st.human.qd))?;
-            d.set_item("q_desired", array(py, &p.trajectory().eval(p.time()).0))?;
-            d.set_item("force_true", array(py, &p.strap_force()))?;
-            d.set_item("torque_human", array(py, &p.human_torque()))?;
-        });
-        Ok(d)
+        catch(|| {
+            let d = PyDict::new(py);
+            with_loop!(self, p, _s, {
+                let st = *p.state();
+                d.set_item("t", p.time())?;
+                d.set_item("q_robot", array(py, &st.robot.q))?;
+                d.set_item("qd_robot", array(py, &st.robot.qd))?;
+                d.set_item("q_human", array(py, &st.human.q))?;
+                d.set_item("qd_human", array(py, &st.human.qd))?;
+                d.set_item("q_desired", array(py, &p.trajectory().eval(p.time()).0))?;
+                d.set_item("force_true", array(py, &p.strap_force()))?;
+                d.set_item("torque_human", array(py, &p.human_torque()))?;
+            });
+            Ok(d)
+        })
     }
 }
 
 /// The operating-envelope scan of `exompc envelope` (classification of every run and the
 /// per-cell verdict of MS-NMPC against NMPC), as its JSON text (`envelope.json`). `sets` are
 /// `key=v1,v2` grids (their Cartesian product); without them the standard envelope runs.
-/// The GIL is released during the scan.
+/// The scan runs with the GIL released; Ctrl-C raises ``KeyboardInterrupt`` and ``cancel``
+/// stops it from another thread (``RunError``).
 #[pyfunction]
-#[pyo3(signature = (scenario = None, *, sets = Vec::new(), payloads = None, controllers = None, dof = 2, monitors = true))]
-pub fn envelope_json(
-    py: Python<'_>,
-    scenario: Option<PyRef<'_, PyScenario>>,
+#[pyo3(signature = (scenario = None, *, sets = Vec::new(), payloads = None, controllers = None, dof = 2, monitors = true, cancel = None))]
+#[allow(clippy::too_many_arguments)]
+pub fn envelope_json<'py>(
+    py: Python<'py>,
+    scenario: Option<PyRef<'py, PyScenario>>,
     sets: Vec<String>,
     payloads: Option<Vec<f64>>,
     controllers: Option<Vec<String>>,
-    dof: u8,
+    dof: i64,
     monitors: bool,
+    cancel: Option<PyRef<'py, CancelToken>>,
 ) -> PyResult<String> {
-    use exompc_cli::envelope::{scan, without_monitors, Grid};
-    let mut base = scenario.map_or_else(Scenario::default, |s| s.inner.clone());
-    if !monitors {
-        base = without_monitors(&base);
-    }
-    let mut grid = if sets.is_empty() {
-        Grid::standard()
-    } else {
-        Grid::product(&sets, dof, vec![0.0, 1.0, 2.0, 3.0], vec![])
-            .map_err(|e| ConfigError::new_err(e.to_string()))?
-    };
-    if let Some(p) = payloads {
-        grid.payloads_kg = p;
-    }
-    match controllers {
-        Some(c) => grid.controllers = c,
-        None if grid.controllers.is_empty() => {
-            grid.controllers = vec!["nmpc".into(), "msnmpc".into()]
+    use exompc_cli::envelope::{scan_until, without_monitors, Grid};
+    catch(|| {
+        let dof = dof_arg(dof)?;
+        let mut base = scenario.map_or_else(Scenario::default, |s| s.inner.clone());
+        if !monitors {
+            base = without_monitors(&base);
         }
-        None => {}
-    }
-    let criteria = exompc::sim::StabilityCriteria::default();
-    let env = py
-        .detach(|| scan(&base, &grid, &criteria, &|| {}))
-        .map_err(|e| ConfigError::new_err(e.to_string()))?;
-    serde_json::to_string(&env).map_err(|e| RunError::new_err(e.to_string()))
+        let mut grid = if sets.is_empty() {
+            Grid::standard()
+        } else {
+            Grid::product(&sets, dof, vec![0.0, 1.0, 2.0, 3.0], vec![])
+                .map_err(|e| ConfigError::new_err(e.to_string()))?
+        };
+        if let Some(p) = payloads {
+            grid.payloads_kg = p;
+        }
+        match controllers {
+            Some(c) => grid.controllers = c,
+            None if grid.controllers.is_empty() => {
+                grid.controllers = vec!["nmpc".into(), "msnmpc".into()]
+            }
+            None => {}
+        }
+        // Every run in flight keeps its whole trace (for the stability classification; the
+        // multi-stage runs' probabilities on the heap).
+        let mut longest: Option<(u64, String, Scenario, u8)> = None;
+        for cell in &grid.cells {
+            let s = Grid::scenario(&base, cell).map_err(|e| ConfigError::new_err(e.to_string()))?;
+            let steps = s.control_steps(usize::from(cell.dof.clamp(1, 2))) as u64;
+            if longest.as_ref().is_none_or(|l| steps > l.0) {
+                longest = Some((steps, cell.name.clone(), s, cell.dof.clamp(1, 2)));
+            }
+        }
+        let jobs = grid.cells.len() * grid.payloads_kg.len() * grid.controllers.len();
+        if let Some((_, name, s, d)) = longest {
+            let row = if d == 1 {
+                std::mem::size_of::<exompc::sim::TraceRow<1>>()
+            } else {
+                std::mem::size_of::<exompc::sim::TraceRow<2>>()
+            };
+            let per_step = (row + 8 * exompc::config::scenarios::count(&s) + 32) as u64
+                + memory::METRICS_PER_STEP;
+            memory::check(
+                &format!("cell `{name}`: {}", duration_key(d)),
+                &s,
+                d,
+                per_step,
+                rayon::current_num_threads().min(jobs) as u64,
+                "use a shorter duration or a longer timing.dt",
+            )?;
+        }
+        let criteria = exompc::sim::StabilityCriteria::default();
+        let out = interruptible(py, cancel.as_deref(), |stop| {
+            scan_until(&base, &grid, &criteria, &|| {}, stop)
+        })?;
+        let env = match out {
+            Outcome::Done(r) => r.map_err(|e| ConfigError::new_err(e.to_string()))?,
+            Outcome::Cancelled => return Err(cancelled("envelope")),
+        };
+        serde_json::to_string(&env).map_err(|e| RunError::new_err(e.to_string()))
+    })
 }

@@ -209,7 +209,7 @@ def test_bad_values_raise_naming_the_field():
         exompc.simulate(dof=3)
     with pytest.raises(exompc.ConfigError, match="human.height_m: expected a number"):
         exompc.Scenario.from_toml("[human]\nheight_m = 'tall'\n")
-    with pytest.raises(exompc.ConfigError, match="cannot read config file"):
+    with pytest.raises(FileNotFoundError, match="cannot read scenario file"):
         exompc.Scenario.load("/nonexistent/scenario.toml")
     with pytest.raises(exompc.ConfigError, match="controller.kind"):
         exompc.Controller(s, "lqr")

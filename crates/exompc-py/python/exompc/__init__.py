@@ -8,7 +8,15 @@ scans and Monte Carlo studies on a local thread pool or on Ray.
 >>> s = exompc.Scenario.default()
 >>> r = exompc.simulate(s)
 >>> r["rms_force_n"]            # doctest: +SKIP
-{'thigh': 2.23..., 'shank': 4.90...}
+{'thigh': 1.53..., 'shank': 2.44...}
+
+Errors are Python exceptions of documented classes, never a crash of the interpreter:
+``ConfigError`` (a ``ValueError``) for a bad argument, key or value (including a run too long
+for the memory available), ``TypeError`` for an argument of the wrong type, ``OSError``
+(``FileNotFoundError``, ``PermissionError``, ...) for files, ``RunError`` (a
+``RuntimeError``) for a run that cannot complete or was cancelled, ``RuntimeError`` for a
+``Controller`` used from another thread than its own, and ``KeyboardInterrupt`` when Ctrl-C
+stops a long call (the process stays usable). See docs/PYTHON.md.
 """
 
 from __future__ import annotations
@@ -21,6 +29,7 @@ import numpy as np
 from . import _core
 from ._core import (
     STATUS_NAMES,
+    CancelToken,
     ConfigError,
     Controller,
     RunError,
@@ -34,6 +43,7 @@ from .montecarlo import Choice, Normal, Uniform, draw_parameters, montecarlo, su
 
 __all__ = [
     "STATUS_NAMES",
+    "CancelToken",
     "Choice",
     "ConfigError",
     "Controller",
@@ -69,6 +79,7 @@ def simulate(
     duration: Optional[float] = None,
     formulation: Optional[str] = None,
     trace: bool = True,
+    cancel: Optional[CancelToken] = None,
 ) -> Dict[str, Any]:
     """Run one closed-loop experiment; return its summary dict (+ ``"trace"`` columns).
 
@@ -81,6 +92,11 @@ def simulate(
     ``(steps, S)`` and ``disturbances`` ``(steps, S, dof)`` for the multi-stage controller,
     ``status`` (strings), ``status_code``, ``iterations``, ``step_time_us``,
     ``within_limits``. The GIL is released while the simulation runs.
+
+    Raises ``ConfigError`` (a ``ValueError``) for a bad argument, or a run whose trace would
+    not fit in 80 % of the available memory (the message names the limit; ``trace=False``
+    needs 16 B per step); ``RunError`` if the plant diverges or ``cancel`` (a
+    :class:`CancelToken`) is cancelled; ``KeyboardInterrupt`` on Ctrl-C (within about 50 ms).
     """
     out = _core.simulate(
         scenario,
@@ -90,6 +106,7 @@ def simulate(
         duration=duration,
         formulation=formulation,
         trace=trace,
+        cancel=cancel,
     )
     tr = out.get("trace")
     if tr is not None:
@@ -127,17 +144,19 @@ def sweep(
     *,
     dof: int = 2,
     threads: Optional[int] = None,
+    cancel: Optional[CancelToken] = None,
 ) -> List[Dict[str, Any]]:
     """Every payload x controller run of ``scenario`` in parallel (like ``exompc sweep``).
 
     Returns one summary dict per run, payload-major in the order given, then controllers.
+    Ctrl-C raises ``KeyboardInterrupt``; ``cancel`` stops it from another thread (``RunError``).
     """
     base = scenario if scenario is not None else Scenario.default()
     runs = []
     for p in payloads:
         for c in controllers:
             runs.append(base.replace({"uncertainty.payload_kg": float(p), "controller.kind": c}))
-    return run_many(runs, dof=dof, threads=threads)
+    return run_many(runs, dof=dof, threads=threads, cancel=cancel)
 
 
 def scan(
@@ -147,6 +166,7 @@ def scan(
     dof: int = 2,
     threads: Optional[int] = None,
     errors: str = "return",
+    cancel: Optional[CancelToken] = None,
 ) -> Dict[str, np.ndarray]:
     """Envelope scan: every combination of the dotted-key values in ``grid``, run in parallel.
 
@@ -172,7 +192,7 @@ def scan(
             if errors == "raise":
                 raise
             rows[i]["error"] = str(e)
-    for i, r in zip(valid, run_many(runs, dof=dof, threads=threads, errors=errors)):
+    for i, r in zip(valid, run_many(runs, dof=dof, threads=threads, errors=errors, cancel=cancel)):
         rows[i].update(summary_row(r))
     return _table(rows)
 
@@ -185,6 +205,7 @@ def envelope(
     controllers: Optional[Sequence[str]] = None,
     dof: int = 2,
     monitors: bool = True,
+    cancel: Optional[CancelToken] = None,
 ) -> Dict[str, Any]:
     """The operating-envelope scan of ``exompc envelope`` (docs/ROBUSTNESS.md).
 
@@ -193,6 +214,7 @@ def envelope(
     (stable / limit_cycle / growing / saturating) and every cell judged (MS-NMPC against NMPC).
     Returns the content of ``envelope.json`` as a dict: ``grid``, ``runs``, ``verdicts``.
     ``monitors=False`` scans the bare controller (safety monitors out of reach).
+    Ctrl-C raises ``KeyboardInterrupt``; ``cancel`` stops it from another thread (``RunError``).
     """
     import json
 
@@ -204,6 +226,7 @@ def envelope(
         controllers=None if controllers is None else list(controllers),
         dof=dof,
         monitors=monitors,
+        cancel=cancel,
     )
     return json.loads(text)
 

@@ -6,6 +6,7 @@ import numpy as np
 
 from ._core import (
     STATUS_NAMES as STATUS_NAMES,
+    CancelToken as CancelToken,
     ConfigError as ConfigError,
     Controller as Controller,
     RunError as RunError,
@@ -34,6 +35,7 @@ def simulate(
     duration: Optional[float] = None,
     formulation: Optional[str] = None,
     trace: bool = True,
+    cancel: Optional[CancelToken] = None,
 ) -> Dict[str, Any]: ...
 
 class MultiStage(Controller):
@@ -52,6 +54,7 @@ def sweep(
     *,
     dof: int = 2,
     threads: Optional[int] = None,
+    cancel: Optional[CancelToken] = None,
 ) -> List[Dict[str, Any]]: ...
 def scan(
     grid: Mapping[str, Iterable[Any]],
@@ -60,6 +63,7 @@ def scan(
     dof: int = 2,
     threads: Optional[int] = None,
     errors: str = "return",
+    cancel: Optional[CancelToken] = None,
 ) -> Dict[str, np.ndarray]: ...
 def table2(rows: Sequence[Mapping[str, Any]]) -> str: ...
 
@@ -71,4 +75,5 @@ def envelope(
     controllers: Optional[Sequence[str]] = None,
     dof: int = 2,
     monitors: bool = True,
+    cancel: Optional[CancelToken] = None,
 ) -> Dict[str, Any]: ...

@@ -13,10 +13,20 @@ FloatVec = Union[npt.NDArray[np.float64], Sequence[float], float]
 Status = Literal["ok", "max_iterations", "max_time", "solver_failed", "bad_measurement", "monitor_tripped"]
 
 class ConfigError(ValueError):
-    """A scenario value, key or argument is invalid; the message names the field and range."""
+    """A scenario value, key or argument is invalid (or a run too long for the memory
+    available); the message names the field and its allowed range or the limit."""
 
 class RunError(RuntimeError):
-    """A run could not complete (e.g. the simulated plant diverged)."""
+    """A run could not complete (the simulated plant diverged) or was cancelled."""
+
+class CancelToken:
+    """Stops the long calls it is passed to (``cancel=``) between two control steps, from any
+    thread; they raise ``RunError``. A cancelled token stays cancelled."""
+
+    def __init__(self) -> None: ...
+    def cancel(self) -> None: ...
+    @property
+    def cancelled(self) -> bool: ...
 
 class Scenario:
     """A complete, validated scenario; keys are dotted paths such as ``"uncertainty.payload_kg"``."""
@@ -44,7 +54,10 @@ class Scenario:
     def __eq__(self, other: object) -> bool: ...
 
 class Controller:
-    """A feedback controller of the scenario with one ``step`` call per control period."""
+    """A feedback controller of the scenario with one ``step`` call per control period.
+
+    Bound to the thread that created it: a call from another thread raises ``RuntimeError``.
+    """
 
     def __init__(
         self,
@@ -77,7 +90,7 @@ class Controller:
     def previous_torque(self) -> npt.NDArray[np.float64]: ...
 
 class Simulator:
-    """The simulated plant and sensor chain, to close the loop from Python."""
+    """The simulated plant and sensor chain, to close the loop from Python (thread-safe)."""
 
     def __init__(self, scenario: Optional[Scenario] = None, *, dof: Literal[1, 2] = 2) -> None: ...
     @property
@@ -101,6 +114,7 @@ def simulate(
     duration: Optional[float] = None,
     formulation: Optional[str] = None,
     trace: bool = True,
+    cancel: Optional[CancelToken] = None,
 ) -> Dict[str, Any]: ...
 def run_many(
     scenarios: Sequence[Scenario],
@@ -108,6 +122,7 @@ def run_many(
     dof: int = 2,
     threads: Optional[int] = None,
     errors: Literal["raise", "return"] = "raise",
+    cancel: Optional[CancelToken] = None,
 ) -> List[Dict[str, Any]]: ...
 def default_config_toml() -> str: ...
 def envelope_json(
@@ -118,4 +133,7 @@ def envelope_json(
     controllers: Optional[Sequence[str]] = None,
     dof: int = 2,
     monitors: bool = True,
+    cancel: Optional[CancelToken] = None,
 ) -> str: ...
+def _raise_panic(message: str, in_run: bool = False) -> None:
+    """Internal: raises a Rust panic to test that it arrives as ``RuntimeError``."""

@@ -169,10 +169,12 @@ class _Progress:
         sys.stderr.flush()
 
 
-def _run_one(scenario: "_core.Scenario", dof: int) -> Dict[str, Any]:
+def _run_one(
+    scenario: "_core.Scenario", dof: int, cancel: Optional["_core.CancelToken"] = None
+) -> Dict[str, Any]:
     """One draw (in a worker): the flattened summary, or the error message."""
     try:
-        return summary_row(_core.simulate(scenario, dof=dof, trace=False))
+        return summary_row(_core.simulate(scenario, dof=dof, trace=False, cancel=cancel))
     except (_core.RunError, _core.ConfigError) as e:
         return {"error": str(e)}
 
@@ -222,6 +224,10 @@ def montecarlo(
 
     Columns: ``draw``, one per parameter key, then :func:`summary_row`'s columns.
     ``pandas.DataFrame(table)`` and ``polars.DataFrame(table)`` take it directly.
+
+    Ctrl-C raises ``KeyboardInterrupt`` within about a second: the local backend stops its
+    running draws between two control steps and drops the queued ones; the Ray backend
+    cancels its pending tasks.
     """
     if backend not in ("local", "ray"):
         raise ValueError(f"backend: {backend!r} (allowed: 'local' or 'ray')")
@@ -253,11 +259,20 @@ def montecarlo(
     results: Dict[int, Dict[str, Any]] = {}
     if backend == "local":
         n = workers or os.cpu_count() or 1
-        with cf.ThreadPoolExecutor(max_workers=n) as pool:
-            futs = {pool.submit(_run_one, scenarios[i], dof): i for i in todo}
+        stop = _core.CancelToken()
+        pool = cf.ThreadPoolExecutor(max_workers=n)
+        try:
+            futs = {pool.submit(_run_one, scenarios[i], dof, stop): i for i in todo}
             for f in cf.as_completed(futs):
                 results[futs[f]] = f.result()
                 bar.update()
+        except BaseException:
+            # Ctrl-C (or any error) in this thread: the running draws stop between two
+            # control steps, the queued ones are dropped.
+            stop.cancel()
+            raise
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
     else:
         results = _run_ray(todo, scenarios, dof, bar, ray_address)
     for i, r in results.items():
@@ -283,11 +298,18 @@ def _run_ray(
     refs = {remote.remote(scenarios[i], dof): i for i in todo}
     results: Dict[int, Dict[str, Any]] = {}
     pending = list(refs)
-    while pending:
-        done, pending = ray.wait(pending, num_returns=min(len(pending), 16), timeout=1.0)
-        for ref, value in zip(done, ray.get(done)):
-            results[refs[ref]] = value
-            bar.update()
+    try:
+        while pending:
+            done, pending = ray.wait(pending, num_returns=min(len(pending), 16), timeout=1.0)
+            for ref, value in zip(done, ray.get(done)):
+                results[refs[ref]] = value
+                bar.update()
+    except BaseException:
+        # Ctrl-C: the tasks not finished yet are cancelled (a running one gets its own
+        # KeyboardInterrupt and stops between two control steps).
+        for ref in pending:
+            ray.cancel(ref)
+        raise
     return results
 
 
@@ -298,12 +320,17 @@ def write_csv(table: Mapping[str, np.ndarray], path: str) -> None:
     keys = list(table)
     n = len(next(iter(table.values()))) if keys else 0
     tmp = f"{path}.tmp.{os.getpid()}"
-    with open(tmp, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(keys)
-        for i in range(n):
-            w.writerow([_cell(table[k][i]) for k in keys])
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(keys)
+            for i in range(n):
+                w.writerow([_cell(table[k][i]) for k in keys])
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
 
 
 def _cell(v: Any) -> Any:

@@ -51,6 +51,25 @@ pub trait Recorder<const N: usize> {
     fn record(&mut self, r: &StepRecord<'_, N>) -> std::io::Result<()>;
 }
 
+/// A recorder that ends the run between two control steps once `stop()` returns true (checked
+/// once per step, before the plant advances), with an I/O error of kind
+/// [`std::io::ErrorKind::Interrupted`]: the hook to cancel a long run from outside (Ctrl-C, a
+/// cancel button, a deadline), e.g. `StopWhen(|| flag.load(Ordering::Relaxed))`.
+pub struct StopWhen<F: Fn() -> bool>(pub F);
+
+impl<const N: usize, F: Fn() -> bool> Recorder<N> for StopWhen<F> {
+    fn record(&mut self, _r: &StepRecord<'_, N>) -> std::io::Result<()> {
+        if (self.0)() {
+            Err(std::io::Error::new(
+                std::io::ErrorKind::Interrupted,
+                "run stopped on request",
+            ))
+        } else {
+            Ok(())
+        }
+    }
+}
+
 /// One owned row of an in-memory trace.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TraceRow<const N: usize> {
@@ -153,4 +172,48 @@ pub fn run_closed_loop<const N: usize, Tr: Trajectory<N>, C: Controller<N> + ?Si
         plant.step(&out.torque);
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::cell::Cell;
+
+    fn record(k: usize) -> StepRecord<'static, 1> {
+        let z = SVector::<f64, 1>::zeros();
+        let js = JointState { q: z, qd: z };
+        StepRecord {
+            k,
+            t: k as f64 * 0.01,
+            robot: js,
+            human: js,
+            desired: z,
+            torque_robot: z,
+            torque_prev: z,
+            torque_human: z,
+            force_true: z,
+            force_measured: z,
+            probabilities: None,
+            disturbances: None,
+            status: StepStatus::Ok,
+            iterations: 0,
+            step_time_us: 0.0,
+            within_limits: true,
+        }
+    }
+
+    #[test]
+    fn stop_when_ends_the_run_once_asked() {
+        let calls = Cell::new(0);
+        let mut stop = StopWhen(|| {
+            calls.set(calls.get() + 1);
+            calls.get() > 3
+        });
+        for k in 0..3 {
+            assert!(Recorder::<1>::record(&mut stop, &record(k)).is_ok());
+        }
+        let e = Recorder::<1>::record(&mut stop, &record(3)).unwrap_err();
+        assert_eq!(e.kind(), std::io::ErrorKind::Interrupted);
+        assert_eq!(calls.get(), 4, "checked exactly once per step");
+    }
 }

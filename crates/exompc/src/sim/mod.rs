@@ -19,7 +19,7 @@ mod trajectory;
 mod uncertainty;
 
 pub use crate::check::InvalidField;
-pub use closed_loop::{run_closed_loop, Recorder, StepRecord, TraceLog, TraceRow};
+pub use closed_loop::{run_closed_loop, Recorder, StepRecord, StopWhen, TraceLog, TraceRow};
 pub use demand::{actuator_demand, required_torque, ActuatorDemand};
 pub use faults::{
     channel_index, default_schedule, repeat_schedule, Channel, FaultEvent, FaultInjector,
