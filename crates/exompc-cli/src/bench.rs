@@ -8,6 +8,7 @@ use exompc::control::QpBackend;
 use exompc::scenario::{build_controller, plant_params, uncertainty, Dof, TwoDof};
 use exompc::sim::{Plant, Sensors, StepTimeStats};
 use exompc_cli::error::CliError;
+use exompc_cli::interrupt;
 use serde_json::json;
 use std::time::{Duration, Instant};
 
@@ -49,6 +50,10 @@ fn closed_loop(
     let mut iterations = 0u64;
     let start = Instant::now();
     for k in 0..steps {
+        // SIGINT/SIGTERM: stop here; the report marks the results partial.
+        if interrupt::requested() {
+            break;
+        }
         if let Some(b) = budget {
             let spent = start.elapsed();
             if (k >= 3 && spent > b) || (k >= 1 && spent > 4 * b) {
@@ -164,6 +169,9 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
         (Formulation::Coupled, "coupled"),
     ] {
         for &(np, nc, ns) in &cases {
+            if interrupt::requested() {
+                break;
+            }
             {
                 let mut s = variant(&base, ControllerKind::MSNMPC, formulation);
                 s.controller.np = np;
@@ -219,6 +227,15 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
         }
     }
 
+    let partial = interrupt::requested();
+    let interrupted = || {
+        CliError::Interrupted(format!(
+            "interrupted by {}: the timings above are partial ({} of {} scaling rows)",
+            interrupt::signal_name(),
+            rows.len(),
+            2 * cases.len()
+        ))
+    };
     if as_json {
         let stat = |l: &LoopStats| {
             json!({
@@ -267,9 +284,13 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
             "msnmpc_coupled": stat(&msc),
             "sim_speed": ms.sim_speed,
             "scaling": scaling,
+            "partial": partial,
         });
         println!("{out}");
-        return Ok(());
+        return if partial { Err(interrupted()) } else { Ok(()) };
+    }
+    if partial {
+        println!("partial: interrupted, the timings below cover the steps run before it");
     }
 
     println!(
@@ -354,6 +375,9 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
             rti_p50,
             r.stats.steps
         );
+    }
+    if partial {
+        return Err(interrupted());
     }
     Ok(())
 }

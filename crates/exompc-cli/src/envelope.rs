@@ -11,7 +11,7 @@ use exompc::config::{ControllerKind, Scenario};
 use exompc::control::{MonitorAction, SafetyReport};
 use exompc::scenario::{gait_demand, limits, run_experiment_report, OneDof, TwoDof};
 use exompc::sim::{
-    cell_verdict, classify_run, ActuatorDemand, CellVerdict, RunClass, RunStability,
+    cell_verdict, classify_run, ActuatorDemand, CellVerdict, Recorder, RunClass, RunStability,
     StabilityCriteria, Summary, TraceLog,
 };
 use rayon::prelude::*;
@@ -310,6 +310,10 @@ pub struct Envelope {
     /// What each (cell, payload)'s gait asks of the actuator, cell-major.
     #[serde(default)]
     pub demands: Vec<EnvelopeDemand>,
+    /// The scan was interrupted (SIGINT/SIGTERM): the runs not completed carry the error
+    /// `not run (interrupted)` and count as failed.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub partial: bool,
 }
 
 impl Envelope {
@@ -340,27 +344,46 @@ fn first_trip(rep: &SafetyReport) -> Option<f64> {
         .map(|e| e.t)
 }
 
+/// The error of a run a SIGINT/SIGTERM stopped or kept from starting.
+const NOT_RUN: &str = "not run (interrupted)";
+
 fn run_one(
     s: &Scenario,
     dof: u8,
     c: &StabilityCriteria,
 ) -> Result<(Summary, RunStability, SafetyReport), String> {
+    if crate::interrupt::requested() {
+        return Err(NOT_RUN.into());
+    }
     let lim = limits(s);
     let dt = s.timing.dt;
-    match dof {
+    let mut stop = crate::interrupt::StopOnInterrupt;
+    let planned = s.control_steps(usize::from(dof));
+    let (sum, rep, stability) = match dof {
         1 => {
             let mut log = TraceLog::<1>::default();
-            let (sum, rep) = run_experiment_report::<OneDof, 1>(s, &mut [&mut log])
-                .map_err(|e| e.to_string())?;
-            Ok((sum, classify_run(&log, &lim, dt, c), rep))
+            let (sum, rep) = run_experiment_report::<OneDof, 1>(
+                s,
+                &mut [&mut log as &mut dyn Recorder<1>, &mut stop],
+            )
+            .map_err(|e| e.to_string())?;
+            let st = (sum.steps >= planned).then(|| classify_run(&log, &lim, dt, c));
+            (sum, rep, st)
         }
         _ => {
             let mut log = TraceLog::<2>::default();
-            let (sum, rep) = run_experiment_report::<TwoDof, 2>(s, &mut [&mut log])
-                .map_err(|e| e.to_string())?;
-            Ok((sum, classify_run(&log, &lim, dt, c), rep))
+            let (sum, rep) = run_experiment_report::<TwoDof, 2>(
+                s,
+                &mut [&mut log as &mut dyn Recorder<2>, &mut stop],
+            )
+            .map_err(|e| e.to_string())?;
+            let st = (sum.steps >= planned).then(|| classify_run(&log, &lim, dt, c));
+            (sum, rep, st)
         }
-    }
+    };
+    // A run stopped early by a signal is not classified: it counts as not run.
+    let stability = stability.ok_or_else(|| NOT_RUN.to_string())?;
+    Ok((sum, stability, rep))
 }
 
 /// `s` with the safety monitors out of the way (thresholds beyond reach), to scan the bare
@@ -445,7 +468,9 @@ pub fn scan(
         runs,
         verdicts: Vec::new(),
         demands,
+        partial: false,
     };
+    env.partial = env.runs.iter().any(|r| r.error.as_deref() == Some(NOT_RUN));
     if grid.controllers.iter().any(|c| c == "msnmpc")
         && grid.controllers.iter().any(|c| c == "nmpc")
     {
@@ -491,8 +516,20 @@ fn pair(v: &[f64]) -> String {
 /// The Markdown report (`envelope.md`): one row per (cell, payload).
 pub fn markdown(env: &Envelope) -> String {
     let ctrls = &env.grid.controllers;
-    let mut out =
-        String::from("| cell | payload (kg) | gait needs, peak (N·m) | beyond ±T_max (%) |");
+    let mut out = String::new();
+    if env.partial {
+        let not_run = env
+            .runs
+            .iter()
+            .filter(|r| r.error.as_deref() == Some(NOT_RUN))
+            .count();
+        out += &format!(
+            "Partial: the scan was interrupted; {} of {} runs completed (the others show as failed).\n\n",
+            env.runs.len() - not_run,
+            env.runs.len()
+        );
+    }
+    out += "| cell | payload (kg) | gait needs, peak (N·m) | beyond ±T_max (%) |";
     for c in ctrls {
         out += &format!(
             " {c} RMS F (N) | {c} class | {c} HF % | {c} growth | {c} T-lim % | {c} trips |"

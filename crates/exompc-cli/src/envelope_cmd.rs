@@ -41,6 +41,11 @@ pub(crate) struct EnvelopeArgs {
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
+    /// Replace the results of an earlier scan in the output folder (envelope.json,
+    /// envelope.md, envelope.png, envelope.svg; nothing else). Without it such a folder is
+    /// refused.
+    #[arg(long)]
+    force: bool,
     /// Exit with status 1 when a cell fails the acceptance.
     #[arg(long)]
     check: bool,
@@ -73,7 +78,13 @@ pub(crate) fn run(a: EnvelopeArgs) -> Result<(), CliError> {
         grid.controllers = vec!["nmpc".into(), "msnmpc".into()];
     }
     grid.controllers.dedup();
-    io::ensure_out_dir(&a.out)?;
+    exompc_cli::earlier::refuse_or_clear(
+        &a.out,
+        exompc_cli::earlier::ENVELOPE_FILES,
+        a.force,
+        "envelope scan",
+    )?;
+    let _out_dir = io::prepare_out_dir(&a.out)?;
 
     let total = grid.cells.len() * grid.payloads_kg.len() * grid.controllers.len();
     let target = if a.quiet || !std::io::stderr().is_terminal() {
@@ -113,6 +124,15 @@ pub(crate) fn run(a: EnvelopeArgs) -> Result<(), CliError> {
             .map(|f| format!(", {}", f.display()))
             .collect::<String>()
     );
+    if env.partial {
+        let done = env.runs.iter().filter(|r| r.stability.is_some()).count();
+        return Err(CliError::Interrupted(format!(
+            "interrupted by {}: {done} of {total} runs completed; partial results kept in {} \
+             (envelope.json marked \"partial\": true, envelope.md, heat map)",
+            exompc_cli::interrupt::signal_name(),
+            a.out.display()
+        )));
+    }
     if a.check && !env.failing().is_empty() {
         return Err(CliError::Runtime(format!(
             "{} of {} cells fail the acceptance",

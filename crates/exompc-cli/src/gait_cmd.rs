@@ -38,9 +38,12 @@ struct ExportArgs {
     /// Length (s); default: the scenario's run length of the layout (timing.duration_Ndof_s).
     #[arg(long, value_name = "S")]
     duration: Option<f64>,
-    /// Output CSV file.
+    /// Output CSV file; default `out/gait/gait_<dof>dof.csv`.
     #[arg(long, value_name = "FILE")]
-    out: PathBuf,
+    out: Option<PathBuf>,
+    /// Replace an existing output file (without it, an existing file is refused).
+    #[arg(long)]
+    force: bool,
 }
 
 pub(crate) fn run(a: GaitArgs) -> Result<(), CliError> {
@@ -63,6 +66,25 @@ fn export(a: &ExportArgs) -> Result<(), CliError> {
             "--duration: {duration} s (allowed: finite, > 0, at most 1e8 samples at --rate)"
         )));
     }
+    let out = a
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(format!("out/gait/gait_{}dof.csv", a.dof)));
+    if out.is_dir() {
+        return Err(CliError::Usage(format!(
+            "--out {}: is a folder; give a file name such as {}/walk.csv",
+            out.display(),
+            out.display()
+        )));
+    }
+    if out.exists() && !a.force {
+        return Err(CliError::Usage(format!(
+            "{} already exists: choose another --out, or pass --force to replace it",
+            out.display()
+        )));
+    }
+    let parent = out.parent().filter(|p| !p.as_os_str().is_empty());
+    let _out_dir = parent.map(io::prepare_out_dir).transpose()?;
     let n = (duration * a.rate).round() as usize + 1;
     let times: Vec<f64> = (0..n).map(|k| k as f64 / a.rate).collect();
     let what = match (&s.trajectory.file, a.dof) {
@@ -90,10 +112,10 @@ fn export(a: &ExportArgs) -> Result<(), CliError> {
             gait_csv(&comment, &times, Some(&hip), &knee)
         }
     };
-    io::write_atomic(&a.out, text.as_bytes())?;
+    io::write_atomic(&out, text.as_bytes())?;
     println!(
         "wrote {} ({n} samples, {duration} s at {} Hz)",
-        a.out.display(),
+        out.display(),
         a.rate
     );
     Ok(())

@@ -548,6 +548,44 @@ pub fn ensure_out_dir(dir: &Path) -> Result<(), CliError> {
         .map_err(|e| CliError::Usage(format!("output folder {shown} is not writable: {e}")))
 }
 
+/// An output folder prepared by [`prepare_out_dir`]: the folders it created (parents
+/// included) are removed again when it drops if they are still empty, so a refused or failed
+/// start leaves no empty folder behind (a folder holding any file stays).
+#[derive(Debug)]
+pub struct OutDir {
+    created: Vec<PathBuf>,
+}
+
+impl Drop for OutDir {
+    fn drop(&mut self) {
+        // Deepest first; `remove_dir` fails (and we stop) on a folder that is not empty.
+        for d in self.created.iter().rev() {
+            if fs::remove_dir(d).is_err() {
+                break;
+            }
+        }
+    }
+}
+
+/// [`ensure_out_dir`], remembering which folders it created so that they vanish again if
+/// nothing was written into them (see [`OutDir`]). Keep the guard alive for the whole
+/// command.
+pub fn prepare_out_dir(dir: &Path) -> Result<OutDir, CliError> {
+    let mut missing = Vec::new();
+    let mut p = Some(dir);
+    while let Some(d) = p {
+        if d.as_os_str().is_empty() || d.exists() {
+            break;
+        }
+        missing.push(d.to_path_buf());
+        p = d.parent();
+    }
+    missing.reverse();
+    let guard = OutDir { created: missing };
+    ensure_out_dir(dir)?;
+    Ok(guard)
+}
+
 // ---------------------------------------------------------------------------------------------
 // JSON requests on stdin (`exompc model`, `exompc solve`)
 // ---------------------------------------------------------------------------------------------

@@ -4,7 +4,6 @@
 mod common;
 
 use common::{exompc, fresh_dir};
-use std::process::{Command, Output};
 
 fn text(o: &[u8]) -> String {
     String::from_utf8_lossy(o).into_owned()
@@ -136,67 +135,6 @@ fn entries(dir: &std::path::Path) -> Vec<String> {
         .unwrap_or_default();
     v.sort();
     v
-}
-
-/// Starts exompc, sends SIGINT after 1 s, returns its output.
-#[cfg(unix)]
-fn interrupted(args: &[&str]) -> Output {
-    use std::process::Stdio;
-    let child = Command::new(env!("CARGO_BIN_EXE_exompc"))
-        .args(args)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    std::thread::sleep(std::time::Duration::from_secs(1));
-    // SAFETY: plain kill(2) on our own child.
-    unsafe {
-        libc::kill(child.id() as libc::pid_t, libc::SIGINT);
-    }
-    child.wait_with_output().unwrap()
-}
-
-#[cfg(unix)]
-#[test]
-fn interrupted_simulate_and_sweep_leave_no_temporary_file_or_half_run() {
-    // Runs far longer than 1 s, so the signal arrives mid-run.
-    let dir = fresh_dir("interrupt_simulate");
-    let out = interrupted(&[
-        "simulate",
-        "--duration",
-        "3000",
-        "--out",
-        dir.to_str().unwrap(),
-    ]);
-    assert_eq!(out.status.code(), Some(130), "{}", text(&out.stderr));
-    let err = text(&out.stderr);
-    assert!(err.contains("interrupted"), "{err}");
-    assert!(err.contains("nothing written"), "{err}");
-    assert_eq!(
-        entries(&dir),
-        Vec::<String>::new(),
-        "no temporary trace left"
-    );
-
-    let dir = fresh_dir("interrupt_sweep");
-    let out = interrupted(&[
-        "sweep",
-        "--payloads",
-        "0,1,2",
-        "--duration",
-        "3000",
-        "--quiet",
-        "--out",
-        dir.to_str().unwrap(),
-    ]);
-    assert_eq!(out.status.code(), Some(130), "{}", text(&out.stderr));
-    let err = text(&out.stderr);
-    assert!(err.contains("interrupted: 0 of 6 runs completed"), "{err}");
-    assert_eq!(
-        entries(&dir),
-        Vec::<String>::new(),
-        "no half-written run folder"
-    );
 }
 
 #[test]

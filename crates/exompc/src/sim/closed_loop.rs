@@ -47,8 +47,35 @@ pub struct StepRecord<'a, const N: usize> {
 
 /// Receives every step of a closed loop (a CSV writer, the metrics, an in-memory log ...).
 pub trait Recorder<const N: usize> {
-    /// Record one step; an error stops the run and is returned to the caller.
+    /// Record one step; an error stops the run and is returned to the caller (a
+    /// [`StopRequested`] error ends it early with the results so far instead, see
+    /// [`stop_requested`]).
     fn record(&mut self, r: &StepRecord<'_, N>) -> std::io::Result<()>;
+}
+
+/// The error a [`Recorder`] returns to end a run early on purpose (a user's Ctrl-C): the
+/// experiment drivers ([`crate::scenario::run_experiment`]) then return the summary of the
+/// steps run so far (its `steps` below the planned count) instead of an error.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StopRequested;
+
+impl std::fmt::Display for StopRequested {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("run stopped on request")
+    }
+}
+
+impl std::error::Error for StopRequested {}
+
+/// The I/O error carrying [`StopRequested`], for a [`Recorder`] to return.
+pub fn stop_requested() -> std::io::Error {
+    std::io::Error::other(StopRequested)
+}
+
+/// Whether `e` is the [`stop_requested`] error.
+pub fn is_stop_requested(e: &std::io::Error) -> bool {
+    e.get_ref()
+        .is_some_and(|inner| inner.downcast_ref::<StopRequested>().is_some())
 }
 
 /// One owned row of an in-memory trace.
