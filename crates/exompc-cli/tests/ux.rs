@@ -202,3 +202,72 @@ fn a_key_in_the_wrong_table_is_pointed_to_its_table() {
         assert!(err.contains(want), "{toml}: {err}");
     }
 }
+
+#[test]
+fn refused_starts_leave_no_folder_and_every_writer_refuses_to_overwrite() {
+    // A start refused after the folder was created (a bad grid cell) leaves no empty folder.
+    let dir = fresh_dir("refused_envelope").join("deep/er");
+    let out = exompc(&[
+        "envelope",
+        "--set",
+        "robot.payload_position_m=0.5",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
+    assert!(!dir.parent().unwrap().exists(), "{}", text(&out.stderr));
+
+    // envelope refuses an earlier scan's folder unless --force, naming what it would replace.
+    let dir = fresh_dir("envelope_force");
+    let args = |force: bool| {
+        let mut v = vec![
+            "envelope",
+            "--set",
+            "timing.duration_1dof_s=0.3",
+            "--dof",
+            "1",
+            "--payloads",
+            "0",
+            "--controllers",
+            "pd",
+            "--quiet",
+            "--out",
+            dir.to_str().unwrap(),
+        ];
+        if force {
+            v.push("--force");
+        }
+        v
+    };
+    let first = exompc(&args(false));
+    assert!(first.status.success(), "{}", text(&first.stderr));
+    let again = exompc(&args(false));
+    assert_eq!(again.status.code(), Some(2));
+    let err = text(&again.stderr);
+    assert!(
+        err.contains("envelope.json") && err.contains("--force"),
+        "{err}"
+    );
+    let forced = exompc(&args(true));
+    assert!(forced.status.success(), "{}", text(&forced.stderr));
+
+    // gait export likewise, and creates the folders of its output path.
+    let file = fresh_dir("gait_force").join("sub/walk.csv");
+    let f = file.to_str().unwrap();
+    let export = |force: bool| {
+        let mut v = vec!["gait", "export", "--duration", "1", "--out", f];
+        if force {
+            v.push("--force");
+        }
+        exompc(&v)
+    };
+    assert!(export(false).status.success());
+    let again = export(false);
+    assert_eq!(again.status.code(), Some(2));
+    assert!(
+        text(&again.stderr).contains("--force"),
+        "{}",
+        text(&again.stderr)
+    );
+    assert!(export(true).status.success());
+}
