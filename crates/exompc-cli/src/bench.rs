@@ -23,6 +23,9 @@ const CASE_BUDGET: Duration = Duration::from_millis(700);
 /// Steps per scaling case at most.
 const CASE_STEPS: usize = 300;
 
+/// Largest `--steps` (80 MB of step times per controller).
+const MAX_STEPS: i64 = 10_000_000;
+
 /// Timing of one closed loop.
 struct LoopStats {
     steps: usize,
@@ -113,19 +116,21 @@ pub(crate) struct BenchArgs {
     /// Print one JSON object instead of tables.
     #[arg(long)]
     json: bool,
-    /// Closed-loop steps per controller (default: the scenario's 2-DOF run).
-    #[arg(long, value_name = "N")]
-    steps: Option<usize>,
+    /// Closed-loop steps per controller, in [1, 10000000] (default: the scenario's 2-DOF run).
+    #[arg(long, value_name = "N", allow_negative_numbers = true, value_parser = clap::value_parser!(i64).range(1..=MAX_STEPS))]
+    steps: Option<i64>,
 }
 
 /// `exompc bench`.
 pub(crate) fn run(a: BenchArgs) -> Result<(), CliError> {
-    bench(&a.config.load()?, a.json, a.steps)
+    bench(&a.config.load()?, a.json, a.steps.map(|n| n as usize))
 }
 
 /// Run the benchmark on scenario `base`.
 pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(), CliError> {
-    let steps = steps.unwrap_or_else(|| base.control_steps(2)).max(1);
+    let steps = steps
+        .unwrap_or_else(|| base.control_steps(2))
+        .clamp(1, MAX_STEPS as usize);
     let mut base = base.clone();
     // A loop of `steps` periods.
     base.timing.duration_2dof_s = base

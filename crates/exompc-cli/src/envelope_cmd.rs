@@ -78,6 +78,10 @@ pub(crate) fn run(a: EnvelopeArgs) -> Result<(), CliError> {
         grid.controllers = vec!["nmpc".into(), "msnmpc".into()];
     }
     grid.controllers.dedup();
+    // Bad cells are bad input: reported before an output folder is looked at.
+    for cell in &grid.cells {
+        Grid::scenario(&base, cell)?;
+    }
     exompc_cli::earlier::refuse_or_clear(
         &a.out,
         exompc_cli::earlier::ENVELOPE_FILES,

@@ -33,10 +33,15 @@ struct ExportArgs {
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=2))]
     dof: u8,
     /// Sample rate (Hz), in [1, 100000].
-    #[arg(long, value_name = "HZ", default_value_t = 100.0)]
+    #[arg(
+        long,
+        value_name = "HZ",
+        default_value_t = 100.0,
+        allow_negative_numbers = true
+    )]
     rate: f64,
     /// Length (s); default: the scenario's run length of the layout (timing.duration_Ndof_s).
-    #[arg(long, value_name = "S")]
+    #[arg(long, value_name = "S", allow_negative_numbers = true)]
     duration: Option<f64>,
     /// Output CSV file; default `out/gait/gait_<dof>dof.csv`.
     #[arg(long, value_name = "FILE")]
@@ -56,14 +61,15 @@ fn export(a: &ExportArgs) -> Result<(), CliError> {
     let s = a.config.load()?;
     if !(a.rate.is_finite() && (1.0..=1e5).contains(&a.rate)) {
         return Err(CliError::Usage(format!(
-            "--rate: {} Hz (allowed: finite, in [1, 100000])",
-            a.rate
+            "--rate {}: out of range (allowed: finite, in [1, 100000] Hz)",
+            crate::args::show_number(a.rate)
         )));
     }
     let duration = a.duration.unwrap_or(s.duration_s(a.dof as usize));
     if !(duration.is_finite() && duration > 0.0 && duration * a.rate <= 1e8) {
         return Err(CliError::Usage(format!(
-            "--duration: {duration} s (allowed: finite, > 0, at most 1e8 samples at --rate)"
+            "--duration {}: out of range (allowed: finite, > 0 s, at most 1e8 samples at --rate)",
+            crate::args::show_number(duration)
         )));
     }
     let out = a

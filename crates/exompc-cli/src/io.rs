@@ -77,6 +77,7 @@ pub fn parse_scenario_with_origins_in(
     let table: toml::Table =
         toml::from_str(text).map_err(|e| describe_toml_error(text, &e, "TOML syntax error"))?;
     check_keys(&table, &schema(), "")?;
+    check_magnitudes(&table, "")?;
     let mut scenario: Scenario =
         toml::from_str(text).map_err(|e| describe_toml_error(text, &e, "invalid scenario"))?;
     crate::gait::attach_recording(&mut scenario, base).map_err(|e| e.to_string())?;
@@ -117,6 +118,7 @@ pub fn set_key(s: &Scenario, key: &str, value: toml::Value) -> Result<Scenario, 
     }
     if let toml::Value::Table(t) = &user {
         check_keys(t, &schema(), "")?;
+        check_magnitudes(t, "")?;
     }
     let mut tree = match toml::Value::try_from(s) {
         Ok(toml::Value::Table(t)) => t,
@@ -362,6 +364,46 @@ fn check_value(value: &toml::Value, expected: &toml::Value, path: &str) -> Resul
         (a, b) if std::mem::discriminant(a) == std::mem::discriminant(b) => Ok(()),
         (a, _) => Err(mismatch(kind_name(a))),
     }
+}
+
+/// Largest magnitude of any number in a scenario file: far above every key's sensible range
+/// (the largest stated bound is 1e6), so that a huge value (`kp = 1e308`) is rejected as bad
+/// input naming its key instead of overflowing a run into a diverged plant.
+pub const MAX_MAGNITUDE: f64 = 1e9;
+
+/// Checks that every number of `user` (a config file's or a `--set` tree) is within
+/// ±[`MAX_MAGNITUDE`], naming the key, the value and the allowed range.
+fn check_magnitudes(user: &toml::Table, prefix: &str) -> Result<(), String> {
+    fn check(v: &toml::Value, path: &str) -> Result<(), String> {
+        let x = match v {
+            toml::Value::Float(x) => *x,
+            toml::Value::Integer(i) => *i as f64,
+            toml::Value::Array(a) => {
+                return a
+                    .iter()
+                    .enumerate()
+                    .try_for_each(|(i, v)| check(v, &format!("{path}[{i}]")))
+            }
+            toml::Value::Table(t) => return check_magnitudes(t, path),
+            _ => return Ok(()),
+        };
+        if x.is_finite() && x.abs() > MAX_MAGNITUDE {
+            let own = exompc::config::explain(path)
+                .map(|d| format!("{}, and ", d.allowed.describe()))
+                .unwrap_or_default();
+            return Err(format!(
+                "invalid value for {path}: {} (allowed: {own}within ±{} like every number of a \
+                 scenario)",
+                crate::config_help::compact_number(x),
+                crate::config_help::compact_number(MAX_MAGNITUDE)
+            ));
+        }
+        Ok(())
+    }
+    for (key, value) in user {
+        check(value, &join(prefix, key))?;
+    }
+    Ok(())
 }
 
 /// Levenshtein edit distance between two strings (by characters).

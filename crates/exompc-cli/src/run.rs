@@ -58,6 +58,10 @@ fn run_error(e: RunError) -> CliError {
     match e {
         RunError::Config(c) => CliError::Config(c.to_string()),
         RunError::Io(e) => CliError::io("writing trace", e),
+        // The scenario's values put the plant beyond what RK4 integrates: bad input (exit 2).
+        d @ RunError::Diverged { .. } => CliError::Config(format!(
+            "{d}, or smaller gains (a value of the scenario is beyond the plant's stable range)"
+        )),
         other => CliError::Runtime(other.to_string()),
     }
 }

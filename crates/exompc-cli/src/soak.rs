@@ -20,17 +20,28 @@ pub(crate) struct SoakArgs {
     #[command(flatten)]
     config: ConfigOpt,
     /// Simulated duration (hours), in (0, 100].
-    #[arg(long, value_name = "H", default_value_t = 1.0)]
+    #[arg(
+        long,
+        value_name = "H",
+        default_value_t = 1.0,
+        allow_negative_numbers = true
+    )]
     hours: f64,
     /// True payload (kg).
-    #[arg(long, value_name = "KG", default_value_t = 2.0)]
+    #[arg(
+        long,
+        value_name = "KG",
+        default_value_t = 2.0,
+        allow_negative_numbers = true
+    )]
     payload: f64,
     /// Output folder for `soak.json` (and `soak_trace.csv`).
     #[arg(long, value_name = "DIR", default_value = "out/soak")]
     out: PathBuf,
-    /// Also write every N-th step to `soak_trace.csv` (0: no trace).
-    #[arg(long, value_name = "N", default_value_t = 0)]
-    trace_every: usize,
+    /// Also write every N-th step to `soak_trace.csv` (0: no trace), in [0, 1000000000].
+    #[arg(long, value_name = "N", allow_negative_numbers = true, default_value_t = 0,
+          value_parser = clap::value_parser!(i64).range(0..=1_000_000_000))]
+    trace_every: i64,
     /// Replace the results of an earlier soak in the output folder (soak.json,
     /// soak_trace.csv; nothing else). Without it such a folder is refused.
     #[arg(long)]
@@ -60,22 +71,28 @@ pub(crate) fn run(a: SoakArgs) -> Result<(), CliError> {
     let base = a.config.load()?;
     if !(a.hours.is_finite() && a.hours > 0.0 && a.hours <= MAX_HOURS) {
         return Err(CliError::Usage(format!(
-            "--hours: must be in (0, {MAX_HOURS}], got {}",
-            a.hours
+            "--hours {}: out of range (allowed: finite, in (0, {MAX_HOURS}] h)",
+            crate::args::show_number(a.hours)
         )));
     }
     let mut check = base.clone();
     check.uncertainty.payload_kg = a.payload;
-    check
-        .validate()
-        .map_err(|e| CliError::Usage(format!("--payload: {e}")))?;
+    check.validate().map_err(|e| {
+        crate::args::flag_error(
+            "--payload",
+            a.payload,
+            "uncertainty.payload_kg",
+            &e,
+            &exompc_cli::config_help::KeyOrigins::default(),
+        )
+    })?;
     soak_scenario(&base, a.hours * 3600.0, a.payload)
         .validate()
         .map_err(|e| CliError::Usage(format!("--hours: {e}")))?;
     let out = a.out;
     exompc_cli::earlier::refuse_or_clear(&out, exompc_cli::earlier::SOAK_FILES, a.force, "soak")?;
     let _out_dir = io::prepare_out_dir(&out)?;
-    let mut trace = match a.trace_every {
+    let mut trace = match a.trace_every as usize {
         0 => None,
         every => Some(Decimated {
             trace: CsvTrace::create_with(
