@@ -6,7 +6,7 @@
 //! TOML file in its format) or the Cartesian product of `--set key=v1,v2` lists.
 
 use crate::error::CliError;
-use crate::io::{parse_value, set_key};
+use crate::io::{parse_value, set_keys};
 use exompc::config::{ControllerKind, Scenario};
 use exompc::control::{MonitorAction, SafetyReport};
 use exompc::scenario::{gait_demand, limits, run_experiment_report, OneDof, TwoDof};
@@ -50,6 +50,10 @@ pub struct Grid {
     /// Cells.
     #[serde(rename = "cell")]
     pub cells: Vec<Cell>,
+    /// Folder that gait files named by the cells (`trajectory.file`) are relative to: the grid
+    /// file's folder (empty: the working directory).
+    #[serde(skip)]
+    pub base: std::path::PathBuf,
 }
 
 /// Controller kind from its command-line name.
@@ -134,17 +138,45 @@ impl Grid {
             payloads_kg,
             controllers,
             cells,
+            base: std::path::PathBuf::new(),
         })
     }
 
-    /// The scenario of `cell` on top of `base`, validated (errors name the cell and key).
+    /// The scenario of `cell` on top of `base`, validated (errors name the cell and key); gait
+    /// files relative to the working directory. See [`Grid::cell_scenario`].
     pub fn scenario(base: &Scenario, cell: &Cell) -> Result<Scenario, CliError> {
-        let mut s = base.clone();
-        for (k, v) in &cell.set {
-            s = set_key(&s, k, v.clone())
-                .map_err(|e| CliError::Config(format!("cell `{}`: {e}", cell.name)))?;
+        Self::scenario_in(base, cell, std::path::Path::new(""))
+    }
+
+    /// The scenario of the grid's `cell` on top of `base`, gait files relative to the grid
+    /// file's folder ([`Grid::base`]).
+    pub fn cell_scenario(&self, base: &Scenario, cell: &Cell) -> Result<Scenario, CliError> {
+        Self::scenario_in(base, cell, &self.base)
+    }
+
+    /// The cell's keys set together and validated once (a recorded gait needs
+    /// `trajectory.kind = "recorded"` and `trajectory.file` at the same time; a cell that
+    /// names only `trajectory.file` gets `kind = "recorded"` too), gait files read relative to
+    /// `folder`.
+    fn scenario_in(
+        base: &Scenario,
+        cell: &Cell,
+        folder: &std::path::Path,
+    ) -> Result<Scenario, CliError> {
+        let mut changes: Vec<(String, toml::Value)> = cell
+            .set
+            .iter()
+            .map(|(k, v)| (k.trim().to_string(), v.clone()))
+            .collect();
+        let names: Vec<&str> = changes.iter().map(|(k, _)| k.as_str()).collect();
+        if names.contains(&"trajectory.file") && !names.contains(&"trajectory.kind") {
+            changes.push((
+                "trajectory.kind".into(),
+                toml::Value::String("recorded".into()),
+            ));
         }
-        Ok(s)
+        set_keys(base, &changes, folder)
+            .map_err(|e| CliError::Config(format!("cell `{}`: {e}", cell.name)))
     }
 }
 
@@ -416,7 +448,7 @@ pub fn scan(
                 cell.name, cell.dof
             )));
         }
-        let s = Grid::scenario(base, cell)?;
+        let s = grid.cell_scenario(base, cell)?;
         for &p in &grid.payloads_kg {
             let mut sp = s.clone();
             sp.uncertainty.payload_kg = p;

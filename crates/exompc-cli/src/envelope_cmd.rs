@@ -65,7 +65,9 @@ pub(crate) fn run(a: EnvelopeArgs) -> Result<(), CliError> {
     } else if let Some(path) = &a.grid {
         let text = std::fs::read_to_string(path)
             .map_err(|e| CliError::Config(format!("cannot read {}: {e}", path.display())))?;
-        Grid::parse(&text, &path.display().to_string())?
+        let mut g = Grid::parse(&text, &path.display().to_string())?;
+        g.base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        g
     } else {
         Grid::standard()
     };
@@ -80,7 +82,7 @@ pub(crate) fn run(a: EnvelopeArgs) -> Result<(), CliError> {
     grid.controllers.dedup();
     // Bad cells are bad input: reported before an output folder is looked at.
     for cell in &grid.cells {
-        Grid::scenario(&base, cell)?;
+        grid.cell_scenario(&base, cell)?;
     }
     exompc_cli::earlier::refuse_or_clear(
         &a.out,

@@ -103,51 +103,72 @@ pub fn parse_value(value: &str) -> toml::Value {
 /// (unknown key → closest valid name; wrong type → what was expected), then the whole scenario
 /// is validated, so the message names the field and its allowed range.
 pub fn set_key(s: &Scenario, key: &str, value: toml::Value) -> Result<Scenario, String> {
-    let parts: Vec<&str> = key.split('.').map(str::trim).collect();
-    if key.trim().is_empty() || parts.iter().any(|p| p.is_empty()) {
-        return Err(format!(
-            "invalid key `{key}` (expected a dotted path such as robot.payload_position_m)"
-        ));
-    }
-    // The user's change as a one-key TOML tree, checked like a config file.
-    let mut user = value.clone();
-    for p in parts.iter().rev() {
-        let mut t = toml::Table::new();
-        t.insert((*p).to_string(), user);
-        user = toml::Value::Table(t);
-    }
-    if let toml::Value::Table(t) = &user {
-        check_keys(t, &schema(), "")?;
-        check_magnitudes(t, "")?;
-    }
+    set_keys(s, &[(key.to_string(), value)], Path::new(""))
+}
+
+/// [`set_key`] for several keys at once, validated together (so that keys which depend on
+/// each other, like `trajectory.kind = "recorded"` and `trajectory.file`, can change in one
+/// go); a newly named gait file is read relative to the folder `base`.
+pub fn set_keys(
+    s: &Scenario,
+    changes: &[(String, toml::Value)],
+    base: &Path,
+) -> Result<Scenario, String> {
     let mut tree = match toml::Value::try_from(s) {
         Ok(toml::Value::Table(t)) => t,
         _ => return Err("cannot serialise the scenario".into()),
     };
-    let (last, tables) = parts.split_last().expect("at least one part");
-    let mut node = &mut tree;
-    for p in tables {
-        let entry = node
-            .entry((*p).to_string())
-            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
-        node = match entry {
-            toml::Value::Table(t) => t,
-            _ => return Err(format!("`{p}` in `{key}` is not a table")),
-        };
+    for (key, value) in changes {
+        let parts: Vec<&str> = key.split('.').map(str::trim).collect();
+        if key.trim().is_empty() || parts.iter().any(|p| p.is_empty()) {
+            return Err(format!(
+                "invalid key `{key}` (expected a dotted path such as robot.payload_position_m)"
+            ));
+        }
+        // The user's change as a one-key TOML tree, checked like a config file.
+        let mut user = value.clone();
+        for p in parts.iter().rev() {
+            let mut t = toml::Table::new();
+            t.insert((*p).to_string(), user);
+            user = toml::Value::Table(t);
+        }
+        if let toml::Value::Table(t) = &user {
+            check_keys(t, &schema(), "")?;
+            check_magnitudes(t, "")?;
+        }
+        let (last, tables) = parts.split_last().expect("at least one part");
+        let mut node = &mut tree;
+        for p in tables {
+            let entry = node
+                .entry((*p).to_string())
+                .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+            node = match entry {
+                toml::Value::Table(t) => t,
+                _ => return Err(format!("`{p}` in `{key}` is not a table")),
+            };
+        }
+        node.insert((*last).to_string(), value.clone());
     }
-    node.insert((*last).to_string(), value);
-    let mut scenario: Scenario = toml::Value::Table(tree)
-        .try_into()
-        .map_err(|e: toml::de::Error| format!("invalid value for {key}: {}", e.message().trim()))?;
+    let named: Vec<&str> = changes.iter().map(|(k, _)| k.trim()).collect();
+    let mut scenario: Scenario =
+        toml::Value::Table(tree)
+            .try_into()
+            .map_err(|e: toml::de::Error| {
+                format!(
+                    "invalid value for {}: {}",
+                    named.join(", "),
+                    e.message().trim()
+                )
+            })?;
     // The loaded recording is not part of the TOML: keep it, or load a newly named file
-    // (relative to the working directory).
+    // (relative to `base`).
     if scenario.trajectory.file == s.trajectory.file {
         scenario.trajectory.recording = s.trajectory.recording.clone();
     } else {
-        crate::gait::attach_recording(&mut scenario, Path::new("")).map_err(|e| e.to_string())?;
+        crate::gait::attach_recording(&mut scenario, base).map_err(|e| e.to_string())?;
     }
     let origins = KeyOrigins {
-        file: [key.trim().to_string()].into(),
+        file: named.iter().map(|k| k.to_string()).collect(),
         flags: Vec::new(),
         unset: "current value",
     };
