@@ -3,12 +3,9 @@
 //! results so far) and the command ends with [`CliError::Interrupted`] after keeping what was
 //! completed (marked partial), exiting 130 after SIGINT and 143 after SIGTERM.
 
-use crate::error::CliError;
+use crate::error::{CliError, SIGNAL};
 use exompc::sim::{Recorder, StepRecord};
-use std::sync::atomic::{AtomicI32, Ordering};
-
-/// The signal received (0: none).
-static SIGNAL: AtomicI32 = AtomicI32::new(0);
+use std::sync::atomic::Ordering;
 
 #[cfg(unix)]
 extern "C" fn on_signal(sig: libc::c_int) {
@@ -35,10 +32,7 @@ pub fn requested() -> bool {
 /// The exit code after the signal received: 128 + its number (130 for SIGINT, 143 for
 /// SIGTERM), as a shell reports a process killed by it; 130 when none was recorded.
 pub fn exit_code() -> u8 {
-    match SIGNAL.load(Ordering::SeqCst) {
-        s @ 1..=127 => 128 + s as u8,
-        _ => crate::error::EXIT_INTERRUPTED,
-    }
+    crate::error::interrupted_exit_code()
 }
 
 /// The name of the signal received (`SIGINT`, `SIGTERM`), for messages.
