@@ -139,21 +139,52 @@ pub(crate) fn apply_overrides_with(
         s.uncertainty.payload_kg = p;
         origins.set_by_flag("uncertainty.payload_kg", "--payload");
         s.validate()
-            .map_err(|e| CliError::Usage(format!("--payload: {}", describe_error(&e, &origins))))?;
+            .map_err(|e| flag_error("--payload", p, "uncertainty.payload_kg", &e, &origins))?;
     }
     if let Some(d) = duration {
-        if dof == 1 {
+        let key = if dof == 1 {
             s.timing.duration_1dof_s = d;
-            origins.set_by_flag("timing.duration_1dof_s", "--duration");
+            "timing.duration_1dof_s"
         } else {
             s.timing.duration_2dof_s = d;
-            origins.set_by_flag("timing.duration_2dof_s", "--duration");
-        }
-        s.validate().map_err(|e| {
-            CliError::Usage(format!("--duration: {}", describe_error(&e, &origins)))
-        })?;
+            "timing.duration_2dof_s"
+        };
+        origins.set_by_flag(key, "--duration");
+        s.validate()
+            .map_err(|e| flag_error("--duration", d, key, &e, &origins))?;
     }
     Ok(())
+}
+
+/// A number as a user would write it: `1e308` rather than 309 digits.
+pub(crate) fn show_number(v: f64) -> String {
+    exompc_cli::config_help::compact_number(v)
+}
+
+/// The error for flag `flag` given `value`, which sets scenario key `key`, when validation
+/// rejected the scenario with `e`: it leads with the flag and the value typed, then the
+/// allowed range (`--duration 1e308: out of range (allowed: finite, in [0.01, 1000000] s; it
+/// sets timing.duration_2dof_s)`), or the rule it breaks with another key.
+pub(crate) fn flag_error(
+    flag: &str,
+    value: f64,
+    key: &str,
+    e: &exompc::config::ConfigError,
+    origins: &KeyOrigins,
+) -> CliError {
+    let typed = show_number(value);
+    if e.field == key && e.depends_on.is_none() {
+        let unit = exompc::config::explain(key)
+            .map(|d| d.unit)
+            .filter(|u| !u.is_empty() && *u != "-")
+            .map(|u| format!(" {u}"))
+            .unwrap_or_default();
+        return CliError::Usage(format!(
+            "{flag} {typed}: out of range (allowed: {}{unit}; it sets {key})",
+            e.allowed
+        ));
+    }
+    CliError::Usage(format!("{flag} {typed}: {}", describe_error(e, origins)))
 }
 
 /// Largest number of payloads a sweep accepts.
@@ -163,6 +194,10 @@ fn usage(msg: impl std::fmt::Display) -> CliError {
     CliError::Usage(format!("--payloads: {msg}"))
 }
 
+/// Largest payload (kg) `--payloads` accepts in a list or range (each is then validated
+/// against `uncertainty.payload_kg`'s own range).
+const MAX_PAYLOAD_KG: f64 = 1e3;
+
 fn parse_number(s: &str) -> Result<f64, CliError> {
     let t = s.trim();
     let v: f64 = t
@@ -170,6 +205,11 @@ fn parse_number(s: &str) -> Result<f64, CliError> {
         .map_err(|_| usage(format!("`{t}` is not a number")))?;
     if !v.is_finite() {
         return Err(usage(format!("`{t}` is not a finite number")));
+    }
+    if v.abs() > MAX_PAYLOAD_KG {
+        return Err(usage(format!(
+            "`{t}` is out of range (allowed: within ±{MAX_PAYLOAD_KG} kg)"
+        )));
     }
     Ok(v)
 }

@@ -8,6 +8,7 @@ use exompc::control::QpBackend;
 use exompc::scenario::{build_controller, plant_params, uncertainty, Dof, TwoDof};
 use exompc::sim::{Plant, Sensors, StepTimeStats};
 use exompc_cli::error::CliError;
+use exompc_cli::interrupt;
 use serde_json::json;
 use std::time::{Duration, Instant};
 
@@ -21,6 +22,9 @@ const SCENARIOS: [usize; 4] = [1, 3, 5, 9];
 const CASE_BUDGET: Duration = Duration::from_millis(700);
 /// Steps per scaling case at most.
 const CASE_STEPS: usize = 300;
+
+/// Largest `--steps` (80 MB of step times per controller).
+const MAX_STEPS: i64 = 10_000_000;
 
 /// Timing of one closed loop.
 struct LoopStats {
@@ -49,6 +53,10 @@ fn closed_loop(
     let mut iterations = 0u64;
     let start = Instant::now();
     for k in 0..steps {
+        // SIGINT/SIGTERM: stop here; the report marks the results partial.
+        if interrupt::requested() {
+            break;
+        }
         if let Some(b) = budget {
             let spent = start.elapsed();
             if (k >= 3 && spent > b) || (k >= 1 && spent > 4 * b) {
@@ -108,19 +116,21 @@ pub(crate) struct BenchArgs {
     /// Print one JSON object instead of tables.
     #[arg(long)]
     json: bool,
-    /// Closed-loop steps per controller (default: the scenario's 2-DOF run).
-    #[arg(long, value_name = "N")]
-    steps: Option<usize>,
+    /// Closed-loop steps per controller, in [1, 10000000] (default: the scenario's 2-DOF run).
+    #[arg(long, value_name = "N", allow_negative_numbers = true, value_parser = clap::value_parser!(i64).range(1..=MAX_STEPS))]
+    steps: Option<i64>,
 }
 
 /// `exompc bench`.
 pub(crate) fn run(a: BenchArgs) -> Result<(), CliError> {
-    bench(&a.config.load()?, a.json, a.steps)
+    bench(&a.config.load()?, a.json, a.steps.map(|n| n as usize))
 }
 
 /// Run the benchmark on scenario `base`.
 pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(), CliError> {
-    let steps = steps.unwrap_or_else(|| base.control_steps(2)).max(1);
+    let steps = steps
+        .unwrap_or_else(|| base.control_steps(2))
+        .clamp(1, MAX_STEPS as usize);
     let mut base = base.clone();
     // A loop of `steps` periods.
     base.timing.duration_2dof_s = base
@@ -164,6 +174,9 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
         (Formulation::Coupled, "coupled"),
     ] {
         for &(np, nc, ns) in &cases {
+            if interrupt::requested() {
+                break;
+            }
             {
                 let mut s = variant(&base, ControllerKind::MSNMPC, formulation);
                 s.controller.np = np;
@@ -219,6 +232,15 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
         }
     }
 
+    let partial = interrupt::requested();
+    let interrupted = || {
+        CliError::Interrupted(format!(
+            "interrupted by {}: the timings above are partial ({} of {} scaling rows)",
+            interrupt::signal_name(),
+            rows.len(),
+            2 * cases.len()
+        ))
+    };
     if as_json {
         let stat = |l: &LoopStats| {
             json!({
@@ -267,9 +289,13 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
             "msnmpc_coupled": stat(&msc),
             "sim_speed": ms.sim_speed,
             "scaling": scaling,
+            "partial": partial,
         });
         println!("{out}");
-        return Ok(());
+        return if partial { Err(interrupted()) } else { Ok(()) };
+    }
+    if partial {
+        println!("partial: interrupted, the timings below cover the steps run before it");
     }
 
     println!(
@@ -354,6 +380,9 @@ pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(),
             rti_p50,
             r.stats.steps
         );
+    }
+    if partial {
+        return Err(interrupted());
     }
     Ok(())
 }

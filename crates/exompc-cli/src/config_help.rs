@@ -82,6 +82,13 @@ fn collect_keys(t: &toml::Table, prefix: &str, out: &mut BTreeSet<String>) {
 /// (default): straps.ls1_m must be <= robot.thigh.length_m (the thigh strap sits on the
 /// robot's thigh link); set straps.ls1_m <= 0.2 or lengthen robot.thigh.length_m`.
 pub fn describe_error(e: &ConfigError, origins: &KeyOrigins) -> String {
+    // Huge numbers as a user writes them (`1e308`), not as 309 digits.
+    let mut e = e.clone();
+    e.value = compact_text(&e.value);
+    if let Some(d) = e.depends_on.as_mut() {
+        d.value = compact_text(&d.value);
+    }
+    let e = &e;
     let Some(d) = &e.depends_on else {
         return e.to_string();
     };
@@ -107,6 +114,25 @@ pub fn describe_error(e: &ConfigError, origins: &KeyOrigins) -> String {
         d.reason,
         d.fix
     )
+}
+
+/// `v` as a user would write it: plain decimals for ordinary magnitudes, scientific notation
+/// (`1e308`, `1e-12`) for very large or small ones.
+pub fn compact_number(v: f64) -> String {
+    let a = v.abs();
+    if v.is_finite() && a != 0.0 && !(1e-6..1e9).contains(&a) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
+/// [`compact_number`] of a number written as text (unchanged when `text` is no number).
+pub fn compact_text(text: &str) -> String {
+    match text.trim().parse::<f64>() {
+        Ok(v) if text.len() > 12 => compact_number(v),
+        _ => text.to_string(),
+    }
 }
 
 /// Adds a `# ...` comment line (unit, meaning, allowed values, source) above every table

@@ -15,6 +15,14 @@ pub const RUN_FILES: &[&str] = &[
     "interaction.svg",
 ];
 
+/// What `envelope` writes into its folder.
+pub const ENVELOPE_FILES: &[&str] = &[
+    "envelope.json",
+    "envelope.md",
+    "envelope.png",
+    "envelope.svg",
+];
+
 /// What `soak` writes into its folder.
 pub const SOAK_FILES: &[&str] = &["soak.json", "soak_trace.csv"];
 

@@ -6,12 +6,12 @@
 //! TOML file in its format) or the Cartesian product of `--set key=v1,v2` lists.
 
 use crate::error::CliError;
-use crate::io::{parse_value, set_key};
+use crate::io::{parse_value, set_keys};
 use exompc::config::{ControllerKind, Scenario};
 use exompc::control::{MonitorAction, SafetyReport};
 use exompc::scenario::{gait_demand, limits, run_experiment_report, OneDof, TwoDof};
 use exompc::sim::{
-    cell_verdict, classify_run, ActuatorDemand, CellVerdict, RunClass, RunStability,
+    cell_verdict, classify_run, ActuatorDemand, CellVerdict, Recorder, RunClass, RunStability,
     StabilityCriteria, StopWhen, Summary, TraceLog,
 };
 use rayon::prelude::*;
@@ -50,6 +50,10 @@ pub struct Grid {
     /// Cells.
     #[serde(rename = "cell")]
     pub cells: Vec<Cell>,
+    /// Folder that gait files named by the cells (`trajectory.file`) are relative to: the grid
+    /// file's folder (empty: the working directory).
+    #[serde(skip)]
+    pub base: std::path::PathBuf,
 }
 
 /// Controller kind from its command-line name.
@@ -134,17 +138,45 @@ impl Grid {
             payloads_kg,
             controllers,
             cells,
+            base: std::path::PathBuf::new(),
         })
     }
 
-    /// The scenario of `cell` on top of `base`, validated (errors name the cell and key).
+    /// The scenario of `cell` on top of `base`, validated (errors name the cell and key); gait
+    /// files relative to the working directory. See [`Grid::cell_scenario`].
     pub fn scenario(base: &Scenario, cell: &Cell) -> Result<Scenario, CliError> {
-        let mut s = base.clone();
-        for (k, v) in &cell.set {
-            s = set_key(&s, k, v.clone())
-                .map_err(|e| CliError::Config(format!("cell `{}`: {e}", cell.name)))?;
+        Self::scenario_in(base, cell, std::path::Path::new(""))
+    }
+
+    /// The scenario of the grid's `cell` on top of `base`, gait files relative to the grid
+    /// file's folder ([`Grid::base`]).
+    pub fn cell_scenario(&self, base: &Scenario, cell: &Cell) -> Result<Scenario, CliError> {
+        Self::scenario_in(base, cell, &self.base)
+    }
+
+    /// The cell's keys set together and validated once (a recorded gait needs
+    /// `trajectory.kind = "recorded"` and `trajectory.file` at the same time; a cell that
+    /// names only `trajectory.file` gets `kind = "recorded"` too), gait files read relative to
+    /// `folder`.
+    fn scenario_in(
+        base: &Scenario,
+        cell: &Cell,
+        folder: &std::path::Path,
+    ) -> Result<Scenario, CliError> {
+        let mut changes: Vec<(String, toml::Value)> = cell
+            .set
+            .iter()
+            .map(|(k, v)| (k.trim().to_string(), v.clone()))
+            .collect();
+        let names: Vec<&str> = changes.iter().map(|(k, _)| k.as_str()).collect();
+        if names.contains(&"trajectory.file") && !names.contains(&"trajectory.kind") {
+            changes.push((
+                "trajectory.kind".into(),
+                toml::Value::String("recorded".into()),
+            ));
         }
-        Ok(s)
+        set_keys(base, &changes, folder)
+            .map_err(|e| CliError::Config(format!("cell `{}`: {e}", cell.name)))
     }
 }
 
@@ -310,6 +342,10 @@ pub struct Envelope {
     /// What each (cell, payload)'s gait asks of the actuator, cell-major.
     #[serde(default)]
     pub demands: Vec<EnvelopeDemand>,
+    /// The scan was interrupted (SIGINT/SIGTERM): the runs not completed carry the error
+    /// `not run (interrupted)` and count as failed.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub partial: bool,
 }
 
 impl Envelope {
@@ -340,29 +376,47 @@ fn first_trip(rep: &SafetyReport) -> Option<f64> {
         .map(|e| e.t)
 }
 
+/// The error of a run a SIGINT/SIGTERM stopped or kept from starting.
+const NOT_RUN: &str = "not run (interrupted)";
+
 fn run_one(
     s: &Scenario,
     dof: u8,
     c: &StabilityCriteria,
     stop: &(dyn Fn() -> bool + Sync),
 ) -> Result<(Summary, RunStability, SafetyReport), String> {
+    if crate::interrupt::requested() {
+        return Err(NOT_RUN.into());
+    }
     let lim = limits(s);
     let dt = s.timing.dt;
-    let mut stop = StopWhen(stop);
-    match dof {
+    let mut stop = StopWhen(|| stop() || crate::interrupt::requested());
+    let planned = s.control_steps(usize::from(dof));
+    let (sum, rep, stability) = match dof {
         1 => {
             let mut log = TraceLog::<1>::default();
-            let (sum, rep) = run_experiment_report::<OneDof, 1>(s, &mut [&mut log, &mut stop])
-                .map_err(|e| e.to_string())?;
-            Ok((sum, classify_run(&log, &lim, dt, c), rep))
+            let (sum, rep) = run_experiment_report::<OneDof, 1>(
+                s,
+                &mut [&mut log as &mut dyn Recorder<1>, &mut stop],
+            )
+            .map_err(|e| e.to_string())?;
+            let st = (sum.steps >= planned).then(|| classify_run(&log, &lim, dt, c));
+            (sum, rep, st)
         }
         _ => {
             let mut log = TraceLog::<2>::default();
-            let (sum, rep) = run_experiment_report::<TwoDof, 2>(s, &mut [&mut log, &mut stop])
-                .map_err(|e| e.to_string())?;
-            Ok((sum, classify_run(&log, &lim, dt, c), rep))
+            let (sum, rep) = run_experiment_report::<TwoDof, 2>(
+                s,
+                &mut [&mut log as &mut dyn Recorder<2>, &mut stop],
+            )
+            .map_err(|e| e.to_string())?;
+            let st = (sum.steps >= planned).then(|| classify_run(&log, &lim, dt, c));
+            (sum, rep, st)
         }
-    }
+    };
+    // A run stopped early by a signal is not classified: it counts as not run.
+    let stability = stability.ok_or_else(|| NOT_RUN.to_string())?;
+    Ok((sum, stability, rep))
 }
 
 /// `s` with the safety monitors out of the way (thresholds beyond reach), to scan the bare
@@ -410,7 +464,7 @@ pub fn scan_until(
                 cell.name, cell.dof
             )));
         }
-        let s = Grid::scenario(base, cell)?;
+        let s = grid.cell_scenario(base, cell)?;
         for &p in &grid.payloads_kg {
             let mut sp = s.clone();
             sp.uncertainty.payload_kg = p;
@@ -471,7 +525,9 @@ pub fn scan_until(
         runs,
         verdicts: Vec::new(),
         demands,
+        partial: false,
     };
+    env.partial = env.runs.iter().any(|r| r.error.as_deref() == Some(NOT_RUN));
     if grid.controllers.iter().any(|c| c == "msnmpc")
         && grid.controllers.iter().any(|c| c == "nmpc")
     {
@@ -517,8 +573,20 @@ fn pair(v: &[f64]) -> String {
 /// The Markdown report (`envelope.md`): one row per (cell, payload).
 pub fn markdown(env: &Envelope) -> String {
     let ctrls = &env.grid.controllers;
-    let mut out =
-        String::from("| cell | payload (kg) | gait needs, peak (N·m) | beyond ±T_max (%) |");
+    let mut out = String::new();
+    if env.partial {
+        let not_run = env
+            .runs
+            .iter()
+            .filter(|r| r.error.as_deref() == Some(NOT_RUN))
+            .count();
+        out += &format!(
+            "Partial: the scan was interrupted; {} of {} runs completed (the others show as failed).\n\n",
+            env.runs.len() - not_run,
+            env.runs.len()
+        );
+    }
+    out += "| cell | payload (kg) | gait needs, peak (N·m) | beyond ±T_max (%) |";
     for c in ctrls {
         out += &format!(
             " {c} RMS F (N) | {c} class | {c} HF % | {c} growth | {c} T-lim % | {c} trips |"

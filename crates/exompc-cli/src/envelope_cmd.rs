@@ -41,6 +41,11 @@ pub(crate) struct EnvelopeArgs {
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
+    /// Replace the results of an earlier scan in the output folder (envelope.json,
+    /// envelope.md, envelope.png, envelope.svg; nothing else). Without it such a folder is
+    /// refused.
+    #[arg(long)]
+    force: bool,
     /// Exit with status 1 when a cell fails the acceptance.
     #[arg(long)]
     check: bool,
@@ -60,7 +65,9 @@ pub(crate) fn run(a: EnvelopeArgs) -> Result<(), CliError> {
     } else if let Some(path) = &a.grid {
         let text = std::fs::read_to_string(path)
             .map_err(|e| CliError::Config(format!("cannot read {}: {e}", path.display())))?;
-        Grid::parse(&text, &path.display().to_string())?
+        let mut g = Grid::parse(&text, &path.display().to_string())?;
+        g.base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        g
     } else {
         Grid::standard()
     };
@@ -73,7 +80,17 @@ pub(crate) fn run(a: EnvelopeArgs) -> Result<(), CliError> {
         grid.controllers = vec!["nmpc".into(), "msnmpc".into()];
     }
     grid.controllers.dedup();
-    io::ensure_out_dir(&a.out)?;
+    // Bad cells are bad input: reported before an output folder is looked at.
+    for cell in &grid.cells {
+        grid.cell_scenario(&base, cell)?;
+    }
+    exompc_cli::earlier::refuse_or_clear(
+        &a.out,
+        exompc_cli::earlier::ENVELOPE_FILES,
+        a.force,
+        "envelope scan",
+    )?;
+    let _out_dir = io::prepare_out_dir(&a.out)?;
 
     let total = grid.cells.len() * grid.payloads_kg.len() * grid.controllers.len();
     let target = if a.quiet || !std::io::stderr().is_terminal() {
@@ -113,6 +130,15 @@ pub(crate) fn run(a: EnvelopeArgs) -> Result<(), CliError> {
             .map(|f| format!(", {}", f.display()))
             .collect::<String>()
     );
+    if env.partial {
+        let done = env.runs.iter().filter(|r| r.stability.is_some()).count();
+        return Err(CliError::Interrupted(format!(
+            "interrupted by {}: {done} of {total} runs completed; partial results kept in {} \
+             (envelope.json marked \"partial\": true, envelope.md, heat map)",
+            exompc_cli::interrupt::signal_name(),
+            a.out.display()
+        )));
+    }
     if a.check && !env.failing().is_empty() {
         return Err(CliError::Runtime(format!(
             "{} of {} cells fail the acceptance",
@@ -179,14 +205,17 @@ where
     );
     root.draw(&Text::new(title, (20, 12), (font, 20).into_font()))
         .map_err(err)?;
-    let legend = "✗ not stable (limit cycle / growing)   ▲ worse than NMPC   colour: 0 → 60 N";
+    let legend = "✗ not stable (limit cycle / growing)   ▲ worse than NMPC   grey: run failed";
     root.draw(&Text::new(legend, (20, 40), (font, 14).into_font()))
         .map_err(err)?;
     let (left, top, bottom) = (260i32, 70i32, 40i32);
+    // Right of the cells: the colour bar and its scale.
+    let bar_w = 110i32;
     let rows = env.grid.cells.len().max(1) as i32;
     let cols = env.grid.payloads_kg.len().max(1) as i32;
-    let cw = ((w as i32 - left - 20) / cols).max(10);
+    let cw = ((w as i32 - left - bar_w - 10) / cols).max(10);
     let ch = ((h as i32 - top - bottom) / rows).max(10);
+    colour_bar(&root, (w as i32 - bar_w + 20, top), rows * ch, font)?;
     for (j, p) in env.grid.payloads_kg.iter().enumerate() {
         let x = left + j as i32 * cw + cw / 2 - 20;
         root.draw(&Text::new(
@@ -201,7 +230,7 @@ where
         root.draw(&Text::new(
             cell.name.clone(),
             (10, y + ch / 2 - 7),
-            (font, 13).into_font(),
+            (font, 12).into_font(),
         ))
         .map_err(err)?;
         for (j, &p) in env.grid.payloads_kg.iter().enumerate() {
@@ -254,12 +283,66 @@ where
             root.draw(&Text::new(
                 label,
                 (x + cw / 2 - 30, y + ch / 2 - 7),
-                (font, 13).into_font().color(&color),
+                (font, 14).into_font().color(&color),
             ))
             .map_err(err)?;
         }
     }
     root.present().map_err(err)?;
+    Ok(())
+}
+
+/// The colour bar of [`heat`] at `(x, y)`, `height` pixels tall: 0 N at the bottom, 60 N (and
+/// beyond) at the top, ticks every 10 N, titled with the quantity and its unit.
+fn colour_bar<DB: DrawingBackend>(
+    root: &DrawingArea<DB, plotters::coord::Shift>,
+    (x, y): (i32, i32),
+    height: i32,
+    font: &str,
+) -> Result<(), CliError>
+where
+    DB::ErrorType: 'static,
+{
+    let height = height.max(60);
+    let width = 16;
+    root.draw(&Text::new(
+        "force (N)",
+        (x - 14, y - 22),
+        (font, 14).into_font(),
+    ))
+    .map_err(err)?;
+    for k in 0..height {
+        let v = 60.0 * f64::from(height - 1 - k) / f64::from(height - 1);
+        root.draw(&Rectangle::new(
+            [(x, y + k), (x + width, y + k + 1)],
+            heat(v).filled(),
+        ))
+        .map_err(err)?;
+    }
+    root.draw(&Rectangle::new(
+        [(x, y), (x + width, y + height)],
+        BLACK.stroke_width(1),
+    ))
+    .map_err(err)?;
+    for n in 0..=6 {
+        let ty = y + (f64::from(height - 1) * (1.0 - f64::from(n) / 6.0)).round() as i32;
+        root.draw(&PathElement::new(
+            vec![(x + width, ty), (x + width + 4, ty)],
+            BLACK.stroke_width(1),
+        ))
+        .map_err(err)?;
+        let label = if n == 6 {
+            "≥ 60".to_string()
+        } else {
+            format!("{}", 10 * n)
+        };
+        root.draw(&Text::new(
+            label,
+            (x + width + 7, ty - 6),
+            (font, 12).into_font(),
+        ))
+        .map_err(err)?;
+    }
     Ok(())
 }
 

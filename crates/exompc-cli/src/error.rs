@@ -1,11 +1,26 @@
 //! The CLI's error type and its mapping to process exit codes.
 
 use std::fmt;
+use std::sync::atomic::{AtomicI32, Ordering};
+
+/// The signal that interrupted the command (0: none), stored by the SIGINT/SIGTERM handler
+/// (module `interrupt`).
+pub(crate) static SIGNAL: AtomicI32 = AtomicI32::new(0);
+
+/// The exit code after the signal received: 128 + its number (130 for SIGINT, 143 for
+/// SIGTERM), as a shell reports a process killed by it; 130 when none was recorded.
+pub fn interrupted_exit_code() -> u8 {
+    match SIGNAL.load(Ordering::SeqCst) {
+        s @ 1..=127 => 128 + s as u8,
+        _ => EXIT_INTERRUPTED,
+    }
+}
 
 /// Exit code for bad input: an invalid config value, an unknown key or a bad flag (clap's own
 /// usage errors also exit 2).
 pub const EXIT_USAGE: u8 = 2;
-/// Exit code after SIGINT/SIGTERM (128 + 2, as the shell reports a Ctrl-C).
+/// Exit code after SIGINT (128 + 2, as the shell reports a Ctrl-C); SIGTERM gives 143
+/// (see [`interrupted_exit_code`]).
 pub const EXIT_INTERRUPTED: u8 = 130;
 /// Exit code for a runtime failure (I/O error while writing results, solver failure, ...).
 pub const EXIT_FAILURE: u8 = 1;
@@ -23,7 +38,7 @@ pub enum CliError {
     Io(String),
     /// Any other runtime failure (exit 1).
     Runtime(String),
-    /// Stopped by SIGINT/SIGTERM; the message says what was completed (exit 130).
+    /// Stopped by SIGINT/SIGTERM; the message says what was completed (exit 130 or 143).
     Interrupted(String),
     /// A `--strict` run whose verdict is `degraded` (exit 3).
     Degraded(String),
@@ -35,7 +50,7 @@ impl CliError {
         match self {
             CliError::Config(_) | CliError::Usage(_) => EXIT_USAGE,
             CliError::Io(_) | CliError::Runtime(_) => EXIT_FAILURE,
-            CliError::Interrupted(_) => EXIT_INTERRUPTED,
+            CliError::Interrupted(_) => interrupted_exit_code(),
             CliError::Degraded(_) => EXIT_DEGRADED,
         }
     }

@@ -46,6 +46,11 @@ pub fn read_gait(path: &Path) -> Result<GaitRecording, CliError> {
     parse_gait(&text, &shown).map_err(CliError::Config)
 }
 
+/// Largest time (s) in a gait file: ten times the longest run (`timing.duration_*_s` <= 1e6).
+const MAX_TIME_S: f64 = 1e7;
+/// Largest joint angle (rad) in a gait file before the recording's own ±2π check.
+const MAX_ANGLE_RAD: f64 = 1e3;
+
 /// Parses gait CSV `text`; `shown` names the file in messages (`gait file F, line 12, column 3
 /// (knee_rad): ...`).
 pub fn parse_gait(text: &str, shown: &str) -> Result<GaitRecording, String> {
@@ -115,6 +120,26 @@ pub fn parse_gait(text: &str, shown: &str) -> Result<GaitRecording, String> {
             let v: f64 = raw
                 .parse()
                 .map_err(|_| format!("{}: `{raw}` is not a number", at(line, Some(c))))?;
+            // Huge values, named as typed (non-finite ones are the recording's to report).
+            let limit = match (c.index == time.index, c.unit) {
+                (true, _) => MAX_TIME_S,
+                (false, Unit::Rad) => MAX_ANGLE_RAD,
+                (false, Unit::Deg) => MAX_ANGLE_RAD.to_degrees(),
+            };
+            if v.is_finite() && v.abs() > limit {
+                let unit = if c.index == time.index {
+                    "s"
+                } else if c.unit == Unit::Deg {
+                    "deg"
+                } else {
+                    "rad"
+                };
+                return Err(format!(
+                    "{}: `{raw}` is out of range (allowed: within ±{} {unit})",
+                    at(line, Some(c)),
+                    crate::config_help::compact_number(limit)
+                ));
+            }
             Ok(match c.unit {
                 Unit::Rad => v,
                 Unit::Deg => v.to_radians(),

@@ -33,14 +33,22 @@ struct ExportArgs {
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=2))]
     dof: u8,
     /// Sample rate (Hz), in [1, 100000].
-    #[arg(long, value_name = "HZ", default_value_t = 100.0)]
+    #[arg(
+        long,
+        value_name = "HZ",
+        default_value_t = 100.0,
+        allow_negative_numbers = true
+    )]
     rate: f64,
     /// Length (s); default: the scenario's run length of the layout (timing.duration_Ndof_s).
-    #[arg(long, value_name = "S")]
+    #[arg(long, value_name = "S", allow_negative_numbers = true)]
     duration: Option<f64>,
-    /// Output CSV file.
+    /// Output CSV file; default `out/gait/gait_<dof>dof.csv`.
     #[arg(long, value_name = "FILE")]
-    out: PathBuf,
+    out: Option<PathBuf>,
+    /// Replace an existing output file (without it, an existing file is refused).
+    #[arg(long)]
+    force: bool,
 }
 
 pub(crate) fn run(a: GaitArgs) -> Result<(), CliError> {
@@ -53,16 +61,36 @@ fn export(a: &ExportArgs) -> Result<(), CliError> {
     let s = a.config.load()?;
     if !(a.rate.is_finite() && (1.0..=1e5).contains(&a.rate)) {
         return Err(CliError::Usage(format!(
-            "--rate: {} Hz (allowed: finite, in [1, 100000])",
-            a.rate
+            "--rate {}: out of range (allowed: finite, in [1, 100000] Hz)",
+            crate::args::show_number(a.rate)
         )));
     }
     let duration = a.duration.unwrap_or(s.duration_s(a.dof as usize));
     if !(duration.is_finite() && duration > 0.0 && duration * a.rate <= 1e8) {
         return Err(CliError::Usage(format!(
-            "--duration: {duration} s (allowed: finite, > 0, at most 1e8 samples at --rate)"
+            "--duration {}: out of range (allowed: finite, > 0 s, at most 1e8 samples at --rate)",
+            crate::args::show_number(duration)
         )));
     }
+    let out = a
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(format!("out/gait/gait_{}dof.csv", a.dof)));
+    if out.is_dir() {
+        return Err(CliError::Usage(format!(
+            "--out {}: is a folder; give a file name such as {}/walk.csv",
+            out.display(),
+            out.display()
+        )));
+    }
+    if out.exists() && !a.force {
+        return Err(CliError::Usage(format!(
+            "{} already exists: choose another --out, or pass --force to replace it",
+            out.display()
+        )));
+    }
+    let parent = out.parent().filter(|p| !p.as_os_str().is_empty());
+    let _out_dir = parent.map(io::prepare_out_dir).transpose()?;
     let n = (duration * a.rate).round() as usize + 1;
     let times: Vec<f64> = (0..n).map(|k| k as f64 / a.rate).collect();
     let what = match (&s.trajectory.file, a.dof) {
@@ -90,10 +118,10 @@ fn export(a: &ExportArgs) -> Result<(), CliError> {
             gait_csv(&comment, &times, Some(&hip), &knee)
         }
     };
-    io::write_atomic(&a.out, text.as_bytes())?;
+    io::write_atomic(&out, text.as_bytes())?;
     println!(
         "wrote {} ({n} samples, {duration} s at {} Hz)",
-        a.out.display(),
+        out.display(),
         a.rate
     );
     Ok(())

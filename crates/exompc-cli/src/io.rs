@@ -77,6 +77,7 @@ pub fn parse_scenario_with_origins_in(
     let table: toml::Table =
         toml::from_str(text).map_err(|e| describe_toml_error(text, &e, "TOML syntax error"))?;
     check_keys(&table, &schema(), "")?;
+    check_magnitudes(&table, "")?;
     let mut scenario: Scenario =
         toml::from_str(text).map_err(|e| describe_toml_error(text, &e, "invalid scenario"))?;
     crate::gait::attach_recording(&mut scenario, base).map_err(|e| e.to_string())?;
@@ -102,50 +103,72 @@ pub fn parse_value(value: &str) -> toml::Value {
 /// (unknown key → closest valid name; wrong type → what was expected), then the whole scenario
 /// is validated, so the message names the field and its allowed range.
 pub fn set_key(s: &Scenario, key: &str, value: toml::Value) -> Result<Scenario, String> {
-    let parts: Vec<&str> = key.split('.').map(str::trim).collect();
-    if key.trim().is_empty() || parts.iter().any(|p| p.is_empty()) {
-        return Err(format!(
-            "invalid key `{key}` (expected a dotted path such as robot.payload_position_m)"
-        ));
-    }
-    // The user's change as a one-key TOML tree, checked like a config file.
-    let mut user = value.clone();
-    for p in parts.iter().rev() {
-        let mut t = toml::Table::new();
-        t.insert((*p).to_string(), user);
-        user = toml::Value::Table(t);
-    }
-    if let toml::Value::Table(t) = &user {
-        check_keys(t, &schema(), "")?;
-    }
+    set_keys(s, &[(key.to_string(), value)], Path::new(""))
+}
+
+/// [`set_key`] for several keys at once, validated together (so that keys which depend on
+/// each other, like `trajectory.kind = "recorded"` and `trajectory.file`, can change in one
+/// go); a newly named gait file is read relative to the folder `base`.
+pub fn set_keys(
+    s: &Scenario,
+    changes: &[(String, toml::Value)],
+    base: &Path,
+) -> Result<Scenario, String> {
     let mut tree = match toml::Value::try_from(s) {
         Ok(toml::Value::Table(t)) => t,
         _ => return Err("cannot serialise the scenario".into()),
     };
-    let (last, tables) = parts.split_last().expect("at least one part");
-    let mut node = &mut tree;
-    for p in tables {
-        let entry = node
-            .entry((*p).to_string())
-            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
-        node = match entry {
-            toml::Value::Table(t) => t,
-            _ => return Err(format!("`{p}` in `{key}` is not a table")),
-        };
+    for (key, value) in changes {
+        let parts: Vec<&str> = key.split('.').map(str::trim).collect();
+        if key.trim().is_empty() || parts.iter().any(|p| p.is_empty()) {
+            return Err(format!(
+                "invalid key `{key}` (expected a dotted path such as robot.payload_position_m)"
+            ));
+        }
+        // The user's change as a one-key TOML tree, checked like a config file.
+        let mut user = value.clone();
+        for p in parts.iter().rev() {
+            let mut t = toml::Table::new();
+            t.insert((*p).to_string(), user);
+            user = toml::Value::Table(t);
+        }
+        if let toml::Value::Table(t) = &user {
+            check_keys(t, &schema(), "")?;
+            check_magnitudes(t, "")?;
+        }
+        let (last, tables) = parts.split_last().expect("at least one part");
+        let mut node = &mut tree;
+        for p in tables {
+            let entry = node
+                .entry((*p).to_string())
+                .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+            node = match entry {
+                toml::Value::Table(t) => t,
+                _ => return Err(format!("`{p}` in `{key}` is not a table")),
+            };
+        }
+        node.insert((*last).to_string(), value.clone());
     }
-    node.insert((*last).to_string(), value);
-    let mut scenario: Scenario = toml::Value::Table(tree)
-        .try_into()
-        .map_err(|e: toml::de::Error| format!("invalid value for {key}: {}", e.message().trim()))?;
+    let named: Vec<&str> = changes.iter().map(|(k, _)| k.trim()).collect();
+    let mut scenario: Scenario =
+        toml::Value::Table(tree)
+            .try_into()
+            .map_err(|e: toml::de::Error| {
+                format!(
+                    "invalid value for {}: {}",
+                    named.join(", "),
+                    e.message().trim()
+                )
+            })?;
     // The loaded recording is not part of the TOML: keep it, or load a newly named file
-    // (relative to the working directory).
+    // (relative to `base`).
     if scenario.trajectory.file == s.trajectory.file {
         scenario.trajectory.recording = s.trajectory.recording.clone();
     } else {
-        crate::gait::attach_recording(&mut scenario, Path::new("")).map_err(|e| e.to_string())?;
+        crate::gait::attach_recording(&mut scenario, base).map_err(|e| e.to_string())?;
     }
     let origins = KeyOrigins {
-        file: [key.trim().to_string()].into(),
+        file: named.iter().map(|k| k.to_string()).collect(),
         flags: Vec::new(),
         unset: "current value",
     };
@@ -364,6 +387,46 @@ fn check_value(value: &toml::Value, expected: &toml::Value, path: &str) -> Resul
     }
 }
 
+/// Largest magnitude of any number in a scenario file: far above every key's sensible range
+/// (the largest stated bound is 1e6), so that a huge value (`kp = 1e308`) is rejected as bad
+/// input naming its key instead of overflowing a run into a diverged plant.
+pub const MAX_MAGNITUDE: f64 = 1e9;
+
+/// Checks that every number of `user` (a config file's or a `--set` tree) is within
+/// ±[`MAX_MAGNITUDE`], naming the key, the value and the allowed range.
+fn check_magnitudes(user: &toml::Table, prefix: &str) -> Result<(), String> {
+    fn check(v: &toml::Value, path: &str) -> Result<(), String> {
+        let x = match v {
+            toml::Value::Float(x) => *x,
+            toml::Value::Integer(i) => *i as f64,
+            toml::Value::Array(a) => {
+                return a
+                    .iter()
+                    .enumerate()
+                    .try_for_each(|(i, v)| check(v, &format!("{path}[{i}]")))
+            }
+            toml::Value::Table(t) => return check_magnitudes(t, path),
+            _ => return Ok(()),
+        };
+        if x.is_finite() && x.abs() > MAX_MAGNITUDE {
+            let own = exompc::config::explain(path)
+                .map(|d| format!("{}, and ", d.allowed.describe()))
+                .unwrap_or_default();
+            return Err(format!(
+                "invalid value for {path}: {} (allowed: {own}within ±{} like every number of a \
+                 scenario)",
+                crate::config_help::compact_number(x),
+                crate::config_help::compact_number(MAX_MAGNITUDE)
+            ));
+        }
+        Ok(())
+    }
+    for (key, value) in user {
+        check(value, &join(prefix, key))?;
+    }
+    Ok(())
+}
+
 /// Levenshtein edit distance between two strings (by characters).
 pub fn levenshtein(a: &str, b: &str) -> usize {
     let b: Vec<char> = b.chars().collect();
@@ -546,6 +609,44 @@ pub fn ensure_out_dir(dir: &Path) -> Result<(), CliError> {
     File::create(&probe)
         .and_then(|_| fs::remove_file(&probe))
         .map_err(|e| CliError::Usage(format!("output folder {shown} is not writable: {e}")))
+}
+
+/// An output folder prepared by [`prepare_out_dir`]: the folders it created (parents
+/// included) are removed again when it drops if they are still empty, so a refused or failed
+/// start leaves no empty folder behind (a folder holding any file stays).
+#[derive(Debug)]
+pub struct OutDir {
+    created: Vec<PathBuf>,
+}
+
+impl Drop for OutDir {
+    fn drop(&mut self) {
+        // Deepest first; `remove_dir` fails (and we stop) on a folder that is not empty.
+        for d in self.created.iter().rev() {
+            if fs::remove_dir(d).is_err() {
+                break;
+            }
+        }
+    }
+}
+
+/// [`ensure_out_dir`], remembering which folders it created so that they vanish again if
+/// nothing was written into them (see [`OutDir`]). Keep the guard alive for the whole
+/// command.
+pub fn prepare_out_dir(dir: &Path) -> Result<OutDir, CliError> {
+    let mut missing = Vec::new();
+    let mut p = Some(dir);
+    while let Some(d) = p {
+        if d.as_os_str().is_empty() || d.exists() {
+            break;
+        }
+        missing.push(d.to_path_buf());
+        p = d.parent();
+    }
+    missing.reverse();
+    let guard = OutDir { created: missing };
+    ensure_out_dir(dir)?;
+    Ok(guard)
 }
 
 // ---------------------------------------------------------------------------------------------

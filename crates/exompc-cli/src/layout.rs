@@ -10,6 +10,9 @@ use serde::{Deserialize, Serialize};
 pub struct SweepFile {
     /// One summary per run, payload-major in the order of `--payloads`, then `--controllers`.
     pub rows: Vec<Summary>,
+    /// The sweep was interrupted (SIGINT/SIGTERM): `rows` holds only the runs completed.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub partial: bool,
 }
 
 /// Rounds to 1e-9 kg so that `a + i·step` prints as the user wrote it.

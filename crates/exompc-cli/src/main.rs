@@ -40,7 +40,9 @@ Exit codes:
        folder holding earlier results (without --force)
   3    with --strict (simulate, sweep, soak): the verdict is degraded (monitor trips, held
        torques, solver fallbacks); the results are written
-  130  interrupted by SIGINT/SIGTERM (nothing half-written is left)";
+  130  interrupted by SIGINT (143: by SIGTERM): simulate, sweep, soak, envelope and bench
+       stop within a control step and keep what they completed, marked partial
+       (\"partial\": true in summary.json, sweep.json, soak.json, envelope.json)";
 
 /// Multi-stage robust nonlinear MPC of a lower-limb exoskeleton: simulation and tools.
 #[derive(Debug, Parser)]

@@ -352,7 +352,7 @@ where
         (area.clone(), None)
     };
     let mut chart = ChartBuilder::on(&plot_area)
-        .caption(&p.title, (FONT, 17))
+        .caption(&p.title, (FONT, 18))
         .margin(6)
         .margin_right(if lw > 0 { 4 } else { 14 })
         .x_label_area_size(38)
@@ -365,7 +365,7 @@ where
         .x_desc(p.x_label.as_str())
         .y_desc(p.y_label.as_str())
         .label_style((FONT, 12))
-        .axis_desc_style((FONT, 13))
+        .axis_desc_style((FONT, 14))
         .light_line_style(BLACK.mix(0.04))
         .bold_line_style(BLACK.mix(0.12))
         .x_labels(8)
@@ -374,7 +374,8 @@ where
         .y_label_formatter(&fmt)
         .draw()
         .map_err(err)?;
-    let mut entries: Vec<(String, ShapeStyle, bool)> = Vec::new();
+    // Legend entries: label, the line's style, dashed, markers (drawn as plotted).
+    let mut entries: Vec<(String, ShapeStyle, bool, bool)> = Vec::new();
     for (l, pieces) in p.lines.iter().zip(&g.pieces) {
         let style = ShapeStyle {
             color: l.color.to_rgba(),
@@ -432,16 +433,17 @@ where
                 .map_err(err)?;
         }
         if !l.label.is_empty() && pieces.iter().any(|q| !q.is_empty()) {
-            entries.push((l.label.clone(), style, l.dashed));
+            entries.push((l.label.clone(), style, l.dashed, l.markers));
         }
     }
     let mut rects = vec![rect_of(chart.plotting_area())];
     if let Some(la) = legend_area {
         rects.push(rect_of(&la));
-        for (i, (label, style, dashed)) in entries.iter().enumerate() {
+        for (i, (label, style, dashed, markers)) in entries.iter().enumerate() {
             let y = 40 + 20 * i as i32;
+            // The plotted line's own width (at least 2 px so that a thin line's colour shows).
             let s = ShapeStyle {
-                stroke_width: 3,
+                stroke_width: style.stroke_width.max(2),
                 ..*style
             };
             if *dashed {
@@ -451,6 +453,10 @@ where
                     .map_err(err)?;
             } else {
                 la.draw(&PathElement::new(vec![(4, y), (24, y)], s))
+                    .map_err(err)?;
+            }
+            if *markers {
+                la.draw(&Circle::new((14, y), 4, style.filled()))
                     .map_err(err)?;
             }
             la.draw(&Text::new(
@@ -879,8 +885,8 @@ fn payload_figure(rows: &[Summary]) -> Figure {
                         .map(|v| 100.0 * v)
                 });
                 let label = match names.and_then(|n| n.get(i)) {
-                    Some(name) => format!("μ̄ {name}"),
-                    None => format!("μ̄{}", i + 1),
+                    Some(name) => format!("μ {name}"),
+                    None => format!("μ{}", i + 1),
                 };
                 Line::new(label, x, y, SCEN[i % SCEN.len()]).markers()
             })

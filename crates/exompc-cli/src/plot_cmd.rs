@@ -8,7 +8,7 @@ use std::path::PathBuf;
 #[derive(Debug, Args)]
 pub(crate) struct PlotArgs {
     /// Folder written by `simulate` (trace.csv) or `sweep` (sweep.json).
-    #[arg(value_name = "DIR", default_value = "out")]
+    #[arg(value_name = "DIR", default_value = "out/simulate")]
     input: PathBuf,
 }
 

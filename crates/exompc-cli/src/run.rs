@@ -1,7 +1,7 @@
 //! Running one experiment of a scenario into an output folder (`trace.csv`, `summary.json`).
 
 use crate::error::CliError;
-use crate::interrupt::StopOnInterrupt;
+use crate::interrupt::stop_on_interrupt;
 use crate::io::write_atomic;
 use crate::trace::CsvTrace;
 use exompc::config::Scenario;
@@ -58,12 +58,20 @@ fn run_error(e: RunError) -> CliError {
     match e {
         RunError::Config(c) => CliError::Config(c.to_string()),
         RunError::Io(e) => CliError::io("writing trace", e),
+        // The scenario's values put the plant beyond what RK4 integrates: bad input (exit 2).
+        d @ RunError::Diverged { .. } => CliError::Config(format!(
+            "{d}, or smaller gains (a value of the scenario is beyond the plant's stable range)"
+        )),
         other => CliError::Runtime(other.to_string()),
     }
 }
 
 /// Run scenario `s` in the `dof` layout; with `out`, stream `out/trace.csv` and write
 /// `out/summary.json` (both through temporary files renamed at the end).
+///
+/// On SIGINT/SIGTERM the run stops at the next control step; its trace so far and its summary
+/// (marked `"partial": true`, with `completed_steps` and `planned_steps`) are kept in `out`,
+/// and the result is [`CliError::Interrupted`] saying what was completed.
 pub fn run_to_dir(s: &Scenario, dof: u8, out: Option<&Path>) -> Result<Summary, CliError> {
     let n = usize::from(dof);
     let mut trace = match out {
@@ -74,20 +82,22 @@ pub fn run_to_dir(s: &Scenario, dof: u8, out: Option<&Path>) -> Result<Summary, 
         )?),
         None => None,
     };
-    let mut stop = StopOnInterrupt;
+    let mut stop = stop_on_interrupt();
     let summary = match dof {
         1 => {
-            let mut recs: Vec<&mut dyn Recorder<1>> = vec![&mut stop];
+            let mut recs: Vec<&mut dyn Recorder<1>> = Vec::with_capacity(2);
             if let Some(t) = trace.as_mut() {
                 recs.push(t);
             }
+            recs.push(&mut stop);
             run_experiment::<OneDof, 1>(s, &mut recs)
         }
         _ => {
-            let mut recs: Vec<&mut dyn Recorder<2>> = vec![&mut stop];
+            let mut recs: Vec<&mut dyn Recorder<2>> = Vec::with_capacity(2);
             if let Some(t) = trace.as_mut() {
                 recs.push(t);
             }
+            recs.push(&mut stop);
             run_experiment::<TwoDof, 2>(s, &mut recs)
         }
     }
@@ -105,13 +115,46 @@ pub fn run_to_dir(s: &Scenario, dof: u8, out: Option<&Path>) -> Result<Summary, 
             run_error(e)
         }
     })?;
+    let planned = s.control_steps(usize::from(dof));
+    let partial = summary.steps < planned;
     if let (Some(t), Some(dir)) = (trace, out) {
         t.finish()?;
-        let json = serde_json::to_string_pretty(&summary)
+        let mut json = serde_json::to_value(&summary)
             .map_err(|e| CliError::Runtime(format!("serialising summary: {e}")))?;
-        write_atomic(&dir.join("summary.json"), json.as_bytes())?;
+        if partial {
+            if let Some(obj) = json.as_object_mut() {
+                obj.insert("partial".into(), true.into());
+                obj.insert("completed_steps".into(), summary.steps.into());
+                obj.insert("planned_steps".into(), planned.into());
+            }
+        }
+        let text = serde_json::to_string_pretty(&json)
+            .map_err(|e| CliError::Runtime(format!("serialising summary: {e}")))?;
+        write_atomic(&dir.join("summary.json"), text.as_bytes())?;
+    }
+    if partial {
+        return Err(CliError::Interrupted(format!(
+            "interrupted by {}: {} of {planned} steps ({:.2} of {:.2} s) completed{}",
+            crate::interrupt::signal_name(),
+            summary.steps,
+            summary.duration_s,
+            planned as f64 * s.timing.dt,
+            out.map_or(String::new(), |d| format!(
+                "; partial results kept in {} (trace.csv, summary.json marked \"partial\": true)",
+                d.display()
+            ))
+        )));
     }
     Ok(summary)
+}
+
+/// [`scenario_warnings`] computed on a helper thread, abandoned on SIGINT/SIGTERM
+/// ([`CliError::Interrupted`]): with a tiny `timing.dt` the identifiability check takes long.
+pub fn scenario_warnings_interruptible(s: &Scenario, dof: u8) -> Result<Vec<String>, CliError> {
+    let s = s.clone();
+    crate::interrupt::interruptible("before the run started, nothing written", move || {
+        scenario_warnings(&s, dof)
+    })
 }
 
 /// A short human-readable rendering of a summary.

@@ -1,5 +1,5 @@
 //! `exompc simulate`: one closed-loop run of the scenario; writes `trace.csv` and
-//! `summary.json` into `--out` (default `out/`) and prints a short summary.
+//! `summary.json` into `--out` (default `out/simulate`) and prints a short summary.
 
 use crate::args::{apply_overrides_with, ConfigOpt, FormulationArg};
 use clap::Args;
@@ -30,7 +30,7 @@ pub(crate) struct SimulateArgs {
     #[arg(long, value_name = "S", allow_negative_numbers = true)]
     pub(crate) duration: Option<f64>,
     /// Output folder for `trace.csv` and `summary.json`.
-    #[arg(long, value_name = "DIR", default_value = "out")]
+    #[arg(long, value_name = "DIR", default_value = "out/simulate")]
     pub(crate) out: PathBuf,
     /// Print the summary as JSON on stdout instead of the readable text.
     #[arg(long)]
@@ -59,11 +59,11 @@ pub(crate) fn run(a: SimulateArgs) -> Result<(), CliError> {
         a.payload,
         a.duration,
     )?;
-    for w in exompc_cli::run::scenario_warnings(&s, a.dof) {
+    exompc_cli::earlier::refuse_or_clear(&a.out, exompc_cli::earlier::RUN_FILES, a.force, "run")?;
+    for w in exompc_cli::run::scenario_warnings_interruptible(&s, a.dof)? {
         eprintln!("{w}");
     }
-    io::ensure_out_dir(&a.out)?;
-    exompc_cli::earlier::refuse_or_clear(&a.out, exompc_cli::earlier::RUN_FILES, a.force, "run")?;
+    let _out_dir = io::prepare_out_dir(&a.out)?;
     let summary = run_to_dir(&s, a.dof, Some(&a.out))?;
     if a.plot {
         crate::plot::draw_dir(&a.out)?;

@@ -6,6 +6,7 @@ use clap::Args;
 use exompc::scenario::{run_soak, soak_scenario, RunError};
 use exompc::sim::{Recorder, StepRecord};
 use exompc_cli::error::CliError;
+use exompc_cli::interrupt::{self, stop_on_interrupt};
 use exompc_cli::io;
 use exompc_cli::trace::CsvTrace;
 use exompc_cli::verdict::Verdict;
@@ -19,17 +20,28 @@ pub(crate) struct SoakArgs {
     #[command(flatten)]
     config: ConfigOpt,
     /// Simulated duration (hours), in (0, 100].
-    #[arg(long, value_name = "H", default_value_t = 1.0)]
+    #[arg(
+        long,
+        value_name = "H",
+        default_value_t = 1.0,
+        allow_negative_numbers = true
+    )]
     hours: f64,
     /// True payload (kg).
-    #[arg(long, value_name = "KG", default_value_t = 2.0)]
+    #[arg(
+        long,
+        value_name = "KG",
+        default_value_t = 2.0,
+        allow_negative_numbers = true
+    )]
     payload: f64,
-    /// Output folder for `soak.json` (default: current folder).
-    #[arg(long, value_name = "DIR")]
-    out: Option<PathBuf>,
-    /// Also write every N-th step to `soak_trace.csv` (0: no trace).
-    #[arg(long, value_name = "N", default_value_t = 0)]
-    trace_every: usize,
+    /// Output folder for `soak.json` (and `soak_trace.csv`).
+    #[arg(long, value_name = "DIR", default_value = "out/soak")]
+    out: PathBuf,
+    /// Also write every N-th step to `soak_trace.csv` (0: no trace), in [0, 1000000000].
+    #[arg(long, value_name = "N", allow_negative_numbers = true, default_value_t = 0,
+          value_parser = clap::value_parser!(i64).range(0..=1_000_000_000))]
+    trace_every: i64,
     /// Replace the results of an earlier soak in the output folder (soak.json,
     /// soak_trace.csv; nothing else). Without it such a folder is refused.
     #[arg(long)]
@@ -59,22 +71,28 @@ pub(crate) fn run(a: SoakArgs) -> Result<(), CliError> {
     let base = a.config.load()?;
     if !(a.hours.is_finite() && a.hours > 0.0 && a.hours <= MAX_HOURS) {
         return Err(CliError::Usage(format!(
-            "--hours: must be in (0, {MAX_HOURS}], got {}",
-            a.hours
+            "--hours {}: out of range (allowed: finite, in (0, {MAX_HOURS}] h)",
+            crate::args::show_number(a.hours)
         )));
     }
     let mut check = base.clone();
     check.uncertainty.payload_kg = a.payload;
-    check
-        .validate()
-        .map_err(|e| CliError::Usage(format!("--payload: {e}")))?;
+    check.validate().map_err(|e| {
+        crate::args::flag_error(
+            "--payload",
+            a.payload,
+            "uncertainty.payload_kg",
+            &e,
+            &exompc_cli::config_help::KeyOrigins::default(),
+        )
+    })?;
     soak_scenario(&base, a.hours * 3600.0, a.payload)
         .validate()
         .map_err(|e| CliError::Usage(format!("--hours: {e}")))?;
-    let out = a.out.unwrap_or_else(|| PathBuf::from("."));
-    io::ensure_out_dir(&out)?;
+    let out = a.out;
     exompc_cli::earlier::refuse_or_clear(&out, exompc_cli::earlier::SOAK_FILES, a.force, "soak")?;
-    let mut trace = match a.trace_every {
+    let _out_dir = io::prepare_out_dir(&out)?;
+    let mut trace = match a.trace_every as usize {
         0 => None,
         every => Some(Decimated {
             trace: CsvTrace::create_with(
@@ -85,15 +103,29 @@ pub(crate) fn run(a: SoakArgs) -> Result<(), CliError> {
             every,
         }),
     };
+    let mut stop = stop_on_interrupt();
     let mut recs: Vec<&mut dyn Recorder<2>> = Vec::new();
     if let Some(t) = trace.as_mut() {
         recs.push(t);
     }
-    let report = run_soak(&base, a.hours * 3600.0, a.payload, &mut recs).map_err(|e| match e {
+    // Last, so that the trace holds the step the summary ends on.
+    recs.push(&mut stop);
+    let seconds = a.hours * 3600.0;
+    let report = run_soak(&base, seconds, a.payload, &mut recs).map_err(|e| match e {
         RunError::Config(c) => CliError::Config(c.to_string()),
         other => CliError::Runtime(other.to_string()),
     })?;
     let s = &report.stats;
+    // Stopped by SIGINT/SIGTERM: the counters cover the simulated time run so far.
+    let partial = interrupt::requested() && report.simulated_s < seconds;
+    if partial {
+        println!(
+            "partial: interrupted by {} after {:.0} of {:.0} s simulated",
+            interrupt::signal_name(),
+            report.simulated_s,
+            seconds
+        );
+    }
     println!(
         "soak {} | payload {:.2} kg | {:.0} s simulated, {} steps, {} fault events | wall {:.1} s",
         report.controller,
@@ -116,11 +148,28 @@ pub(crate) fn run(a: SoakArgs) -> Result<(), CliError> {
         t.trace.finish()?;
         println!("  wrote {}", out.join("soak_trace.csv").display());
     }
-    let json = serde_json::to_string_pretty(&report)
+    let mut json = serde_json::to_value(&report)
+        .map_err(|e| CliError::Runtime(format!("serialising soak report: {e}")))?;
+    if partial {
+        if let Some(obj) = json.as_object_mut() {
+            obj.insert("partial".into(), true.into());
+            obj.insert("planned_s".into(), seconds.into());
+        }
+    }
+    let json = serde_json::to_string_pretty(&json)
         .map_err(|e| CliError::Runtime(format!("serialising soak report: {e}")))?;
     let path = out.join("soak.json");
     io::write_atomic(&path, json.as_bytes())?;
     println!("  wrote {}", path.display());
+    if partial {
+        return Err(CliError::Interrupted(format!(
+            "interrupted by {}: {:.0} of {seconds:.0} s simulated; partial results kept in {} \
+             (soak.json marked \"partial\": true)",
+            interrupt::signal_name(),
+            report.simulated_s,
+            out.display()
+        )));
+    }
     let verdict = Verdict::of_soak(&report);
     println!("{verdict}");
     verdict.outcome("soak", a.strict)

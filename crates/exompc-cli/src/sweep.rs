@@ -82,6 +82,13 @@ fn progress_bar(len: usize, quiet: bool) -> ProgressBar {
     pb
 }
 
+/// The runs of a grid: the summaries of the completed runs, payload-major, and the message of
+/// an interruption (SIGINT/SIGTERM) if the grid did not complete.
+struct GridResult {
+    rows: Vec<Summary>,
+    interrupted: Option<String>,
+}
+
 /// Runs the whole grid into `out`, returning the summaries payload-major.
 fn run_grid(
     base: &Scenario,
@@ -90,7 +97,7 @@ fn run_grid(
     controllers: &[ControllerKind],
     out: &Path,
     quiet: bool,
-) -> Result<Vec<Summary>, CliError> {
+) -> Result<GridResult, CliError> {
     let mut jobs = Vec::with_capacity(payloads.len() * controllers.len());
     for &p in payloads {
         for &c in controllers {
@@ -114,19 +121,23 @@ fn run_grid(
         .collect();
     pb.finish_and_clear();
     if interrupt::requested() {
-        let done: Vec<String> = jobs
-            .iter()
-            .zip(&results)
-            .filter(|(_, r)| r.is_ok())
-            .map(|((_, d), _)| {
-                d.file_name()
-                    .unwrap_or_default()
-                    .to_string_lossy()
-                    .into_owned()
-            })
-            .collect();
-        return Err(CliError::Interrupted(format!(
-            "interrupted: {} of {} runs completed in {} ({}); no table2.md or sweep.json written",
+        let mut done = Vec::new();
+        let mut rows = Vec::new();
+        for ((_, d), r) in jobs.iter().zip(results) {
+            if let Ok(summary) = r {
+                done.push(
+                    d.file_name()
+                        .unwrap_or_default()
+                        .to_string_lossy()
+                        .into_owned(),
+                );
+                rows.push(summary);
+            }
+        }
+        let message = format!(
+            "interrupted by {}: {} of {} runs completed in {} ({}); table2.md and sweep.json \
+             hold those runs, marked partial",
+            interrupt::signal_name(),
             done.len(),
             jobs.len(),
             out.display(),
@@ -135,9 +146,16 @@ fn run_grid(
             } else {
                 done.join(", ")
             }
-        )));
+        );
+        return Ok(GridResult {
+            rows,
+            interrupted: Some(message),
+        });
     }
-    results.into_iter().collect()
+    Ok(GridResult {
+        rows: results.into_iter().collect::<Result<_, _>>()?,
+        interrupted: None,
+    })
 }
 
 /// One run of the grid, written whole or not at all: into a hidden temporary folder beside
@@ -322,16 +340,30 @@ pub(crate) fn run(a: SweepArgs) -> Result<(), CliError> {
         None,
         a.duration,
     )?;
-    io::ensure_out_dir(&a.out)?;
     clear_earlier_results(&a.out, a.force)?;
+    let _out_dir = io::prepare_out_dir(&a.out)?;
 
-    let rows = run_grid(&s, a.dof, &payloads, &controllers, &a.out, a.quiet)?;
-    let table = table2(&rows);
+    let grid = run_grid(&s, a.dof, &payloads, &controllers, &a.out, a.quiet)?;
+    let rows = grid.rows;
+    let total = payloads.len() * controllers.len();
+    let mut table = table2(&rows);
+    if grid.interrupted.is_some() {
+        table += &format!(
+            "\nPartial: the sweep was interrupted; {} of {total} runs completed.\n",
+            rows.len()
+        );
+    }
     io::write_atomic(&a.out.join("table2.md"), table.as_bytes())?;
-    let file = SweepFile { rows };
+    let file = SweepFile {
+        rows,
+        partial: grid.interrupted.is_some(),
+    };
     let json = serde_json::to_string_pretty(&file)
         .map_err(|e| CliError::Runtime(format!("serialising sweep: {e}")))?;
     io::write_atomic(&a.out.join("sweep.json"), json.as_bytes())?;
+    if let Some(message) = grid.interrupted {
+        return Err(CliError::Interrupted(message));
+    }
     if a.plot {
         crate::plot::draw_dir(&a.out)?;
     }

@@ -100,7 +100,7 @@ fn cross_field_errors_name_the_key_set_and_the_key_it_conflicts_with() {
             "[timing]\ndt = 0.5\n",
             &["--duration", "0.1"],
             &[
-                "--duration: conflicting values: timing.duration_2dof_s = 0.1 (set by --duration) \
+                "--duration 0.1: conflicting values: timing.duration_2dof_s = 0.1 (set by --duration) \
                  and timing.dt = 0.5 (your setting)",
                 "shorten timing.dt",
             ],

@@ -232,3 +232,42 @@ fn envelope_command_writes_json_markdown_and_heat_map() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("payload_position_m"));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Issue 33 item 6: recorded gaits as a grid axis. The shipped grid over three recorded walking
+/// speeds (envelopes/recorded_gaits.toml, gait files relative to it) runs every cell on its
+/// own recording: the gait's torque demand grows with the speed; on the command line the same
+/// axis is `--set trajectory.file=a.csv,b.csv` (kind "recorded" implied).
+#[test]
+fn recorded_gaits_are_a_grid_axis() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let path = root.join("envelopes/recorded_gaits.toml");
+    let mut grid = Grid::parse(&std::fs::read_to_string(&path).unwrap(), "grid").unwrap();
+    grid.base = path.parent().unwrap().to_path_buf();
+    grid.payloads_kg = vec![1.0];
+    grid.controllers = vec!["msnmpc".into()];
+    let base = Scenario::default();
+    let mut peaks = Vec::new();
+    for cell in &grid.cells {
+        let s = grid.cell_scenario(&base, cell).unwrap();
+        assert!(s.trajectory.recording.is_some(), "{}", cell.name);
+    }
+    let env = run_on(&base, &grid);
+    for (i, cell) in grid.cells.iter().enumerate() {
+        let r = env.run(i, 1.0, "msnmpc").unwrap();
+        assert_eq!(r.class_name(), "stable", "{}: {:?}", cell.name, r.error);
+        peaks.push(env.demand(i, 1.0).unwrap().peak_nm[0]);
+    }
+    assert!(peaks.windows(2).all(|w| w[0] < w[1]), "{peaks:?}");
+
+    // The same axis from `--set`, files relative to the working directory.
+    let gaits = root.join("examples/gaits");
+    let files = ["walk_0.6hz.csv", "walk_1.1hz.csv"]
+        .map(|f| gaits.join(f).to_string_lossy().into_owned())
+        .join(",");
+    let g = Grid::product(&[format!("trajectory.file={files}")], 2, vec![0.0], vec![]).unwrap();
+    assert_eq!(g.cells.len(), 2);
+    for cell in &g.cells {
+        let s = Grid::scenario(&base, cell).unwrap();
+        assert_eq!(s.trajectory.kind, exompc::config::TrajectoryKind::Recorded);
+    }
+}

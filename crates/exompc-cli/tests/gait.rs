@@ -92,6 +92,8 @@ fn the_example_recording_replays_the_parametric_run_within_1_percent() {
 fn gait_export_reproduces_the_example_files() {
     for (dof, name) in [("2", "parametric_2dof.csv"), ("1", "parametric_1dof.csv")] {
         let out = scratch(&format!("export-{name}"));
+        // gait export refuses to overwrite an earlier file (without --force).
+        let _ = std::fs::remove_file(&out);
         let o = exompc(&[
             "gait",
             "export",

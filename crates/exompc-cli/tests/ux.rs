@@ -4,7 +4,6 @@
 mod common;
 
 use common::{exompc, fresh_dir};
-use std::process::{Command, Output};
 
 fn text(o: &[u8]) -> String {
     String::from_utf8_lossy(o).into_owned()
@@ -138,67 +137,6 @@ fn entries(dir: &std::path::Path) -> Vec<String> {
     v
 }
 
-/// Starts exompc, sends SIGINT after 1 s, returns its output.
-#[cfg(unix)]
-fn interrupted(args: &[&str]) -> Output {
-    use std::process::Stdio;
-    let child = Command::new(env!("CARGO_BIN_EXE_exompc"))
-        .args(args)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    std::thread::sleep(std::time::Duration::from_secs(1));
-    // SAFETY: plain kill(2) on our own child.
-    unsafe {
-        libc::kill(child.id() as libc::pid_t, libc::SIGINT);
-    }
-    child.wait_with_output().unwrap()
-}
-
-#[cfg(unix)]
-#[test]
-fn interrupted_simulate_and_sweep_leave_no_temporary_file_or_half_run() {
-    // Runs far longer than 1 s, so the signal arrives mid-run.
-    let dir = fresh_dir("interrupt_simulate");
-    let out = interrupted(&[
-        "simulate",
-        "--duration",
-        "3000",
-        "--out",
-        dir.to_str().unwrap(),
-    ]);
-    assert_eq!(out.status.code(), Some(130), "{}", text(&out.stderr));
-    let err = text(&out.stderr);
-    assert!(err.contains("interrupted"), "{err}");
-    assert!(err.contains("nothing written"), "{err}");
-    assert_eq!(
-        entries(&dir),
-        Vec::<String>::new(),
-        "no temporary trace left"
-    );
-
-    let dir = fresh_dir("interrupt_sweep");
-    let out = interrupted(&[
-        "sweep",
-        "--payloads",
-        "0,1,2",
-        "--duration",
-        "3000",
-        "--quiet",
-        "--out",
-        dir.to_str().unwrap(),
-    ]);
-    assert_eq!(out.status.code(), Some(130), "{}", text(&out.stderr));
-    let err = text(&out.stderr);
-    assert!(err.contains("interrupted: 0 of 6 runs completed"), "{err}");
-    assert_eq!(
-        entries(&dir),
-        Vec::<String>::new(),
-        "no half-written run folder"
-    );
-}
-
 #[test]
 fn sweep_refuses_a_folder_with_earlier_results_unless_forced() {
     let dir = fresh_dir("sweep_force");
@@ -263,4 +201,73 @@ fn a_key_in_the_wrong_table_is_pointed_to_its_table() {
         let err = text(&out.stderr);
         assert!(err.contains(want), "{toml}: {err}");
     }
+}
+
+#[test]
+fn refused_starts_leave_no_folder_and_every_writer_refuses_to_overwrite() {
+    // A start refused after the folder was created (a bad grid cell) leaves no empty folder.
+    let dir = fresh_dir("refused_envelope").join("deep/er");
+    let out = exompc(&[
+        "envelope",
+        "--set",
+        "robot.payload_position_m=0.5",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
+    assert!(!dir.parent().unwrap().exists(), "{}", text(&out.stderr));
+
+    // envelope refuses an earlier scan's folder unless --force, naming what it would replace.
+    let dir = fresh_dir("envelope_force");
+    let args = |force: bool| {
+        let mut v = vec![
+            "envelope",
+            "--set",
+            "timing.duration_1dof_s=0.3",
+            "--dof",
+            "1",
+            "--payloads",
+            "0",
+            "--controllers",
+            "pd",
+            "--quiet",
+            "--out",
+            dir.to_str().unwrap(),
+        ];
+        if force {
+            v.push("--force");
+        }
+        v
+    };
+    let first = exompc(&args(false));
+    assert!(first.status.success(), "{}", text(&first.stderr));
+    let again = exompc(&args(false));
+    assert_eq!(again.status.code(), Some(2));
+    let err = text(&again.stderr);
+    assert!(
+        err.contains("envelope.json") && err.contains("--force"),
+        "{err}"
+    );
+    let forced = exompc(&args(true));
+    assert!(forced.status.success(), "{}", text(&forced.stderr));
+
+    // gait export likewise, and creates the folders of its output path.
+    let file = fresh_dir("gait_force").join("sub/walk.csv");
+    let f = file.to_str().unwrap();
+    let export = |force: bool| {
+        let mut v = vec!["gait", "export", "--duration", "1", "--out", f];
+        if force {
+            v.push("--force");
+        }
+        exompc(&v)
+    };
+    assert!(export(false).status.success());
+    let again = export(false);
+    assert_eq!(again.status.code(), Some(2));
+    assert!(
+        text(&again.stderr).contains("--force"),
+        "{}",
+        text(&again.stderr)
+    );
+    assert!(export(true).status.success());
 }

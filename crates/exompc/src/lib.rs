@@ -97,3 +97,9 @@ pub use control::{
 pub use estimate::EkfBank;
 pub use model::RobotModel;
 pub use scenario::{build_controller, build_supervised, run_experiment, Dof, OneDof, TwoDof};
+
+/// The repository's README, whose Rust snippet (the library example) is compiled and run as
+/// a doctest, so that it stays correct.
+#[cfg(doctest)]
+#[doc = include_str!("../../../README.md")]
+pub struct ReadmeDoctests;

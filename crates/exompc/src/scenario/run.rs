@@ -19,6 +19,8 @@ use std::time::Instant;
 /// `s.duration_s(D::DOF)`, feeding every step to `recorders`; returns the summary (paper
 /// Table 2 metrics). The sensors inject the `[faults]` of `s`; the controller runs under the
 /// safety [`Supervisor`](crate::control::Supervisor) (see [`run_experiment_report`] for its event log).
+/// A recorder returning [`stop_requested`](crate::sim::stop_requested) ends the run early
+/// with the summary of the steps run so far.
 pub fn run_experiment<D: Dof<N>, const N: usize>(
     s: &Scenario,
     recorders: &mut [&mut dyn Recorder<N>],
@@ -79,7 +81,11 @@ pub fn run_experiment_report<D: Dof<N>, const N: usize>(
         if let Some(t) = guard.diverged_at {
             return Err(RunError::Diverged { t });
         }
-        result?;
+        match result {
+            // Ended early on request: the summary covers the steps run (`steps` tells).
+            Err(e) if crate::sim::is_stop_requested(&e) => {}
+            r => r?,
+        }
     }
     let mut summary = metrics.summary(
         controller.name(),

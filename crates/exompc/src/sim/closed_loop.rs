@@ -47,23 +47,47 @@ pub struct StepRecord<'a, const N: usize> {
 
 /// Receives every step of a closed loop (a CSV writer, the metrics, an in-memory log ...).
 pub trait Recorder<const N: usize> {
-    /// Record one step; an error stops the run and is returned to the caller.
+    /// Record one step; an error stops the run and is returned to the caller (a
+    /// [`StopRequested`] error ends it early with the results so far instead, see
+    /// [`stop_requested`]).
     fn record(&mut self, r: &StepRecord<'_, N>) -> std::io::Result<()>;
 }
 
+/// The error a [`Recorder`] returns to end a run early on purpose (a user's Ctrl-C): the
+/// experiment drivers ([`crate::scenario::run_experiment`]) then return the summary of the
+/// steps run so far (its `steps` below the planned count) instead of an error.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StopRequested;
+
+impl std::fmt::Display for StopRequested {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("run stopped on request")
+    }
+}
+
+impl std::error::Error for StopRequested {}
+
+/// The I/O error carrying [`StopRequested`], for a [`Recorder`] to return.
+pub fn stop_requested() -> std::io::Error {
+    std::io::Error::other(StopRequested)
+}
+
+/// Whether `e` is the [`stop_requested`] error.
+pub fn is_stop_requested(e: &std::io::Error) -> bool {
+    e.get_ref()
+        .is_some_and(|inner| inner.downcast_ref::<StopRequested>().is_some())
+}
+
 /// A recorder that ends the run between two control steps once `stop()` returns true (checked
-/// once per step, before the plant advances), with an I/O error of kind
-/// [`std::io::ErrorKind::Interrupted`]: the hook to cancel a long run from outside (Ctrl-C, a
+/// once per step, before the plant advances), with the [`stop_requested`] error (the
+/// experiment drivers then return the summary of the steps run): the hook to cancel a long run from outside (Ctrl-C, a
 /// cancel button, a deadline), e.g. `StopWhen(|| flag.load(Ordering::Relaxed))`.
 pub struct StopWhen<F: Fn() -> bool>(pub F);
 
 impl<const N: usize, F: Fn() -> bool> Recorder<N> for StopWhen<F> {
     fn record(&mut self, _r: &StepRecord<'_, N>) -> std::io::Result<()> {
         if (self.0)() {
-            Err(std::io::Error::new(
-                std::io::ErrorKind::Interrupted,
-                "run stopped on request",
-            ))
+            Err(stop_requested())
         } else {
             Ok(())
         }
@@ -213,7 +237,7 @@ mod tests {
             assert!(Recorder::<1>::record(&mut stop, &record(k)).is_ok());
         }
         let e = Recorder::<1>::record(&mut stop, &record(3)).unwrap_err();
-        assert_eq!(e.kind(), std::io::ErrorKind::Interrupted);
+        assert!(is_stop_requested(&e));
         assert_eq!(calls.get(), 4, "checked exactly once per step");
     }
 }

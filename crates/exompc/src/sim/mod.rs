@@ -19,7 +19,10 @@ mod trajectory;
 mod uncertainty;
 
 pub use crate::check::InvalidField;
-pub use closed_loop::{run_closed_loop, Recorder, StepRecord, StopWhen, TraceLog, TraceRow};
+pub use closed_loop::{
+    is_stop_requested, run_closed_loop, stop_requested, Recorder, StepRecord, StopRequested,
+    StopWhen, TraceLog, TraceRow,
+};
 pub use demand::{actuator_demand, required_torque, ActuatorDemand};
 pub use faults::{
     channel_index, default_schedule, repeat_schedule, Channel, FaultEvent, FaultInjector,
