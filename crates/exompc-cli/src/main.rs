@@ -40,7 +40,9 @@ Exit codes:
        folder holding earlier results (without --force)
   3    with --strict (simulate, sweep, soak): the verdict is degraded (monitor trips, held
        torques, solver fallbacks); the results are written
-  130  interrupted by SIGINT/SIGTERM (nothing half-written is left)";
+  130  interrupted by SIGINT/SIGTERM (nothing half-written is left); run and virtual-robot:
+       SIGINT (the torque ramped to zero first; the trace written so far is kept)
+  143  run and virtual-robot: stopped by SIGTERM (as after SIGINT)";
 
 /// Multi-stage robust nonlinear MPC of a lower-limb exoskeleton: simulation and tools.
 #[derive(Debug, Parser)]
@@ -92,9 +94,13 @@ enum Command {
     #[command(after_help = EXIT_CODES)]
     Soak(SoakArgs),
     /// Drive a robot in real time over UDP (the controller process; see docs/REALTIME.md).
+    #[command(after_help = EXIT_CODES)]
     Run(realtime::RunArgs),
     /// Simulate the robot of `simulate` in real time behind the UDP protocol, to test `run`.
+    #[command(after_help = EXIT_CODES)]
     VirtualRobot(realtime::VirtualRobotArgs),
+    /// Write a fresh random pre-shared key (mode 0600) for `run` and `virtual-robot` --key.
+    Keygen(realtime::KeygenArgs),
     /// Scan the operating envelope (scenario changes × payloads × controllers): classify every
     /// run (stable / limit cycle / growing / saturating), judge MS-NMPC against NMPC per cell,
     /// write envelope.json, envelope.md and a heat map (see docs/ROBUSTNESS.md).
@@ -136,6 +142,7 @@ fn run(cli: Cli) -> Result<(), CliError> {
         Command::Plot(a) => plot_cmd::run(a),
         Command::Run(a) => realtime::run(a),
         Command::VirtualRobot(a) => realtime::virtual_robot(a),
+        Command::Keygen(a) => realtime::keygen(a),
         Command::Envelope(a) => envelope_cmd::run(a),
         Command::Gait(a) => gait_cmd::run(a),
     }
