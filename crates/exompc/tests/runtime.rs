@@ -1035,6 +1035,61 @@ fn keys_are_checked() {
     assert_eq!(format!("{:?}", a.handshake_key()), "Key(..)");
 }
 
+/// The cost of authentication per frame: encode + decode of a 2-joint command and sample
+/// (MAC, keyed BLAKE3) against the CRC-32 of frame v1 over the same bytes. A measurement, not
+/// a check: `cargo test --release -p exompc --test runtime mac_cost -- --ignored --nocapture`
+/// (docs/REALTIME.md).
+#[test]
+#[ignore = "timing measurement; run with --ignored --nocapture"]
+fn mac_cost_per_frame() {
+    use std::hint::black_box;
+    use std::time::Instant;
+    let n = 200_000;
+    let c = RobotCommand::new(7, 1, 3, 0, Vector2::new(1.0, -2.0));
+    let sm = RobotSample::<2> {
+        seq: 9,
+        stamp_ns: 5,
+        flags: 0,
+        q: Vector2::new(0.1, -0.3),
+        qd: Vector2::new(0.5, -1.0),
+        force: Vector2::new(2.0, -1.0),
+        effort: Vector2::new(3.0, 1.0),
+    };
+    let (k, h) = (key(), hkey());
+    let mut buf = Vec::with_capacity(1024);
+    let time = |name: &str, f: &mut dyn FnMut()| {
+        for _ in 0..1000 {
+            f();
+        }
+        let t0 = Instant::now();
+        for _ in 0..n {
+            f();
+        }
+        let ns = t0.elapsed().as_nanos() as f64 / f64::from(n);
+        println!("{name}: {ns:.0} ns per frame");
+    };
+    time("command encode + decode, MAC", &mut || {
+        buf.clear();
+        encode_command(black_box(&c), &k, &mut buf);
+        black_box(decode::<2>(&buf, &h, Some(&k)).unwrap());
+    });
+    time("sample encode + decode, MAC", &mut || {
+        buf.clear();
+        encode_sample(black_box(&sm), &k, &mut buf);
+        black_box(decode::<2>(&buf, &h, Some(&k)).unwrap());
+    });
+    let cmd_bytes = enc_command(&c);
+    let body = cmd_bytes.len() - exompc::runtime::frame::MAC_LEN;
+    time("command MAC alone (compute + verify)", &mut || {
+        let tag = k.mac(black_box(&cmd_bytes[..body]));
+        black_box(k.verify(&cmd_bytes[..body], &tag));
+    });
+    time("command CRC-32 of frame v1 (compute + check)", &mut || {
+        let crc = crc32fast::hash(black_box(&cmd_bytes[..body]));
+        black_box(crc == crc32fast::hash(&cmd_bytes[..body]));
+    });
+}
+
 // ---------------------------------------------------------------------------------------------
 // The robot protects itself.
 
