@@ -2,8 +2,8 @@
 //! both ends (no sockets: [`super::UdpRobot`] and the virtual robot's transport move the bytes).
 //!
 //! Both sides hold a pre-shared key ([`Psk`], `exompc keygen`). The controller opens with a
-//! [`Hello`](super::frame::Hello) carrying a fresh random nonce; the robot, while it accepts a
-//! session (lifecycle inactive), answers with a [`Challenge`](super::frame::Challenge) echoing
+//! [`Hello`] carrying a fresh random nonce; the robot, while it accepts a
+//! session (lifecycle inactive), answers with a [`Challenge`] echoing
 //! it with its own fresh nonce; both frames carry a MAC under the handshake key derived from
 //! the PSK. Both sides then derive the session key from the PSK and the two nonces
 //! ([`Psk::session_key`]); the controller's first command (flag `HELLO`) under the session key
