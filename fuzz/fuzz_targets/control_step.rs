@@ -7,7 +7,7 @@
 
 use exompc::config::{ControllerKind, Formulation, Scenario};
 use exompc::control::{Controller, Measurement};
-use exompc::sim::{build_controller, build_supervised, limits, TwoDof};
+use exompc::scenario::{build_controller, build_supervised, limits, TwoDof};
 use libfuzzer_sys::fuzz_target;
 use nalgebra::SVector;
 

@@ -22,6 +22,9 @@ pub const EXIT_USAGE: u8 = 2;
 /// Exit code after SIGINT (128 + 2, as the shell reports a Ctrl-C); SIGTERM gives 143
 /// (see [`interrupted_exit_code`]).
 pub const EXIT_INTERRUPTED: u8 = 130;
+/// Exit code after SIGTERM where a command tells it from SIGINT (`run`, `virtual-robot`:
+/// 128 + 15).
+pub const EXIT_TERMINATED: u8 = 143;
 /// Exit code for a runtime failure (I/O error while writing results, solver failure, ...).
 pub const EXIT_FAILURE: u8 = 1;
 /// Exit code of `--strict` runs whose verdict is `degraded` (the results are written).
@@ -42,6 +45,8 @@ pub enum CliError {
     Interrupted(String),
     /// A `--strict` run whose verdict is `degraded` (exit 3).
     Degraded(String),
+    /// Stopped by SIGTERM, where the command tells it from SIGINT (exit 143).
+    Terminated(String),
 }
 
 impl CliError {
@@ -52,6 +57,7 @@ impl CliError {
             CliError::Io(_) | CliError::Runtime(_) => EXIT_FAILURE,
             CliError::Interrupted(_) => interrupted_exit_code(),
             CliError::Degraded(_) => EXIT_DEGRADED,
+            CliError::Terminated(_) => EXIT_TERMINATED,
         }
     }
 
@@ -69,7 +75,8 @@ impl fmt::Display for CliError {
             | CliError::Io(m)
             | CliError::Runtime(m)
             | CliError::Interrupted(m)
-            | CliError::Degraded(m) => f.write_str(m),
+            | CliError::Degraded(m)
+            | CliError::Terminated(m) => f.write_str(m),
         }
     }
 }

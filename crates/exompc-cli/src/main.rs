@@ -42,7 +42,8 @@ Exit codes:
        torques, solver fallbacks); the results are written
   130  interrupted by SIGINT (143: by SIGTERM): simulate, sweep, soak, envelope and bench
        stop within a control step and keep what they completed, marked partial
-       (\"partial\": true in summary.json, sweep.json, soak.json, envelope.json)";
+       (\"partial\": true in summary.json, sweep.json, soak.json, envelope.json); run and
+       virtual-robot ramp the torque to zero first and keep the trace written so far";
 
 /// Multi-stage robust nonlinear MPC of a lower-limb exoskeleton: simulation and tools.
 #[derive(Debug, Parser)]
@@ -94,9 +95,13 @@ enum Command {
     #[command(after_help = EXIT_CODES)]
     Soak(SoakArgs),
     /// Drive a robot in real time over UDP (the controller process; see docs/REALTIME.md).
+    #[command(after_help = EXIT_CODES)]
     Run(realtime::RunArgs),
     /// Simulate the robot of `simulate` in real time behind the UDP protocol, to test `run`.
+    #[command(after_help = EXIT_CODES)]
     VirtualRobot(realtime::VirtualRobotArgs),
+    /// Write a fresh random pre-shared key (mode 0600) for `run` and `virtual-robot` --key.
+    Keygen(realtime::KeygenArgs),
     /// Scan the operating envelope (scenario changes × payloads × controllers): classify every
     /// run (stable / limit cycle / growing / saturating), judge MS-NMPC against NMPC per cell,
     /// write envelope.json, envelope.md and a heat map (see docs/ROBUSTNESS.md).
@@ -138,6 +143,7 @@ fn run(cli: Cli) -> Result<(), CliError> {
         Command::Plot(a) => plot_cmd::run(a),
         Command::Run(a) => realtime::run(a),
         Command::VirtualRobot(a) => realtime::virtual_robot(a),
+        Command::Keygen(a) => realtime::keygen(a),
         Command::Envelope(a) => envelope_cmd::run(a),
         Command::Gait(a) => gait_cmd::run(a),
     }

@@ -9,8 +9,8 @@ use exompc::config::Scenario;
 use exompc::control::{Controller, StepStatus};
 use exompc::runtime::frame::status_from_code;
 use exompc::runtime::{
-    Clock, ControlLoop, LoopSettings, MonotonicClock, NetFaultSettings, NetFaults, Schedule,
-    TimingStats, UdpPeer, UdpRobot, VirtualRobot,
+    Clock, ControlLoop, Lifecycle, LoopSettings, MonotonicClock, NetFaultSettings, NetFaults, Psk,
+    RobotInterface, RobotRx, Schedule, StopCause, TimingStats, UdpPeer, UdpRobot, VirtualRobot,
 };
 use exompc::scenario::{build_supervised, limits, plant_params, uncertainty, Dof, OneDof, TwoDof};
 use exompc::sim::{Metrics, Plant, Recorder, Sensors, StepRecord};
@@ -21,7 +21,7 @@ use exompc_cli::trace::CsvTrace;
 use nalgebra::SVector;
 use serde::Serialize;
 use std::net::SocketAddr;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
@@ -32,14 +32,14 @@ pub(crate) struct RtOpts {
     /// SCHED_FIFO priority (1-99) of the process; 0 keeps the normal scheduler.
     #[arg(long, value_name = "P", default_value_t = 80, value_parser = clap::value_parser!(u8).range(0..=99))]
     rt_priority: u8,
-    /// Pin the process to this CPU.
-    #[arg(long, value_name = "CPU")]
-    cpu: Option<usize>,
+    /// Pin the process to this CPU (0-1023).
+    #[arg(long, value_name = "CPU", value_parser = clap::value_parser!(u16).range(0..=1023))]
+    cpu: Option<u16>,
     /// Do not lock memory (mlockall).
     #[arg(long)]
     no_mlock: bool,
-    /// Busy-wait the last part of each sleep (µs); 0 only sleeps.
-    #[arg(long, value_name = "US", default_value_t = 0)]
+    /// Busy-wait the last part of each sleep (µs, 0-10000); 0 only sleeps.
+    #[arg(long, value_name = "US", default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=10_000))]
     spin_us: u64,
     /// No live statistics on stderr.
     #[arg(long)]
@@ -86,7 +86,7 @@ fn rt_setup(o: &RtOpts) -> RtStatus {
                     ));
                 }
             }
-            if let Some(cpu) = o.cpu {
+            if let Some(cpu) = o.cpu.map(usize::from) {
                 let mut set: libc::cpu_set_t = std::mem::zeroed();
                 if cpu < libc::CPU_SETSIZE as usize {
                     libc::CPU_SET(cpu, &mut set);
@@ -117,13 +117,51 @@ fn rt_setup(o: &RtOpts) -> RtStatus {
     st
 }
 
-fn stop_flag() -> Result<Arc<AtomicBool>, CliError> {
-    let f = Arc::new(AtomicBool::new(false));
-    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        signal_hook::flag::register(sig, Arc::clone(&f))
-            .map_err(|e| CliError::io("installing the signal handler", e))?;
+/// SIGINT, SIGTERM (both: stop) and SIGUSR1 (the virtual robot's restart) as flags.
+struct Signals {
+    int: Arc<AtomicBool>,
+    term: Arc<AtomicBool>,
+    usr1: Arc<AtomicBool>,
+}
+
+impl Signals {
+    fn install() -> Result<Self, CliError> {
+        let s = Signals {
+            int: Arc::new(AtomicBool::new(false)),
+            term: Arc::new(AtomicBool::new(false)),
+            usr1: Arc::new(AtomicBool::new(false)),
+        };
+        for (sig, f) in [
+            (signal_hook::consts::SIGINT, &s.int),
+            (signal_hook::consts::SIGTERM, &s.term),
+            (signal_hook::consts::SIGUSR1, &s.usr1),
+        ] {
+            signal_hook::flag::register(sig, Arc::clone(f))
+                .map_err(|e| CliError::io("installing the signal handler", e))?;
+        }
+        Ok(s)
     }
-    Ok(f)
+
+    fn any(&self) -> bool {
+        self.int.load(Ordering::Relaxed) || self.term.load(Ordering::Relaxed)
+    }
+
+    fn name(&self) -> &'static str {
+        if self.term.load(Ordering::Relaxed) {
+            "SIGTERM"
+        } else {
+            "SIGINT"
+        }
+    }
+
+    /// The error of a run stopped by the signal: exit 143 for SIGTERM, 130 for SIGINT.
+    fn error(&self, msg: String) -> CliError {
+        if self.term.load(Ordering::Relaxed) {
+            CliError::Terminated(msg)
+        } else {
+            CliError::Interrupted(msg)
+        }
+    }
 }
 
 fn secs(name: &str, v: f64, lo: f64, hi: f64) -> Result<Duration, CliError> {
@@ -136,7 +174,7 @@ fn secs(name: &str, v: f64, lo: f64, hi: f64) -> Result<Duration, CliError> {
     }
 }
 
-fn write_json(path: &std::path::Path, v: &impl Serialize) -> Result<(), CliError> {
+fn write_json(path: &Path, v: &impl Serialize) -> Result<(), CliError> {
     let json = serde_json::to_string_pretty(v)
         .map_err(|e| CliError::Runtime(format!("serialising summary: {e}")))?;
     io::write_atomic(path, json.as_bytes())
@@ -151,6 +189,243 @@ fn live(t: f64, timing: &TimingStats, extra: &str) {
     );
 }
 
+/// A warning for an address other than loopback (the threat model of docs/REALTIME.md).
+fn warn_exposed(flag: &str, addr: SocketAddr) {
+    if !addr.ip().is_loopback() {
+        eprintln!(
+            "warning: {flag} {addr} is not a loopback address: any host that reaches it can send \
+             datagrams (rejected without the key, but a flood is not stopped; the robot's \
+             watchdog makes it safe); see the threat model in docs/REALTIME.md"
+        );
+    }
+}
+
+// ------------------------------------------------------------------------------------------
+// Keys
+
+/// Load the pre-shared key of `--key` (exit 2 without one, for a file readable or writable
+/// by group or others, as ssh does, and for a key too short or unreadable).
+fn load_key(path: Option<&Path>) -> Result<Psk, CliError> {
+    let Some(path) = path else {
+        return Err(CliError::Usage(
+            "no key: the robot link is authenticated; pass --key FILE with the pre-shared key of \
+             the controller and the robot (create one with `exompc keygen FILE` and give both \
+             processes the same file)"
+                .into(),
+        ));
+    };
+    let shown = path.display();
+    let meta = std::fs::metadata(path)
+        .map_err(|e| CliError::Usage(format!("--key {shown}: cannot read the key file: {e}")))?;
+    if !meta.is_file() {
+        return Err(CliError::Usage(format!(
+            "--key {shown}: not a regular file"
+        )));
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let mode = meta.permissions().mode() & 0o777;
+        if mode & 0o077 != 0 {
+            return Err(CliError::Usage(format!(
+                "--key {shown}: the key file is accessible by group or others (mode {mode:04o}); \
+                 make it private with `chmod 600 {shown}` (and consider the key compromised)"
+            )));
+        }
+    }
+    let bytes = std::fs::read(path)
+        .map_err(|e| CliError::Usage(format!("--key {shown}: cannot read the key file: {e}")))?;
+    Psk::new(&bytes).map_err(|e| CliError::Usage(format!("--key {shown}: {e}")))
+}
+
+/// `exompc keygen FILE`: a fresh random pre-shared key for `run` and `virtual-robot`.
+#[derive(Debug, Args)]
+pub(crate) struct KeygenArgs {
+    /// The key file to write (mode 0600).
+    #[arg(value_name = "FILE")]
+    file: PathBuf,
+    /// Replace an existing key file (both ends then need the new key).
+    #[arg(long)]
+    force: bool,
+}
+
+fn create_private(path: &Path) -> std::io::Result<std::fs::File> {
+    let mut o = std::fs::OpenOptions::new();
+    o.write(true).create_new(true);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        o.mode(0o600);
+    }
+    o.open(path)
+}
+
+pub(crate) fn keygen(a: KeygenArgs) -> Result<(), CliError> {
+    use std::io::Write as _;
+    let shown = a.file.display();
+    let exists = std::fs::symlink_metadata(&a.file).is_ok();
+    if exists && !a.force {
+        return Err(CliError::Usage(format!(
+            "{shown} exists: refusing to overwrite a key (pass --force to replace it; both \
+             the controller and the robot then need the new key)"
+        )));
+    }
+    let contents = Psk::generate_file()
+        .map_err(|e| CliError::Runtime(format!("no random numbers from the OS: {e}")))?;
+    // Written under a temporary name (created with mode 0600, never changed after) and
+    // renamed, so a key file is whole or absent.
+    let dir = a
+        .file
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let name = a
+        .file
+        .file_name()
+        .map_or("key".into(), |n| n.to_string_lossy().into_owned());
+    let temp = dir.join(format!(".{name}.tmp.{}", std::process::id()));
+    let write = || -> std::io::Result<()> {
+        let mut f = create_private(&temp)?;
+        f.write_all(contents.as_bytes())?;
+        f.sync_all()?;
+        if a.force {
+            std::fs::rename(&temp, &a.file)
+        } else {
+            // Fails if the file appeared meanwhile: never overwrite without --force.
+            std::fs::hard_link(&temp, &a.file)?;
+            std::fs::remove_file(&temp)
+        }
+    };
+    if let Err(e) = write() {
+        let _ = std::fs::remove_file(&temp);
+        let code = if e.kind() == std::io::ErrorKind::AlreadyExists {
+            CliError::Usage(format!(
+                "{shown} exists: refusing to overwrite a key (--force)"
+            ))
+        } else {
+            CliError::io(format!("writing {shown}"), e)
+        };
+        return Err(code);
+    }
+    println!(
+        "wrote a new 256-bit key to {shown} (mode 0600); give `exompc run` and `exompc \
+         virtual-robot` the same --key {shown}"
+    );
+    Ok(())
+}
+
+// ------------------------------------------------------------------------------------------
+// Output folders: refused before anything runs, created only once the session is open.
+
+fn earlier_results(dir: &Path) -> Vec<String> {
+    exompc_cli::earlier::RUN_FILES
+        .iter()
+        .filter(|f| dir.join(f).exists())
+        .map(|f| f.to_string())
+        .collect()
+}
+
+/// Refuse an output folder holding an earlier run's results (without `--force`) or that is not
+/// a folder; creates nothing.
+fn check_out(dir: &Path, force: bool) -> Result<(), CliError> {
+    if dir.exists() && !dir.is_dir() {
+        return Err(CliError::Usage(format!(
+            "output path {} exists and is not a folder",
+            dir.display()
+        )));
+    }
+    let found = earlier_results(dir);
+    if !force && !found.is_empty() {
+        return Err(CliError::Usage(format!(
+            "{} already holds results of an earlier run ({}): choose another --out, or pass \
+             --force to move them aside (renamed NAME.replaced-TIME) and write new ones",
+            dir.display(),
+            found.join(", ")
+        )));
+    }
+    Ok(())
+}
+
+/// Create the output folder and, with `--force`, move an earlier run's results aside
+/// (`trace.csv` → `trace.csv.replaced-<unix seconds>`): nothing is deleted.
+fn open_out(dir: &Path, force: bool) -> Result<(), CliError> {
+    io::ensure_out_dir(dir)?;
+    if force {
+        let stamp = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_secs());
+        for f in earlier_results(dir) {
+            let from = dir.join(&f);
+            let mut to = dir.join(format!("{f}.replaced-{stamp}"));
+            let mut i = 1;
+            while to.exists() {
+                to = dir.join(format!("{f}.replaced-{stamp}-{i}"));
+                i += 1;
+            }
+            std::fs::rename(&from, &to)
+                .map_err(|e| CliError::io(format!("moving {} aside", from.display()), e))?;
+        }
+    }
+    Ok(())
+}
+
+/// A live trace that stops writing at its first error (keeping what was written) and
+/// remembers the error, naming the file.
+struct LiveTrace {
+    trace: Option<CsvTrace>,
+    path: PathBuf,
+    error: Option<String>,
+}
+
+impl LiveTrace {
+    fn create(dir: &Path, n: usize, keys: &[String]) -> Result<Self, CliError> {
+        let path = dir.join("trace.csv");
+        Ok(LiveTrace {
+            trace: Some(CsvTrace::create_live(&path, n, keys)?),
+            path,
+            error: None,
+        })
+    }
+
+    fn fail(&mut self, e: std::io::Error) {
+        self.trace = None;
+        self.error = Some(format!("writing {}: {e}", self.path.display()));
+    }
+
+    /// Record a row; `false` on the first failure.
+    fn record<const N: usize>(&mut self, r: &StepRecord<'_, N>) -> bool {
+        let Some(t) = self.trace.as_mut() else {
+            return self.error.is_none();
+        };
+        if let Err(e) = Recorder::<N>::record(t, r) {
+            self.fail(e);
+            return false;
+        }
+        true
+    }
+
+    fn flush(&mut self) -> bool {
+        let Some(t) = self.trace.as_mut() else {
+            return self.error.is_none();
+        };
+        if let Err(e) = t.flush() {
+            self.fail(e);
+            return false;
+        }
+        true
+    }
+
+    /// Flush and fsync; the error message, if any write failed.
+    fn finish(mut self) -> Option<String> {
+        if let Some(t) = self.trace.take() {
+            if let Err(e) = t.finish() {
+                self.error = Some(format!("{} ({e})", self.path.display()));
+            }
+        }
+        self.error
+    }
+}
+
 // ------------------------------------------------------------------------------------------
 // exompc run
 
@@ -158,6 +433,10 @@ fn live(t: f64, timing: &TimingStats, extra: &str) {
 pub(crate) struct RunArgs {
     #[command(flatten)]
     config: ConfigOpt,
+    /// The pre-shared key file of the controller and the robot (`exompc keygen FILE`; mode
+    /// 0600). Required.
+    #[arg(long, value_name = "FILE")]
+    key: Option<PathBuf>,
     /// Experiment: 1 (knee only) or 2 (hip and knee).
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=2))]
     dof: u8,
@@ -170,26 +449,27 @@ pub(crate) struct RunArgs {
     /// Local address to bind (port 0: any free port).
     #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:0")]
     bind: SocketAddr,
-    /// Stop (with the torque ramp) after this long (s); default: until the robot ends the run
-    /// or SIGINT/SIGTERM.
+    /// Stop (with the torque ramp) after this long (s, up to 1e6); default: until the robot
+    /// ends the run or SIGINT/SIGTERM.
     #[arg(long, value_name = "S")]
     duration: Option<f64>,
-    /// Wait this long for the robot's first sample (s).
+    /// Wait this long for the robot's session (s, 0-3600).
     #[arg(long, value_name = "S", default_value_t = 10.0)]
     connect_timeout: f64,
-    /// Give up when no sample arrived for this long (s).
+    /// Give up when no sample arrived for this long (s, 0.05-3600): the robot vanished.
     #[arg(long, value_name = "S", default_value_t = 3.0)]
     give_up: f64,
-    /// Wake this long before a sample is expected (ms); default period/5.
+    /// Wake this long before a sample is expected (ms, 0 to the period); default period/5.
     #[arg(long, value_name = "MS")]
     lead_ms: Option<f64>,
-    /// Wait for a sample at most this long after waking (ms); default period/2.
+    /// Wait for a sample at most this long after waking (ms, 0 to the period); default
+    /// period/2.
     #[arg(long, value_name = "MS")]
     sample_timeout_ms: Option<f64>,
-    /// Output folder for `trace.csv` and `summary.json`.
-    #[arg(long, value_name = "DIR", default_value = "out-run")]
+    /// Output folder for `trace.csv` (written as the run goes) and `summary.json`.
+    #[arg(long, value_name = "DIR", default_value = "out/run")]
     out: PathBuf,
-    /// Replace the results of an earlier run in the output folder (without it, refused).
+    /// Move the results of an earlier run in the output folder aside (without it, refused).
     #[arg(long)]
     force: bool,
     #[command(flatten)]
@@ -202,6 +482,8 @@ struct RunSummary {
     dof: usize,
     robot: String,
     stop_reason: String,
+    /// Whether the run ended as planned (the robot's or `--duration`'s end).
+    completed: bool,
     duration_s: f64,
     timing_us: exompc::runtime::TimingSummary,
     controller_step_us: exompc::runtime::Percentiles,
@@ -212,33 +494,57 @@ struct RunSummary {
     /// monitor with the first, handovers, `latched_at_s`).
     safety_summary: Option<exompc::sim::SafetySummary>,
     rms_force_measured_n: Vec<f64>,
+    trace_error: Option<String>,
     realtime: RtStatus,
+}
+
+/// Why `run` ended.
+enum RunEnd {
+    /// As planned (exit 0).
+    Planned(String),
+    /// SIGINT/SIGTERM (exit 130/143).
+    Signal,
+    /// The robot vanished, refused or stopped the session, or the controller's own fault
+    /// (exit 1).
+    Failed(String),
 }
 
 pub(crate) fn run(a: RunArgs) -> Result<(), CliError> {
     let mut s = a.config.load()?;
     crate::args::apply_overrides(&mut s, a.dof, a.controller, None, None, None)?;
     if let Some(d) = a.duration {
-        secs("duration", d, 0.0, 1e7)?;
+        secs("duration", d, 0.0, 1e6)?;
     }
-    secs("connect-timeout", a.connect_timeout, 0.0, 1e6)?;
-    secs("give-up", a.give_up, 0.0, 1e6)?;
-    io::ensure_out_dir(&a.out)?;
-    exompc_cli::earlier::refuse_or_clear(&a.out, exompc_cli::earlier::RUN_FILES, a.force, "run")?;
+    secs("connect-timeout", a.connect_timeout, 0.0, 3600.0)?;
+    secs("give-up", a.give_up, 0.05, 3600.0)?;
+    if let Some(ms) = a.lead_ms {
+        secs("lead-ms", ms * 1e-3, 0.0, s.timing.dt)?;
+    }
+    if let Some(ms) = a.sample_timeout_ms {
+        secs("sample-timeout-ms", ms * 1e-3, 0.0, s.timing.dt)?;
+    }
+    let psk = load_key(a.key.as_deref())?;
+    check_out(&a.out, a.force)?;
+    warn_exposed("--bind", a.bind);
     match a.dof {
-        1 => run_dof::<OneDof, 1>(&s, &a),
-        _ => run_dof::<TwoDof, 2>(&s, &a),
+        1 => run_dof::<OneDof, 1>(&s, &a, psk),
+        _ => run_dof::<TwoDof, 2>(&s, &a, psk),
     }
 }
 
-fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs) -> Result<(), CliError> {
+/// Sequence numbers a frame may be ahead of the last one: about 1 s of periods.
+fn max_ahead(dt: f64) -> u32 {
+    (1.0 / dt).ceil().clamp(2.0, 1e6) as u32
+}
+
+fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs, psk: Psk) -> Result<(), CliError> {
     let dt = Duration::from_secs_f64(s.timing.dt);
     let mut settings = LoopSettings::new(dt, s.uncertainty.filter_window, limits(s));
     if let Some(ms) = a.lead_ms {
-        settings.lead = secs("lead-ms", ms * 1e-3, 0.0, s.timing.dt)?;
+        settings.lead = Duration::from_secs_f64(ms * 1e-3);
     }
     if let Some(ms) = a.sample_timeout_ms {
-        settings.sample_timeout = secs("sample-timeout-ms", ms * 1e-3, 0.0, s.timing.dt)?;
+        settings.sample_timeout = Duration::from_secs_f64(ms * 1e-3);
     }
     let sup = build_supervised::<D, N>(s, s.controller.kind)
         .map_err(|e| CliError::Runtime(e.to_string()))?;
@@ -248,10 +554,9 @@ fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs) -> Result<(), C
         .map_or(s.control_steps(D::DOF), |d| (d / s.timing.dt) as usize + 16)
         .min(1 << 22);
     let mut lp = ControlLoop::new(sup, settings, capacity);
-    let mut trace = CsvTrace::create_with(&a.out.join("trace.csv"), N, &scenario_keys(s))?;
-    let stop = stop_flag()?;
+    let sig = Signals::install()?;
     let rt = rt_setup(&a.rt);
-    let mut robot = UdpRobot::<N>::connect(a.bind, a.robot)
+    let mut robot = UdpRobot::<N>::connect(a.bind, a.robot, psk, max_ahead(s.timing.dt))
         .map_err(|e| CliError::io(format!("binding {}", a.bind), e))?;
     let mut clock = MonotonicClock::new(Duration::from_micros(a.rt.spin_us));
     if !a.rt.quiet {
@@ -264,20 +569,42 @@ fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs) -> Result<(), C
         );
     }
     let io_err = |e| CliError::io("robot link", e);
-    if !lp
-        .connect(
-            &mut robot,
-            &mut clock,
-            Duration::from_secs_f64(a.connect_timeout),
-            Duration::from_millis(100),
-        )
-        .map_err(io_err)?
-    {
-        return Err(CliError::Runtime(format!(
-            "no sample from the robot at {} within {} s",
-            a.robot, a.connect_timeout
-        )));
+    // The handshake, in slices so that a signal stops it within a fraction of a second.
+    let connect_end = clock.now() + Duration::from_secs_f64(a.connect_timeout);
+    loop {
+        if sig.any() {
+            return Err(sig.error(format!(
+                "interrupted by {} while connecting to the robot at {}; nothing written",
+                sig.name(),
+                a.robot
+            )));
+        }
+        let left = connect_end.saturating_sub(clock.now());
+        if left.is_zero() {
+            return Err(CliError::Runtime(format!(
+                "no session with the robot at {} within {} s: is it running with the same \
+                 --key, and not in a protective stop (restart it)? (link: {} datagrams \
+                 received, {} rejected)",
+                a.robot,
+                a.connect_timeout,
+                robot.link_stats().received,
+                robot.link_stats().rejected.total()
+            )));
+        }
+        if lp
+            .connect(
+                &mut robot,
+                &mut clock,
+                left.min(Duration::from_millis(200)),
+                Duration::from_millis(100),
+            )
+            .map_err(io_err)?
+        {
+            break;
+        }
     }
+    open_out(&a.out, a.force)?;
+    let mut trace = LiveTrace::create(&a.out, N, &scenario_keys(s))?;
     let mut dist =
         vec![SVector::<f64, N>::zeros(); lp.controller().probabilities().map_or(0, |p| p.len())];
     let mut sum_f2 = [0.0f64; N];
@@ -285,20 +612,40 @@ fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs) -> Result<(), C
     let mut step_us = Vec::with_capacity(capacity);
     let mut last_sample = clock.now();
     let mut next_live = clock.now() + Duration::from_secs(1);
-    let mut reason = String::new();
+    let mut end: Option<RunEnd> = None;
     let nan = SVector::<f64, N>::from_element(f64::NAN);
     loop {
         let k = lp.stats().periods;
         if !lp.is_stopping() {
-            if stop.load(Ordering::Relaxed) {
+            if sig.any() {
                 lp.request_stop();
-                reason = "signal".into();
+                end = Some(RunEnd::Signal);
             } else if a.duration.is_some_and(|d| k as f64 * s.timing.dt >= d) {
                 lp.request_stop();
-                reason = "duration".into();
+                end = Some(RunEnd::Planned("duration".into()));
+            } else if let Some(t) = lp.controller().safety_report().and_then(|r| r.latched_at) {
+                lp.request_stop();
+                end = Some(RunEnd::Failed(format!(
+                    "the controller latched its fallback at {t:.2} s: torque ramped to zero and \
+                     the session ended"
+                )));
+            } else if let Some(e) = &trace.error {
+                lp.request_stop();
+                end = Some(RunEnd::Failed(format!(
+                    "{e}: torque ramped to zero and the session ended; the rows written before \
+                     are kept"
+                )));
             }
         }
-        let rec = lp.period(&mut robot, &mut clock).map_err(io_err)?;
+        let rec = match lp.period(&mut robot, &mut clock) {
+            Ok(r) => r,
+            Err(e) => {
+                // The link failed: the robot stops itself when no command reaches it.
+                robot.error();
+                let _ = trace.finish();
+                return Err(io_err(e));
+            }
+        };
         let now = clock.now();
         for (i, d) in dist.iter_mut().enumerate() {
             *d = lp
@@ -338,10 +685,18 @@ fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs) -> Result<(), C
             step_time_us: rec.compute_us,
             within_limits: rec.within_limits,
         };
-        Recorder::<N>::record(&mut trace, &sr).map_err(|e| CliError::io("writing trace", e))?;
+        trace.record(&sr);
+        if rec.robot_stopped {
+            end = Some(RunEnd::Failed(format!(
+                "the robot made a protective stop (at {:.2} s): it applies no more commands of \
+                 this session; restart it at the robot for a new session",
+                m.t
+            )));
+            break;
+        }
         if rec.robot_ended {
-            if reason.is_empty() {
-                reason = "robot ended the run".into();
+            if end.is_none() {
+                end = Some(RunEnd::Planned("robot ended the run".into()));
             }
             break;
         }
@@ -349,37 +704,56 @@ fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs) -> Result<(), C
             break;
         }
         if now.saturating_sub(last_sample).as_secs_f64() > a.give_up {
-            reason = format!("no sample from the robot for {} s", a.give_up);
+            end = Some(RunEnd::Failed(format!(
+                "no sample from the robot for {} s: the robot vanished",
+                a.give_up
+            )));
             break;
         }
-        if !a.rt.quiet && now >= next_live {
+        if now >= next_live {
             next_live += Duration::from_secs(1);
-            let st = lp.stats();
-            live(
-                m.t,
-                lp.timing(),
-                &format!(
-                    "missing samples {} late {} | robot watchdog {} | rejected {}",
-                    st.missing_samples,
-                    st.late_samples,
-                    st.robot_watchdog_samples,
-                    robot_rejected(&robot)
-                ),
-            );
+            trace.flush();
+            if !a.rt.quiet {
+                let st = lp.stats();
+                live(
+                    m.t,
+                    lp.timing(),
+                    &format!(
+                        "missing samples {} late {} | robot ride-through {} | rejected {}",
+                        st.missing_samples,
+                        st.late_samples,
+                        st.robot_watchdog_samples,
+                        robot.link_stats().rejected.total()
+                    ),
+                );
+            }
         }
     }
-    lp.send_stop(&mut robot, &clock, 3).map_err(io_err)?;
-    trace.finish()?;
+    let _ = lp.send_stop(&mut robot, &clock, 3);
+    let _ = robot.deactivate();
+    let trace_error = trace.finish();
+    let end = match (end, &trace_error) {
+        (Some(RunEnd::Signal), _) => RunEnd::Signal,
+        (Some(RunEnd::Failed(m)), _) => RunEnd::Failed(m),
+        (_, Some(e)) => RunEnd::Failed(format!("{e}; the rows written before are kept")),
+        (Some(p), None) => p,
+        (None, None) => RunEnd::Planned("ramp done".into()),
+    };
+    let stop_reason = match &end {
+        RunEnd::Planned(r) | RunEnd::Failed(r) => r.clone(),
+        RunEnd::Signal => "signal".into(),
+    };
     let summary = RunSummary {
         controller: name,
         dof: D::DOF,
         robot: a.robot.to_string(),
-        stop_reason: reason,
+        stop_reason,
+        completed: matches!(end, RunEnd::Planned(_)),
         duration_s: lp.stats().periods as f64 * s.timing.dt,
         timing_us: lp.timing().summary(),
         controller_step_us: exompc::runtime::Percentiles::of(&mut step_us),
         counters: *lp.stats(),
-        link: exompc::runtime::RobotInterface::<N>::link_stats(&robot),
+        link: robot.link_stats(),
         safety: lp.controller().safety_report().cloned(),
         safety_summary: lp
             .controller()
@@ -389,12 +763,13 @@ fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs) -> Result<(), C
             .iter()
             .map(|v| (v / n_f.max(1) as f64).sqrt())
             .collect(),
+        trace_error: trace_error.clone(),
         realtime: rt,
     };
-    write_json(&a.out.join("summary.json"), &summary)?;
+    let wrote = write_json(&a.out.join("summary.json"), &summary);
     let t = &summary.timing_us;
     println!(
-        "exompc run: stopped ({}) after {:.1} s, {} periods\n  period error  p50 {:.0} us  p99 {:.0} us  max {:.0} us   deadline misses {}\n  controller step p50 {:.0} us  p99 {:.0} us   missing samples {}   limit violations {}\n  wrote {}/trace.csv and summary.json",
+        "exompc run: stopped ({}) after {:.1} s, {} periods\n  period error  p50 {:.0} us  p99 {:.0} us  max {:.0} us   deadline misses {}\n  controller step p50 {:.0} us  p99 {:.0} us   missing samples {}   limit violations {}\n  wrote {}/trace.csv{}",
         summary.stop_reason,
         summary.duration_s,
         t.periods,
@@ -406,18 +781,23 @@ fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs) -> Result<(), C
         summary.controller_step_us.p99,
         summary.counters.missing_samples,
         summary.counters.limit_violations,
-        a.out.display()
+        a.out.display(),
+        if wrote.is_ok() { " and summary.json" } else { "" }
     );
     if let Some(sa) = &summary.safety_summary {
         println!("{}", exompc_cli::run::describe_safety(sa));
     }
-    Ok(())
-}
-
-fn robot_rejected<const N: usize>(r: &UdpRobot<N>) -> u64 {
-    exompc::runtime::RobotInterface::<N>::link_stats(r)
-        .rejected
-        .total()
+    match end {
+        RunEnd::Planned(_) => wrote,
+        RunEnd::Signal => Err(sig.error(format!(
+            "interrupted by {} after {:.1} s: torque ramped to zero and the session ended; \
+             wrote {}",
+            sig.name(),
+            summary.duration_s,
+            a.out.display()
+        ))),
+        RunEnd::Failed(m) => Err(CliError::Runtime(m)),
+    }
 }
 
 // ------------------------------------------------------------------------------------------
@@ -427,6 +807,10 @@ fn robot_rejected<const N: usize>(r: &UdpRobot<N>) -> u64 {
 pub(crate) struct VirtualRobotArgs {
     #[command(flatten)]
     config: ConfigOpt,
+    /// The pre-shared key file of the controller and the robot (`exompc keygen FILE`; mode
+    /// 0600). Required.
+    #[arg(long, value_name = "FILE")]
+    key: Option<PathBuf>,
     /// Experiment: 1 (knee only) or 2 (hip and knee).
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=2))]
     dof: u8,
@@ -439,15 +823,21 @@ pub(crate) struct VirtualRobotArgs {
     /// Address to listen on (port 0: any free port, printed on stdout).
     #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:7300")]
     listen: SocketAddr,
-    /// Wait this long for a controller (s).
+    /// Wait this long for a controller's session (s, 0-3600).
     #[arg(long, value_name = "S", default_value_t = 60.0)]
     connect_timeout: f64,
-    /// Wait for the command answering a sample at most this long (ms); default 0.8 period.
+    /// Wait for the command answering a sample at most this long (ms, 0 to the period);
+    /// default 0.8 period.
     #[arg(long, value_name = "MS")]
     command_wait_ms: Option<f64>,
-    /// Zero the torque after this many periods without a valid command.
-    #[arg(long, value_name = "N", default_value_t = 2)]
+    /// Ride through at most this many periods (1-50) without a valid command, playing out the
+    /// last command's plan; one more is a lost controller: protective stop.
+    #[arg(long, value_name = "N", default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=50))]
     watchdog_periods: u64,
+    /// After a protective stop, restart by itself after this long (s, 0-3600) once the torque
+    /// is zero (for tests; otherwise a line `restart` on stdin or SIGUSR1 restarts it).
+    #[arg(long, value_name = "S")]
+    auto_restart_after: Option<f64>,
     /// Network fault: probability of losing each frame, both directions (0-1).
     #[arg(long, value_name = "P", default_value_t = 0.0)]
     loss: f64,
@@ -457,28 +847,29 @@ pub(crate) struct VirtualRobotArgs {
     /// Network fault: probability of swapping a frame with the next one (0-1).
     #[arg(long, value_name = "P", default_value_t = 0.0)]
     reorder: f64,
-    /// Network fault: delay of a delay spike (ms).
+    /// Network fault: delay of a delay spike (ms, 0-10000).
     #[arg(long, value_name = "MS", default_value_t = 20.0)]
     delay_ms: f64,
-    /// Network fault: a delay spike every this many seconds (0: none).
+    /// Network fault: a delay spike every this many seconds (0-3600; 0: none).
     #[arg(long, value_name = "S", default_value_t = 0.0)]
     delay_every: f64,
-    /// Network fault: length of each delay spike (s).
+    /// Network fault: length of each delay spike (s, 0-3600).
     #[arg(long, value_name = "S", default_value_t = 0.05)]
     delay_width: f64,
-    /// Network fault: disconnect (drop everything) at this time (s).
+    /// Network fault: disconnect (drop everything) at this time (s, 0-1e6).
     #[arg(long, value_name = "S")]
     disconnect_at: Option<f64>,
-    /// Network fault: length of the disconnection (s).
+    /// Network fault: length of the disconnection (s, 0-3600).
     #[arg(long, value_name = "S", default_value_t = 1.0)]
     disconnect_for: f64,
     /// Seed of the network fault draws.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Output folder for the robot's `trace.csv` (true states) and `summary.json`.
-    #[arg(long, value_name = "DIR", default_value = "out-robot")]
+    /// Output folder for the robot's `trace.csv` (true states, written as the run goes) and
+    /// `summary.json`.
+    #[arg(long, value_name = "DIR", default_value = "out/robot")]
     out: PathBuf,
-    /// Replace the results of an earlier run in the output folder (without it, refused).
+    /// Move the results of an earlier run in the output folder aside (without it, refused).
     #[arg(long)]
     force: bool,
     #[command(flatten)]
@@ -489,11 +880,14 @@ pub(crate) struct VirtualRobotArgs {
 struct RobotSummary {
     summary: exompc::sim::Summary,
     stop_reason: String,
+    lifecycle: Lifecycle,
     robot: exompc::runtime::RobotStats,
     watchdog_events: Vec<exompc::runtime::WatchdogEvent>,
+    protective_stops: Vec<exompc::runtime::StopEvent>,
     link: exompc::runtime::LinkStats,
     net_faults: NetFaultReport,
     timing_us: exompc::runtime::TimingSummary,
+    trace_error: Option<String>,
     realtime: RtStatus,
 }
 
@@ -507,11 +901,19 @@ struct NetFaultReport {
 pub(crate) fn virtual_robot(a: VirtualRobotArgs) -> Result<(), CliError> {
     let mut s = a.config.load()?;
     crate::args::apply_overrides(&mut s, a.dof, None, None, a.payload, a.duration)?;
-    secs("connect-timeout", a.connect_timeout, 0.0, 1e6)?;
-    if a.watchdog_periods == 0 {
-        return Err(CliError::Usage(
-            "--watchdog-periods: must be ≥ 1, got 0".into(),
-        ));
+    secs("connect-timeout", a.connect_timeout, 0.0, 3600.0)?;
+    if let Some(v) = a.auto_restart_after {
+        secs("auto-restart-after", v, 0.0, 3600.0)?;
+    }
+    if let Some(ms) = a.command_wait_ms {
+        secs("command-wait-ms", ms * 1e-3, 0.0, s.timing.dt)?;
+    }
+    secs("delay-ms", a.delay_ms * 1e-3, 0.0, 10.0)?;
+    secs("delay-every", a.delay_every, 0.0, 3600.0)?;
+    secs("delay-width", a.delay_width, 0.0, 3600.0)?;
+    secs("disconnect-for", a.disconnect_for, 0.0, 3600.0)?;
+    if let Some(v) = a.disconnect_at {
+        secs("disconnect-at", v, 0.0, 1e6)?;
     }
     let faults = NetFaultSettings {
         loss: a.loss,
@@ -527,35 +929,53 @@ pub(crate) fn virtual_robot(a: VirtualRobotArgs) -> Result<(), CliError> {
     faults
         .validate()
         .map_err(|e| CliError::Usage(format!("network fault: {e}")))?;
-    io::ensure_out_dir(&a.out)?;
-    exompc_cli::earlier::refuse_or_clear(&a.out, exompc_cli::earlier::RUN_FILES, a.force, "run")?;
+    let psk = load_key(a.key.as_deref())?;
+    check_out(&a.out, a.force)?;
     match a.dof {
-        1 => robot_dof::<OneDof, 1>(&s, &a, faults),
-        _ => robot_dof::<TwoDof, 2>(&s, &a, faults),
+        1 => robot_dof::<OneDof, 1>(&s, &a, faults, psk),
+        _ => robot_dof::<TwoDof, 2>(&s, &a, faults, psk),
     }
+}
+
+/// Restart requests typed at the robot: a line `restart` on stdin (read by a thread).
+fn stdin_restart(flag: Arc<AtomicBool>) {
+    let _ = std::thread::Builder::new()
+        .name("restart-stdin".into())
+        .spawn(move || {
+            use std::io::BufRead as _;
+            for line in std::io::stdin().lock().lines() {
+                match line {
+                    Ok(l) if l.trim() == "restart" => flag.store(true, Ordering::Relaxed),
+                    Ok(_) => {}
+                    Err(_) => return,
+                }
+            }
+        });
 }
 
 fn robot_dof<D: Dof<N>, const N: usize>(
     s: &Scenario,
     a: &VirtualRobotArgs,
     faults: NetFaultSettings,
+    psk: Psk,
 ) -> Result<(), CliError> {
     let dt = s.timing.dt;
-    let wait = match a.command_wait_ms {
-        Some(ms) => secs("command-wait-ms", ms * 1e-3, 0.0, dt)?,
-        None => Duration::from_secs_f64(0.8 * dt),
-    };
+    let wait = a
+        .command_wait_ms
+        .map_or(Duration::from_secs_f64(0.8 * dt), |ms| {
+            Duration::from_secs_f64(ms * 1e-3)
+        });
     s.check_trajectory(D::DOF)
         .map_err(|e| CliError::Config(e.to_string()))?;
     let plant = Plant::new(plant_params::<D, N>(s), D::trajectory(s));
     let sensors = Sensors::new(uncertainty(s), s.uncertainty.filter_window).with_faults(&s.faults);
     let mut robot = VirtualRobot::new(plant, sensors, limits(s), dt, a.watchdog_periods);
     let steps = s.control_steps(D::DOF);
-    let mut trace = CsvTrace::create_with(&a.out.join("trace.csv"), N, &scenario_keys(s))?;
-    let mut metrics = Metrics::with_capacity(steps.min(1 << 22));
-    let stop = stop_flag()?;
+    let sig = Signals::install()?;
+    stdin_restart(Arc::clone(&sig.usr1));
     let rt = rt_setup(&a.rt);
-    let mut peer = UdpPeer::<N>::bind(a.listen)
+    warn_exposed("--listen", a.listen);
+    let mut peer = UdpPeer::<N>::bind(a.listen, psk, max_ahead(dt))
         .map_err(|e| CliError::io(format!("binding {}", a.listen), e))?;
     let local = peer
         .local_addr()
@@ -567,17 +987,32 @@ fn robot_dof<D: Dof<N>, const N: usize>(
     }
     let io_err = |e| CliError::io("controller link", e);
     let mut clock = MonotonicClock::new(Duration::from_micros(a.rt.spin_us));
-    let mut raw = Vec::with_capacity(256);
+    let mut raw = Vec::with_capacity(2048);
     let connect_end = clock.now() + Duration::from_secs_f64(a.connect_timeout);
-    while peer.peer().is_none() {
-        if stop.load(Ordering::Relaxed) || clock.now() >= connect_end {
-            return Err(CliError::Runtime(format!(
-                "no controller connected to {local} within {} s",
-                a.connect_timeout
+    while robot.state() != Lifecycle::Active {
+        if sig.any() {
+            return Err(sig.error(format!(
+                "interrupted by {} before a controller connected; nothing written",
+                sig.name()
             )));
         }
-        peer.recv_raw(Duration::from_millis(100), &mut raw)
-            .map_err(io_err)?;
+        if clock.now() >= connect_end {
+            return Err(CliError::Runtime(format!(
+                "no controller opened a session on {local} within {} s ({} datagrams \
+                 received, {} rejected: a controller with another key is rejected)",
+                a.connect_timeout,
+                peer.stats().received,
+                peer.stats().rejected.total()
+            )));
+        }
+        if let Some(from) = peer
+            .recv_raw(Duration::from_millis(100), &mut raw)
+            .map_err(io_err)?
+        {
+            if peer.take(from, &raw, 0).map_err(io_err)? == RobotRx::Activated {
+                robot.activate();
+            }
+        }
     }
     if !a.rt.quiet {
         eprintln!(
@@ -588,18 +1023,22 @@ fn robot_dof<D: Dof<N>, const N: usize>(
             s.duration_s(D::DOF)
         );
     }
+    open_out(&a.out, a.force)?;
+    let mut trace = LiveTrace::create(&a.out, N, &scenario_keys(s))?;
+    let mut metrics = Metrics::with_capacity(steps.min(1 << 22));
     let sched = Schedule {
         start: clock.now(),
         dt: Duration::from_secs_f64(dt),
     };
-    let mut out_f = NetFaults::new(faults);
-    let mut in_f = NetFaults::new(NetFaultSettings {
+    let mut out_f = NetFaults::<SocketAddr>::tagged(faults);
+    let mut in_f = NetFaults::<SocketAddr>::tagged(NetFaultSettings {
         seed: faults.seed.wrapping_add(0x9E37),
         ..faults
     });
     let mut timing = TimingStats::with_capacity(steps.min(1 << 22));
     let mut last_status = StepStatus::Ok;
     let mut reason = "duration reached".to_string();
+    let mut signalled = false;
     let mut next_live = Duration::from_secs(1);
     let link_t = |clock: &MonotonicClock| clock.now().saturating_sub(sched.start).as_secs_f64();
     let dist: Vec<SVector<f64, N>> = Vec::new();
@@ -613,8 +1052,9 @@ fn robot_dof<D: Dof<N>, const N: usize>(
         let woke = clock.now();
         let wake_err = (woke.as_secs_f64() - deadline.as_secs_f64()) * 1e6;
         let sample = robot.sample();
-        let bytes = peer.encode(&sample).to_vec();
-        out_f.submit(link_t(&clock), &bytes);
+        if let Some((bytes, to)) = peer.encode(&sample) {
+            out_f.submit_tagged(link_t(&clock), to, &bytes);
+        }
         service(
             &mut peer,
             &mut robot,
@@ -651,7 +1091,10 @@ fn robot_dof<D: Dof<N>, const N: usize>(
             within_limits: st.within_limits,
         };
         metrics.record(&rec).map_err(io_err)?;
-        Recorder::<N>::record(&mut trace, &rec).map_err(|e| CliError::io("writing trace", e))?;
+        if !trace.record(&rec) {
+            // A full disk or another write error: stop safely, keep what was written.
+            robot.protective_stop(StopCause::Fault);
+        }
         let p = robot.plant().state();
         if !(p
             .robot
@@ -669,37 +1112,70 @@ fn robot_dof<D: Dof<N>, const N: usize>(
             (done.as_secs_f64() - busy_from.as_secs_f64()) * 1e6,
             done > sched.deadline(k + 1),
         );
-        if robot.stop_requested() {
-            reason = "the controller stopped".into();
-            break;
+        let at_zero = robot.applied().iter().all(|v| *v == 0.0);
+        if sig.any() && !signalled {
+            signalled = true;
+            robot.protective_stop(StopCause::Operator);
         }
-        if stop.load(Ordering::Relaxed) {
-            reason = "signal".into();
-            break;
+        if robot.state() == Lifecycle::Error && at_zero {
+            if signalled {
+                reason = "signal".into();
+                break;
+            }
+            if robot.stop_requested() {
+                reason = "the controller stopped".into();
+                break;
+            }
+            if trace.error.is_some() {
+                reason = "trace write error".into();
+                break;
+            }
+            let since = robot
+                .stop_events()
+                .last()
+                .and_then(|e| e.zero_at)
+                .map_or(0.0, |z| st.t - z);
+            let auto = a.auto_restart_after.is_some_and(|v| since >= v);
+            if sig.usr1.swap(false, Ordering::Relaxed) || auto {
+                robot.restart();
+                peer.link().reset();
+                if !a.rt.quiet {
+                    eprintln!(
+                        "virtual robot: restarted at t {:.2} s; waiting for a new session",
+                        st.t
+                    );
+                }
+            }
         }
-        if !a.rt.quiet && done.saturating_sub(sched.start) >= next_live {
+        if done.saturating_sub(sched.start) >= next_live {
             next_live += Duration::from_secs(1);
-            let rs = robot.stats();
-            live(
-                st.t,
-                &timing,
-                &format!(
-                    "held {} | watchdog periods {} | rejected {}",
-                    rs.held,
-                    rs.watchdog_periods,
-                    peer.stats().rejected.total()
-                ),
-            );
+            trace.flush();
+            if !a.rt.quiet {
+                let rs = robot.stats();
+                live(
+                    st.t,
+                    &timing,
+                    &format!(
+                        "{:?} | held {} | idle {} | stops {} | rejected {}",
+                        robot.state(),
+                        rs.held,
+                        rs.idle_periods,
+                        rs.protective_stops,
+                        peer.stats().rejected.total()
+                    ),
+                );
+            }
         }
     }
     // Tell the controller the run ended (zero torque from here on).
     robot.end();
     for _ in 0..3 {
         let sample = robot.sample();
-        let bytes = peer.encode(&sample).to_vec();
-        peer.send_raw(&bytes).map_err(io_err)?;
+        if let Some((bytes, to)) = peer.encode(&sample) {
+            let _ = peer.send_raw(&bytes, to);
+        }
     }
-    trace.finish()?;
+    let trace_error = trace.finish();
     let summary = RobotSummary {
         summary: metrics.summary(
             &format!("{:?}", s.controller.kind).to_lowercase(),
@@ -708,8 +1184,10 @@ fn robot_dof<D: Dof<N>, const N: usize>(
             dt,
         ),
         stop_reason: reason,
+        lifecycle: robot.state(),
         robot: *robot.stats(),
         watchdog_events: robot.watchdog_events().to_vec(),
+        protective_stops: robot.stop_events().to_vec(),
         link: peer.stats(),
         net_faults: NetFaultReport {
             settings: faults,
@@ -717,37 +1195,53 @@ fn robot_dof<D: Dof<N>, const N: usize>(
             from_controller: *in_f.counts(),
         },
         timing_us: timing.summary(),
+        trace_error: trace_error.clone(),
         realtime: rt,
     };
-    write_json(&a.out.join("summary.json"), &summary)?;
+    let wrote = write_json(&a.out.join("summary.json"), &summary);
     let m = &summary.summary;
     let f = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.2}"));
     println!(
-        "virtual robot: {} after {:.1} s\n  RMS strap force   thigh {} N   shank {} N\n  commanded {}  held {}  watchdog periods {} (trips {})  limit violations {}\n  rejected frames {}\n  wrote {}/trace.csv and summary.json",
+        "virtual robot: {} after {:.1} s\n  RMS strap force   thigh {} N   shank {} N\n  commanded {}  held {}  idle {}  protective stops {}  clamped {}  limit violations {}\n  rejected frames {}\n  wrote {}/trace.csv{}",
         summary.stop_reason,
         m.duration_s,
         f(m.rms_force_n.thigh),
         f(m.rms_force_n.shank),
         summary.robot.commanded,
         summary.robot.held,
-        summary.robot.watchdog_periods,
-        summary.robot.watchdog_trips,
+        summary.robot.idle_periods,
+        summary.robot.protective_stops,
+        summary.robot.clamped,
         summary.robot.limit_violations,
         summary.link.rejected.total(),
-        a.out.display()
+        a.out.display(),
+        if wrote.is_ok() { " and summary.json" } else { "" }
     );
-    Ok(())
+    if let Some(e) = trace_error {
+        return Err(CliError::Io(format!(
+            "{e}: the robot made a protective stop and ended the run; the rows written before \
+             are kept"
+        )));
+    }
+    if signalled {
+        return Err(sig.error(format!(
+            "interrupted by {}: protective stop (torque ramped to zero); wrote {}",
+            sig.name(),
+            a.out.display()
+        )));
+    }
+    wrote
 }
 
 /// Move frames until clock time `until` (or, with `until_command`, until the command
-/// answering the current sample arrived): send the due outgoing frames, receive commands
-/// through the incoming fault line and offer them to the robot.
+/// answering the current sample arrived): send the due outgoing frames, receive datagrams
+/// through the incoming fault line and hand them to the link and the robot.
 #[allow(clippy::too_many_arguments)]
 fn service<const N: usize, Tr: exompc::sim::Trajectory<N>>(
     peer: &mut UdpPeer<N>,
     robot: &mut VirtualRobot<N, Tr>,
-    out_f: &mut NetFaults,
-    in_f: &mut NetFaults,
+    out_f: &mut NetFaults<SocketAddr>,
+    in_f: &mut NetFaults<SocketAddr>,
     clock: &mut MonotonicClock,
     raw: &mut Vec<u8>,
     until: Duration,
@@ -756,15 +1250,21 @@ fn service<const N: usize, Tr: exompc::sim::Trajectory<N>>(
 ) -> std::io::Result<()> {
     loop {
         let now = link_t(clock);
-        while let Some(b) = out_f.pop_due(now) {
-            peer.send_raw(&b)?;
+        while let Some((to, b)) = out_f.pop_due_tagged(now) {
+            peer.send_raw(&b, to)?;
         }
-        while let Some(b) = in_f.pop_due(now) {
-            if let Some(c) = peer.decode_command(&b) {
-                match robot.command(&c) {
-                    Ok(_) => peer.count_accepted(),
-                    Err(e) => peer.count(e),
+        while let Some((from, b)) = in_f.pop_due_tagged(now) {
+            let stamp = (now * 1e9) as u64;
+            match peer.take(from, &b, stamp)? {
+                RobotRx::Activated => {
+                    robot.activate();
                 }
+                RobotRx::Command(c) => {
+                    if let Err(e) = robot.command(&c) {
+                        peer.link().count(e);
+                    }
+                }
+                RobotRx::Reply | RobotRx::Nothing => {}
             }
         }
         if until_command && robot.has_current() {
@@ -783,8 +1283,8 @@ fn service<const N: usize, Tr: exompc::sim::Trajectory<N>>(
         if wait.is_zero() {
             continue;
         }
-        if peer.recv_raw(wait, raw)? {
-            in_f.submit(link_t(clock), raw);
+        if let Some(from) = peer.recv_raw(wait, raw)? {
+            in_f.submit_tagged(link_t(clock), from, raw);
         }
     }
 }

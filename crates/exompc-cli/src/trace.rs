@@ -76,9 +76,31 @@ pub fn header_with(n: usize, scenarios: &[String]) -> Vec<String> {
     h
 }
 
+/// Where a [`CsvTrace`] writes: a temporary file renamed when finished, or (`run`,
+/// `virtual-robot`) the final file itself, written as the run goes.
+enum Sink {
+    Atomic(AtomicWriter),
+    Live(std::fs::File),
+}
+
+impl Write for Sink {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        match self {
+            Sink::Atomic(w) => w.write(buf),
+            Sink::Live(f) => f.write(buf),
+        }
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        match self {
+            Sink::Atomic(w) => w.flush(),
+            Sink::Live(f) => f.flush(),
+        }
+    }
+}
+
 /// A streaming CSV trace recorder.
 pub struct CsvTrace {
-    out: std::io::BufWriter<AtomicWriter>,
+    out: std::io::BufWriter<Sink>,
     scenarios: usize,
     n: usize,
     line: String,
@@ -93,8 +115,28 @@ impl CsvTrace {
 
     /// [`CsvTrace::create`] with the scenario keys `scenarios` (see [`header_with`]).
     pub fn create_with(path: &Path, n: usize, scenarios: &[String]) -> Result<Self, CliError> {
-        let w = AtomicWriter::create(path)?;
-        let mut out = std::io::BufWriter::with_capacity(1 << 16, w);
+        Self::start(
+            Sink::Atomic(AtomicWriter::create(path)?),
+            path,
+            n,
+            scenarios,
+        )
+    }
+
+    /// A trace written directly to its final file `path` (created new: an existing file is an
+    /// error), so that the rows written so far survive a crash or kill -9; call
+    /// [`CsvTrace::flush`] regularly and [`CsvTrace::finish`] (fsync) at the end.
+    pub fn create_live(path: &Path, n: usize, scenarios: &[String]) -> Result<Self, CliError> {
+        let f = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(path)
+            .map_err(|e| CliError::io(format!("cannot create {}", path.display()), e))?;
+        Self::start(Sink::Live(f), path, n, scenarios)
+    }
+
+    fn start(sink: Sink, path: &Path, n: usize, scenarios: &[String]) -> Result<Self, CliError> {
+        let mut out = std::io::BufWriter::with_capacity(1 << 16, sink);
         writeln!(out, "{}", header_with(n, scenarios).join(","))
             .map_err(|e| CliError::io(format!("writing {}", path.display()), e))?;
         Ok(CsvTrace {
@@ -105,13 +147,21 @@ impl CsvTrace {
         })
     }
 
-    /// Flush and move the finished file into place.
+    /// Write the buffered rows to the file.
+    pub fn flush(&mut self) -> std::io::Result<()> {
+        self.out.flush()
+    }
+
+    /// Flush and move the finished file into place (a live trace: flush and fsync).
     pub fn finish(self) -> Result<(), CliError> {
         let w = self
             .out
             .into_inner()
             .map_err(|e| CliError::io("flushing trace", e.into_error()))?;
-        w.finish()
+        match w {
+            Sink::Atomic(w) => w.finish(),
+            Sink::Live(f) => f.sync_all().map_err(|e| CliError::io("syncing trace", e)),
+        }
     }
 }
 

@@ -738,8 +738,13 @@ fn run_and_virtual_robot_refuse_a_folder_with_earlier_results() {
         let dir = common::fresh_dir(&format!("earlier_{cmd}"));
         std::fs::create_dir_all(&dir).unwrap();
         std::fs::write(dir.join("summary.json"), "{}").unwrap();
+        let key = dir.with_extension("key");
+        let _ = std::fs::remove_file(&key);
+        assert!(exompc(&["keygen", key.to_str().unwrap()]).status.success());
         let mut a = vec![
             cmd,
+            "--key",
+            key.to_str().unwrap(),
             "--quiet",
             "--no-mlock",
             "--rt-priority",

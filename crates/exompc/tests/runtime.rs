@@ -1,17 +1,23 @@
-//! The real-time runtime without sockets: the frame codec (property tests on round trips and
-//! arbitrary bytes), sequence bookkeeping, the controller loop against the virtual robot on a
-//! test clock (reproduces the offline closed loop of `simulate`), the robot's watchdog, the
-//! stop ramp, and the network fault injector.
+//! The real-time runtime without sockets: the authenticated frame codec (property tests on
+//! round trips and arbitrary bytes), the replay window, the handshake, the controller loop
+//! against the virtual robot on a test clock through both ends of the authenticated link
+//! (reproduces the offline closed loop of `simulate`), one test per attack (unauthenticated
+//! hello takeover, takeover after the controller died, forged command and sample, replay
+//! across sessions, a sequence jump of 2³¹, an altered frame, a wrong key), the robot's own
+//! limits (property test over arbitrary frame sequences), the ride-through of link outages and
+//! the protective stop, the stop ramp, and the network fault injector.
 
 use exompc::config::Scenario;
 use exompc::control::{Controller, StepStatus};
 use exompc::runtime::frame::{
-    command_flags, command_len, robot_flags, sample_len, status_code, status_from_code,
+    command_flags, command_len, encode_hello, robot_flags, sample_len, status_code,
+    status_from_code, Hello, PLAN_LEN,
 };
 use exompc::runtime::{
-    decode, encode_command, encode_sample, Clock, ControlLoop, Frame, FrameError, LinkStats,
-    LoopSettings, NetFaultSettings, NetFaults, RejectCounts, RobotCommand, RobotInterface,
-    RobotSample, RobotStep, SeqTracker, VirtualRobot,
+    decode, encode_command, encode_sample, Clock, ControlLoop, ControllerLink, Frame, FrameError,
+    Key, Lifecycle, LinkStats, LoopSettings, NetFaultSettings, NetFaults, Psk, RejectCounts,
+    RobotCommand, RobotInterface, RobotLink, RobotRx, RobotSample, RobotStep, SeqTracker,
+    StopCause, VirtualRobot,
 };
 use exompc::scenario::{
     build_supervised, limits, plant_params, run_experiment, uncertainty, Dof, TwoDof,
@@ -20,8 +26,19 @@ use exompc::sim::{Plant, Sensors, TraceLog};
 use nalgebra::{SVector, Vector2};
 use proptest::prelude::*;
 use std::cell::Cell;
+use std::net::SocketAddr;
 use std::rc::Rc;
 use std::time::Duration;
+
+/// The session key of the codec tests.
+fn key() -> Key {
+    Key::from_bytes([0x42; 32])
+}
+
+/// The handshake key of the codec tests.
+fn hkey() -> Key {
+    Key::from_bytes([0x17; 32])
+}
 
 fn any_f64() -> impl Strategy<Value = f64> + Clone {
     prop_oneof![
@@ -59,26 +76,40 @@ fn sample2() -> impl Strategy<Value = RobotSample<2>> {
 
 fn command2() -> impl Strategy<Value = RobotCommand<2>> {
     (
-        any::<u32>(),
-        any::<u64>(),
-        any::<u32>(),
-        any::<u16>(),
-        any::<u8>(),
-        any::<u32>(),
-        any::<u32>(),
-        vec2(-1e6..1e6f64),
+        (
+            any::<u32>(),
+            any::<u64>(),
+            any::<u32>(),
+            any::<u16>(),
+            any::<u8>(),
+        ),
+        (any::<u32>(), any::<u32>(), vec2(-1e6..1e6f64)),
+        (
+            0..=PLAN_LEN,
+            proptest::collection::vec(vec2(-1e6..1e6f64), PLAN_LEN),
+        ),
     )
         .prop_map(
-            |(seq, stamp_ns, answers, flags, status, iterations, compute_ns, torque)| {
+            |(
+                (seq, stamp_ns, answers, flags, status),
+                (iterations, compute_ns, torque),
+                (n, p),
+            )| {
+                let mut plan = [Vector2::zeros(); PLAN_LEN];
+                for (j, v) in p.into_iter().enumerate().take(n) {
+                    plan[j] = v;
+                }
                 RobotCommand {
                     seq,
                     stamp_ns,
                     answers,
                     flags,
                     status,
+                    plan_len: n as u8,
                     iterations,
                     compute_ns,
                     torque,
+                    plan,
                 }
             },
         )
@@ -93,14 +124,18 @@ fn same_bits(a: &SVector<f64, 2>, b: &SVector<f64, 2>) -> bool {
 
 fn enc_sample(s: &RobotSample<2>) -> Vec<u8> {
     let mut v = Vec::new();
-    encode_sample(s, &mut v);
+    encode_sample(s, &key(), &mut v);
     v
 }
 
 fn enc_command(c: &RobotCommand<2>) -> Vec<u8> {
     let mut v = Vec::new();
-    encode_command(c, &mut v);
+    encode_command(c, &key(), &mut v);
     v
+}
+
+fn dec(b: &[u8]) -> Result<Frame<2>, FrameError> {
+    decode::<2>(b, &hkey(), Some(&key()))
 }
 
 proptest! {
@@ -110,7 +145,7 @@ proptest! {
     fn sample_round_trips_bit_exactly(s in sample2()) {
         let bytes = enc_sample(&s);
         prop_assert_eq!(bytes.len(), sample_len(2));
-        match decode::<2>(&bytes) {
+        match dec(&bytes) {
             Ok(Frame::Sample(d)) => {
                 prop_assert_eq!((d.seq, d.stamp_ns, d.flags), (s.seq, s.stamp_ns, s.flags));
                 prop_assert!(same_bits(&d.q, &s.q) && same_bits(&d.qd, &s.qd));
@@ -124,32 +159,31 @@ proptest! {
     fn command_round_trips(c in command2()) {
         let bytes = enc_command(&c);
         prop_assert_eq!(bytes.len(), command_len(2));
-        prop_assert_eq!(decode::<2>(&bytes), Ok(Frame::Command(c)));
+        prop_assert_eq!(dec(&bytes), Ok(Frame::Command(c)));
+        // Under another session's key, or before any session: worthless.
+        prop_assert_eq!(decode::<2>(&bytes, &hkey(), Some(&hkey())), Err(FrameError::BadMac));
+        prop_assert_eq!(decode::<2>(&bytes, &hkey(), None), Err(FrameError::NoSession));
     }
 
     /// Arbitrary bytes: never a panic; whatever is accepted re-encodes to the same bytes.
     #[test]
     fn arbitrary_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..200)) {
-        match decode::<2>(&bytes) {
-            Ok(Frame::Sample(s)) => prop_assert_eq!(enc_sample(&s), bytes.clone()),
-            Ok(Frame::Command(c)) => prop_assert_eq!(enc_command(&c), bytes.clone()),
-            Err(_) => {}
-        }
-        let _ = decode::<1>(&bytes);
+        prop_assert!(dec(&bytes).is_err(), "random bytes authenticated");
+        let _ = decode::<1>(&bytes, &hkey(), None);
     }
 
-    /// A valid frame with its header made plausible but the rest random: the CRC catches it.
+    /// An altered byte anywhere (header, payload or MAC): rejected.
     #[test]
     fn corrupted_byte_is_rejected(c in command2(), at in 0usize..command_len(2), x in 1u8..=255) {
         let mut bytes = enc_command(&c);
         bytes[at] ^= x;
-        prop_assert!(decode::<2>(&bytes).is_err(), "corruption at {} accepted", at);
+        prop_assert!(dec(&bytes).is_err(), "corruption at {} accepted", at);
     }
 
     #[test]
     fn every_truncation_is_rejected_as_truncated(s in sample2(), cut in 0usize..sample_len(2)) {
         let bytes = enc_sample(&s);
-        let r = decode::<2>(&bytes[..cut]);
+        let r = dec(&bytes[..cut]);
         prop_assert!(matches!(r, Err(FrameError::Truncated { .. })), "{:?}", r);
     }
 
@@ -157,36 +191,36 @@ proptest! {
     /// equal is a duplicate; older is out of order.
     #[test]
     fn seq_tracker_orders_across_wrap(start in any::<u32>(), step in 1u32..1000) {
-        let mut t = SeqTracker::default();
+        let mut t = SeqTracker::new(1000);
         prop_assert_eq!(t.accept(start), Ok(()));
         prop_assert_eq!(t.accept(start), Err(FrameError::Duplicate));
         prop_assert_eq!(t.accept(start.wrapping_add(step)), Ok(()));
         prop_assert_eq!(t.gaps, u64::from(step - 1));
         prop_assert_eq!(t.accept(start), Err(FrameError::OutOfOrder));
         prop_assert_eq!(t.last(), Some(start.wrapping_add(step)));
+        // Too far ahead (the 2³¹ lockout): rejected, and the window does not move.
+        prop_assert_eq!(t.accept(start.wrapping_add(step).wrapping_add(1 << 31)), Err(FrameError::OutOfOrder));
+        prop_assert_eq!(t.accept(start.wrapping_add(step + 1001)), Err(FrameError::TooFarAhead));
+        prop_assert_eq!(t.last(), Some(start.wrapping_add(step)));
+        prop_assert_eq!(t.accept(start.wrapping_add(step + 1)), Ok(()));
     }
 }
 
 #[test]
 fn each_defect_has_its_reason() {
     let c = RobotCommand::<2> {
-        seq: 7,
-        stamp_ns: 1,
-        answers: 3,
-        flags: 0,
-        status: 0,
         iterations: 2,
         compute_ns: 40_000,
-        torque: Vector2::new(1.0, -2.0),
+        ..RobotCommand::new(7, 1, 3, 0, Vector2::new(1.0, -2.0))
     };
     let good = enc_command(&c);
     let with = |f: &dyn Fn(&mut Vec<u8>)| {
         let mut b = good.clone();
         f(&mut b);
-        decode::<2>(&b)
+        dec(&b)
     };
     assert_eq!(with(&|b| b[0] = b'X'), Err(FrameError::BadMagic));
-    assert_eq!(with(&|b| b[4] = 2), Err(FrameError::WrongVersion(2)));
+    assert_eq!(with(&|b| b[4] = 1), Err(FrameError::WrongVersion(1)));
     assert_eq!(with(&|b| b[5] = 9), Err(FrameError::UnknownKind(9)));
     assert_eq!(
         with(&|b| b[6] = 1),
@@ -198,9 +232,16 @@ fn each_defect_has_its_reason() {
     assert_eq!(with(&|b| b[7] = 1), Err(FrameError::Malformed));
     assert_eq!(with(&|b| b[20] = 99), Err(FrameError::Malformed));
     assert_eq!(with(&|b| b.push(0)), Err(FrameError::Malformed));
-    assert_eq!(with(&|b| b[30] ^= 1), Err(FrameError::BadCrc));
+    assert_eq!(with(&|b| b[30] ^= 1), Err(FrameError::BadMac));
     assert_eq!(
-        decode::<1>(&good),
+        with(&|b| b[8] ^= 0x80),
+        Err(FrameError::BadMac),
+        "sequence number"
+    );
+    let last = good.len() - 1;
+    assert_eq!(with(&|b| b[last] ^= 1), Err(FrameError::BadMac), "MAC");
+    assert_eq!(
+        decode::<1>(&good, &hkey(), Some(&key())),
         Err(FrameError::WrongJoints {
             got: 2,
             expected: 1
@@ -210,19 +251,25 @@ fn each_defect_has_its_reason() {
         torque: Vector2::new(f64::NAN, 0.0),
         ..c
     };
-    assert_eq!(decode::<2>(&enc_command(&nan)), Err(FrameError::NonFinite));
+    assert_eq!(dec(&enc_command(&nan)), Err(FrameError::NonFinite));
+    let mut bad_plan = c;
+    bad_plan.plan_len = PLAN_LEN as u8;
+    bad_plan.plan[PLAN_LEN - 1] = Vector2::new(0.0, f64::INFINITY);
+    assert_eq!(dec(&enc_command(&bad_plan)), Err(FrameError::NonFinite));
     // Counting: every reason lands in its own counter.
     let mut counts = RejectCounts::default();
     for e in [
         FrameError::BadMagic,
-        FrameError::BadCrc,
-        FrameError::BadCrc,
+        FrameError::BadMac,
+        FrameError::BadMac,
         FrameError::Stale,
+        FrameError::Foreign,
     ] {
         counts.count(e);
     }
-    assert_eq!((counts.bad_magic, counts.bad_crc, counts.stale), (1, 2, 1));
-    assert_eq!(counts.total(), 4);
+    assert_eq!((counts.bad_magic, counts.bad_mac, counts.stale), (1, 2, 1));
+    assert_eq!((counts.foreign, counts.not_frames()), (1, 1));
+    assert_eq!(counts.total(), 5);
 }
 
 #[test]
@@ -241,14 +288,14 @@ fn status_codes_round_trip() {
 }
 
 // ---------------------------------------------------------------------------------------------
-// The loop against the virtual robot, in-process.
+// The loop against the virtual robot, in-process, through both ends of the authenticated link.
 
 type Robot = VirtualRobot<2, <TwoDof as Dof<2>>::Traj>;
 
-fn robot(s: &Scenario, watchdog: u64) -> Robot {
+fn robot(s: &Scenario, ride_through: u64) -> Robot {
     let plant = Plant::new(plant_params::<TwoDof, 2>(s), TwoDof::trajectory(s));
     let sensors = Sensors::new(uncertainty(s), s.uncertainty.filter_window).with_faults(&s.faults);
-    VirtualRobot::new(plant, sensors, limits(s), s.timing.dt, watchdog)
+    VirtualRobot::new(plant, sensors, limits(s), s.timing.dt, ride_through)
 }
 
 /// A test clock shared by the loop and the robot (time moves only when someone waits).
@@ -264,38 +311,150 @@ impl Clock for SharedClock {
     }
 }
 
-/// The virtual robot wired directly to the loop: `read` advances the robot over the previous
-/// period (with whatever command arrived) and returns its next sample, at its timestamp on the
-/// shared clock (zero transit time); samples of the periods in `drop_samples` and commands
-/// answering `drop_commands` are lost.
+const CONTROLLER: &str = "127.0.0.1:40001";
+const ATTACKER: &str = "127.0.0.1:40666";
+
+fn addr(a: &str) -> SocketAddr {
+    a.parse().unwrap()
+}
+
+fn psk() -> Psk {
+    Psk::new(b"0123456789abcdef0123456789abcdef-test-key").unwrap()
+}
+
+/// What an attacker does, keyed by the period (sample number of the session) it acts in.
+#[derive(Clone, Debug)]
+enum Attack {
+    /// Send these bytes to the robot from this address, before the legitimate command.
+    Send(SocketAddr, Vec<u8>),
+    /// Alter byte `at` of the legitimate command in transit.
+    Alter(usize),
+    /// Replace the legitimate command by the recorded datagram `i` of the session.
+    Replay(usize),
+    /// Send the recorded datagram `i` of the session before the legitimate command.
+    Inject(usize),
+}
+
+/// The virtual robot wired to the loop through a [`ControllerLink`] and a [`RobotLink`] (all
+/// frames encoded, authenticated and decoded as on the wire): `read` advances the robot over
+/// the previous period (with whatever command arrived) and returns its next sample, at its
+/// timestamp on the shared clock; samples of the periods in `drop_samples` and commands
+/// answering `drop_commands` are lost; `attacks` act in their period.
 struct Direct {
     clock: SharedClock,
     vr: Robot,
+    ctl: ControllerLink<2>,
+    rob: RobotLink<2>,
     started: bool,
     steps: Vec<RobotStep<2>>,
     drop_samples: Vec<u64>,
     drop_commands: Vec<u32>,
     /// Samples arriving 3 ms after their timestamp.
     late_samples: Vec<u64>,
-    stats: LinkStats,
+    attacks: Vec<(u32, Attack)>,
+    /// Every command datagram the controller sent (for replays).
+    sent: Vec<Vec<u8>>,
+    nonces: u8,
 }
 
 impl Direct {
     fn new(vr: Robot) -> Self {
+        Direct::with_keys(vr, psk(), psk())
+    }
+
+    fn with_keys(vr: Robot, controller: Psk, robot: Psk) -> Self {
         Direct {
             clock: SharedClock::default(),
             vr,
+            ctl: ControllerLink::new(controller, 100),
+            rob: RobotLink::new(robot, 100),
             started: false,
             steps: Vec::new(),
             drop_samples: Vec::new(),
             drop_commands: Vec::new(),
             late_samples: Vec::new(),
-            stats: LinkStats::default(),
+            attacks: Vec::new(),
+            sent: Vec::new(),
+            nonces: 0,
         }
+    }
+
+    /// Deliver a datagram to the robot's link and the robot.
+    fn deliver(&mut self, from: SocketAddr, bytes: &[u8]) {
+        self.nonces = self.nonces.wrapping_add(1);
+        let n = self.nonces;
+        match self
+            .rob
+            .receive(from, bytes, 0, &mut || Some([n.wrapping_mul(31); 32]))
+        {
+            RobotRx::Activated => {
+                self.vr.activate();
+            }
+            RobotRx::Command(c) => {
+                if let Err(e) = self.vr.command(&c) {
+                    self.rob.count(e);
+                }
+            }
+            RobotRx::Reply | RobotRx::Nothing => {}
+        }
+    }
+
+    /// Advance the robot one period with no controller at all (it died).
+    fn robot_alone(&mut self) {
+        let _ = self.vr.sample();
+        let k = self.vr.k() as u32 + 1;
+        self.act(k, None);
+        self.steps.push(self.vr.advance());
+    }
+
+    /// The attacks of period `k`; returns the legitimate bytes to deliver (altered/replaced).
+    fn act(&mut self, k: u32, legit: Option<Vec<u8>>) -> Option<Vec<u8>> {
+        let mut legit = legit;
+        let attacks: Vec<Attack> = self
+            .attacks
+            .iter()
+            .filter(|(p, _)| *p == k)
+            .map(|(_, a)| a.clone())
+            .collect();
+        for a in attacks {
+            match a {
+                Attack::Send(from, b) => self.deliver(from, &b),
+                Attack::Alter(at) => {
+                    if let Some(b) = legit.as_mut() {
+                        b[at] ^= 0x01;
+                    }
+                }
+                Attack::Inject(i) => {
+                    let r = self.sent[i].clone();
+                    self.deliver(addr(CONTROLLER), &r);
+                }
+                Attack::Replay(i) => {
+                    let r = self.sent[i].clone();
+                    match legit {
+                        Some(_) => legit = Some(r),
+                        None => self.deliver(addr(CONTROLLER), &r),
+                    }
+                }
+            }
+        }
+        legit
     }
 }
 
 impl RobotInterface<2> for Direct {
+    fn activate(&mut self, _timeout: Duration) -> std::io::Result<bool> {
+        self.nonces = self.nonces.wrapping_add(1);
+        self.ctl.start([self.nonces; 32]);
+        let hello = self.ctl.hello(0).to_vec();
+        self.deliver(addr(CONTROLLER), &hello);
+        let challenge = self.rob.reply().to_vec();
+        let _ = self.ctl.receive(&challenge);
+        let confirm = RobotCommand::new(0, 0, 0, command_flags::HELLO, Vector2::zeros());
+        let bytes = self.ctl.command(&confirm).to_vec();
+        self.deliver(addr(CONTROLLER), &bytes);
+        Ok(self.vr.state() == Lifecycle::Active)
+    }
+
     fn read(&mut self, _timeout: Duration) -> std::io::Result<Option<RobotSample<2>>> {
         if self.started {
             self.steps.push(self.vr.advance());
@@ -310,22 +469,25 @@ impl RobotInterface<2> for Direct {
         if self.drop_samples.contains(&u64::from(s.seq)) {
             return Ok(None);
         }
-        self.stats.accepted += 1;
-        Ok(Some(s))
+        let Some((bytes, _)) = self.rob.sample(&s) else {
+            return Ok(None);
+        };
+        let bytes = bytes.to_vec();
+        Ok(self.ctl.receive(&bytes))
     }
 
     fn write(&mut self, cmd: &RobotCommand<2>) -> std::io::Result<()> {
-        self.stats.sent += 1;
-        if self.started && !self.drop_commands.contains(&cmd.answers) {
-            if let Err(e) = self.vr.command(cmd) {
-                self.stats.rejected.count(e);
-            }
+        let bytes = self.ctl.command(cmd).to_vec();
+        self.sent.push(bytes.clone());
+        let lost = self.drop_commands.contains(&cmd.answers);
+        if let Some(b) = self.act(cmd.answers, (!lost).then_some(bytes)) {
+            self.deliver(addr(CONTROLLER), &b);
         }
         Ok(())
     }
 
     fn link_stats(&self) -> LinkStats {
-        self.stats
+        self.ctl.stats()
     }
 }
 
@@ -340,12 +502,17 @@ fn scenario(duration: f64) -> Scenario {
 type Loop = ControlLoop<2, exompc::control::Supervisor<2, Box<dyn Controller<2>>>>;
 
 fn control_loop(s: &Scenario) -> Loop {
+    control_loop_with(s, false)
+}
+
+fn control_loop_with(s: &Scenario, send_plan: bool) -> Loop {
     let sup = build_supervised::<TwoDof, 2>(s, s.controller.kind).unwrap();
-    let settings = LoopSettings::new(
+    let mut settings = LoopSettings::new(
         Duration::from_secs_f64(s.timing.dt),
         s.uncertainty.filter_window,
         limits(s),
     );
+    settings.send_plan = send_plan;
     ControlLoop::new(sup, settings, 1024)
 }
 
@@ -355,7 +522,17 @@ fn run(
     periods: usize,
     link: Direct,
 ) -> (Direct, Loop, Vec<exompc::runtime::PeriodRecord<2>>) {
-    let mut lp = control_loop(s);
+    run_with(s, periods, link, false)
+}
+
+/// [`run`], sending the controller's plan with each command when `send_plan`.
+fn run_with(
+    s: &Scenario,
+    periods: usize,
+    link: Direct,
+    send_plan: bool,
+) -> (Direct, Loop, Vec<exompc::runtime::PeriodRecord<2>>) {
+    let mut lp = control_loop_with(s, send_plan);
     let mut link = link;
     let mut clock = link.clock.clone();
     assert!(lp
@@ -375,8 +552,8 @@ fn run(
     (link, lp, recs)
 }
 
-/// Oracle: with no losses, the loop over the robot interface is the offline closed loop of
-/// `simulate` (same plant, sensors, filter, supervised controller): identical true forces
+/// Oracle: with no losses, the loop over the authenticated link is the offline closed loop
+/// of `simulate` (same plant, sensors, filter, supervised controller): identical true forces
 /// and torques at every step.
 #[test]
 fn loop_with_virtual_robot_reproduces_simulate() {
@@ -384,7 +561,7 @@ fn loop_with_virtual_robot_reproduces_simulate() {
     let steps = s.control_steps(2);
     let mut log = TraceLog::<2>::default();
     let summary = run_experiment::<TwoDof, 2>(&s, &mut [&mut log]).unwrap();
-    let (link, lp, recs) = run(&s, steps, Direct::new(robot(&s, 2)));
+    let (link, lp, recs) = run(&s, steps, Direct::new(robot(&s, 20)));
     assert_eq!(link.steps.len(), steps);
     for (k, (a, b)) in log.rows.iter().zip(&link.steps).enumerate() {
         assert!(
@@ -403,21 +580,30 @@ fn loop_with_virtual_robot_reproduces_simulate() {
     assert_eq!(st.missing_samples, 0);
     assert_eq!(st.effort_resyncs, 0);
     assert_eq!(st.limit_violations, 0);
-    assert_eq!(link.vr.stats().commanded as usize, steps);
-    assert_eq!(link.vr.stats().watchdog_trips, 0);
+    // No plan by default (LoopSettings::send_plan).
+    assert_eq!(st.planned_commands, 0);
+    let vs = link.vr.stats();
+    assert_eq!(vs.commanded as usize, steps);
+    assert_eq!(
+        (vs.watchdog_trips, vs.clamped, vs.protective_stops),
+        (0, 0, 0)
+    );
+    assert_eq!(link.rob.stats().rejected.total(), 0);
+    assert_eq!(link.ctl.stats().rejected.total(), 0);
     assert!(summary.rms_force_n.shank.unwrap() > 0.0);
     // The test clock never sleeps past a deadline: zero period error.
     assert_eq!(lp.timing().summary().period_error_us.max, 0.0);
     assert_eq!(lp.timing().deadline_misses, 0);
 }
 
-/// A lost sample: the loop sends nothing, the supervisor holds the torque (bad measurement),
-/// the robot holds the last command for that period; the next sample resumes normally.
+/// A lost sample: the loop sends nothing and does not step the controller (the output holds,
+/// counted as a bad measurement), the robot holds the last command for that period; the next
+/// sample resumes.
 #[test]
-fn missing_sample_holds_torque_and_is_counted() {
+fn missing_sample_is_ridden_through() {
     let s = scenario(1.0);
-    let mut link = Direct::new(robot(&s, 2));
-    link.drop_samples = vec![20];
+    let mut link = Direct::new(robot(&s, 20));
+    link.drop_samples = vec![21];
     let (link, lp, recs) = run(&s, 40, link);
     let r = recs.iter().find(|r| r.sample.is_none()).unwrap();
     assert!(!r.sent);
@@ -425,38 +611,39 @@ fn missing_sample_holds_torque_and_is_counted() {
     assert_eq!(r.output.torque, r.torque_prev);
     assert_eq!(lp.stats().missing_samples, 1);
     assert_eq!(link.vr.stats().held, 1);
-    assert_eq!(link.vr.stats().watchdog_trips, 0);
-    // The robot held the command of period 19 in period 20: same torque as the loop held.
+    assert_eq!(link.vr.stats().watchdog_trips, 1);
+    assert_eq!(link.vr.stats().protective_stops, 0);
+    // Period 20 (sample 21) held the command of period 19.
     assert_eq!(link.steps[20].torque, link.steps[19].torque);
-    assert!(recs.iter().all(|r| r.within_limits));
+    assert!(link.steps.iter().all(|st| st.within_limits));
 }
 
-/// Commands lost for 3 periods: the robot holds one period, zeroes the torque from the second
-/// (watchdog flag in its samples), and resumes when commands return; the loop resumes from the
-/// applied (zero) torque within the rate limit.
+/// Commands lost for 3 periods: the robot rides through on the last command's plan (its last
+/// entry held once used up), flags the gap in its samples and resumes when commands return;
+/// the loop resumes from the applied torque within the rate limit. No protective stop.
 #[test]
-fn watchdog_zeroes_after_two_periods_and_resumes() {
+fn ride_through_plays_the_plan_and_resumes() {
     let s = scenario(1.0);
-    let mut link = Direct::new(robot(&s, 2));
-    link.drop_commands = vec![30, 31, 32];
-    let (link, lp, recs) = run(&s, 50, link);
+    let mut link = Direct::new(robot(&s, 20));
+    link.drop_commands = vec![31, 32, 33];
+    let (link, lp, recs) = run_with(&s, 50, link, true);
+    assert!(lp.stats().planned_commands >= 40);
     let st = &link.steps;
-    assert!(st[30].command.is_none() && !st[30].watchdog);
-    assert_eq!(st[30].torque, st[29].torque, "first missing period holds");
-    assert!(st[31].watchdog && st[32].watchdog);
-    assert_eq!(st[31].torque, Vector2::zeros());
-    assert_eq!(st[32].torque, Vector2::zeros());
+    let c = st[29].command.unwrap();
+    let n = usize::from(c.plan_len);
+    assert!(n >= 1);
+    for (j, k) in (30..33).enumerate() {
+        assert!(st[k].command.is_none() && st[k].watchdog, "period {k}");
+        assert_eq!(st[k].torque, c.plan[j.min(n - 1)], "period {k}");
+    }
     assert!(st[33].command.is_some() && !st[33].watchdog, "resumes");
-    assert!(st[33].within_limits);
-    let lim = limits(&s);
-    assert!(lim.admits(&st[32].torque, &st[33].torque));
     let vs = link.vr.stats();
-    assert_eq!((vs.watchdog_trips, vs.watchdog_periods, vs.held), (1, 2, 1));
+    assert_eq!((vs.watchdog_trips, vs.held, vs.protective_stops), (1, 3, 0));
     let ev = link.vr.watchdog_events()[0];
-    assert!((ev.tripped_at - 0.31).abs() < 1e-9);
+    assert!((ev.tripped_at - 0.30).abs() < 1e-9);
     assert!((ev.last_command_at.unwrap() - 0.29).abs() < 1e-9);
     assert!((ev.resumed_at.unwrap() - 0.33).abs() < 1e-9);
-    // The samples of periods 32 and 33 carried the watchdog flag; the loop saw and resynced.
+    // The samples of periods 31-33 carried the gap flag; the loop saw it and resynced.
     let flagged = recs
         .iter()
         .filter(|r| {
@@ -464,11 +651,75 @@ fn watchdog_zeroes_after_two_periods_and_resumes() {
                 .is_some_and(|x| x.flags & robot_flags::WATCHDOG != 0)
         })
         .count();
-    assert_eq!(flagged, 2);
-    assert_eq!(lp.stats().robot_watchdog_samples, 2);
-    assert!(lp.stats().effort_resyncs >= 2);
+    assert_eq!(flagged, 3);
+    assert_eq!(lp.stats().robot_watchdog_samples, 3);
     assert_eq!(lp.stats().limit_violations, 0);
+    assert!(st.iter().all(|x| x.within_limits));
     assert_eq!(link.vr.stats().limit_violations, 0);
+}
+
+/// The controller dies (no more commands): the robot rides through `ride_through` periods,
+/// then makes a protective stop (torque ramped to zero at the rate limit, at zero within
+/// 0.5 s of the last command, held there), refuses every later frame and hello, flags the
+/// stop; only a restart at the robot and a fresh handshake give a new session, whose sequence
+/// numbers start afresh.
+#[test]
+fn lost_controller_protective_stop_and_restart() {
+    let s = scenario(3.0);
+    let (mut link, _, _) = run(&s, 100, Direct::new(robot(&s, 20)));
+    let last_cmd = link.steps.len() - 1;
+    for _ in 0..80 {
+        link.robot_alone();
+    }
+    let st = &link.steps;
+    let lim = limits(&s);
+    assert!(st.iter().all(|x| x.within_limits));
+    assert_eq!(link.vr.state(), Lifecycle::Error);
+    let ev = link.vr.stop_events()[0];
+    assert_eq!(ev.cause, StopCause::LostController);
+    let zero = ev.zero_at.unwrap();
+    assert!(zero - ev.last_command_at.unwrap() <= 0.5, "{ev:?}");
+    // 20 periods ridden through, then the ramp at the rate limit, then zero for good.
+    assert!(st[last_cmd + 20].watchdog);
+    let first_zero = st.iter().position(|x| x.t >= zero - 1e-9).unwrap();
+    assert!(st[first_zero..]
+        .iter()
+        .all(|x| x.torque == Vector2::zeros()));
+    for w in st[last_cmd..].windows(2) {
+        assert!(lim.admits(&w[0].torque, &w[1].torque));
+    }
+    // The old session and a fresh hello are refused while stopped.
+    let mut other = ControllerLink::<2>::new(psk(), 100);
+    other.start([9; 32]);
+    let hello = other.hello(0).to_vec();
+    for from in [CONTROLLER, ATTACKER] {
+        let rx = link
+            .rob
+            .receive(addr(from), &hello, 0, &mut || Some([4; 32]));
+        assert_eq!(rx, RobotRx::Nothing, "no challenge while stopped");
+    }
+    let rj = link.rob.stats().rejected;
+    assert_eq!((rj.not_allowed, rj.foreign), (1, 1));
+    // Restart at the robot, then a fresh handshake: a new session from sequence number 1.
+    assert!(link.vr.restart());
+    link.rob.reset();
+    let mut lp = control_loop(&s);
+    let mut clock = link.clock.clone();
+    assert!(lp
+        .connect(
+            &mut link,
+            &mut clock,
+            Duration::from_secs(1),
+            Duration::from_millis(100)
+        )
+        .unwrap());
+    for _ in 0..30 {
+        lp.period(&mut link, &mut clock).unwrap();
+    }
+    assert_eq!(link.vr.state(), Lifecycle::Active);
+    assert_eq!(link.vr.stats().sessions, 2);
+    assert!(link.steps.last().unwrap().command.is_some());
+    assert!(link.steps.iter().all(|x| x.within_limits));
 }
 
 /// Clock sync: a sample arriving late (a robot or network stall) is used, counted as late,
@@ -477,8 +728,8 @@ fn watchdog_zeroes_after_two_periods_and_resumes() {
 #[test]
 fn late_sample_does_not_shift_the_phase() {
     let s = scenario(1.0);
-    let mut link = Direct::new(robot(&s, 2));
-    link.late_samples = vec![20, 21, 22];
+    let mut link = Direct::new(robot(&s, 20));
+    link.late_samples = vec![21, 22, 23];
     let (link, lp, recs) = run(&s, 40, link);
     assert_eq!(lp.stats().late_samples, 3);
     assert!(recs.iter().all(|r| r.sent && r.wake_error_us == 0.0));
@@ -487,11 +738,12 @@ fn late_sample_does_not_shift_the_phase() {
     assert_eq!(lp.next_deadline(), Some(Duration::from_millis(398)));
 }
 
-/// Stop: the torque ramps to zero at the rate limit, then STOP tells the robot.
+/// Stop: the torque ramps to zero at the rate limit, then STOP makes the robot's protective
+/// stop (it stays stopped).
 #[test]
 fn stop_ramps_to_zero_and_tells_the_robot() {
     let s = scenario(1.0);
-    let (mut link, mut lp, _) = run(&s, 30, Direct::new(robot(&s, 2)));
+    let (mut link, mut lp, _) = run(&s, 30, Direct::new(robot(&s, 20)));
     let mut clock = link.clock.clone();
     lp.request_stop();
     let rate = limits(&s).rate;
@@ -508,33 +760,492 @@ fn stop_ramps_to_zero_and_tells_the_robot() {
     assert!(!link.vr.stop_requested());
     lp.send_stop(&mut link, &clock, 1).unwrap();
     assert!(link.vr.stop_requested());
+    assert_eq!(link.vr.state(), Lifecycle::Error);
+    assert_eq!(link.vr.stop_events()[0].cause, StopCause::StopRequested);
 }
 
-/// The robot rejects stale, duplicate and out-of-order commands, and a HELLO drives nothing.
+/// The robot applies commands only in an active session, and only those answering its
+/// current sample.
 #[test]
-fn robot_rejects_stale_and_repeated_commands() {
+fn robot_rejects_commands_outside_a_session_and_stale_ones() {
     let s = scenario(1.0);
-    let mut vr = robot(&s, 2);
-    let cmd = |seq: u32, answers: u32, flags: u16| RobotCommand::<2> {
-        seq,
-        stamp_ns: 0,
-        answers,
-        flags,
-        status: 0,
-        iterations: 0,
-        compute_ns: 0,
-        torque: Vector2::new(1.0, 1.0),
-    };
-    assert_eq!(vr.command(&cmd(1, 0, command_flags::HELLO)), Ok(false));
+    let mut vr = robot(&s, 20);
+    let cmd = |answers: u32| RobotCommand::<2>::new(1, 0, answers, 0, Vector2::new(1.0, 1.0));
     let _ = vr.sample();
-    assert_eq!(vr.command(&cmd(2, 0, 0)), Ok(true));
-    assert_eq!(vr.command(&cmd(2, 0, 0)), Err(FrameError::Duplicate));
-    assert_eq!(vr.command(&cmd(1, 0, 0)), Err(FrameError::OutOfOrder));
+    assert_eq!(vr.command(&cmd(1)), Err(FrameError::NotAllowed), "inactive");
+    assert!(vr.activate());
+    assert!(!vr.activate(), "already active");
+    let _ = vr.sample();
+    assert_eq!(vr.command(&cmd(1)), Ok(true));
     vr.advance();
     let _ = vr.sample();
-    assert_eq!(vr.command(&cmd(3, 0, 0)), Err(FrameError::Stale));
-    assert_eq!(vr.command(&cmd(4, 5, 0)), Err(FrameError::Malformed));
+    assert_eq!(vr.command(&cmd(1)), Err(FrameError::Stale));
+    assert_eq!(vr.command(&cmd(5)), Err(FrameError::Malformed));
     assert!(!vr.has_current());
+}
+
+// ---------------------------------------------------------------------------------------------
+// Attacks. Each runs the legitimate 2-kg loop with the attack and checks from the robot's
+// true-state steps that nothing of the attacker was applied: the run is bit-identical to the
+// same run without it (or, where the attack removes a legitimate frame, identical to losing it).
+
+const ATTACK_PERIODS: usize = 120;
+
+fn clean_steps(s: &Scenario) -> Vec<RobotStep<2>> {
+    run(s, ATTACK_PERIODS, Direct::new(robot(s, 20))).0.steps
+}
+
+fn same_run(a: &[RobotStep<2>], b: &[RobotStep<2>]) -> bool {
+    a.len() == b.len()
+        && a.iter()
+            .zip(b)
+            .all(|(x, y)| x.torque == y.torque && x.force_true == y.force_true)
+}
+
+/// A frame the attacker makes without the key: the right layout, a MAC under its own key.
+fn forged_command(seq: u32, answers: u32, torque: f64) -> Vec<u8> {
+    let mut v = Vec::new();
+    let c = RobotCommand::new(seq, 0, answers, 0, Vector2::new(torque, -torque));
+    encode_command(&c, &Key::from_bytes([0xAA; 32]), &mut v);
+    v
+}
+
+fn attacked(s: &Scenario, attacks: Vec<(u32, Attack)>) -> Direct {
+    let mut link = Direct::new(robot(s, 20));
+    link.attacks = attacks;
+    run(s, ATTACK_PERIODS, link).0
+}
+
+/// An unauthenticated process sends the handshake first, during the run, and then commands
+/// of ±30 N·m: its hello has no valid MAC (and comes from a foreign address during the
+/// session), its commands too; nothing changes.
+#[test]
+fn attack_unauthenticated_hello_takeover_fails() {
+    let s = scenario(1.5);
+    let clean = clean_steps(&s);
+    let mut hello = Vec::new();
+    let h = Hello {
+        seq: 1,
+        stamp_ns: 0,
+        nonce_c: [1; 32],
+    };
+    encode_hello::<2>(&h, &Key::from_bytes([0xAA; 32]), &mut hello);
+    let mut attacks = Vec::new();
+    for k in 10..60u32 {
+        attacks.push((k, Attack::Send(addr(ATTACKER), hello.clone())));
+        let t = if k % 2 == 0 { 30.0 } else { -30.0 };
+        attacks.push((k, Attack::Send(addr(ATTACKER), forged_command(k, k, t))));
+    }
+    let link = attacked(&s, attacks);
+    assert!(
+        same_run(&clean, &link.steps),
+        "the attacker changed the run"
+    );
+    let rj = link.rob.stats().rejected;
+    assert_eq!(rj.foreign, 100, "{rj:?}");
+    // Before any session, from any address: a hello under another key is a bad MAC.
+    let mut fresh = RobotLink::<2>::new(psk(), 100);
+    assert_eq!(
+        fresh.receive(addr(ATTACKER), &hello, 0, &mut || Some([3; 32])),
+        RobotRx::Nothing
+    );
+    assert_eq!(fresh.stats().rejected.bad_mac, 1);
+}
+
+/// Forged commands from the controller's own address (spoofed source) with sequence jumps,
+/// and a forged sample to the controller (a 157 N strap force): bad MACs, nothing applied or
+/// used.
+#[test]
+fn attack_forged_command_and_sample_fail() {
+    let s = scenario(1.5);
+    let clean = clean_steps(&s);
+    let attacks = (20..40u32)
+        .map(|k| {
+            (
+                k,
+                Attack::Send(addr(CONTROLLER), forged_command(k + 1000, k, 30.0)),
+            )
+        })
+        .collect();
+    let link = attacked(&s, attacks);
+    assert!(same_run(&clean, &link.steps));
+    assert_eq!(link.rob.stats().rejected.bad_mac, 20);
+    // A forged sample at the controller's end.
+    let mut ctl = link.ctl;
+    let forged = RobotSample::<2> {
+        seq: 1 << 20,
+        stamp_ns: 0,
+        flags: 0,
+        q: Vector2::zeros(),
+        qd: Vector2::zeros(),
+        force: Vector2::new(157.0, 157.0),
+        effort: Vector2::zeros(),
+    };
+    let mut b = Vec::new();
+    encode_sample(&forged, &Key::from_bytes([0xAA; 32]), &mut b);
+    let before = ctl.stats().rejected.bad_mac;
+    assert_eq!(ctl.receive(&b), None);
+    assert_eq!(ctl.stats().rejected.bad_mac, before + 1);
+}
+
+/// A legitimate command altered in transit (one bit, anywhere): rejected; the robot rides
+/// through that period on the plan exactly as if the command was lost.
+#[test]
+fn attack_altered_frame_is_not_applied() {
+    let s = scenario(1.5);
+    let mut lost = Direct::new(robot(&s, 20));
+    lost.drop_commands = vec![30, 50, 70];
+    let lost = run(&s, ATTACK_PERIODS, lost).0;
+    let link = attacked(
+        &s,
+        vec![
+            (30, Attack::Alter(30)),
+            (50, Attack::Alter(8)),
+            (70, Attack::Alter(command_len(2) - 1)),
+        ],
+    );
+    assert!(same_run(&lost.steps, &link.steps));
+    assert_eq!(link.rob.stats().rejected.bad_mac, 3);
+}
+
+/// Frames of this session replayed later in it (instead of the fresh command, and on top of
+/// it): duplicates and old frames are rejected; a replay instead of the fresh command is the
+/// same as losing it.
+#[test]
+fn attack_replay_within_the_session_fails() {
+    let s = scenario(1.5);
+    let mut lost = Direct::new(robot(&s, 20));
+    lost.drop_commands = vec![40];
+    let lost = run(&s, ATTACK_PERIODS, lost).0;
+    let mut attacks = vec![(40, Attack::Replay(10))];
+    for k in 60..70 {
+        attacks.push((k, Attack::Inject(5)));
+    }
+    let link = attacked(&s, attacks);
+    assert!(same_run(&lost.steps, &link.steps));
+    let rj = link.rob.stats().rejected;
+    assert_eq!(rj.out_of_order, 11, "{rj:?}");
+}
+
+/// Frames recorded in one session replayed in the next (after a restart and a fresh
+/// handshake, same key): worthless (bad MAC under the new session key).
+#[test]
+fn attack_replay_across_sessions_fails() {
+    let s = scenario(2.0);
+    let (mut link, _, _) = run(&s, 60, Direct::new(robot(&s, 20)));
+    let recorded = link.sent.clone();
+    link.vr.protective_stop(StopCause::Operator);
+    for _ in 0..5 {
+        link.robot_alone();
+    }
+    assert!(link.vr.restart());
+    link.rob.reset();
+    link.sent.clear();
+    // Replay the first session's commands into the second, in every period.
+    link.attacks = (1..=60u32)
+        .map(|k| {
+            (
+                k,
+                Attack::Send(addr(CONTROLLER), recorded[k as usize % 60].clone()),
+            )
+        })
+        .collect();
+    let mut lp = control_loop(&s);
+    let mut clock = link.clock.clone();
+    assert!(lp
+        .connect(
+            &mut link,
+            &mut clock,
+            Duration::from_secs(1),
+            Duration::from_millis(100)
+        )
+        .unwrap());
+    for _ in 0..59 {
+        lp.period(&mut link, &mut clock).unwrap();
+    }
+    let rj = link.rob.stats().rejected;
+    assert_eq!(rj.bad_mac, 59, "{rj:?}");
+    // Every period of the new session applied the legitimate command of that period.
+    let n = link.steps.len();
+    assert!(link.steps[n - 58..].iter().all(|x| x.command.is_some()));
+}
+
+/// A command 2³¹ (or just more than 1 s of periods) ahead cannot lock the controller out:
+/// without the key it is a bad MAC; with it, beyond the replay window's reach, it is too far
+/// ahead and the window does not move.
+#[test]
+fn attack_sequence_jump_does_not_lock_out() {
+    let s = scenario(1.5);
+    let clean = clean_steps(&s);
+    let link = attacked(
+        &s,
+        vec![
+            (
+                20,
+                Attack::Send(addr(CONTROLLER), forged_command(20 + (1 << 31), 20, 30.0)),
+            ),
+            (
+                21,
+                Attack::Send(addr(CONTROLLER), forged_command(21 + 200, 21, 30.0)),
+            ),
+        ],
+    );
+    assert!(same_run(&clean, &link.steps));
+    assert_eq!(link.rob.stats().rejected.bad_mac, 2);
+    let mut w = SeqTracker::session(100);
+    assert_eq!(w.accept(1), Ok(()));
+    assert_eq!(w.accept(1 + (1 << 31)), Err(FrameError::OutOfOrder));
+    assert_eq!(w.accept(102), Err(FrameError::TooFarAhead));
+    assert_eq!(w.accept(2), Ok(()));
+}
+
+/// A controller with another key never gets a session (its hello is a bad MAC), and the
+/// robot stays inactive at zero torque.
+#[test]
+fn attack_wrong_key_gets_no_session() {
+    let s = scenario(1.0);
+    let other = Psk::new(b"another key of at least thirty-two bytes!").unwrap();
+    let mut link = Direct::with_keys(robot(&s, 20), other, psk());
+    assert!(!link.activate(Duration::ZERO).unwrap());
+    assert_eq!(link.vr.state(), Lifecycle::Inactive);
+    assert_eq!(link.rob.stats().rejected.bad_mac, 1);
+    assert!(!link.ctl.established());
+    for _ in 0..10 {
+        link.robot_alone();
+    }
+    assert!(link.steps.iter().all(|x| x.torque == Vector2::zeros()));
+}
+
+/// Key files: at least 32 bytes after trailing whitespace; a generated one is 64 hex digits.
+#[test]
+fn keys_are_checked() {
+    assert!(Psk::new(&[7; 31]).is_err());
+    assert!(Psk::new(b"0123456789abcdef0123456789abcde\n\n").is_err());
+    assert!(Psk::new(&[7; 32]).is_ok());
+    let f = Psk::generate_file().unwrap();
+    assert_eq!(f.len(), 65);
+    assert_ne!(f, Psk::generate_file().unwrap());
+    let a = Psk::new(f.as_bytes()).unwrap();
+    let b = Psk::new(f.trim_end().as_bytes()).unwrap();
+    assert_eq!(a, b, "a lost trailing newline does not change the key");
+    assert_ne!(
+        a.session_key(&[1; 32], &[2; 32]),
+        a.session_key(&[1; 32], &[3; 32])
+    );
+    assert_eq!(format!("{:?}", a.handshake_key()), "Key(..)");
+}
+
+/// The cost of authentication per frame: encode + decode of a 2-joint command and sample
+/// (MAC, keyed BLAKE3) against the CRC-32 of frame v1 over the same bytes. A measurement, not
+/// a check: `cargo test --release -p exompc --test runtime mac_cost -- --ignored --nocapture`
+/// (docs/REALTIME.md).
+#[test]
+#[ignore = "timing measurement; run with --ignored --nocapture"]
+fn mac_cost_per_frame() {
+    use std::hint::black_box;
+    use std::time::Instant;
+    let n = 200_000;
+    let c = RobotCommand::new(7, 1, 3, 0, Vector2::new(1.0, -2.0));
+    let sm = RobotSample::<2> {
+        seq: 9,
+        stamp_ns: 5,
+        flags: 0,
+        q: Vector2::new(0.1, -0.3),
+        qd: Vector2::new(0.5, -1.0),
+        force: Vector2::new(2.0, -1.0),
+        effort: Vector2::new(3.0, 1.0),
+    };
+    let (k, h) = (key(), hkey());
+    let mut buf = Vec::with_capacity(1024);
+    let time = |name: &str, f: &mut dyn FnMut()| {
+        for _ in 0..1000 {
+            f();
+        }
+        let t0 = Instant::now();
+        for _ in 0..n {
+            f();
+        }
+        let ns = t0.elapsed().as_nanos() as f64 / f64::from(n);
+        println!("{name}: {ns:.0} ns per frame");
+    };
+    time("command encode + decode, MAC", &mut || {
+        buf.clear();
+        encode_command(black_box(&c), &k, &mut buf);
+        black_box(decode::<2>(&buf, &h, Some(&k)).unwrap());
+    });
+    time("sample encode + decode, MAC", &mut || {
+        buf.clear();
+        encode_sample(black_box(&sm), &k, &mut buf);
+        black_box(decode::<2>(&buf, &h, Some(&k)).unwrap());
+    });
+    let cmd_bytes = enc_command(&c);
+    let body = cmd_bytes.len() - exompc::runtime::frame::MAC_LEN;
+    time("command MAC alone (compute + verify)", &mut || {
+        let tag = k.mac(black_box(&cmd_bytes[..body]));
+        black_box(k.verify(&cmd_bytes[..body], &tag));
+    });
+    time("command CRC-32 of frame v1 (compute + check)", &mut || {
+        let crc = crc32fast::hash(black_box(&cmd_bytes[..body]));
+        black_box(crc == crc32fast::hash(&cmd_bytes[..body]));
+    });
+}
+
+// ---------------------------------------------------------------------------------------------
+// The robot protects itself.
+
+fn datagram() -> impl Strategy<Value = (u8, u32, f64, u8, Vec<u8>)> {
+    (
+        0u8..5,
+        0u32..400,
+        prop_oneof![
+            -1e4..1e4f64,
+            Just(f64::NAN),
+            Just(f64::INFINITY),
+            Just(1e300)
+        ],
+        0u8..=PLAN_LEN as u8,
+        proptest::collection::vec(any::<u8>(), 0..300),
+    )
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(48))]
+
+    /// Whatever arrives (legitimate commands of any torque and plan, forged, replayed,
+    /// altered or random datagrams, hellos, stops), every applied torque meets the torque
+    /// limit and the rate limit from the previous applied one.
+    #[test]
+    fn robot_limits_hold_whatever_arrives(
+        frames in proptest::collection::vec(proptest::collection::vec(datagram(), 0..4), 60)
+    ) {
+        let s = scenario(1.0);
+        let lim = limits(&s);
+        let mut vr = robot(&s, 5);
+        let mut rob = RobotLink::<2>::new(psk(), 100);
+        let mut ctl = ControllerLink::<2>::new(psk(), 100);
+        ctl.start([5; 32]);
+        let hello = ctl.hello(0).to_vec();
+        rob.receive(addr(CONTROLLER), &hello, 0, &mut || Some([6; 32]));
+        let ch = rob.reply().to_vec();
+        ctl.receive(&ch);
+        let confirm = ctl
+            .command(&RobotCommand::new(0, 0, 0, command_flags::HELLO, Vector2::zeros()))
+            .to_vec();
+        if rob.receive(addr(CONTROLLER), &confirm, 0, &mut || None) == RobotRx::Activated {
+            vr.activate();
+        }
+        let mut recorded: Vec<Vec<u8>> = Vec::new();
+        let mut prev = Vector2::zeros();
+        for period in frames {
+            let sample = vr.sample();
+            for (kind, answers, t, n, junk) in period {
+                let torque = Vector2::new(t, -t * 0.5);
+                let mut c = RobotCommand::new(0, 0, if answers % 3 == 0 { sample.seq } else { answers }, 0, torque);
+                c.plan_len = n;
+                c.plan = [Vector2::new(-t, t); PLAN_LEN];
+                let bytes = match kind {
+                    // Legitimate, any torque (non-finite ones are rejected by the decoder).
+                    0 => {
+                        let b = ctl.command(&c).to_vec();
+                        recorded.push(b.clone());
+                        b
+                    }
+                    1 => forged_command(answers, sample.seq, t),
+                    2 => recorded.get(junk.len() % recorded.len().max(1)).cloned().unwrap_or_default(),
+                    3 => {
+                        let mut b = ctl.command(&c).to_vec();
+                        if !junk.is_empty() { let i = usize::from(junk[0]) % b.len(); b[i] ^= 0x40; }
+                        b
+                    }
+                    _ => junk,
+                };
+                match rob.receive(addr(CONTROLLER), &bytes, 0, &mut || Some([8; 32])) {
+                    RobotRx::Command(c) => { let _ = vr.command(&c); }
+                    RobotRx::Activated => { vr.activate(); }
+                    _ => {}
+                }
+            }
+            let st = vr.advance();
+            prop_assert!(st.torque.iter().all(|v| v.is_finite()));
+            prop_assert!(st.torque.amax() <= lim.max + 1e-12, "{:?}", st.torque);
+            prop_assert!((st.torque - prev).amax() <= lim.rate + 1e-9, "{:?} after {:?}", st.torque, prev);
+            prop_assert!(st.within_limits);
+            prev = st.torque;
+        }
+        prop_assert_eq!(vr.stats().limit_violations, 0);
+    }
+}
+
+/// Commands far beyond the limits are clamped by the robot (counted), ramping at the rate
+/// limit towards them.
+#[test]
+fn robot_clamps_and_ramps_towards_any_command() {
+    let s = scenario(1.0);
+    let lim = limits(&s);
+    let mut vr = robot(&s, 20);
+    assert!(vr.activate());
+    let mut last = Vector2::zeros();
+    for _ in 0..6 {
+        let sm = vr.sample();
+        vr.command(&RobotCommand::new(1, 0, sm.seq, 0, Vector2::new(1e6, -1e6)))
+            .unwrap();
+        let st = vr.advance();
+        assert!((st.torque - last).amax() <= lim.rate + 1e-12);
+        last = st.torque;
+    }
+    assert_eq!(last, Vector2::new(lim.max, -lim.max));
+    assert_eq!(vr.stats().clamped, 6);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Link outages ridden through (issue 28's runtime goals).
+
+/// The peak and RMS of the true strap forces over a run's steps (N, over both straps).
+fn force_stats(steps: &[RobotStep<2>]) -> (f64, f64) {
+    let peak = steps
+        .iter()
+        .map(|x| x.force_true.amax())
+        .fold(0.0, f64::max);
+    let ms = steps
+        .iter()
+        .map(|x| x.force_true.norm_squared() / 2.0)
+        .sum::<f64>()
+        / steps.len() as f64;
+    (peak, ms.sqrt())
+}
+
+/// Link outages (both directions lost) of 60, 120 and 200 ms at 1 s and 3 s into a 2-kg
+/// run: the robot rides through on the plan and the controller resynchronises; the RMS true
+/// strap force stays within 1.5× the same run without the outage, the peak ≤ 35 N, no
+/// protective stop, no limit violation.
+#[test]
+fn link_outages_are_ridden_through() {
+    let s = scenario(4.0);
+    let periods = 400;
+    let clean = run(&s, periods, Direct::new(robot(&s, 20))).0.steps;
+    let (peak0, rms0) = force_stats(&clean);
+    for at in [1.0, 3.0] {
+        for ms in [60u32, 120, 200] {
+            let first = (at / s.timing.dt) as u32 + 1;
+            let n = ms / 10;
+            let mut link = Direct::new(robot(&s, 20));
+            link.drop_samples = (first..first + n).map(u64::from).collect();
+            link.drop_commands = (first..first + n).collect();
+            let (link, lp, _) = run(&s, periods, link);
+            let (peak, rms) = force_stats(&link.steps);
+            println!(
+                "outage {ms} ms at {at} s: peak {peak:.1} N (clean {peak0:.1}), RMS {rms:.2} N \
+                 (clean {rms0:.2}, ×{:.2}), ridden {} periods",
+                rms / rms0,
+                link.vr.stats().held
+            );
+            assert_eq!(link.vr.stats().protective_stops, 0, "{ms} ms at {at} s");
+            assert!(link.steps.iter().all(|x| x.within_limits));
+            assert_eq!(lp.stats().limit_violations, 0);
+            assert!(peak <= 35.0, "{ms} ms at {at} s: peak {peak} N");
+            assert!(rms <= 1.5 * rms0, "{ms} ms at {at} s: RMS {rms} vs {rms0}");
+        }
+    }
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -164,6 +164,34 @@ pub trait Controller<const N: usize> {
     fn safety_report(&self) -> Option<&SafetyReport> {
         None
     }
+
+    /// The torques planned for the periods after the last step's, from its solve: writes
+    /// `out[j]` for period `k+1+j` (each within both limits of the one before, the first of
+    /// the last output) for up to `out.len()` entries and returns how many it wrote. A robot
+    /// plays them out while no newer command reaches it. Default: none (0).
+    fn planned_torques(&self, _out: &mut [SVector<f64, N>]) -> usize {
+        0
+    }
+}
+
+/// Fill `out` with the torques `T(k+j) = T(k+j−1) + dT(k+j)`, `j = 1, 2, …`, from the applied
+/// `T(k)` = `prev` and the increments `inc(j)` (`None` past the control horizon), each clamped
+/// to `limits`; returns the entries written.
+pub(crate) fn plan_from<const N: usize>(
+    prev: &SVector<f64, N>,
+    limits: &TorqueLimits,
+    out: &mut [SVector<f64, N>],
+    inc: impl Fn(usize) -> Option<SVector<f64, N>>,
+) -> usize {
+    let mut t = *prev;
+    let mut n = 0;
+    for (j, o) in out.iter_mut().enumerate() {
+        let Some(d) = inc(j + 1) else { break };
+        t = limits.clamp(&t, &(t + d));
+        *o = t;
+        n += 1;
+    }
+    n
 }
 
 /// Human-intent estimate of paper eqs. 5-6: `q̂_H = q_R + K1 F`, `q̂d_H = qd_R + K2 F`, with

@@ -698,6 +698,34 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
         self.prev
     }
 
+    /// Eq. 13 over the horizon: the probability-weighted increments of the usable scenario
+    /// solves (decoupled formulation; the coupled one plans nothing here).
+    fn planned_torques(&self, out: &mut [SVector<f64, N>]) -> usize {
+        if self.coupled.is_some() {
+            return 0;
+        }
+        let usable = |c: &NmpcCore<N>| classify(c.info.status).1;
+        let wsum: f64 = self
+            .cores
+            .iter()
+            .zip(&self.weights)
+            .filter(|(c, _)| usable(c))
+            .map(|(_, w)| *w)
+            .sum();
+        if wsum.is_nan() || wsum <= 0.0 {
+            return 0;
+        }
+        super::plan_from(&self.prev, &self.limits, out, |j| {
+            let mut sum = SVector::<f64, N>::zeros();
+            for (c, w) in self.cores.iter().zip(&self.weights) {
+                if usable(c) {
+                    sum += c.increment(j)? * *w;
+                }
+            }
+            Some(sum / wsum)
+        })
+    }
+
     fn set_previous_torque(&mut self, t: SVector<f64, N>) {
         self.prev = self.limits.admissible(&t);
     }

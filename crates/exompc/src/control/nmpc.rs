@@ -112,6 +112,14 @@ impl<const N: usize> NmpcCore<N> {
         SVector::from_fn(|a, _| self.z[a])
     }
 
+    /// The increment `dT(k+j)` of the current solution (`None` past the control horizon).
+    pub fn increment(&self, j: usize) -> Option<SVector<f64, N>> {
+        if (j + 1) * N > self.z.len() {
+            return None;
+        }
+        Some(SVector::from_fn(|a, _| self.z[j * N + a]))
+    }
+
     /// Whether the structured (Riccati) QP path is in use.
     pub fn is_structured(&self) -> bool {
         matches!(self.solver, CoreSolver::Structured(_))
@@ -224,6 +232,13 @@ impl<const N: usize> Controller<N> for Nmpc<N> {
 
     fn name(&self) -> &'static str {
         "nmpc"
+    }
+
+    fn planned_torques(&self, out: &mut [SVector<f64, N>]) -> usize {
+        if !classify(self.core.info.status).1 {
+            return 0;
+        }
+        super::plan_from(&self.prev, &self.limits, out, |j| self.core.increment(j))
     }
 
     fn previous_torque(&self) -> SVector<f64, N> {

@@ -1048,6 +1048,21 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
     fn safety_report(&self) -> Option<&SafetyReport> {
         Some(&self.report)
     }
+
+    /// The inner controller's plan while it drives the output (none while a monitor response
+    /// or the latch does), clamped to the limits from the last output.
+    fn planned_torques(&self, out: &mut [SVector<f64, N>]) -> usize {
+        if self.engaged || self.latched || self.is_tripped() {
+            return 0;
+        }
+        let n = self.inner.planned_torques(out);
+        let mut p = self.prev;
+        for o in out.iter_mut().take(n) {
+            *o = self.s.limits.clamp(&p, o);
+            p = *o;
+        }
+        n
+    }
 }
 
 impl<const N: usize, C: Controller<N> + ?Sized> Controller<N> for Box<C> {
@@ -1071,5 +1086,8 @@ impl<const N: usize, C: Controller<N> + ?Sized> Controller<N> for Box<C> {
     }
     fn safety_report(&self) -> Option<&SafetyReport> {
         (**self).safety_report()
+    }
+    fn planned_torques(&self, out: &mut [SVector<f64, N>]) -> usize {
+        (**self).planned_torques(out)
     }
 }

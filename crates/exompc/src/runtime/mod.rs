@@ -2,19 +2,23 @@
 //! controller loop, a virtual robot to test against, and injectable network faults.
 //!
 //! * [`RobotInterface`] is the hardware boundary, shaped like ros2_control's hardware
-//!   interface: [`RobotInterface::read`] a state sample, [`RobotInterface::write`] a torque
-//!   command, once per period. A UDP link ([`UdpRobot`]) is the one implementation here; a CAN
-//!   or EtherCAT drive, or a ROS 2 bridge, implements the same two calls.
+//!   interface: a lifecycle ([`Lifecycle`]: configure, activate, deactivate, error), then
+//!   [`RobotInterface::read`] a state sample and [`RobotInterface::write`] a torque command
+//!   once per period. A UDP link ([`UdpRobot`]) is the one implementation here; a CAN or
+//!   EtherCAT drive, or a ROS 2 bridge, implements the same calls.
 //! * [`frame`]: the versioned little-endian frame (magic, version, sequence number, timestamp,
-//!   payload, CRC-32); decoding rejects every malformed, truncated, wrong-version, duplicate,
-//!   out-of-order or stale frame with a counted reason, never a panic.
+//!   payload, MAC); decoding rejects every malformed, truncated, wrong-version, forged,
+//!   altered, duplicate, out-of-order or stale frame with a counted reason, never a panic.
+//! * [`session`]: the pre-shared key, the handshake (fresh nonces of both sides) and the
+//!   session key, and the protocol state of both ends ([`ControllerLink`], [`RobotLink`]).
 //! * [`ControlLoop`]: the controller side of one period on absolute-time deadlines synchronised
 //!   to the robot's sample timestamps (wake at `T_k`, read the newest sample with a timeout,
 //!   filter, supervised controller step, write the torque), written against the [`Clock`] and [`RobotInterface`] traits so that it runs
 //!   in tests without sockets or real time.
 //! * [`VirtualRobot`]: the simulated human + exoskeleton of `exompc simulate` (the same
 //!   [`Plant`](crate::sim::Plant) and [`Sensors`](crate::sim::Sensors)) behind the robot side of
-//!   the protocol, with a command watchdog.
+//!   the protocol: its own torque and rate limits, the ride-through of brief command gaps and
+//!   the protective stop.
 //! * [`NetFaults`]: packet loss, delay spikes, duplication, reordering and a disconnection,
 //!   injected into a stream of frames.
 
@@ -22,16 +26,18 @@ pub mod frame;
 mod loop_ctl;
 mod netfault;
 mod robot;
+pub mod session;
 mod timing;
 mod udp;
 
 pub use frame::{
     decode, encode_command, encode_sample, Frame, FrameError, RejectCounts, RobotCommand,
-    RobotSample, SeqTracker,
+    RobotSample, SeqTracker, PLAN_LEN,
 };
 pub use loop_ctl::{ControlLoop, LoopSettings, LoopStats, PeriodRecord};
 pub use netfault::{NetFaultCounts, NetFaultSettings, NetFaults};
-pub use robot::{RobotStats, RobotStep, VirtualRobot, WatchdogEvent};
+pub use robot::{RobotStats, RobotStep, StopCause, StopEvent, VirtualRobot, WatchdogEvent};
+pub use session::{ControllerLink, Key, KeyError, Psk, RobotLink, RobotRx};
 pub use timing::{
     Clock, MonotonicClock, Percentiles, Schedule, TestClock, TimingStats, TimingSummary,
 };
@@ -45,7 +51,7 @@ use std::time::Duration;
 pub struct LinkStats {
     /// Datagrams received.
     pub received: u64,
-    /// Frames accepted (decoded, right direction, newer than the last one).
+    /// Frames accepted (authenticated, right direction, newer than the last one).
     pub accepted: u64,
     /// Accepted frames dropped unused because a newer one was read in the same call.
     pub superseded: u64,
@@ -59,10 +65,63 @@ pub struct LinkStats {
     pub send_errors: u64,
 }
 
+/// The lifecycle of a robot (ros2_control's hardware lifecycle): unconfigured → inactive
+/// (configured, zero torque) → active (a session applies commands); error is the protective
+/// stop (torque ramped to zero and held), left only by a deliberate restart to inactive.
+///
+/// ```text
+///  unconfigured --configure--> inactive --activate (authenticated session)--> active
+///                                 ^  ^------------------deactivate--------------'  |
+///                                 |                                                 | lost controller, invalid
+///                              restart                                              | stream, fault, stop request
+///                                 |                                                 v
+///                                 '--------------------------------------------- error
+/// ```
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Lifecycle {
+    /// Not configured: no link, no torque.
+    #[default]
+    Unconfigured,
+    /// Configured, zero torque, ready for a session.
+    Inactive,
+    /// A session applies commands.
+    Active,
+    /// Protective stop: torque ramped to zero and held until a restart.
+    Error,
+}
+
 /// The robot side of the controller, once per period (the read()/write() cycle of a
-/// ros2_control hardware interface). Implementations count what they reject in
-/// [`LinkStats`] and never panic on bad input.
+/// ros2_control hardware interface), with its lifecycle. Implementations count what they
+/// reject in [`LinkStats`] and never panic on bad input. The lifecycle methods have defaults
+/// for an interface that is always active (an in-process test double).
 pub trait RobotInterface<const N: usize> {
+    /// The interface's lifecycle state.
+    fn state(&self) -> Lifecycle {
+        Lifecycle::Active
+    }
+
+    /// Unconfigured → inactive: prepare the link (for the UDP link: a fresh handshake nonce).
+    fn configure(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+
+    /// Inactive → active: open a session with the robot, waiting at most `timeout`; `true`
+    /// once active (the robot's first sample is then ready for [`RobotInterface::read`]).
+    /// Call again after `false` to go on waiting.
+    fn activate(&mut self, _timeout: std::time::Duration) -> std::io::Result<bool> {
+        Ok(true)
+    }
+
+    /// Active → inactive: the session is over (after the stop was sent).
+    fn deactivate(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+
+    /// Any state → error: the session is abandoned (the robot stops itself when it hears
+    /// nothing more).
+    fn error(&mut self) {}
+
     /// The newest valid state sample, waiting at most `timeout` for one; `None` when none
     /// arrived in time. Older valid samples read in the same call are counted as superseded.
     fn read(&mut self, timeout: Duration) -> std::io::Result<Option<RobotSample<N>>>;

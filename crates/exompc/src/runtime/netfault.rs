@@ -99,20 +99,38 @@ impl SplitMix {
 }
 
 /// One direction of a faulty link: frames go in with [`NetFaults::submit`] and come out, when
-/// due, from [`NetFaults::pop_due`].
+/// due, from [`NetFaults::pop_due`]. Each frame carries a tag `A` (e.g. its sender's address:
+/// [`NetFaults::submit_tagged`], [`NetFaults::pop_due_tagged`]).
 #[derive(Clone, Debug)]
-pub struct NetFaults {
+pub struct NetFaults<A: Copy = ()> {
     s: NetFaultSettings,
     rng: SplitMix,
-    queue: Vec<(f64, u64, Vec<u8>)>,
-    held: Option<Vec<u8>>,
+    queue: Vec<(f64, u64, A, Vec<u8>)>,
+    held: Option<(A, Vec<u8>)>,
     order: u64,
     counts: NetFaultCounts,
 }
 
-impl NetFaults {
-    /// A link direction with faults `s`.
+impl NetFaults<()> {
+    /// A link direction with faults `s` (untagged frames).
     pub fn new(s: NetFaultSettings) -> Self {
+        Self::tagged(s)
+    }
+
+    /// Submit a frame at link time `now`.
+    pub fn submit(&mut self, now: f64, bytes: &[u8]) {
+        self.submit_tagged(now, (), bytes);
+    }
+
+    /// The next frame due at `now` (in submission order among those due), if any.
+    pub fn pop_due(&mut self, now: f64) -> Option<Vec<u8>> {
+        self.pop_due_tagged(now).map(|x| x.1)
+    }
+}
+
+impl<A: Copy> NetFaults<A> {
+    /// A link direction with faults `s` whose frames carry a tag of type `A`.
+    pub fn tagged(s: NetFaultSettings) -> Self {
         NetFaults {
             rng: SplitMix(s.seed ^ 0x005E_ED0F_FA17),
             s,
@@ -142,13 +160,13 @@ impl NetFaults {
             && now % self.s.delay_every_s < self.s.delay_width_s
     }
 
-    fn enqueue(&mut self, at: f64, bytes: Vec<u8>) {
+    fn enqueue(&mut self, at: f64, tag: A, bytes: Vec<u8>) {
         self.order += 1;
-        self.queue.push((at, self.order, bytes));
+        self.queue.push((at, self.order, tag, bytes));
     }
 
-    /// Submit a frame at link time `now`.
-    pub fn submit(&mut self, now: f64, bytes: &[u8]) {
+    /// Submit a frame tagged `tag` at link time `now`.
+    pub fn submit_tagged(&mut self, now: f64, tag: A, bytes: &[u8]) {
         self.counts.submitted += 1;
         if self.disconnected(now) {
             self.counts.disconnected += 1;
@@ -172,29 +190,30 @@ impl NetFaults {
         }
         if r < self.s.reorder && self.held.is_none() {
             self.counts.reordered += 1;
-            self.held = Some(bytes.to_vec());
+            self.held = Some((tag, bytes.to_vec()));
             return;
         }
-        self.enqueue(at, bytes.to_vec());
+        self.enqueue(at, tag, bytes.to_vec());
         if d < self.s.duplicate {
             self.counts.duplicated += 1;
-            self.enqueue(at, bytes.to_vec());
+            self.enqueue(at, tag, bytes.to_vec());
         }
-        if let Some(h) = self.held.take() {
-            self.enqueue(at, h);
+        if let Some((ht, h)) = self.held.take() {
+            self.enqueue(at, ht, h);
         }
     }
 
-    /// The next frame due at `now` (in submission order among those due), if any.
-    pub fn pop_due(&mut self, now: f64) -> Option<Vec<u8>> {
+    /// The next frame due at `now` (in submission order among those due) with its tag.
+    pub fn pop_due_tagged(&mut self, now: f64) -> Option<(A, Vec<u8>)> {
         let i = self
             .queue
             .iter()
             .enumerate()
-            .filter(|(_, (at, _, _))| *at <= now)
-            .min_by_key(|(_, (_, o, _))| *o)
+            .filter(|(_, q)| q.0 <= now)
+            .min_by_key(|(_, q)| q.1)
             .map(|(i, _)| i)?;
-        Some(self.queue.swap_remove(i).2)
+        let q = self.queue.swap_remove(i);
+        Some((q.2, q.3))
     }
 
     /// Time the next queued frame is due, if any.

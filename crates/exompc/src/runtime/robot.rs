@@ -1,8 +1,10 @@
 //! The virtual robot: the simulated human + exoskeleton of `exompc simulate` behind the robot
-//! side of the protocol, with a command watchdog. Time advances one period per
-//! [`VirtualRobot::advance`]; the caller paces it in real time.
+//! side of the protocol, with the lifecycle of [`Lifecycle`], its own torque and torque-rate
+//! limits, the ride-through of brief command gaps and the protective stop. Time advances one
+//! period per [`VirtualRobot::advance`]; the caller paces it in real time.
 
-use super::frame::{command_flags, robot_flags, FrameError, RobotCommand, RobotSample, SeqTracker};
+use super::frame::{command_flags, robot_flags, FrameError, RobotCommand, RobotSample, PLAN_LEN};
+use super::Lifecycle;
 use crate::control::TorqueLimits;
 use crate::model::JointState;
 use crate::sim::{Plant, Sensors, Trajectory};
@@ -14,37 +16,72 @@ use serde::Serialize;
 pub struct RobotStats {
     /// Periods simulated.
     pub periods: u64,
-    /// Periods whose torque was the command answering that period's sample.
+    /// Periods whose torque target was the command answering that period's sample.
     pub commanded: u64,
-    /// Periods without a fresh command that held the last one (fewer than the watchdog's
-    /// periods since it).
+    /// Periods of an active session without a fresh command, riding through the gap on the
+    /// last command's plan (at most the ride-through's periods in a row).
     pub held: u64,
-    /// Periods with zero torque by the watchdog.
-    pub watchdog_periods: u64,
-    /// Times the watchdog fired.
+    /// Periods with a zero torque target (inactive, protective stop, or before the first
+    /// session); the applied torque ramps to zero at the rate limit.
+    pub idle_periods: u64,
+    /// Gaps in the commands of an active session (intervals ridden through, or ending in a
+    /// protective stop).
     pub watchdog_trips: u64,
-    /// Applied commands that violated a torque limit relative to the previous applied torque
-    /// (the watchdog's zero and the first command excluded).
+    /// Applied torques that violated a torque limit relative to the previous applied torque
+    /// (the robot clamps every target to both limits: must stay 0).
     pub limit_violations: u64,
-    /// Commands whose torque exceeded `±T_max` and were saturated.
-    pub saturated: u64,
-    /// Watchdog intervals not logged because the event log was full (counted in
-    /// `watchdog_trips`).
+    /// Periods whose target (a command or a plan entry) the robot changed to meet its torque
+    /// or torque-rate limit.
+    pub clamped: u64,
+    /// Protective stops made.
+    pub protective_stops: u64,
+    /// Sessions activated.
+    pub sessions: u64,
+    /// Restarts after a protective stop.
+    pub restarts: u64,
+    /// Gap or stop events not logged because the log was full (still counted above).
     pub events_dropped: u64,
 }
 
-/// Capacity of the watchdog event log.
+/// Capacity of the gap and stop event logs.
 const MAX_EVENTS: usize = 4096;
 
-/// A watchdog interval (robot time, s).
+/// A gap in the commands of an active session (robot time, s).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct WatchdogEvent {
-    /// Time the torque was zeroed.
+    /// Time of the first period without a command.
     pub tripped_at: f64,
-    /// Time of the last valid command before the trip (`None`: none yet).
+    /// Time of the last valid command before the gap (`None`: none yet in this session).
     pub last_command_at: Option<f64>,
-    /// Time commands resumed (`None`: not yet).
+    /// Time commands resumed (`None`: not yet, or the gap ended in a protective stop).
     pub resumed_at: Option<f64>,
+}
+
+/// Why the robot made a protective stop.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StopCause {
+    /// No valid command for longer than the ride-through.
+    LostController,
+    /// The controller asked for a stop (flag `STOP`).
+    StopRequested,
+    /// A fault the robot detected (a non-finite state or sensor value, a failed actuator).
+    Fault,
+    /// The operator at the robot (e.g. a signal or the stop of the robot process).
+    Operator,
+}
+
+/// A protective stop (robot time, s).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct StopEvent {
+    /// Why.
+    pub cause: StopCause,
+    /// Time the stop began (the torque target became zero).
+    pub at: f64,
+    /// Time of the last valid command before it (`None`: none in the session).
+    pub last_command_at: Option<f64>,
+    /// Time the applied torque reached zero (`None`: not yet).
+    pub zero_at: Option<f64>,
 }
 
 /// One simulated period, for the robot's trace and metrics.
@@ -70,73 +107,89 @@ pub struct RobotStep<const N: usize> {
     pub force_true: SVector<f64, N>,
     /// Raw (noisy, fault-injected) strap forces sent.
     pub force_raw: SVector<f64, N>,
-    /// The command applied (`None`: held or watchdog).
+    /// The command applied (`None`: ride-through, inactive or stopped).
     pub command: Option<RobotCommand<N>>,
-    /// The watchdog zeroed the torque this period.
+    /// No fresh command this period in an active session (riding through the gap).
     pub watchdog: bool,
-    /// The applied torque met both limits (watchdog zero and first command count as met).
+    /// The lifecycle state over the period.
+    pub state: Lifecycle,
+    /// The applied torque met both limits relative to the previous one (always, since the
+    /// robot clamps its targets).
     pub within_limits: bool,
 }
 
 /// The virtual robot: the simulated human + exoskeleton of `exompc simulate` (the same
-/// [`Plant`] and [`Sensors`]) behind the robot side of the protocol, with a command watchdog
-/// (no valid command for two periods → zero torque and a flag, resumes when commands return).
-/// Time advances one period per [`VirtualRobot::advance`]; the caller paces it in real time.
+/// [`Plant`] and [`Sensors`]) behind the robot side of the protocol.
+///
+/// It protects itself whatever arrives: every applied torque meets the torque limit and the
+/// torque-rate limit relative to the previous applied torque (it ramps towards any target).
+/// It starts [`Lifecycle::Inactive`] (zero torque) and becomes active only through
+/// [`VirtualRobot::activate`] (an authenticated session). In an active session, a period
+/// without a fresh command plays out the last command's plan (then holds its last entry) for
+/// at most `ride_through` periods; one more is a lost controller: protective stop
+/// ([`Lifecycle::Error`]: torque ramped to zero at the rate limit and held there) until
+/// [`VirtualRobot::restart`].
 pub struct VirtualRobot<const N: usize, Tr: Trajectory<N>> {
     plant: Plant<N, Tr>,
     sensors: Sensors<N>,
     limits: TorqueLimits,
-    watchdog_periods: u64,
+    ride_through: u64,
     dt: f64,
     k: u64,
-    cmd_seq: SeqTracker,
+    k0: u64,
+    state: Lifecycle,
     current: Option<RobotCommand<N>>,
-    held: Option<RobotCommand<N>>,
+    plan: [SVector<f64, N>; PLAN_LEN],
+    plan_len: usize,
+    last_target: SVector<f64, N>,
     last_valid_k: Option<u64>,
     applied: SVector<f64, N>,
-    any_applied: bool,
-    watchdog: bool,
+    gap: bool,
     event_open: bool,
-    stop: bool,
+    stop_requested: bool,
     ended: bool,
     end_samples: u32,
     sampled: Option<(SVector<f64, N>, SVector<f64, N>)>,
     stats: RobotStats,
     events: Vec<WatchdogEvent>,
+    stops: Vec<StopEvent>,
 }
 
 impl<const N: usize, Tr: Trajectory<N>> VirtualRobot<N, Tr> {
     /// A robot over `plant` and `sensors` (noise and sensor faults), period `dt` (s), torque
-    /// `limits` checked on what it applies, zero torque after `watchdog_periods` periods
-    /// without a valid command.
+    /// `limits` enforced on what it applies, riding through at most `ride_through` periods
+    /// (≥ 1) without a valid command before a protective stop. It starts inactive.
     pub fn new(
         plant: Plant<N, Tr>,
         sensors: Sensors<N>,
         limits: TorqueLimits,
         dt: f64,
-        watchdog_periods: u64,
+        ride_through: u64,
     ) -> Self {
         VirtualRobot {
             plant,
             sensors,
             limits,
-            watchdog_periods: watchdog_periods.max(1),
+            ride_through: ride_through.max(1),
             dt,
             k: 0,
-            cmd_seq: SeqTracker::default(),
+            k0: 0,
+            state: Lifecycle::Inactive,
             current: None,
-            held: None,
+            plan: [SVector::zeros(); PLAN_LEN],
+            plan_len: 0,
+            last_target: SVector::zeros(),
             last_valid_k: None,
             applied: SVector::zeros(),
-            any_applied: false,
-            watchdog: false,
+            gap: false,
             event_open: false,
-            stop: false,
+            stop_requested: false,
             ended: false,
             end_samples: 0,
             sampled: None,
             stats: RobotStats::default(),
             events: Vec::with_capacity(MAX_EVENTS),
+            stops: Vec::with_capacity(64),
         }
     }
 
@@ -155,19 +208,34 @@ impl<const N: usize, Tr: Trajectory<N>> VirtualRobot<N, Tr> {
         &self.stats
     }
 
-    /// Watchdog intervals.
+    /// Gaps in the commands.
     pub fn watchdog_events(&self) -> &[WatchdogEvent] {
         &self.events
     }
 
-    /// True while the watchdog holds the torque at zero.
-    pub fn watchdog_active(&self) -> bool {
-        self.watchdog
+    /// Protective stops.
+    pub fn stop_events(&self) -> &[StopEvent] {
+        &self.stops
     }
 
-    /// True once a STOP command was received.
+    /// The lifecycle state.
+    pub fn state(&self) -> Lifecycle {
+        self.state
+    }
+
+    /// The torque applied over the last period.
+    pub fn applied(&self) -> SVector<f64, N> {
+        self.applied
+    }
+
+    /// True while a gap in the commands is being ridden through.
+    pub fn watchdog_active(&self) -> bool {
+        self.gap
+    }
+
+    /// True once the controller asked for a stop (flag `STOP`) in any session.
     pub fn stop_requested(&self) -> bool {
-        self.stop
+        self.stop_requested
     }
 
     /// True once a command answering the current sample was accepted.
@@ -175,9 +243,87 @@ impl<const N: usize, Tr: Trajectory<N>> VirtualRobot<N, Tr> {
         self.current.is_some()
     }
 
+    /// Whether a new session may be activated (inactive).
+    pub fn accepts_session(&self) -> bool {
+        self.state == Lifecycle::Inactive
+    }
+
+    /// Activate a session (inactive → active): the samples are numbered from 1 again and the
+    /// ride-through counts from now. Returns `false` (and changes nothing) unless inactive.
+    pub fn activate(&mut self) -> bool {
+        if self.state != Lifecycle::Inactive {
+            return false;
+        }
+        self.state = Lifecycle::Active;
+        self.k0 = self.k;
+        self.last_valid_k = Some(self.k);
+        self.plan_len = 0;
+        self.last_target = self.applied;
+        self.current = None;
+        self.stats.sessions += 1;
+        true
+    }
+
+    /// Protective stop (any state → error): the torque ramps to zero at the rate limit and
+    /// stays there until [`VirtualRobot::restart`]. A second stop keeps the first's cause.
+    pub fn protective_stop(&mut self, cause: StopCause) {
+        if self.state == Lifecycle::Error {
+            return;
+        }
+        let was_active = self.state == Lifecycle::Active;
+        self.state = Lifecycle::Error;
+        self.current = None;
+        self.close_gap(None);
+        if !was_active && self.applied.iter().all(|v| *v == 0.0) {
+            // Nothing to ramp: still a stop (no session accepted until a restart).
+            self.stats.protective_stops += 1;
+            self.log_stop(cause, Some(self.time()));
+            return;
+        }
+        self.stats.protective_stops += 1;
+        self.log_stop(cause, None);
+    }
+
+    fn log_stop(&mut self, cause: StopCause, zero_at: Option<f64>) {
+        if self.stops.len() < self.stops.capacity() {
+            self.stops.push(StopEvent {
+                cause,
+                at: self.time(),
+                last_command_at: self.last_valid_k.map(|j| j as f64 * self.dt),
+                zero_at,
+            });
+        } else {
+            self.stats.events_dropped += 1;
+        }
+    }
+
+    /// Restart after a protective stop (error → inactive): a new session may be activated
+    /// through a fresh handshake. Returns `false` unless in error.
+    pub fn restart(&mut self) -> bool {
+        if self.state != Lifecycle::Error {
+            return false;
+        }
+        self.state = Lifecycle::Inactive;
+        self.last_valid_k = None;
+        self.plan_len = 0;
+        self.stats.restarts += 1;
+        true
+    }
+
     /// Mark the run as ended: later samples carry [`robot_flags::END_OF_RUN`].
     pub fn end(&mut self) {
         self.ended = true;
+    }
+
+    fn time(&self) -> f64 {
+        self.k as f64 * self.dt
+    }
+
+    /// Sequence number of this period's sample in the current session (from 1).
+    fn seq(&self) -> u32 {
+        (self.k.wrapping_sub(self.k0) as u32)
+            .wrapping_add(1)
+            .wrapping_add(self.end_samples)
     }
 
     /// The state sample of `t_k` (sensors read once per period: call once before
@@ -188,10 +334,13 @@ impl<const N: usize, Tr: Trajectory<N>> VirtualRobot<N, Tr> {
         let force_true = self.plant.strap_force();
         let (raw, _) = self.sensors.read(t, &s.robot.q, &s.robot.qd, &force_true);
         self.sampled = Some((force_true, raw.force));
-        let seq = (self.k as u32).wrapping_add(self.end_samples);
+        let seq = self.seq();
         let mut flags = 0;
-        if self.watchdog {
+        if self.gap {
             flags |= robot_flags::WATCHDOG;
+        }
+        if self.state == Lifecycle::Error {
+            flags |= robot_flags::PROTECTIVE_STOP;
         }
         if self.ended {
             flags |= robot_flags::END_OF_RUN;
@@ -212,19 +361,23 @@ impl<const N: usize, Tr: Trajectory<N>> VirtualRobot<N, Tr> {
         }
     }
 
-    /// Offer a decoded command. Accepted when newer than the last command and answering the
-    /// current sample; a HELLO is accepted and ignored, a STOP sets
-    /// [`VirtualRobot::stop_requested`]. Returns whether it answers the current sample.
+    /// Offer an authenticated command of the session (sequence numbers are checked by the
+    /// link). Refused unless active ([`FrameError::NotAllowed`]); a STOP makes a protective
+    /// stop; a command answering an earlier sample is stale, one answering a later sample
+    /// malformed. Returns whether it answers the current sample.
     pub fn command(&mut self, c: &RobotCommand<N>) -> Result<bool, FrameError> {
-        self.cmd_seq.accept(c.seq)?;
+        if self.state != Lifecycle::Active {
+            return Err(FrameError::NotAllowed);
+        }
         if c.flags & command_flags::STOP != 0 {
-            self.stop = true;
+            self.stop_requested = true;
+            self.protective_stop(StopCause::StopRequested);
             return Ok(false);
         }
         if c.flags & command_flags::HELLO != 0 {
             return Ok(false);
         }
-        let ahead = c.answers.wrapping_sub(self.k as u32) as i32;
+        let ahead = c.answers.wrapping_sub(self.seq()) as i32;
         if ahead < 0 {
             return Err(FrameError::Stale);
         }
@@ -235,9 +388,22 @@ impl<const N: usize, Tr: Trajectory<N>> VirtualRobot<N, Tr> {
         Ok(true)
     }
 
-    /// Apply the torque over the period and advance the plant to `t_{k+1}`: the command
-    /// answering this period's sample; else the last command held while fewer than the
-    /// watchdog's periods passed since it; else zero torque (watchdog).
+    fn close_gap(&mut self, resumed: Option<f64>) {
+        if self.gap && self.event_open {
+            if let Some(e) = self.events.last_mut() {
+                e.resumed_at = resumed;
+            }
+        }
+        self.gap = false;
+        self.event_open = false;
+    }
+
+    /// Apply the torque over the period and advance the plant to `t_{k+1}`. The target: the
+    /// command answering this period's sample; else, in an active session within the
+    /// ride-through, the last command's plan entry for this period (its last entry, or the
+    /// command's torque, once the plan is used up); else zero (a gap longer than the
+    /// ride-through makes a protective stop first). The applied torque is the target clamped
+    /// to the torque limit and to the rate limit from the previous applied torque.
     pub fn advance(&mut self) -> RobotStep<N> {
         let t = self.plant.time();
         let s = *self.plant.state();
@@ -245,59 +411,74 @@ impl<const N: usize, Tr: Trajectory<N>> VirtualRobot<N, Tr> {
             let f = self.plant.strap_force();
             (f, f)
         });
+        if self.state == Lifecycle::Active
+            && !(s.robot.q.iter().chain(s.robot.qd.iter())).all(|v| v.is_finite())
+        {
+            self.protective_stop(StopCause::Fault);
+        }
         let prev = self.applied;
-        let mut within = true;
-        let mut watchdog_now = false;
-        let command = self.current.take();
-        let torque = if let Some(c) = command {
-            if self.watchdog {
-                self.watchdog = false;
-                if self.event_open {
-                    if let Some(e) = self.events.last_mut() {
-                        e.resumed_at = Some(t);
+        let command = if self.state == Lifecycle::Active {
+            self.current.take()
+        } else {
+            None
+        };
+        let mut gap_now = false;
+        let target = if let Some(c) = command {
+            self.close_gap(Some(t));
+            self.last_valid_k = Some(self.k);
+            self.plan_len = usize::from(c.plan_len).min(PLAN_LEN);
+            self.plan = c.plan;
+            self.last_target = c.torque;
+            self.stats.commanded += 1;
+            c.torque
+        } else if self.state == Lifecycle::Active {
+            let j = self.k - self.last_valid_k.unwrap_or(self.k0);
+            if j > self.ride_through {
+                self.protective_stop(StopCause::LostController);
+                SVector::zeros()
+            } else {
+                gap_now = true;
+                if !self.gap {
+                    self.gap = true;
+                    self.stats.watchdog_trips += 1;
+                    self.event_open = self.events.len() < MAX_EVENTS;
+                    if self.event_open {
+                        self.events.push(WatchdogEvent {
+                            tripped_at: t,
+                            last_command_at: self.last_valid_k.map(|j| j as f64 * self.dt),
+                            resumed_at: None,
+                        });
+                    } else {
+                        self.stats.events_dropped += 1;
                     }
                 }
-                self.event_open = false;
-            }
-            self.last_valid_k = Some(self.k);
-            self.held = Some(c);
-            self.stats.commanded += 1;
-            let sat = self.limits.admissible(&c.torque);
-            if sat != c.torque {
-                self.stats.saturated += 1;
-            }
-            if self.any_applied && !self.limits.admits(&prev, &c.torque) {
-                within = false;
-                self.stats.limit_violations += 1;
-            }
-            self.any_applied = true;
-            sat
-        } else if let (Some(j), Some(h)) = (self.last_valid_k, self.held) {
-            if self.k - j < self.watchdog_periods && !self.watchdog {
                 self.stats.held += 1;
-                self.limits.admissible(&h.torque)
-            } else {
-                watchdog_now = true;
-                SVector::zeros()
+                let i = (j as usize).saturating_sub(1);
+                if self.plan_len > 0 {
+                    self.plan[i.min(self.plan_len - 1)]
+                } else {
+                    self.last_target
+                }
             }
         } else {
-            watchdog_now = true;
             SVector::zeros()
         };
-        if watchdog_now {
-            self.stats.watchdog_periods += 1;
-            if !self.watchdog {
-                self.watchdog = true;
-                self.stats.watchdog_trips += 1;
-                self.event_open = self.events.len() < MAX_EVENTS;
-                if self.event_open {
-                    self.events.push(WatchdogEvent {
-                        tripped_at: t,
-                        last_command_at: self.last_valid_k.map(|j| j as f64 * self.dt),
-                        resumed_at: None,
-                    });
-                } else {
-                    self.stats.events_dropped += 1;
+        if self.state != Lifecycle::Active {
+            self.stats.idle_periods += 1;
+        }
+        // The robot's own limits, whatever arrived (non-finite targets count as zero).
+        let torque = self.limits.clamp(&prev, &self.limits.admissible(&target));
+        if torque != target && (command.is_some() || gap_now) {
+            self.stats.clamped += 1;
+        }
+        let within = self.limits.admits(&prev, &torque);
+        if !within {
+            self.stats.limit_violations += 1;
+        }
+        if self.state == Lifecycle::Error && torque.iter().all(|v| *v == 0.0) {
+            if let Some(e) = self.stops.last_mut() {
+                if e.zero_at.is_none() {
+                    e.zero_at = Some(t + self.dt);
                 }
             }
         }
@@ -313,7 +494,8 @@ impl<const N: usize, Tr: Trajectory<N>> VirtualRobot<N, Tr> {
             force_true,
             force_raw,
             command,
-            watchdog: watchdog_now,
+            watchdog: gap_now,
+            state: self.state,
             within_limits: within,
         };
         self.applied = torque;

@@ -1,10 +1,8 @@
-//! UDP transport of the robot link (one datagram per frame).
+//! UDP transport of the robot link (one datagram per frame, authenticated: [`super::session`]).
 
-use super::frame::{
-    decode, encode_command, encode_sample, max_frame_len, Frame, FrameError, RobotCommand,
-    RobotSample, SeqTracker,
-};
-use super::{LinkStats, RobotInterface};
+use super::frame::{RobotCommand, RobotSample};
+use super::session::{random_nonce, ControllerLink, Psk, RobotLink, RobotRx};
+use super::{Lifecycle, LinkStats, RobotInterface};
 use std::io::ErrorKind;
 use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant};
@@ -75,30 +73,48 @@ fn recv_within(
     }
 }
 
-/// The controller's side of a UDP robot link: a [`RobotInterface`] that receives
-/// [`RobotSample`] frames and sends [`RobotCommand`] frames.
+enum Out<'a, const N: usize> {
+    Hello,
+    Command(&'a RobotCommand<N>),
+}
+
+/// The controller's side of a UDP robot link: a [`RobotInterface`] that opens an
+/// authenticated session ([`RobotInterface::activate`]: the handshake), receives
+/// [`RobotSample`] frames and sends [`RobotCommand`] frames. Datagrams from any address other
+/// than the robot's are counted ([`FrameError::Foreign`](super::FrameError::Foreign)) and
+/// dropped.
 pub struct UdpRobot<const N: usize> {
     sock: UdpSocket,
     robot: SocketAddr,
     buf: Vec<u8>,
-    out: Vec<u8>,
-    seq: SeqTracker,
-    stats: LinkStats,
+    link: ControllerLink<N>,
+    state: Lifecycle,
+    first: Option<RobotSample<N>>,
+    next_hello: Option<Instant>,
+    retry: Duration,
 }
 
 impl<const N: usize> UdpRobot<N> {
-    /// Bind `local` (e.g. `127.0.0.1:0`) and talk to the robot at `robot`; datagrams from any
-    /// other address are ignored.
-    pub fn connect(local: SocketAddr, robot: SocketAddr) -> std::io::Result<Self> {
+    /// Bind `local` (e.g. `127.0.0.1:0`) and talk to the robot at `robot` under the pre-shared
+    /// key `psk`; samples more than `max_ahead` sequence numbers ahead are rejected. The
+    /// interface starts unconfigured.
+    pub fn connect(
+        local: SocketAddr,
+        robot: SocketAddr,
+        psk: Psk,
+        max_ahead: u32,
+    ) -> std::io::Result<Self> {
         let sock = UdpSocket::bind(local)?;
         sock.set_nonblocking(true)?;
         Ok(UdpRobot {
             sock,
             robot,
             buf: vec![0; 2048],
-            out: Vec::with_capacity(max_frame_len(N)),
-            seq: SeqTracker::default(),
-            stats: LinkStats::default(),
+            link: ControllerLink::new(psk, max_ahead),
+            state: Lifecycle::Unconfigured,
+            first: None,
+            next_hello: None,
+            retry: Duration::from_millis(100),
         })
     }
 
@@ -107,85 +123,161 @@ impl<const N: usize> UdpRobot<N> {
         self.sock.local_addr()
     }
 
-    fn take(&mut self, n: usize, newest: &mut Option<RobotSample<N>>) {
-        self.stats.received += 1;
-        let r = match decode::<N>(&self.buf[..n]) {
-            Ok(Frame::Sample(s)) => self.seq.accept(s.seq).map(|()| s),
-            Ok(Frame::Command(_)) => Err(FrameError::WrongDirection),
-            Err(e) => Err(e),
+    /// Send the link's encoded frame (nothing when it is empty), counting the outcome.
+    fn send_frame(&mut self, which: Out<'_, N>) -> std::io::Result<()> {
+        let bytes = match which {
+            Out::Hello => self.link.hello(0),
+            Out::Command(c) => self.link.command(c),
         };
-        match r {
-            Ok(s) => {
-                self.stats.accepted += 1;
-                if newest.replace(s).is_some() {
-                    self.stats.superseded += 1;
-                }
-            }
-            Err(e) => self.stats.rejected.count(e),
+        if bytes.is_empty() {
+            return Ok(());
         }
-        self.stats.gaps = self.seq.gaps;
+        let ok = send_counted(&self.sock, bytes, self.robot)?;
+        self.link.count_sent(ok);
+        Ok(())
     }
-}
 
-impl<const N: usize> RobotInterface<N> for UdpRobot<N> {
-    fn read(&mut self, timeout: Duration) -> std::io::Result<Option<RobotSample<N>>> {
+    /// Receive datagrams for at most `timeout`, returning the newest valid sample.
+    /// Returns early (without a sample) when a challenge just established the session key.
+    fn receive(&mut self, timeout: Duration) -> std::io::Result<Option<RobotSample<N>>> {
         let end = Instant::now() + timeout;
-        let mut newest = None;
+        let mut newest: Option<RobotSample<N>> = None;
         loop {
             let wait = if newest.is_some() {
                 Duration::ZERO
             } else {
                 end.saturating_duration_since(Instant::now())
             };
-            let mut buf = std::mem::take(&mut self.buf);
-            let got = recv_within(&self.sock, &mut buf, wait);
-            self.buf = buf;
-            match got? {
-                Some((n, from)) if from == self.robot => self.take(n, &mut newest),
-                Some(_) => {}
+            let got = recv_within(&self.sock, &mut self.buf, wait)?;
+            match got {
+                Some((n, from)) if from == self.robot => {
+                    let was = self.link.established();
+                    if let Some(s) = self.link.receive(&self.buf[..n]) {
+                        if newest.replace(s).is_some() {
+                            self.link.count_superseded();
+                        }
+                    }
+                    if !was && self.link.established() {
+                        // Confirm the handshake at once: the robot activates on it.
+                        return Ok(None);
+                    }
+                }
+                Some(_) => self.link.count_foreign(),
                 None if newest.is_some() || Instant::now() >= end => return Ok(newest),
                 None => {}
             }
         }
     }
 
-    fn write(&mut self, cmd: &RobotCommand<N>) -> std::io::Result<()> {
-        self.out.clear();
-        encode_command(cmd, &mut self.out);
-        match self.sock.send_to(&self.out, self.robot) {
-            Ok(_) => self.stats.sent += 1,
-            Err(e) if e.kind() == ErrorKind::ConnectionRefused => self.stats.send_errors += 1,
-            Err(e) => return Err(e),
-        }
+    fn confirm(&mut self) -> std::io::Result<()> {
+        let c = RobotCommand::new(
+            0,
+            0,
+            0,
+            super::frame::command_flags::HELLO,
+            nalgebra::SVector::zeros(),
+        );
+        self.send_frame(Out::Command(&c))
+    }
+}
+
+impl<const N: usize> RobotInterface<N> for UdpRobot<N> {
+    fn state(&self) -> Lifecycle {
+        self.state
+    }
+
+    fn configure(&mut self) -> std::io::Result<()> {
+        self.link.start(random_nonce()?);
+        self.first = None;
+        self.next_hello = None;
+        self.state = Lifecycle::Inactive;
         Ok(())
     }
 
+    fn activate(&mut self, timeout: Duration) -> std::io::Result<bool> {
+        if self.state == Lifecycle::Active {
+            return Ok(true);
+        }
+        if self.state != Lifecycle::Inactive {
+            self.configure()?;
+        }
+        let end = Instant::now() + timeout;
+        loop {
+            let now = Instant::now();
+            if self.next_hello.is_none_or(|t| now >= t) {
+                self.next_hello = Some(now + self.retry);
+                if self.link.established() {
+                    self.confirm()?;
+                } else {
+                    self.send_frame(Out::Hello)?;
+                }
+            }
+            let was = self.link.established();
+            let wait = end
+                .min(self.next_hello.unwrap_or(end))
+                .saturating_duration_since(Instant::now());
+            let got = self.receive(wait)?;
+            if !was && self.link.established() {
+                self.confirm()?;
+                self.next_hello = Some(Instant::now() + self.retry);
+            }
+            if let Some(s) = got {
+                self.first = Some(s);
+                self.state = Lifecycle::Active;
+                return Ok(true);
+            }
+            if Instant::now() >= end {
+                return Ok(false);
+            }
+        }
+    }
+
+    fn deactivate(&mut self) -> std::io::Result<()> {
+        self.link.reset();
+        self.state = Lifecycle::Inactive;
+        Ok(())
+    }
+
+    fn error(&mut self) {
+        self.link.reset();
+        self.state = Lifecycle::Error;
+    }
+
+    fn read(&mut self, timeout: Duration) -> std::io::Result<Option<RobotSample<N>>> {
+        if let Some(s) = self.first.take() {
+            return Ok(Some(s));
+        }
+        self.receive(timeout)
+    }
+
+    fn write(&mut self, cmd: &RobotCommand<N>) -> std::io::Result<()> {
+        self.send_frame(Out::Command(cmd))
+    }
+
     fn link_stats(&self) -> LinkStats {
-        self.stats
+        self.link.stats()
     }
 }
 
-/// The robot's side of a UDP link: bound to a local address, it answers the controller that
-/// sent the first valid command (HELLO) and ignores datagrams from any other address.
+/// The robot's side of a UDP link: bound to a local address, it answers handshakes while the
+/// robot accepts a session and then talks only to that session's controller ([`RobotLink`]).
 pub struct UdpPeer<const N: usize> {
     sock: UdpSocket,
-    peer: Option<SocketAddr>,
     buf: Vec<u8>,
-    out: Vec<u8>,
-    stats: LinkStats,
+    link: RobotLink<N>,
 }
 
 impl<const N: usize> UdpPeer<N> {
-    /// Bind `local` (port 0 picks a free port: see [`UdpPeer::local_addr`]).
-    pub fn bind(local: SocketAddr) -> std::io::Result<Self> {
+    /// Bind `local` (port 0 picks a free port: see [`UdpPeer::local_addr`]) with the
+    /// pre-shared key `psk`; commands more than `max_ahead` sequence numbers ahead are
+    /// rejected.
+    pub fn bind(local: SocketAddr, psk: Psk, max_ahead: u32) -> std::io::Result<Self> {
         let sock = UdpSocket::bind(local)?;
         sock.set_nonblocking(true)?;
         Ok(UdpPeer {
             sock,
-            peer: None,
             buf: vec![0; 2048],
-            out: Vec::with_capacity(max_frame_len(N)),
-            stats: LinkStats::default(),
+            link: RobotLink::new(psk, max_ahead),
         })
     }
 
@@ -194,79 +286,72 @@ impl<const N: usize> UdpPeer<N> {
         self.sock.local_addr()
     }
 
-    /// The controller's address, once known.
+    /// The protocol state.
+    pub fn link(&mut self) -> &mut RobotLink<N> {
+        &mut self.link
+    }
+
+    /// The session's controller address, once known.
     pub fn peer(&self) -> Option<SocketAddr> {
-        self.peer
+        self.link.peer()
     }
 
-    /// Counters (`rejected` counts decoding failures only; the caller counts the
-    /// sequence-number and staleness rejections it makes with [`UdpPeer::count`]).
+    /// Counters.
     pub fn stats(&self) -> LinkStats {
-        self.stats
+        self.link.stats()
     }
 
-    /// Count a rejection decided by the caller.
-    pub fn count(&mut self, e: FrameError) {
-        self.stats.rejected.count(e);
-    }
-
-    /// Count a frame accepted by the caller.
-    pub fn count_accepted(&mut self) {
-        self.stats.accepted += 1;
-    }
-
-    /// Receive one raw datagram from the controller (or from anyone before the controller is
-    /// known), waiting at most `timeout`; the bytes are copied into `into`.
-    pub fn recv_raw(&mut self, timeout: Duration, into: &mut Vec<u8>) -> std::io::Result<bool> {
-        let got = recv_within(&self.sock, &mut self.buf, timeout)?;
-        match got {
-            Some((n, from)) if self.peer.is_none_or(|p| p == from) => {
-                self.stats.received += 1;
+    /// Receive one datagram, waiting at most `timeout`: `Some((from, bytes))` (copied into
+    /// `into`) or `None`.
+    pub fn recv_raw(
+        &mut self,
+        timeout: Duration,
+        into: &mut Vec<u8>,
+    ) -> std::io::Result<Option<SocketAddr>> {
+        match recv_within(&self.sock, &mut self.buf, timeout)? {
+            Some((n, from)) => {
                 into.clear();
                 into.extend_from_slice(&self.buf[..n]);
-                if self.peer.is_none() {
-                    if let Ok(Frame::Command(c)) = decode::<N>(into) {
-                        if c.flags & super::frame::command_flags::HELLO != 0 {
-                            self.peer = Some(from);
-                        }
-                    }
-                }
-                Ok(true)
+                Ok(Some(from))
             }
-            _ => Ok(false),
+            None => Ok(None),
         }
     }
 
-    /// Decode a raw command datagram, counting a failure.
-    pub fn decode_command(&mut self, bytes: &[u8]) -> Option<RobotCommand<N>> {
-        match decode::<N>(bytes) {
-            Ok(Frame::Command(c)) => Some(c),
-            Ok(Frame::Sample(_)) => {
-                self.count(FrameError::WrongDirection);
-                None
-            }
-            Err(e) => {
-                self.count(e);
-                None
-            }
+    /// Hand a datagram to the link; a challenge to send back is sent at once.
+    pub fn take(
+        &mut self,
+        from: SocketAddr,
+        bytes: &[u8],
+        stamp_ns: u64,
+    ) -> std::io::Result<RobotRx<N>> {
+        let r = self
+            .link
+            .receive(from, bytes, stamp_ns, &mut || random_nonce().ok());
+        if r == RobotRx::Reply {
+            let ok = send_counted(&self.sock, self.link.reply(), from)?;
+            self.link.count_sent(ok);
         }
+        Ok(r)
     }
 
-    /// Encode a sample (into an internal buffer, returned for fault injection).
-    pub fn encode(&mut self, s: &RobotSample<N>) -> &[u8] {
-        self.out.clear();
-        encode_sample(s, &mut self.out);
-        &self.out
+    /// Encode a sample of the session (`None` without a session).
+    pub fn encode(&mut self, s: &RobotSample<N>) -> Option<(Vec<u8>, SocketAddr)> {
+        self.link.sample(s).map(|(b, p)| (b.to_vec(), p))
     }
 
-    /// Send raw bytes to the controller (dropped before it is known).
-    pub fn send_raw(&mut self, bytes: &[u8]) -> std::io::Result<()> {
-        let Some(p) = self.peer else { return Ok(()) };
-        match self.sock.send_to(bytes, p) {
-            Ok(_) => self.stats.sent += 1,
-            Err(e) if e.kind() == ErrorKind::ConnectionRefused => self.stats.send_errors += 1,
-            Err(e) => return Err(e),
-        }
+    /// Send raw bytes to `to`.
+    pub fn send_raw(&mut self, bytes: &[u8], to: SocketAddr) -> std::io::Result<()> {
+        let ok = send_counted(&self.sock, bytes, to)?;
+        self.link.count_sent(ok);
         Ok(())
+    }
+}
+
+fn send_counted(sock: &UdpSocket, bytes: &[u8], to: SocketAddr) -> std::io::Result<bool> {
+    match sock.send_to(bytes, to) {
+        Ok(_) => Ok(true),
+        Err(e) if e.kind() == ErrorKind::ConnectionRefused => Ok(false),
+        Err(e) => Err(e),
     }
 }
