@@ -36,49 +36,6 @@ const SETS: [(&str, usize, Formulation); 3] = [
 ];
 const CONTROLLERS: [&str; 2] = ["nmpc", "msnmpc"];
 
-/// Figures neither in numbers.json nor stamped, in docs that another branch owned when this test
-/// was written (the stale default MS-NMPC figures 2.23 / 4.90 N and 3.00 / 4.35 N among them):
-/// (file, figure as quoted). Each entry must still occur, so a fixed file fails here until its
-/// entries are removed.
-const PENDING: &[(&str, &str)] = &[
-    // Table 2 from Python (stale: the robust MS-NMPC's figures are in numbers.json).
-    ("docs/PYTHON.md", "2.23"),
-    ("docs/PYTHON.md", "2.66"),
-    ("docs/PYTHON.md", "2.68"),
-    ("docs/PYTHON.md", "3.00"),
-    ("docs/PYTHON.md", "4.35"),
-    ("docs/PYTHON.md", "4.46"),
-    ("docs/PYTHON.md", "4.76"),
-    ("docs/PYTHON.md", "4.90"),
-    // The Monte Carlo study (needs a stamp).
-    ("docs/PYTHON.md", "4.491"),
-    ("docs/PYTHON.md", "5.227"),
-    ("docs/PYTHON.md", "6.088"),
-    // The real-time loop against `simulate` and the fault table (stale 2 kg reference
-    // 3.00 / 4.35 N; the rest needs a stamp).
-    ("docs/REALTIME.md", "2.803998"),
-    ("docs/REALTIME.md", "4.025333"),
-    ("docs/REALTIME.md", "2.80"),
-    ("docs/REALTIME.md", "3.00"),
-    ("docs/REALTIME.md", "3.34"),
-    ("docs/REALTIME.md", "3.40"),
-    ("docs/REALTIME.md", "3.69"),
-    ("docs/REALTIME.md", "4.03"),
-    ("docs/REALTIME.md", "4.07"),
-    ("docs/REALTIME.md", "4.35"),
-    ("docs/REALTIME.md", "5.12"),
-    ("docs/REALTIME.md", "5.38"),
-    ("docs/REALTIME.md", "5.43"),
-    ("docs/REALTIME.md", "5.51"),
-    ("docs/REALTIME.md", "6.97"),
-    // The soak table and its notes (need a stamp).
-    ("docs/RELIABILITY.md", "4.59"),
-    ("docs/RELIABILITY.md", "4.69"),
-    ("docs/RELIABILITY.md", "43.43"),
-    ("docs/RELIABILITY.md", "11.10"),
-    ("docs/RELIABILITY.md", "111.31"),
-];
-
 #[derive(Serialize, Deserialize, Debug, PartialEq)]
 struct Numbers {
     /// The command that wrote the file.
@@ -496,7 +453,6 @@ fn docs_quote_only_known_or_stamped_forces() {
     let numbers = load();
     let forces = all_forces(&numbers);
     let mut bad = Vec::new();
-    let mut pending_seen = vec![false; PENDING.len()];
     let mut marked_tables = 0;
     for path in doc_files() {
         let name = path
@@ -542,23 +498,11 @@ fn docs_quote_only_known_or_stamped_forces() {
                 if forces.iter().any(|&v| quotes(&fig, v)) {
                     continue;
                 }
-                if let Some(k) = PENDING.iter().position(|&(f, q)| f == name && q == fig) {
-                    pending_seen[k] = true;
-                    continue;
-                }
                 bad.push(format!(
                     "{name}: block at line {}: {fig} N is neither in docs/numbers.json nor stamped \"measured on <date>, <command>\"",
                     b.line
                 ));
             }
-        }
-    }
-    for (k, seen) in pending_seen.iter().enumerate() {
-        if !seen {
-            bad.push(format!(
-                "PENDING entry {:?} no longer occurs: remove it",
-                PENDING[k]
-            ));
         }
     }
     if marked_tables == 0 {

@@ -22,7 +22,7 @@
 //! receiver can count it ([`RejectCounts`]). The MAC is checked before any payload field is
 //! read, so a frame without the key is rejected whatever it holds.
 
-use super::session::{Key, NONCE_LEN};
+use super::key::{Key, NONCE_LEN};
 use nalgebra::SVector;
 use serde::Serialize;
 

@@ -23,6 +23,7 @@
 //!   injected into a stream of frames.
 
 pub mod frame;
+mod key;
 mod loop_ctl;
 mod netfault;
 mod robot;
