@@ -33,6 +33,7 @@ mod ocp;
 mod ocp_tree;
 mod pd;
 mod prediction;
+mod ride_through;
 mod robust;
 mod safety;
 mod strap_intent;
@@ -54,6 +55,7 @@ pub use ocp::{QpBackend, StructuredSqp, AUTO_STRUCTURED_MIN_VARS};
 pub use ocp_tree::{TreeSqp, AUTO_TREE_MIN_VARS};
 pub use pd::PdController;
 pub use prediction::{HorizonInputs, Interaction, PredictionModel, StepJacobian};
+pub use ride_through::{ChannelGuard, EstimatedChannels, Repaired};
 pub use robust::{
     FilterAware, IntentEstimate, Method, RobustIntentGains, RobustSettings, PAPER_STRAP_STIFFNESS,
 };
@@ -161,6 +163,26 @@ pub trait Controller<const N: usize> {
     /// The safety supervisor's counters and event log, if this controller is supervised.
     fn safety_report(&self) -> Option<&SafetyReport> {
         None
+    }
+
+    /// The controller's own model prediction of the next measurement's joint angles and
+    /// velocities `(q, qd)` under the torque it applied, if it has a model-based estimator
+    /// (MS-NMPC: its EKF bank); the supervisor uses it for rejected encoder channels.
+    /// Default: `None`.
+    fn predicted_state(&self) -> Option<(SVector<f64, N>, SVector<f64, N>)> {
+        None
+    }
+
+    /// [`step`](Self::step) on a measurement whose `estimated` channels are the supervisor's
+    /// estimates of rejected channels: a model-based estimator should not update on them
+    /// (MS-NMPC: its EKF bank updates with the measured rows only) and re-synchronise on the
+    /// next full measurement. Default: `step`.
+    fn step_estimated(
+        &mut self,
+        m: &Measurement<N>,
+        _estimated: &EstimatedChannels<N>,
+    ) -> ControlOutput<N> {
+        self.step(m)
     }
 }
 
