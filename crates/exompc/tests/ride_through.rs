@@ -276,3 +276,31 @@ fn each_fault_kind_is_flagged_within_its_stated_delay() {
         );
     }
 }
+
+/// A strap force that rails at full scale and comes back is a real force: the range check
+/// handles the full-scale samples, and the in-range samples right after them are not gated
+/// against an extrapolation through the estimate that stood in for the rail (the 1.3 Hz, 3 kg
+/// envelope cell, whose 67 N·m gait saturates the ±70 N sensor every half period).
+#[test]
+fn a_force_back_from_full_scale_is_not_rejected() {
+    let dt = 0.01;
+    let mut guard = ChannelGuard::<1>::new(dt, 5, [3.0, 20.0, 70.0]);
+    let w = 2.0 * std::f64::consts::PI * 1.3;
+    for k in 0..400 {
+        let t = k as f64 * dt;
+        let f = (100.0 * (w * t).sin()).clamp(-70.0, 70.0);
+        let m = Measurement {
+            t,
+            q: SVector::from([0.3 * (w * t).sin()]),
+            qd: SVector::from([0.3 * w * (w * t).cos()]),
+            force: SVector::from([f]),
+        };
+        guard.repair(&m, None, 10, None);
+        if f.abs() < 70.0 {
+            assert!(
+                !guard.is_rejected(2, 0),
+                "in-range force {f} N rejected at {t} s"
+            );
+        }
+    }
+}

@@ -258,10 +258,18 @@ impl<const N: usize> ChannelGuard<N> {
                 // A force at full scale may be a real force of at least the range: it is
                 // accepted again as soon as it is back in range.
                 let railed = sig == F && v.is_finite() && !in_range;
+                // Right after a full-scale reading the extrapolation runs through the estimate
+                // that stood in for it, not through the force: no innovation to gate yet (the
+                // range check has handled the full-scale samples).
+                let after_rail = sig == F
+                    && warm
+                    && self.raw[F][..]
+                        .iter()
+                        .any(|r| r[j].is_finite() && r[j].abs() >= self.bounds[F]);
                 definite |= !in_range || stuck;
                 let good = if !in_range || stuck {
                     false
-                } else if was_bad && self.railed[j] {
+                } else if (was_bad && self.railed[j]) || (!was_bad && after_rail) {
                     true
                 } else if was_bad {
                     let estimate = if sig == QD && self.bad_for[Q][j] == 0 {
@@ -288,7 +296,7 @@ impl<const N: usize> ChannelGuard<N> {
                     self.railed[j] = railed;
                 }
                 if good {
-                    if !was_bad {
+                    if !was_bad && !after_rail {
                         if residual / gate > self.peak_ratio[sig] {
                             self.peak_ratio[sig] = residual / gate;
                         }
