@@ -5,6 +5,7 @@
 mod args;
 mod bench;
 mod envelope_cmd;
+mod faults;
 mod gait_cmd;
 mod model_cmd;
 mod plot;
@@ -109,6 +110,10 @@ enum Command {
     /// Recorded gaits: `exompc gait export --out F.csv` samples the desired motion to a CSV
     /// that `[trajectory] kind = "recorded"` or `--gait F.csv` replays (see README).
     Gait(gait_cmd::GaitArgs),
+    /// Scan the response to sensor faults: kinds × channel groups × durations × start times ×
+    /// payloads, each against the same run without the fault (peak true strap force, RMS
+    /// ratio, trips, held steps, latch); writes faults.md and faults.json (docs/RELIABILITY.md).
+    Faults(faults::FaultsArgs),
 }
 
 fn main() -> ExitCode {
@@ -146,6 +151,7 @@ fn run(cli: Cli) -> Result<(), CliError> {
         Command::Keygen(a) => realtime::keygen(a),
         Command::Envelope(a) => envelope_cmd::run(a),
         Command::Gait(a) => gait_cmd::run(a),
+        Command::Faults(a) => faults::run(a),
     }
 }
 

@@ -213,10 +213,19 @@ pub fn describe_safety(sa: &exompc::sim::SafetySummary) -> String {
             m.monitor, m.trips, m.first_trip_s
         );
     }
+    if sa.estimated_steps > 0 {
+        out += &format!(
+            "\n    sensor faults {}: the controller stepped on estimates on {} steps",
+            sa.sensor_faults, sa.estimated_steps
+        );
+    }
     if let Some(t) = sa.latched_at_s {
         out += &format!(
-            "\n    latched at {t:.2} s (handover {}): the monitor response keeps the torque until a reset",
-            sa.handovers
+            "\n    latched at {t:.2} s by {} (handover {}): the monitor response kept the torque \
+             for {:.2} s, until a reset",
+            sa.latched_by.as_deref().unwrap_or("a monitor"),
+            sa.handovers,
+            sa.latched_for_s
         );
     }
     if sa.events_dropped > 0 {

@@ -143,6 +143,21 @@ pub(crate) fn run(a: SoakArgs) -> Result<(), CliError> {
         "  solver failures {}   bad measurements {}   monitor trips {} ({} steps)",
         s.solver_failures, s.bad_measurement_steps, report.monitor_trips, s.monitor_steps
     );
+    println!(
+        "  sensor faults {} (estimated steps {})   handovers {}",
+        report.sensor_faults, report.estimated_steps, report.handovers
+    );
+    match report.latched_at_s {
+        Some(t) => println!(
+            "  LATCHED at {t:.1} s by {} after {} handovers: the fallback kept the torque for \
+             {:.1} s ({:.1}% of the run)",
+            report.latched_by.as_deref().unwrap_or("a monitor"),
+            report.handovers,
+            report.latched_for_s,
+            100.0 * report.latched_for_s / report.simulated_s.max(1e-9)
+        ),
+        None => println!("  not latched"),
+    }
     drop(recs);
     if let Some(t) = trace {
         t.trace.finish()?;

@@ -86,8 +86,11 @@ fn safety_reasons(s: &SafetySummary, steps: u64, holds_expected: bool) -> Vec<St
     }
     if let Some(t) = s.latched_at_s {
         r.push(format!(
-            "latched at {t:.2} s (handover {}): the controller was not handed the torque back",
-            s.handovers
+            "latched at {t:.2} s by {} (handover {}): the controller was not handed the torque \
+             back for {:.2} s",
+            s.latched_by.as_deref().unwrap_or("a monitor"),
+            s.handovers,
+            s.latched_for_s
         ));
     }
     if s.bad_measurement_steps > 0 && !holds_expected {
@@ -181,7 +184,12 @@ impl Verdict {
             bad_measurement_steps: s.bad_measurement_steps,
             monitors: Vec::new(),
             events_dropped: r.monitor_events_dropped,
-            ..Default::default()
+            handovers: r.handovers,
+            latched_at_s: r.latched_at_s,
+            latched_by: r.latched_by.clone(),
+            latched_for_s: r.latched_for_s,
+            estimated_steps: r.estimated_steps,
+            sensor_faults: r.sensor_faults,
         };
         let report = exompc::control::SafetyReport {
             events: r.monitor_events.clone(),

@@ -161,7 +161,7 @@ fn default_matches_spec_values() {
         (s.monitors.tracking_error_max_rad, s.monitors.force_max_n),
         (0.35, 70.0)
     );
-    assert_eq!(s.monitors.sensor_timeout_s, 0.05);
+    assert_eq!(s.monitors.sensor_timeout_s, 0.5);
     assert_eq!(s.monitors.response, MonitorResponse::Fallback);
 }
 

@@ -270,15 +270,17 @@ fn nan_fault_poisons_the_filter_and_the_supervisor_holds_then_resumes() {
         .filter(|(_, r)| r.status == StepStatus::BadMeasurement)
         .map(|(k, _)| k)
         .collect();
-    // 10 NaN samples, then 4 more while the NaN is still in the 5-sample window.
-    assert_eq!(bad.len(), 14, "{bad:?}");
+    // 10 NaN samples, 4 more while the NaN is still in the 5-sample window, and at most one
+    // more until the force is back within its gate (docs/RELIABILITY.md §2).
+    assert!((14..=15).contains(&bad.len()), "{bad:?}");
     assert_eq!(bad[0], 50);
-    assert_eq!(rep.bad_measurement_steps, 14);
-    // Held torque during the fault, resumed afterwards.
-    for k in bad.iter().skip(1) {
-        assert_eq!(log.rows[*k].torque_robot, log.rows[bad[0] - 1].torque_robot);
-    }
-    assert_ne!(log.rows[64].status, StepStatus::BadMeasurement);
+    assert_eq!(rep.bad_measurement_steps, bad.len() as u64);
+    // The controller keeps stepping on the force's estimate (issue 28): the torque follows
+    // the leg instead of being held.
+    assert!(bad
+        .iter()
+        .any(|k| log.rows[*k].torque_robot != log.rows[bad[0] - 1].torque_robot));
+    assert_ne!(log.rows[66].status, StepStatus::BadMeasurement);
     assert!(rep.monitor_trips == 0);
 }
 
@@ -286,6 +288,8 @@ fn nan_fault_poisons_the_filter_and_the_supervisor_holds_then_resumes() {
 fn stale_sensor_trips_the_timeout_monitor_and_ramps_to_zero() {
     let mut s = scenario(Kind::Pd, &[0.0]);
     s.timing.duration_2dof_s = 3.0;
+    // A frozen velocity whose angle is measured may stay rejected 4 × sensor_timeout_s.
+    s.monitors.sensor_timeout_s = 0.1;
     s.faults.events = vec![FaultEvent {
         kind: FaultKind::Dropout,
         channel: Channel::Qd1,
@@ -303,8 +307,8 @@ fn stale_sensor_trips_the_timeout_monitor_and_ramps_to_zero() {
         .collect();
     assert_eq!(trips.len(), 1, "{:?}", rep.events);
     assert_eq!(trips[0].monitor, MonitorKind::SensorTimeout);
-    // Window (5 samples) then timeout (0.05 s) after the dropout's start.
-    assert!(trips[0].t > 1.04 && trips[0].t < 1.15, "{:?}", trips[0]);
+    // Window (5 samples) then 4 × 0.1 s after the dropout's start.
+    assert!(trips[0].t > 1.35 && trips[0].t < 1.55, "{:?}", trips[0]);
     // Torque at zero well inside the trip, and the controller resumed after the fault.
     let mid = log.rows.iter().find(|r| (r.t - 1.8).abs() < 1e-6).unwrap();
     assert_eq!(mid.status, StepStatus::MonitorTripped);
@@ -354,9 +358,10 @@ fn check_soak(seconds: f64) {
     assert_eq!(st.nan_count, 0);
     assert_eq!(st.limit_violations, 0);
     assert!(st.max_abs_force_n.is_finite());
-    // Every minute: at least the NaN, inf, dropout and stuck faults trip the timeout monitor.
+    // Every minute: at least the NaN, inf, dropout and stuck faults are detected (and ridden
+    // through on the channels' estimates, issue 28).
     assert!(
-        r.monitor_trips >= 4 * (seconds / 60.0).floor() as u64,
+        r.sensor_faults >= 4 * (seconds / 60.0).floor() as u64,
         "{r:?}"
     );
     println!("{}", serde_json_like(&r));

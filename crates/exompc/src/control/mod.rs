@@ -34,6 +34,7 @@ mod ocp;
 mod ocp_tree;
 mod pd;
 mod prediction;
+mod ride_through;
 mod robust;
 mod safety;
 mod strap_intent;
@@ -56,6 +57,7 @@ pub use ocp::StructuredSqp;
 pub use ocp_tree::{TreeSqp, AUTO_TREE_MIN_VARS};
 pub use pd::PdController;
 pub use prediction::{HorizonInputs, Interaction, PredictionModel, StepJacobian};
+pub use ride_through::{ChannelGuard, EstimatedChannels, Repaired};
 pub use robust::{
     FilterAware, IntentEstimate, Method, RobustIntentGains, RobustSettings, PAPER_STRAP_STIFFNESS,
 };
@@ -171,6 +173,26 @@ pub trait Controller<const N: usize> {
     /// plays them out while no newer command reaches it. Default: none (0).
     fn planned_torques(&self, _out: &mut [SVector<f64, N>]) -> usize {
         0
+    }
+
+    /// The controller's own model prediction of the next measurement's joint angles and
+    /// velocities `(q, qd)` under the torque it applied, if it has a model-based estimator
+    /// (MS-NMPC: its EKF bank); the supervisor uses it for rejected encoder channels.
+    /// Default: `None`.
+    fn predicted_state(&self) -> Option<(SVector<f64, N>, SVector<f64, N>)> {
+        None
+    }
+
+    /// [`step`](Self::step) on a measurement whose `estimated` channels are the supervisor's
+    /// estimates of rejected channels: a model-based estimator should not update on them
+    /// (MS-NMPC: its EKF bank updates with the measured rows only) and re-synchronise on the
+    /// next full measurement. Default: `step`.
+    fn step_estimated(
+        &mut self,
+        m: &Measurement<N>,
+        _estimated: &EstimatedChannels<N>,
+    ) -> ControlOutput<N> {
+        self.step(m)
     }
 }
 

@@ -9,7 +9,10 @@ use super::prediction::{HorizonInputs, PredictionModel};
 use super::robust::{IntentEstimate, RobustSettings, RobustState};
 use super::strap_intent::StrapIntent;
 use super::weights::WeightSmoother;
-use super::{ControlOutput, Controller, IntentEstimator, Measurement, StepStatus, TorqueLimits};
+use super::{
+    ControlOutput, Controller, EstimatedChannels, IntentEstimator, Measurement, StepStatus,
+    TorqueLimits,
+};
 use crate::estimate::{EkfBank, EkfSettings, EstimateError, EstimatorOptions};
 use crate::model::JointState;
 use crate::solver::{Constraints, LeastSquares, SolverError, Sqp, SqpInfo};
@@ -344,6 +347,13 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     started: bool,
     /// Time of the last measurement the EKF bank used.
     last_t: f64,
+    /// This step's measurement has estimated encoder channels ([`Controller::step_estimated`]):
+    /// the EKF banks update with the measured rows of `y = [q, qd]` only (`measured`).
+    estimating: bool,
+    measured: [bool; NY],
+    /// The previous step's measurement had estimated channels: the banks resume at this
+    /// step's measurement.
+    was_estimating: bool,
     /// Robust extensions (`[controller] method = "robust"`); `None` = the paper's method.
     robust: Option<RobustState<N>>,
     /// The robust method's disturbance bank ([`RobustSettings::disturbance_lead`]): a copy of
@@ -422,6 +432,9 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             prev_force: vec![zero; s],
             started: false,
             last_t: 0.0,
+            estimating: false,
+            measured: [true; NY],
+            was_estimating: false,
             robust: None,
             dbank: None,
             prev_dforce: vec![zero; s],
@@ -535,19 +548,36 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
             y[N + a] = m.qd[a];
         }
         let dt = self.models[0].dt;
-        let gap = !self.started || m.t - self.last_t > 1.5 * dt;
+        // Back from estimated channels: the filters resume at the measurement like after a gap.
+        let resync = self.was_estimating && !self.estimating;
+        let gap = !self.started || m.t - self.last_t > 1.5 * dt || resync;
         if !self.started {
             self.bank.reset_to(&m.q, &m.qd);
             if let Some(b) = self.dbank.as_mut() {
                 b.reset_to(&m.q, &m.qd);
             }
             self.started = true;
-        } else if m.t - self.last_t > 1.5 * dt {
+        } else if m.t - self.last_t > 1.5 * dt || resync {
             // Periods were skipped (e.g. a supervisor rejected bad data): restart the filters'
             // joint states at the measurement, keep d̂ and the probabilities.
             self.bank.resume_at(&m.q, &m.qd);
             if let Some(b) = self.dbank.as_mut() {
                 b.resume_at(&m.q, &m.qd);
+            }
+        } else if self.estimating {
+            // Estimated channels: the filters update with the measured rows only (the
+            // probabilities kept); a failed filter keeps its state.
+            let (models, forces, measured) = (&self.models, &self.prev_force, &self.measured);
+            let _ = self
+                .bank
+                .step_masked_per_scenario(&y, measured, &self.prev, |i| {
+                    models[i].straps.torque(&forces[i])
+                });
+            if let Some(b) = self.dbank.as_mut() {
+                let forces = &self.prev_dforce;
+                let _ = b.step_masked_per_scenario(&y, measured, &self.prev, |i| {
+                    models[i].straps.torque(&forces[i])
+                });
             }
         } else {
             // A failed filter keeps its state and the probabilities; the controller goes on.
@@ -562,6 +592,7 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
             }
         }
         self.last_t = m.t;
+        self.was_estimating = self.estimating;
         let mut x0 = JointState { q: m.q, qd: m.qd };
         // The measurement the intent estimate and the EKF's strap torque use: the filtered one,
         // or in the robust filter-aware mode the lag-free velocity and each scenario's
@@ -728,5 +759,35 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
 
     fn set_previous_torque(&mut self, t: SVector<f64, N>) {
         self.prev = self.limits.admissible(&t);
+    }
+
+    /// The EKF bank's probability-weighted one-period prediction under the applied torque.
+    fn predicted_state(&self) -> Option<(SVector<f64, N>, SVector<f64, N>)> {
+        if !self.started {
+            return None;
+        }
+        let (models, forces) = (&self.models, &self.prev_force);
+        let (q, qd) = self
+            .bank
+            .weighted_prediction(&self.prev, |i| models[i].straps.torque(&forces[i]));
+        (q.iter().chain(qd.iter()).all(|v| v.is_finite())).then_some((q, qd))
+    }
+
+    fn step_estimated(
+        &mut self,
+        m: &Measurement<N>,
+        estimated: &EstimatedChannels<N>,
+    ) -> ControlOutput<N> {
+        // An estimated strap force (the filters' input) would move d̂: then the filters
+        // predict without an update (d̂ and the probabilities held through the fault).
+        let force = estimated.force.iter().any(|&e| e);
+        self.estimating = estimated.any();
+        for a in 0..N {
+            self.measured[a] = !estimated.q[a] && !force;
+            self.measured[N + a] = !estimated.qd[a] && !force;
+        }
+        let out = self.step(m);
+        self.estimating = false;
+        out
     }
 }

@@ -1,8 +1,10 @@
 //! Runtime safety supervision around any controller: see [`Supervisor`].
 
 use super::highpass::HighPass;
+use super::ride_through::ChannelGuard;
 use super::{
-    ControlOutput, Controller, FallbackSettings, Measurement, StepStatus, TorqueLimits, Transparent,
+    ControlOutput, Controller, EstimatedChannels, FallbackSettings, Measurement, StepStatus,
+    TorqueLimits, Transparent,
 };
 use crate::check::{self, InvalidField, Range};
 use nalgebra::{SMatrix, SVector};
@@ -37,6 +39,9 @@ pub struct SafetySettings {
     pub clear_after_s: f64,
     /// Capacity of the event log (events beyond it are counted only).
     pub max_events: usize,
+    /// Moving-average window of the velocity and force channels (samples): the velocity
+    /// check compares a filtered velocity with the encoder's slope over this window.
+    pub filter_window: usize,
 }
 
 impl SafetySettings {
@@ -46,6 +51,10 @@ impl SafetySettings {
     pub const VELOCITY_MAX: f64 = 30.0;
     /// Default hold-off before a monitor clears (s).
     pub const CLEAR_AFTER_S: f64 = 0.1;
+    /// A handover within this long (s) of a definite sensor fault (a non-finite, out-of-range
+    /// or frozen channel; not a sample outside an innovation gate, which a failing controller
+    /// can cause) does not count toward the latch: the latch is for a failing controller.
+    pub const SENSOR_FAULT_GRACE_S: f64 = 0.5;
 }
 
 /// What the safety monitor does when it trips.
@@ -77,7 +86,11 @@ pub struct Monitors {
     /// force sensor's range (`[faults] saturation_n`, 70 N), a reading at full scale trips
     /// too. Default 70.
     pub force_max_n: f64,
-    /// Trip when a channel has delivered no valid sample for this long (s), > 0. Default 0.05.
+    /// Persistent-fault limit (s), > 0: a sensor channel rejected (non-finite, out of range,
+    /// frozen or outside its innovation gate, see [`ChannelGuard`]) for longer than this trips
+    /// the `sensor_timeout` monitor, whose response is always the protective stop (torque
+    /// ramped to zero at the rate limit and held until every channel has been good for
+    /// 0.1 s). Shorter faults are ridden through on the channel's estimate. Default 0.5.
     pub sensor_timeout_s: f64,
     /// Response when tripped (`"hold"`, `"ramp_to_zero"` or `"fallback"`, the transparent
     /// fallback controller). Default `"fallback"`.
@@ -128,7 +141,7 @@ impl Default for Monitors {
         Self {
             tracking_error_max_rad: 0.35,
             force_max_n: 70.0,
-            sensor_timeout_s: 0.05,
+            sensor_timeout_s: 0.5,
             response: MonitorResponse::Fallback,
             oscillation_force_rms_n: 8.0,
             oscillation_torque_rms_nm: 10.0,
@@ -227,6 +240,10 @@ const MONITORS: [MonitorKind; 5] = [
     MonitorKind::ForceOscillation,
     MonitorKind::TorqueOscillation,
 ];
+
+/// A strap force reading full scale this long (s) trips the sensor-timeout monitor, with the
+/// configured response (the limit of such readings before issue 28).
+pub const RAILED_TIMEOUT_S: f64 = 0.05;
 
 /// Indices of the oscillation monitors in [`MONITORS`].
 const OSCILLATION: [usize; 2] = [3, 4];
@@ -588,6 +605,15 @@ pub struct SafetyReport {
     /// Supervisor time (s) at which it latched (`[monitors] latch_trips`), `None` when it has
     /// not, or when the latch was reset since.
     pub latched_at: Option<f64>,
+    /// The monitor whose trip made the latching handover, `None` when not latched.
+    pub latched_by: Option<MonitorKind>,
+    /// How long (s) the latch alone (no monitor tripped) kept the torque from the controller.
+    pub latched_for_s: f64,
+    /// Steps on which some channel was rejected and the controller stepped on its estimate.
+    pub estimated_steps: u64,
+    /// Channel fault episodes: a channel (angle, velocity or force of one joint) rejected
+    /// after being good.
+    pub sensor_faults: u64,
 }
 
 /// Runtime safety supervision (exoskeleton-firmware style): measurement plausibility checks
@@ -644,10 +670,14 @@ pub struct Supervisor<const N: usize, C> {
     prev: SVector<f64, N>,
     k: u64,
     t0: f64,
-    /// Last fresh valid sample time per signal (q, qd, F) and joint.
-    fresh_t: [SVector<f64, N>; 3],
-    /// Previous raw value per signal and joint (bit-exact staleness check).
-    last: [SVector<f64, N>; 3],
+    /// Per-channel fault detection and the estimates of rejected channels.
+    guard: ChannelGuard<N>,
+    /// Last time a channel was rejected (latch grace).
+    fault_t: f64,
+    /// How long (s) some strap force has read full scale, and whether the sensor-timeout
+    /// monitor tripped on that (configured response) rather than on a sensor fault (stop).
+    railed_for: f64,
+    railed_trip: bool,
     tripped: [bool; 5],
     ok_since: [Option<f64>; 5],
     angle: StrapAngleEstimate<N>,
@@ -694,14 +724,25 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         );
         let gait = GaitFrequency::new(settings.dt);
         let cutoff_hz = settings.monitors.oscillation_cutoff_hz;
+        let guard = ChannelGuard::new(
+            settings.dt,
+            settings.filter_window,
+            [
+                settings.angle_max,
+                settings.velocity_max,
+                settings.saturation_n,
+            ],
+        );
         let mut sup = Supervisor {
             inner,
             s: settings,
             prev,
             k: 0,
             t0: 0.0,
-            fresh_t: [SVector::zeros(); 3],
-            last: [SVector::zeros(); 3],
+            guard,
+            fault_t: f64::NEG_INFINITY,
+            railed_for: 0.0,
+            railed_trip: false,
             tripped: [false; 5],
             ok_since: [None; 5],
             angle,
@@ -772,6 +813,7 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         }
         self.latched = false;
         self.report.latched_at = None;
+        self.report.latched_by = None;
         self.handover_t.fill(f64::NEG_INFINITY);
         let now = self.t0 + self.k.saturating_sub(1) as f64 * self.dt();
         self.log(MonitorEvent {
@@ -795,7 +837,9 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
     fn handover(&mut self, now: f64) {
         self.report.handovers += 1;
         let k = self.s.monitors.latch_trips.min(self.handover_t.len());
-        if k == 0 || self.latched {
+        // A handover during or just after a sensor fault is the fault's, not the controller's.
+        let sensor = now - self.fault_t < SafetySettings::SENSOR_FAULT_GRACE_S;
+        if k == 0 || self.latched || sensor {
             return;
         }
         self.handover_t[self.handover_pos] = now;
@@ -811,6 +855,7 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             self.latch_monitor = (0..MONITORS.len())
                 .find(|&i| LATCHING.contains(&i) && self.tripped[i])
                 .map_or(MonitorKind::TorqueOscillation, |i| MONITORS[i]);
+            self.report.latched_by = Some(self.latch_monitor);
             self.log(MonitorEvent {
                 t: now,
                 monitor: self.latch_monitor,
@@ -846,53 +891,23 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         }
     }
 
-    /// Updates the channel freshness; returns (all valid, longest silence in s, encoders
-    /// (q, qd) valid and none silent beyond `sensor_timeout_s`).
-    fn check_channels(&mut self, m: &Measurement<N>, now: f64) -> (bool, f64, bool) {
-        let first = self.k == 1;
-        let bounds = [self.s.angle_max, self.s.velocity_max, self.s.saturation_n];
-        let mut all_valid = m.t.is_finite();
-        let mut silent: f64 = 0.0;
-        let mut encoders = m.t.is_finite();
-        for (sig, vals) in [&m.q, &m.qd, &m.force].into_iter().enumerate() {
-            for j in 0..N {
-                let v = vals[j];
-                let valid = v.is_finite()
-                    && if sig == 2 {
-                        v.abs() < bounds[sig]
-                    } else {
-                        v.abs() <= bounds[sig]
-                    };
-                let fresh = valid && (first || v.to_bits() != self.last[sig][j].to_bits());
-                if first || fresh {
-                    self.fresh_t[sig][j] = now;
-                }
-                self.last[sig][j] = v;
-                all_valid &= valid;
-                silent = silent.max(now - self.fresh_t[sig][j]);
-                if sig < 2 {
-                    encoders &= valid
-                        && now - self.fresh_t[sig][j] <= self.s.monitors.sensor_timeout_s + 1e-9;
-                }
-            }
-        }
-        (all_valid, silent, encoders)
-    }
-
     /// Evaluates the monitors; returns true while any is tripped.
-    fn update_monitors(&mut self, m: &Measurement<N>, silent: f64, now: f64) {
+    /// `raw` is the measurement received, `m` the one with rejected channels estimated.
+    fn update_monitors(&mut self, raw: &Measurement<N>, m: &Measurement<N>, silent: f64, now: f64) {
         let mo = &self.s.monitors;
         let mut force: f64 = 0.0;
         for j in 0..N {
-            let f = m.force[j];
+            let f = raw.force[j];
             if f.is_finite() {
                 force = force.max(f.abs());
             }
         }
-        // Only plausible forces feed the estimates (an implausible one keeps their state).
-        let plausible = m.force.iter().all(|f| f.abs() < self.s.saturation_n);
+        // Only plausible forces feed the estimates (an implausible one keeps their state). The
+        // monitors see the measured forces, never the guard's estimates: a real force (a limit
+        // cycle the gates took for a fault) must reach them.
+        let plausible = raw.force.iter().all(|f| f.abs() < self.s.saturation_n);
         let forces = if plausible {
-            m.force
+            raw.force
         } else {
             SVector::repeat(f64::NAN)
         };
@@ -972,8 +987,46 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         self.k += 1;
         let now = self.t0 + (self.k - 1) as f64 * self.dt();
         self.report.steps += 1;
-        let (valid, silent, encoders) = self.check_channels(m, now);
-        self.update_monitors(m, silent, now);
+        // Per-channel fault detection: a rejected channel is replaced by its estimate, so the
+        // controller keeps stepping through the gap (`control::ride_through`).
+        let period = self.gait.frequency(now).map(|f| 1.0 / f);
+        let resync_after = (self.s.monitors.sensor_timeout_s / self.dt())
+            .ceil()
+            .max(1.0) as u64;
+        let model = self.inner.predicted_state();
+        let rep = self.guard.repair(m, period, resync_after, model);
+        if rep.definite_fault {
+            self.fault_t = now;
+        }
+        let raw = m;
+        // A strap force at the sensor's full scale is a real force of at least the range, not
+        // a sensor fault: the measurement is rejected as before issue 28 (torque held, the
+        // controller not stepped) and after `RAILED_TIMEOUT_S` the sensor-timeout monitor
+        // applies the configured response (not the protective stop).
+        let railed = raw
+            .force
+            .iter()
+            .any(|f| f.is_finite() && f.abs() >= self.s.saturation_n);
+        if railed {
+            self.railed_for += self.dt();
+        } else {
+            self.railed_for = 0.0;
+        }
+        let m = &rep.m;
+        let valid = !railed && rep.ready && m.t.is_finite() && m.is_finite();
+        self.report.estimated_steps = self.guard.estimated_steps();
+        self.report.sensor_faults = self.guard.episodes();
+        let railed_silence = if railed {
+            (self.railed_for - self.dt()) * self.s.monitors.sensor_timeout_s / RAILED_TIMEOUT_S
+        } else {
+            0.0
+        };
+        if railed_silence > self.s.monitors.sensor_timeout_s + 1e-9 {
+            self.railed_trip = true;
+        } else if !self.tripped[2] {
+            self.railed_trip = false;
+        }
+        self.update_monitors(raw, m, rep.longest_fault_s.max(railed_silence), now);
         let controller_failed = LATCHING.iter().any(|&i| self.tripped[i]);
         if controller_failed && !self.engaged {
             self.handover(now);
@@ -982,31 +1035,49 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         let tripped = self.is_tripped() || self.latched;
         let prev = self.prev;
         if let Some(fb) = self.fallback.as_mut() {
-            if valid {
+            if valid && !rep.any_rejected {
                 fb.observe(m, &prev);
-            } else if encoders {
+            } else if valid {
+                // Estimated channels: the payload estimate stays frozen.
                 fb.observe_encoders(m, &prev);
+            } else if railed && rep.encoders_good {
+                fb.observe_encoders(raw, &prev);
             }
         }
-        // The fallback's torque needs only fresh encoders: ramp to zero while an encoder
-        // channel is invalid or silent. A silent or saturated force channel does not stop it
-        // (it freezes its payload estimate): ramping to zero would hang the robot's weight on
-        // the straps, whose force then stays at the sensor's range.
+        // A channel rejected for longer than `sensor_timeout_s` is the protective stop: the
+        // torque ramps to zero at the rate limit and stays there until every channel has been
+        // good for `clear_after_s`, whatever `response` says.
+        let persistent = rep.longest_fault_s > self.s.monitors.sensor_timeout_s + 1e-9;
+        let stop = self.tripped[2] && (persistent || !self.railed_trip);
         let response = match (self.s.monitors.response, &self.fallback) {
+            _ if stop => SVector::zeros(),
             (MonitorResponse::Hold, _) => prev,
-            (MonitorResponse::Fallback, Some(fb)) if encoders => fb.torque(),
+            (MonitorResponse::Fallback, Some(fb)) => fb.torque(),
             (MonitorResponse::RampToZero | MonitorResponse::Fallback, _) => SVector::zeros(),
         };
         let (desired, mut status, iterations) = if valid {
-            // The inner controller keeps estimating while a monitor holds the output.
-            let out = self.inner.step(m);
-            (out.torque, out.status, out.iterations)
+            // The inner controller keeps estimating while a monitor holds the output, and
+            // steps on the estimates of rejected channels.
+            let out = if rep.estimated.any() {
+                self.inner.step_estimated(m, &rep.estimated)
+            } else {
+                self.inner.step(m)
+            };
+            if rep.any_rejected {
+                self.report.bad_measurement_steps += 1;
+                (out.torque, StepStatus::BadMeasurement, out.iterations)
+            } else {
+                (out.torque, out.status, out.iterations)
+            }
         } else {
             self.report.bad_measurement_steps += 1;
             (prev, StepStatus::BadMeasurement, 0)
         };
         let desired = if tripped {
             self.report.monitor_steps += 1;
+            if self.latched && !self.is_tripped() {
+                self.report.latched_for_s += self.dt();
+            }
             status = StepStatus::MonitorTripped;
             response
         } else {
@@ -1063,6 +1134,10 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         }
         n
     }
+
+    fn predicted_state(&self) -> Option<(SVector<f64, N>, SVector<f64, N>)> {
+        self.inner.predicted_state()
+    }
 }
 
 impl<const N: usize, C: Controller<N> + ?Sized> Controller<N> for Box<C> {
@@ -1089,5 +1164,16 @@ impl<const N: usize, C: Controller<N> + ?Sized> Controller<N> for Box<C> {
     }
     fn planned_torques(&self, out: &mut [SVector<f64, N>]) -> usize {
         (**self).planned_torques(out)
+    }
+
+    fn predicted_state(&self) -> Option<(SVector<f64, N>, SVector<f64, N>)> {
+        (**self).predicted_state()
+    }
+    fn step_estimated(
+        &mut self,
+        m: &Measurement<N>,
+        estimated: &EstimatedChannels<N>,
+    ) -> ControlOutput<N> {
+        (**self).step_estimated(m, estimated)
     }
 }

@@ -246,6 +246,45 @@ impl<const N: usize, const NA: usize, const NY: usize> EkfBank<N, NA, NY> {
         Ok(())
     }
 
+    /// One period with some measured channels missing (a sensor fault): every filter updates
+    /// with the measured rows only ([`ScenarioEkf::step_masked`], scenario `i`'s strap torque
+    /// `t_int_prev(i)`); the probabilities are kept. A failed filter is left unchanged and the
+    /// first error returned.
+    pub fn step_masked_per_scenario(
+        &mut self,
+        y: &SVector<f64, NY>,
+        measured: &[bool; NY],
+        u_prev: &SVector<f64, N>,
+        t_int_prev: impl Fn(usize) -> SVector<f64, N>,
+    ) -> Result<(), EkfError> {
+        let mut first_err = None;
+        for (i, f) in self.filters.iter_mut().enumerate() {
+            if let Err(e) = f.step_masked(y, measured, u_prev, &t_int_prev(i)) {
+                first_err.get_or_insert(e);
+            }
+        }
+        first_err.map_or(Ok(()), Err)
+    }
+
+    /// Probability-weighted one-period prediction `Σᵢ μᵢ f(x̂ᵢ)` of the joint angles and
+    /// velocities under the applied torque `u` and scenario `i`'s strap torque `t_int(i)`
+    /// (the model's estimate of the next measurement's `[q, qd]`).
+    pub fn weighted_prediction(
+        &self,
+        u: &SVector<f64, N>,
+        t_int: impl Fn(usize) -> SVector<f64, N>,
+    ) -> (SVector<f64, N>, SVector<f64, N>) {
+        let (mut q, mut qd) = (SVector::<f64, N>::zeros(), SVector::<f64, N>::zeros());
+        for (i, (f, p)) in self.filters.iter().zip(&self.probabilities).enumerate() {
+            let x = f.predict(f.state(), u, &t_int(i));
+            for a in 0..N {
+                q[a] += x[a] * *p;
+                qd[a] += x[N + a] * *p;
+            }
+        }
+        (q, qd)
+    }
+
     /// Scenario probabilities `μᵢ(k)` (sum 1, each ≥ the floor).
     pub fn probabilities(&self) -> &[f64] {
         &self.probabilities

@@ -305,6 +305,39 @@ impl<const N: usize, const NA: usize, const NY: usize> ScenarioEkf<N, NA, NY> {
         (xn, f)
     }
 
+    /// One filter period when some measured channels are missing (a sensor fault): the time
+    /// update of [`step`](Self::step), then the measurement update with the rows of `y` whose
+    /// `measured` entry is true only (the other rows of `H` zeroed, their innovation 0, so they
+    /// move neither `x̂` nor `P`); with no row measured, the time update alone. The innovation
+    /// statistics of the last full update are kept (they weigh the scenarios' probabilities,
+    /// which the caller keeps through a fault). On failure the filter is left as it was.
+    pub fn step_masked(
+        &mut self,
+        y: &SVector<f64, NY>,
+        measured: &[bool; NY],
+        u_prev: &SVector<f64, N>,
+        t_int_prev: &SVector<f64, N>,
+    ) -> Result<(), EkfError> {
+        let (xp, f) = self.predict_with_jacobian(self.ekf.state(), u_prev, t_int_prev);
+        let mut ekf = self.ekf;
+        ekf.predict(&xp, &f)?;
+        if measured.iter().any(|&m| m) {
+            let mut h = self.h;
+            let mut ym = SVector::<f64, NY>::zeros();
+            for r in 0..NY {
+                if measured[r] {
+                    ym[r] = y[r];
+                } else {
+                    h.row_mut(r).fill(0.0);
+                }
+            }
+            let y_pred = h * ekf.state();
+            ekf.update(&ym, &y_pred, &h)?;
+        }
+        self.ekf = ekf;
+        Ok(())
+    }
+
     /// One filter period: `y = [q, qd]` measured at step `k`, `u_prev = T_R(k−1)`,
     /// `t_int_prev = Jᵀ F` (filtered) of step `k−1`.
     ///

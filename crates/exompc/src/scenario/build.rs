@@ -181,6 +181,7 @@ impl SafetySettings {
             monitors: s.monitors.clone(),
             clear_after_s: Self::CLEAR_AFTER_S,
             max_events: 4096,
+            filter_window: s.uncertainty.filter_window,
         }
     }
 }

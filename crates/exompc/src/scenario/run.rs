@@ -122,6 +122,19 @@ pub struct SoakReport {
     pub monitor_events: Vec<MonitorEvent>,
     /// Monitor events not logged (log full).
     pub monitor_events_dropped: u64,
+    /// Handovers (a controller-failure monitor taking the torque; what counts toward the
+    /// latch).
+    pub handovers: u64,
+    /// Simulated time (s) at which the supervisor latched its response, `null` if it did not.
+    pub latched_at_s: Option<f64>,
+    /// The monitor whose trip latched it (`tracking_error`, ...), `null` if it did not.
+    pub latched_by: Option<String>,
+    /// How long (s) the latch alone kept the torque from the controller.
+    pub latched_for_s: f64,
+    /// Steps on which a rejected sensor channel was replaced by its estimate.
+    pub estimated_steps: u64,
+    /// Sensor channel fault episodes detected.
+    pub sensor_faults: u64,
 }
 
 /// The soak scenario: `base` as a 2-DOF MS-NMPC run of `seconds` simulated seconds with true
@@ -165,7 +178,13 @@ pub fn run_soak(
         stats,
         monitor_trips: report.monitor_trips,
         wall_time_s: start.elapsed().as_secs_f64(),
-        monitor_events: report.events,
         monitor_events_dropped: report.events_dropped,
+        handovers: summary.safety.handovers,
+        latched_at_s: summary.safety.latched_at_s,
+        latched_by: summary.safety.latched_by,
+        latched_for_s: summary.safety.latched_for_s,
+        estimated_steps: summary.safety.estimated_steps,
+        sensor_faults: summary.safety.sensor_faults,
+        monitor_events: report.events,
     })
 }

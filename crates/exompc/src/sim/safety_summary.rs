@@ -41,6 +41,21 @@ pub struct SafetySummary {
     /// (`[monitors] latch_trips`); `null` when it did not latch.
     #[serde(default)]
     pub latched_at_s: Option<f64>,
+    /// The monitor whose trip latched the response (`tracking_error`, ...); `null` when it
+    /// did not latch.
+    #[serde(default)]
+    pub latched_by: Option<String>,
+    /// How long (s) the latch alone kept the torque from the controller (monitors clear,
+    /// the response still on): the cost of the latch.
+    #[serde(default)]
+    pub latched_for_s: f64,
+    /// Steps on which some sensor channel was rejected and the controller stepped on its
+    /// estimate (counted in `bad_measurement_steps` too).
+    #[serde(default)]
+    pub estimated_steps: u64,
+    /// Sensor channel fault episodes (a channel rejected after being good).
+    #[serde(default)]
+    pub sensor_faults: u64,
 }
 
 /// `TrackingError` → `tracking_error` (the serde spelling of a unit variant's `Debug` name), so
@@ -83,6 +98,10 @@ impl SafetySummary {
             events_dropped: r.events_dropped,
             handovers: r.handovers,
             latched_at_s: r.latched_at,
+            latched_by: r.latched_by.map(|k| snake_case(&format!("{k:?}"))),
+            latched_for_s: r.latched_for_s,
+            estimated_steps: r.estimated_steps,
+            sensor_faults: r.sensor_faults,
         }
     }
 
@@ -119,9 +138,16 @@ mod tests {
             events_dropped: 0,
             handovers: 2,
             latched_at: Some(1.2),
+            latched_by: Some(MonitorKind::StrapForce),
+            latched_for_s: 0.3,
+            estimated_steps: 5,
+            sensor_faults: 1,
         };
         let s = SafetySummary::from_report(&r);
         assert_eq!((s.handovers, s.latched_at_s), (2, Some(1.2)));
+        assert_eq!(s.latched_by.as_deref(), Some("strap_force"));
+        assert!((s.latched_for_s - 0.3).abs() < 1e-12);
+        assert_eq!((s.estimated_steps, s.sensor_faults), (5, 1));
         assert_eq!(s.monitor_trips, 3);
         assert_eq!(s.monitor_steps, 40);
         assert_eq!(s.bad_measurement_steps, 3);

@@ -1,0 +1,417 @@
+//! Riding through sensor faults: per-channel fault detection and the estimate that stands in
+//! for a rejected channel ([`ChannelGuard`], used by the [`Supervisor`](super::Supervisor)).
+
+use super::Measurement;
+use nalgebra::SVector;
+
+/// Index of the angle, velocity and force signal of a measurement.
+const Q: usize = 0;
+const QD: usize = 1;
+const F: usize = 2;
+
+/// Largest acceleration (rad/s²) an encoder angle may show against its own linear
+/// extrapolation before the sample counts as a jump no leg can make: the gate on
+/// `|q_k − (2 q̂_{k−1} − q̂_{k−2})|` is `max(JUMP_ACCEL · dt², 0.01 rad)` (0.05 rad at 10 ms).
+pub const JUMP_ACCEL: f64 = 500.0;
+/// Gate (rad/s) on the filtered velocity against the encoder's mean slope over the filter
+/// window (both are the window's mean velocity on a clean sensor).
+pub const VELOCITY_GATE: f64 = 0.08;
+/// Gate (N) on a filtered strap force against its own linear extrapolation.
+pub const FORCE_GATE: f64 = 2.0;
+/// A rejected strap force is accepted again on smoothness alone (three smooth fresh samples)
+/// after this long (s), whatever its estimate says: a real force must not stay hidden behind
+/// its estimate (a jump in the force can be the robot's own doing).
+pub const FORCE_RESYNC_S: f64 = 0.1;
+/// Each gate widens to this many times the RMS of the channel's recent residuals (accepted
+/// samples, time constant [`RESIDUAL_TAU_S`]) when that is larger: a fast or forceful gait's
+/// own innovations are not faults (the fixed gates are for the default gait).
+pub const ADAPTIVE_GATE_SIGMAS: f64 = 6.0;
+/// Time constant (s) of the residuals' running mean square.
+pub const RESIDUAL_TAU_S: f64 = 1.0;
+/// A faulted channel is accepted again when it is within this many gates of its estimate.
+pub const ACCEPT_GATES: f64 = 4.0;
+/// A velocity whose angle is measured, or a strap force, may stay rejected this many times
+/// longer than an angle before the protective stop: its estimate stays anchored to measured
+/// channels (measured on the 1-s fault grid, docs/RELIABILITY.md §2).
+pub const ANCHORED_LIMIT_FACTOR: u64 = 4;
+/// An encoder angle repeated bit for bit while the joint moves faster than this (rad/s) is
+/// stuck.
+pub const STUCK_SPEED: f64 = 0.05;
+
+/// Per-channel sensor-fault detection and the estimate that replaces a rejected channel.
+///
+/// Each channel (angle, filtered velocity, filtered strap force of each joint) is rejected
+/// when its sample is non-finite or out of range (in the same sample), repeated bit for bit
+/// (a frozen sensor: an angle only while the joint moves faster than [`STUCK_SPEED`]), or
+/// outside its innovation gate: an angle further than `max(`[`JUMP_ACCEL`]`·dt², 0.01)` from
+/// its linear extrapolation (a jump no leg can make), a velocity further than
+/// [`VELOCITY_GATE`] from the encoder's mean slope over the filter window (what a clean
+/// filtered velocity equals), a force further than [`FORCE_GATE`] from its linear
+/// extrapolation. A rejected channel is estimated: an angle by integrating its good velocity,
+/// a velocity from its good angle's slope over the filter window, and a channel whose partner
+/// is lost too (or a force) by replaying the gait one period back (the gait frequency of the
+/// supervisor) with the offset it had when the fault began, or, without a known period, by
+/// holding (an angle: integrating the estimated velocity). A rejected channel is accepted again
+/// once a fresh sample lies within [`ACCEPT_GATES`] gates of its estimate, or, after
+/// `resync_after` steps, once three fresh samples are smooth (the estimate then jumps to it:
+/// the supervisor's rate limit bounds the torque step).
+#[derive(Clone, Debug)]
+pub struct ChannelGuard<const N: usize> {
+    dt: f64,
+    /// Filter window of the velocity and force channels (samples).
+    window: usize,
+    bounds: [f64; 3],
+    gates: [f64; 3],
+    /// Estimate history per signal (ring of `len` samples).
+    hist: [Vec<SVector<f64, N>>; 3],
+    pos: usize,
+    filled: usize,
+    /// Raw previous two samples per signal (bit-exact repeats, smoothness).
+    raw: [[SVector<f64, N>; 2]; 3],
+    /// Fault state per signal and joint: steps since the channel was rejected (0 = good).
+    bad_for: [[u64; N]; 3],
+    /// Replay offset per signal and joint (NaN: not replaying).
+    offset: [SVector<f64, N>; 3],
+    /// Consecutive fresh, smooth raw samples of a rejected channel.
+    smooth: [[u32; N]; 3],
+    /// Rejected channels: steps on which some channel was estimated, fault episodes.
+    estimated_steps: u64,
+    episodes: u64,
+    /// Largest residual over its gate of an accepted sample, per signal (the detectors'
+    /// margin on this run: below 1 nothing fired on a residual).
+    peak_ratio: [f64; 3],
+    /// Running mean square of the accepted residuals per signal and joint.
+    res_ms: [SVector<f64, N>; 3],
+    res_alpha: f64,
+    /// Per strap: the force's current rejection began with a full-scale reading.
+    railed: [bool; N],
+}
+
+/// Which channels of a measurement stand in for rejected ones and must not update a
+/// model-based estimator: an angle, and a velocity whose angle is rejected too (a velocity
+/// estimated from its good angle's slope is a measurement of it and not listed).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct EstimatedChannels<const N: usize> {
+    /// Per joint: the angle is an estimate.
+    pub q: [bool; N],
+    /// Per joint: the velocity is an estimate not derived from a measured angle.
+    pub qd: [bool; N],
+    /// Per strap: the force is an estimate.
+    pub force: [bool; N],
+}
+
+impl<const N: usize> EstimatedChannels<N> {
+    /// Some angle or velocity is an estimate.
+    pub fn any_encoder(&self) -> bool {
+        self.q.iter().chain(&self.qd).any(|&e| e)
+    }
+
+    /// Some channel is an estimate.
+    pub fn any(&self) -> bool {
+        self.any_encoder() || self.force.iter().any(|&e| e)
+    }
+}
+
+/// What [`ChannelGuard::repair`] made of a measurement.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Repaired<const N: usize> {
+    /// The measurement with every rejected channel replaced by its estimate.
+    pub m: Measurement<N>,
+    /// Some channel was rejected this step.
+    pub any_rejected: bool,
+    /// Some channel is non-finite, out of range or frozen this step: a sensor fault that no
+    /// controller can cause (an innovation-gate rejection can be a real, fast motion).
+    pub definite_fault: bool,
+    /// The channels that stand in for rejected ones.
+    pub estimated: EstimatedChannels<N>,
+    /// Longest time (s) a channel has been rejected, 0 when all are good; a velocity whose
+    /// angle is measured and a strap force count [`ANCHORED_LIMIT_FACTOR`] times slower.
+    pub longest_fault_s: f64,
+    /// Every encoder channel (angle, velocity) is good.
+    pub encoders_good: bool,
+    /// The estimate is usable (at least one measurement has been accepted).
+    pub ready: bool,
+}
+
+impl<const N: usize> ChannelGuard<N> {
+    /// History kept for the gait replay (s): periods longer than this are not replayed.
+    pub const HISTORY_S: f64 = 3.0;
+
+    /// For samples every `dt` s through a `window`-sample moving average (velocities, forces);
+    /// `bounds` are the plausible `|q|`, `|qd|` and (strictly below) `|F|`.
+    pub fn new(dt: f64, window: usize, bounds: [f64; 3]) -> Self {
+        let dt = if dt.is_finite() && dt > 0.0 { dt } else { 0.01 };
+        let len = ((Self::HISTORY_S / dt).ceil() as usize).clamp(8, 1 << 16);
+        let gates = [(JUMP_ACCEL * dt * dt).max(0.01), VELOCITY_GATE, FORCE_GATE];
+        ChannelGuard {
+            dt,
+            window: window.clamp(1, 1000),
+            bounds,
+            gates,
+            hist: std::array::from_fn(|_| vec![SVector::zeros(); len]),
+            pos: 0,
+            filled: 0,
+            raw: [[SVector::repeat(f64::NAN); 2]; 3],
+            bad_for: [[0; N]; 3],
+            offset: [SVector::repeat(f64::NAN); 3],
+            smooth: [[0; N]; 3],
+            estimated_steps: 0,
+            episodes: 0,
+            peak_ratio: [0.0; 3],
+            res_ms: [SVector::zeros(); 3],
+            res_alpha: 1.0 - (-dt / RESIDUAL_TAU_S).exp(),
+            railed: [false; N],
+        }
+    }
+
+    /// Steps on which some channel was estimated.
+    pub fn estimated_steps(&self) -> u64 {
+        self.estimated_steps
+    }
+
+    /// Channel fault episodes (a channel rejected after being good).
+    pub fn episodes(&self) -> u64 {
+        self.episodes
+    }
+
+    /// Largest residual of an accepted sample over its gate, per signal (q, qd, F).
+    pub fn peak_ratio(&self) -> [f64; 3] {
+        self.peak_ratio
+    }
+
+    /// True while the channel `signal` (0 q, 1 qd, 2 F) of `joint` is rejected.
+    pub fn is_rejected(&self, signal: usize, joint: usize) -> bool {
+        self.bad_for[signal][joint] > 0
+    }
+
+    fn back(&self, sig: usize, steps: usize) -> SVector<f64, N> {
+        let len = self.hist[sig].len();
+        self.hist[sig][(self.pos + len - steps % len) % len]
+    }
+
+    /// Detect faulty channels of `m` and replace them by their estimates; `period_s` is the
+    /// gait period, if known, for the replay; `model` the controller's own model prediction
+    /// of `(q, qd)` ([`Controller::predicted_state`](super::Controller::predicted_state)),
+    /// which replaces rejected encoder channels when given; `resync_after` the steps after
+    /// which a rejected channel is accepted on smoothness alone.
+    pub fn repair(
+        &mut self,
+        m: &Measurement<N>,
+        period_s: Option<f64>,
+        resync_after: u64,
+        model: Option<(SVector<f64, N>, SVector<f64, N>)>,
+    ) -> Repaired<N> {
+        let warm = self.filled > self.window + 2;
+        let vals = [m.q, m.qd, m.force];
+        let mut out = vals;
+        let mut any = false;
+        let mut definite = false;
+        let mut longest: u64 = 0;
+        let mut estimated = EstimatedChannels {
+            q: [false; N],
+            qd: [false; N],
+            force: [false; N],
+        };
+        let period = period_s
+            .filter(|p| p.is_finite() && *p > 0.0)
+            .map(|p| (p / self.dt).round() as usize)
+            .filter(|&p| p >= 2 && p + 2 < self.filled.min(self.hist[0].len()));
+        // Linear extrapolations of the estimates, and the mean slope of the angle over the
+        // filter window (what a clean filtered velocity equals).
+        let pred: [SVector<f64, N>; 3] =
+            std::array::from_fn(|s| self.back(s, 1) * 2.0 - self.back(s, 2));
+        let span = (self.window - 1).max(1);
+        let force_resync = (FORCE_RESYNC_S / self.dt).ceil().max(1.0) as u64;
+        for j in 0..N {
+            // Angle first: the velocity check needs the angle's verdict.
+            for sig in [Q, QD, F] {
+                let v = vals[sig][j];
+                let in_range = v.is_finite()
+                    && if sig == F {
+                        v.abs() < self.bounds[sig]
+                    } else {
+                        v.abs() <= self.bounds[sig]
+                    };
+                let repeated = v.to_bits() == self.raw[sig][0][j].to_bits();
+                let moving = {
+                    let qd = if self.bad_for[QD][j] == 0 && vals[QD][j].is_finite() {
+                        vals[QD][j]
+                    } else {
+                        self.back(QD, 1)[j]
+                    };
+                    qd.abs() > STUCK_SPEED
+                };
+                let stuck = warm && repeated && (sig != Q || moving);
+                let residual = if !warm {
+                    0.0
+                } else if sig == QD && self.bad_for[Q][j] == 0 {
+                    // `out[Q]` is this step's accepted angle.
+                    (v - self.slope(&out, j, span)).abs()
+                } else {
+                    (v - pred[sig][j]).abs()
+                };
+                let gate = self.gates[sig].max(ADAPTIVE_GATE_SIGMAS * self.res_ms[sig][j].sqrt());
+                let was_bad = self.bad_for[sig][j] > 0;
+                let smooth_now = in_range
+                    && !repeated
+                    && (v - 2.0 * self.raw[sig][0][j] + self.raw[sig][1][j]).abs() < gate;
+                // A force at full scale may be a real force of at least the range: it is
+                // accepted again as soon as it is back in range.
+                let railed = sig == F && v.is_finite() && !in_range;
+                // Right after a full-scale reading the extrapolation runs through the estimate
+                // that stood in for it, not through the force: no innovation to gate yet (the
+                // range check has handled the full-scale samples).
+                let after_rail = sig == F
+                    && warm
+                    && self.raw[F][..]
+                        .iter()
+                        .any(|r| r[j].is_finite() && r[j].abs() >= self.bounds[F]);
+                definite |= !in_range || stuck;
+                let good = if !in_range || stuck {
+                    false
+                } else if (was_bad && self.railed[j]) || (!was_bad && after_rail) {
+                    true
+                } else if was_bad {
+                    let estimate = if sig == QD && self.bad_for[Q][j] == 0 {
+                        v - residual
+                    } else {
+                        pred[sig][j]
+                    };
+                    let resync = if sig == F {
+                        resync_after.min(force_resync)
+                    } else {
+                        resync_after
+                    };
+                    (v - estimate).abs() < ACCEPT_GATES * gate
+                        || (self.bad_for[sig][j] >= resync && self.smooth[sig][j] >= 2)
+                } else {
+                    residual <= gate
+                };
+                self.smooth[sig][j] = if smooth_now {
+                    self.smooth[sig][j].saturating_add(1)
+                } else {
+                    0
+                };
+                if sig == F && !was_bad && !good {
+                    self.railed[j] = railed;
+                }
+                if good {
+                    if !was_bad && !after_rail {
+                        if residual / gate > self.peak_ratio[sig] {
+                            self.peak_ratio[sig] = residual / gate;
+                        }
+                        let ms = &mut self.res_ms[sig][j];
+                        *ms += (residual * residual - *ms) * self.res_alpha;
+                    }
+                    self.bad_for[sig][j] = 0;
+                    self.offset[sig][j] = f64::NAN;
+                } else {
+                    if !was_bad {
+                        self.episodes += 1;
+                    }
+                    self.bad_for[sig][j] = self.bad_for[sig][j].saturating_add(1);
+                    any = true;
+                    let anchored = sig == F || (sig == QD && self.bad_for[Q][j] == 0);
+                    let age = if anchored {
+                        self.bad_for[sig][j] / ANCHORED_LIMIT_FACTOR
+                    } else {
+                        self.bad_for[sig][j]
+                    };
+                    longest = longest.max(age);
+                }
+                self.raw[sig][1][j] = self.raw[sig][0][j];
+                self.raw[sig][0][j] = v;
+            }
+            // Estimates once every verdict of the joint is in: an angle from its good velocity,
+            // a velocity from its good angle, else the replay.
+            for sig in [Q, QD, F] {
+                if self.bad_for[sig][j] > 0 {
+                    let q_bad = self.bad_for[Q][j] > 0;
+                    let qd_bad = self.bad_for[QD][j] > 0;
+                    // The model for an angle whose velocity is measured (its filter updates
+                    // on the velocity); with both encoders lost, the gait replay when a
+                    // period is known (an open-loop model drifts away within 100 ms).
+                    let replay = q_bad && qd_bad && period.is_some();
+                    out[sig][j] = match (sig, model) {
+                        (Q, Some((q, _))) if !replay => q[j],
+                        (QD, Some((_, qd))) if q_bad && !replay => qd[j],
+                        _ => self.estimate(sig, j, &out, period),
+                    };
+                    match sig {
+                        Q => estimated.q[j] = true,
+                        QD => estimated.qd[j] = q_bad,
+                        _ => estimated.force[j] = true,
+                    }
+                }
+            }
+        }
+        let ready = self.filled > 0 || !any;
+        if any {
+            self.estimated_steps += 1;
+        }
+        if ready {
+            let len = self.hist[0].len();
+            for (sig, o) in out.iter().enumerate() {
+                self.hist[sig][self.pos] = *o;
+            }
+            self.pos = (self.pos + 1) % len;
+            self.filled = (self.filled + 1).min(len);
+        }
+        let encoders_good = (0..N).all(|j| self.bad_for[Q][j] == 0 && self.bad_for[QD][j] == 0);
+        Repaired {
+            m: Measurement {
+                t: m.t,
+                q: out[Q],
+                qd: out[QD],
+                force: out[F],
+            },
+            any_rejected: any,
+            definite_fault: definite,
+            estimated,
+            longest_fault_s: longest as f64 * self.dt,
+            encoders_good,
+            ready,
+        }
+    }
+
+    /// The angle's mean slope over the last `span` periods, `out[Q]` being this step's angle.
+    fn slope(&self, out: &[SVector<f64, N>; 3], j: usize, span: usize) -> f64 {
+        (out[Q][j] - self.back(Q, span)[j]) / (span as f64 * self.dt)
+    }
+
+    /// The estimate of a rejected channel `sig` of joint `j` (`out` holds this step's values
+    /// of the signals already decided).
+    fn estimate(
+        &mut self,
+        sig: usize,
+        j: usize,
+        out: &[SVector<f64, N>; 3],
+        period: Option<usize>,
+    ) -> f64 {
+        if self.filled < 2 {
+            return 0.0;
+        }
+        let prev = self.back(sig, 1)[j];
+        match sig {
+            Q if self.bad_for[QD][j] == 0 && out[QD][j].is_finite() => {
+                return prev + self.dt * out[QD][j];
+            }
+            QD if self.bad_for[Q][j] == 0 => {
+                return self.slope(out, j, (self.window - 1).max(1));
+            }
+            _ => {}
+        }
+        if let Some(p) = period {
+            // Replay the gait one period back, with the offset it had when the fault began.
+            let then = self.back(sig, p)[j];
+            if !self.offset[sig][j].is_finite() {
+                self.offset[sig][j] = prev - self.back(sig, p + 1)[j];
+            }
+            return then + self.offset[sig][j];
+        }
+        match sig {
+            Q => prev + self.dt * self.back(QD, 1)[j],
+            _ => prev,
+        }
+    }
+}

@@ -1,0 +1,306 @@
+//! Riding through sensor faults (issue 28; control/ride_through.rs, docs/RELIABILITY.md §2):
+//! the detectors fire on no clean sample, each fault kind is flagged within its stated delay,
+//! a fault of one channel group for 200 ms leaves the person's true strap force near the clean
+//! run's, the controller is back within 100 ms of the channel being good, handovers during a
+//! sensor fault do not latch, and a persistent fault ends in the protective stop.
+
+use exompc::config::{ControllerKind, Scenario};
+use exompc::control::{ChannelGuard, Measurement, MonitorAction, MonitorKind, StepStatus};
+use exompc::scenario::{run_experiment_report, TwoDof};
+use exompc::sim::{Channel, FaultEvent, FaultKind, MovingAverage, TraceLog};
+use nalgebra::SVector;
+
+fn scenario(kind: ControllerKind, payload: f64, seconds: f64) -> Scenario {
+    let mut s = Scenario::default();
+    s.controller.kind = kind;
+    s.uncertainty.payload_kg = payload;
+    s.timing.duration_2dof_s = seconds;
+    s
+}
+
+fn fault(kind: FaultKind, channels: &[Channel], start: f64, dur: f64, mag: f64) -> Vec<FaultEvent> {
+    channels
+        .iter()
+        .map(|&channel| FaultEvent {
+            kind,
+            channel,
+            start_s: start,
+            duration_s: dur,
+            magnitude: mag,
+        })
+        .collect()
+}
+
+/// (peak |true strap force| (N), RMS per strap (N), safety report, trace).
+fn run(s: &Scenario) -> (f64, [f64; 2], exompc::control::SafetyReport, TraceLog<2>) {
+    let mut log = TraceLog::default();
+    let (sum, rep) = run_experiment_report::<TwoDof, 2>(s, &mut [&mut log]).unwrap();
+    assert_eq!(sum.limit_violations, 0);
+    let peak = log
+        .rows
+        .iter()
+        .flat_map(|r| r.force_true.iter().map(|f| f.abs()).collect::<Vec<_>>())
+        .fold(0.0, f64::max);
+    let rms = [
+        sum.rms_force_n.thigh.unwrap(),
+        sum.rms_force_n.shank.unwrap(),
+    ];
+    (peak, rms, rep, log)
+}
+
+const ANGLES: [Channel; 2] = [Channel::Q1, Channel::Q2];
+const VELOCITIES: [Channel; 2] = [Channel::Qd1, Channel::Qd2];
+
+/// The detectors never fire on the clean default runs (pd, nmpc, msnmpc; 0 and 3 kg): no
+/// channel rejected, so the runs are those of the unsupervised controller bit for bit (the
+/// golden tests pin that).
+#[test]
+fn clean_runs_reject_no_channel() {
+    for kind in [
+        ControllerKind::PD,
+        ControllerKind::NMPC,
+        ControllerKind::MSNMPC,
+    ] {
+        for payload in [0.0, 3.0] {
+            let (_, _, rep, _) = run(&scenario(kind, payload, 6.0));
+            assert_eq!(
+                (
+                    rep.sensor_faults,
+                    rep.estimated_steps,
+                    rep.bad_measurement_steps
+                ),
+                (0, 0, 0),
+                "{kind:?} {payload} kg"
+            );
+            assert_eq!(
+                rep.monitor_trips, 0,
+                "{kind:?} {payload} kg: {:?}",
+                rep.events
+            );
+        }
+    }
+}
+
+/// Issue 28 goal for one channel group: a 200-ms fault of the angles (a 0.5-rad encoder
+/// spike; main: 136 N peak, RMS 11.5× at 2 kg) or of the velocities (NaN; main: 66 N, 2.7×)
+/// at 2 kg keeps the peak true strap force within 6 N of the clean run's (msnmpc: ≤ 12 N, twice
+/// the clean peak; nmpc, whose clean peak at 2 kg is 27.5 N, within the same margin) and the
+/// RMS ≤ 1.5× the clean run's, without a monitor trip or a latch, for msnmpc (its EKF bank
+/// updates on the measured rows) and nmpc (the supervisor's own estimates).
+#[test]
+fn a_200_ms_fault_of_one_channel_group_is_ridden_through() {
+    let cases = [
+        (ControllerKind::MSNMPC, FaultKind::Spike, &ANGLES, 0.5),
+        (ControllerKind::MSNMPC, FaultKind::Nan, &VELOCITIES, 0.0),
+        (ControllerKind::NMPC, FaultKind::Stuck, &ANGLES, 0.0),
+        (ControllerKind::NMPC, FaultKind::Nan, &VELOCITIES, 0.0),
+    ];
+    for (kind, fk, chans, mag) in cases {
+        let clean = scenario(kind, 2.0, 6.0);
+        let mut faulty = clean.clone();
+        faulty.faults.events = fault(fk, chans, 3.0, 0.2, mag);
+        let (peak0, rms0, _, _) = run(&clean);
+        let (peak, rms, rep, log) = run(&faulty);
+        let what = format!("{kind:?} {fk:?} {chans:?}");
+        assert!(
+            peak <= peak0 + 6.0,
+            "{what}: peak {peak:.1} N, clean {peak0:.1} N"
+        );
+        if kind == ControllerKind::MSNMPC {
+            assert!(peak <= 12.0, "{what}: peak {peak:.1} N");
+        }
+        for i in 0..2 {
+            assert!(rms[i] <= 1.5 * rms0[i], "{what}: RMS {rms:?} vs {rms0:?}");
+        }
+        assert!(rep.sensor_faults > 0, "{what}: nothing detected");
+        assert_eq!(rep.monitor_trips, 0, "{what}: {:?}", rep.events);
+        assert_eq!(rep.latched_at, None);
+        // The full controller is back within 100 ms of the channel being good (a NaN on a
+        // velocity stays in its 5-sample filter for 40 ms after the fault).
+        let back = 3.2 + 0.04 + 0.1;
+        for r in log.rows.iter().filter(|r| r.t > back + 1e-9) {
+            assert!(
+                !matches!(
+                    r.status,
+                    StepStatus::BadMeasurement | StepStatus::MonitorTripped
+                ),
+                "{what}: {:?} at {} s",
+                r.status,
+                r.t
+            );
+        }
+    }
+}
+
+/// A channel rejected for longer than `sensor_timeout_s` (0.5 s) ends in the protective
+/// stop: the torque ramps to zero within the rate limit and stays there while the fault
+/// lasts; when the channel is good again the controller takes over within 0.2 s (no latch;
+/// the handover after the stop may trip a monitor). At 0 kg (at 2 kg the stop itself costs
+/// 125 N of strap force and trips the strap-force and oscillation monitors:
+/// docs/RELIABILITY.md §2).
+#[test]
+fn a_persistent_fault_ends_in_the_protective_stop_and_recovers() {
+    let mut s = scenario(ControllerKind::MSNMPC, 0.0, 6.0);
+    s.faults.events = fault(FaultKind::Nan, &ANGLES, 2.0, 1.5, 0.0);
+    let rate = s.rate_limit_per_step();
+    let (_, _, rep, log) = run(&s);
+    let trip = rep
+        .events
+        .iter()
+        .find(|e| e.monitor == MonitorKind::SensorTimeout && e.action == MonitorAction::Trip)
+        .expect("no protective stop");
+    assert!((trip.t - 2.5).abs() < 0.02, "stop at {} s", trip.t);
+    let mut prev: Option<SVector<f64, 2>> = None;
+    for r in &log.rows {
+        if let Some(p) = prev {
+            assert!(
+                (r.torque_robot - p).amax() <= rate + 1e-9,
+                "step at {} s",
+                r.t
+            );
+        }
+        prev = Some(r.torque_robot);
+        // Zero once the ramp (at most 30 N·m at the rate limit) is done, until the fault ends.
+        if r.t > trip.t + 0.35 && r.t < 3.5 {
+            assert_eq!(r.torque_robot, SVector::<f64, 2>::zeros(), "at {} s", r.t);
+        }
+    }
+    assert_eq!(rep.latched_at, None);
+    // The stop clears 0.1 s after the angles are good again (3.5 s): the controller steps.
+    let back = log
+        .rows
+        .iter()
+        .find(|r| r.t > 3.5 && r.status == StepStatus::Ok)
+        .map(|r| r.t);
+    assert!(back.is_some_and(|t| t < 3.7), "back at {back:?}");
+}
+
+/// A sine gait through the sensors' 5-sample filter: `(q, filtered qd, filtered F)` at step k.
+struct Gait {
+    dt: f64,
+    qd_f: MovingAverage<2>,
+    f_f: MovingAverage<2>,
+}
+
+impl Gait {
+    fn new() -> Self {
+        Gait {
+            dt: 0.01,
+            qd_f: MovingAverage::new(5),
+            f_f: MovingAverage::new(5),
+        }
+    }
+    /// The clean raw sample at step k.
+    fn raw(&self, k: usize) -> (SVector<f64, 2>, SVector<f64, 2>, SVector<f64, 2>) {
+        let t = k as f64 * self.dt;
+        let w = 2.0 * std::f64::consts::PI;
+        let q = SVector::from([0.4 * (w * t).sin(), -0.6 + 0.5 * (w * t + 1.0).sin()]);
+        let qd = SVector::from([0.4 * w * (w * t).cos(), 0.5 * w * (w * t + 1.0).cos()]);
+        let f = SVector::from([3.0 * (w * t + 0.3).sin(), 5.0 * (w * t + 0.7).sin()]);
+        (q, qd, f)
+    }
+    fn measure(
+        &mut self,
+        k: usize,
+        (q, qd, f): (SVector<f64, 2>, SVector<f64, 2>, SVector<f64, 2>),
+    ) -> Measurement<2> {
+        Measurement {
+            t: k as f64 * self.dt,
+            q,
+            qd: self.qd_f.push(qd),
+            force: self.f_f.push(f),
+        }
+    }
+}
+
+/// Steps from the fault's onset until `signal` of joint 1 is rejected, for a fault applied to
+/// the raw sample from step 300 on by `corrupt`; `None` if it is never flagged in 20 steps.
+fn delay(
+    signal: usize,
+    corrupt: impl Fn(&mut (SVector<f64, 2>, SVector<f64, 2>, SVector<f64, 2>), usize),
+) -> Option<usize> {
+    let mut g = Gait::new();
+    let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
+    for k in 0..320 {
+        let mut raw = g.raw(k);
+        if k >= 300 {
+            corrupt(&mut raw, k);
+        }
+        let m = g.measure(k, raw);
+        guard.repair(&m, Some(1.0), 50, None);
+        if k < 300 {
+            assert!(!guard.is_rejected(signal, 1), "false alarm at step {k}");
+        } else if guard.is_rejected(signal, 1) {
+            return Some(k - 300);
+        }
+    }
+    None
+}
+
+/// Detection delays (docs/RELIABILITY.md §2), on a 1-Hz sine gait through the 5-sample filter
+/// at 10 ms: non-finite and out-of-range samples in the same sample, an encoder spike in the
+/// same sample, a stuck encoder within one sample, a velocity spike, NaN or stuck velocity
+/// within 30 ms, a strap-force spike in the same sample; a stuck (frozen) strap force once its
+/// filter window repeats (≤ 50 ms), without a false alarm on the clean gait before.
+#[test]
+fn each_fault_kind_is_flagged_within_its_stated_delay() {
+    let held = |sig: usize| {
+        let g = Gait::new();
+        let v = match sig {
+            0 => g.raw(300).0[1],
+            1 => g.raw(300).1[1],
+            _ => g.raw(300).2[1],
+        };
+        move |r: &mut (SVector<f64, 2>, SVector<f64, 2>, SVector<f64, 2>), _k: usize| match sig {
+            0 => r.0[1] = v,
+            1 => r.1[1] = v,
+            _ => r.2[1] = v,
+        }
+    };
+    let cases: [(&str, usize, Option<usize>, usize); 9] = [
+        ("q NaN", 0, delay(0, |r, _| r.0[1] = f64::NAN), 0),
+        ("q out of range", 0, delay(0, |r, _| r.0[1] = 4.0), 0),
+        ("q spike 0.5 rad", 0, delay(0, |r, _| r.0[1] += 0.5), 0),
+        ("q stuck", 0, delay(0, held(0)), 1),
+        ("qd NaN", 1, delay(1, |r, _| r.1[1] = f64::NAN), 0),
+        ("qd spike 0.5 rad/s", 1, delay(1, |r, _| r.1[1] += 0.5), 3),
+        ("qd stuck", 1, delay(1, held(1)), 3),
+        ("F spike 30 N", 2, delay(2, |r, _| r.2[1] += 30.0), 0),
+        ("F stuck", 2, delay(2, held(2)), 5),
+    ];
+    for (what, _sig, got, within) in cases {
+        let d = got.unwrap_or_else(|| panic!("{what}: not flagged"));
+        assert!(
+            d <= within,
+            "{what}: flagged after {d} steps, stated {within}"
+        );
+    }
+}
+
+/// A strap force that rails at full scale and comes back is a real force: the range check
+/// handles the full-scale samples, and the in-range samples right after them are not gated
+/// against an extrapolation through the estimate that stood in for the rail (the 1.3 Hz, 3 kg
+/// envelope cell, whose 67 N·m gait saturates the ±70 N sensor every half period).
+#[test]
+fn a_force_back_from_full_scale_is_not_rejected() {
+    let dt = 0.01;
+    let mut guard = ChannelGuard::<1>::new(dt, 5, [3.0, 20.0, 70.0]);
+    let w = 2.0 * std::f64::consts::PI * 1.3;
+    for k in 0..400 {
+        let t = k as f64 * dt;
+        let f = (100.0 * (w * t).sin()).clamp(-70.0, 70.0);
+        let m = Measurement {
+            t,
+            q: SVector::from([0.3 * (w * t).sin()]),
+            qd: SVector::from([0.3 * w * (w * t).cos()]),
+            force: SVector::from([f]),
+        };
+        guard.repair(&m, None, 10, None);
+        if f.abs() < 70.0 {
+            assert!(
+                !guard.is_rejected(2, 0),
+                "in-range force {f} N rejected at {t} s"
+            );
+        }
+    }
+}
