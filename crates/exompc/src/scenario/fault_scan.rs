@@ -2,8 +2,9 @@
 //! durations × start times × payloads, each run against the same run without the fault, with
 //! a verdict per cell (peak true strap force, RMS ratio, monitor trips, held steps, latch).
 
-use super::build::TwoDof;
-use super::run::{run_experiment_report, RunError};
+use super::error::RunError;
+use super::layout::TwoDof;
+use super::run::run_experiment_report;
 use crate::config::Scenario;
 use crate::sim::{Channel, FaultEvent, FaultKind, Recorder, StepRecord};
 use rayon::prelude::*;

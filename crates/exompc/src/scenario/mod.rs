@@ -19,13 +19,13 @@ pub use build::{
     multistage_nmpc_settings, nmpc_settings,
 };
 pub use error::RunError;
-pub use info::{Builder, ControllerInfo};
-pub use layout::{
-    gait_demand, plant_params, prediction_model, scenario_robot, uncertainty, Dof, OneDof, TwoDof,
-};
 pub use fault_scan::{
     cell_scenario, fault_scan_markdown, peak_goal_n, run_fault_scan, spike_magnitude, ChannelGroup,
     FaultCell, FaultGrid, RMS_RATIO_GOAL,
+};
+pub use info::{Builder, ControllerInfo};
+pub use layout::{
+    gait_demand, plant_params, prediction_model, scenario_robot, uncertainty, Dof, OneDof, TwoDof,
 };
 pub use registry::{
     build_controller, build_supervised, controller_by_name, controller_info, controllers,
