@@ -54,7 +54,7 @@ pub fn check(what: &str) -> Result<(), CliError> {
 }
 
 /// A recorder that ends the run once a stop was requested (the library's
-/// [`StopWhen`](exompc::sim::StopWhen) on [`requested`]: the run returns its summary so far).
+/// [`exompc::sim::StopWhen`] on [`requested`]: the run returns its summary so far).
 /// Put it after the recorders that must see the last step (the trace), so that they and the
 /// summary agree.
 pub fn stop_on_interrupt() -> StopWhen<fn() -> bool> {

@@ -159,7 +159,7 @@ fn scan_until_stops_when_asked() {
     let rms = |e: &Envelope| -> Vec<_> {
         e.runs
             .iter()
-            .map(|r| r.summary.as_ref().map(|x| x.rms_force_n.clone()))
+            .map(|r| r.summary.as_ref().map(|x| x.rms_force_n))
             .collect()
     };
     assert!(full.runs.iter().all(|r| r.error.is_none()));

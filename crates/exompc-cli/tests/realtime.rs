@@ -770,7 +770,9 @@ fn run_reports_the_latch_like_simulate() {
     );
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
-        stdout.contains(&format!("latched at {t:.2} s (handover 1)")),
+        stdout.contains(&format!(
+            "latched at {t:.2} s by torque_oscillation (handover 1)"
+        )),
         "{stdout}"
     );
 }

@@ -64,6 +64,8 @@ pub struct ChannelGuard<const N: usize> {
     gates: [f64; 3],
     /// Estimate history per signal (ring of `len` samples).
     hist: [Vec<SVector<f64, N>>; 3],
+    /// Time of the last measurement (s; NaN before the first).
+    last_t: f64,
     pos: usize,
     filled: usize,
     /// Raw previous two samples per signal (bit-exact repeats, smoothness).
@@ -161,6 +163,7 @@ impl<const N: usize> ChannelGuard<N> {
             res_ms: [SVector::zeros(); 3],
             res_alpha: 1.0 - (-dt / RESIDUAL_TAU_S).exp(),
             railed: [false; N],
+            last_t: f64::NAN,
         }
     }
 
@@ -201,6 +204,13 @@ impl<const N: usize> ChannelGuard<N> {
         resync_after: u64,
         model: Option<(SVector<f64, N>, SVector<f64, N>)>,
     ) -> Repaired<N> {
+        // A gap in the data (the runtime does not step the controller in a period without a
+        // sample): the extrapolations and the stuck test assume one period per call, so they
+        // restart from this sample, as the EKF bank resumes (`EkfBank::resume_at`).
+        if m.t - self.last_t > 1.5 * self.dt {
+            self.filled = 0;
+        }
+        self.last_t = m.t;
         let warm = self.filled > self.window + 2;
         let vals = [m.q, m.qd, m.force];
         let mut out = vals;
