@@ -1,0 +1,12 @@
+//! CAN for exompc: classic CAN frames ([`CanFrame`]), the transport trait every bus implements
+//! ([`CanBus`]: send and receive with timeouts, error counters, the controller's error state),
+//! and on top of it the drives and sensor nodes that `exompc run --config` talks to.
+//!
+//! The numerical core of `exompc` knows nothing of CAN; this crate meets it at the runtime's
+//! robot boundary ([`exompc::runtime::RobotInterface`]).
+
+mod bus;
+mod frame;
+
+pub use bus::{BusCounters, BusError, BusState, CanBus};
+pub use frame::{CanFrame, CanId, FrameError, MAX_EXTENDED_ID, MAX_STANDARD_ID};
