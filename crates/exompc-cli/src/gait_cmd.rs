@@ -37,11 +37,11 @@ struct ExportArgs {
         long,
         value_name = "HZ",
         default_value_t = 100.0,
-        allow_negative_numbers = true
+        allow_hyphen_values = true
     )]
     rate: f64,
     /// Length (s); default: the scenario's run length of the layout (timing.duration_Ndof_s).
-    #[arg(long, value_name = "S", allow_negative_numbers = true)]
+    #[arg(long, value_name = "S", allow_hyphen_values = true)]
     duration: Option<f64>,
     /// Output CSV file; default `out/gait/gait_<dof>dof.csv`.
     #[arg(long, value_name = "FILE")]

@@ -15,7 +15,7 @@
 
 use crate::args::ConfigOpt;
 use clap::Args;
-use exompc::config::Scenario;
+use exompc::config::{Scenario, MAX_PAYLOAD_KG};
 use exompc::model::{rk4_step, Chain, Friction, JointState, RobotModel};
 use exompc::scenario::{Dof, OneDof, TwoDof};
 use exompc::sim::{robot_model, HumanLeg};
@@ -91,9 +91,9 @@ fn evaluate(s: &Scenario, inp: &ModelInput) -> Result<Value, CliError> {
                 ));
             }
             let payload = inp.payload_kg.unwrap_or(0.0);
-            if !(payload.is_finite() && payload >= 0.0) {
+            if !(payload.is_finite() && (0.0..=MAX_PAYLOAD_KG).contains(&payload)) {
                 return Err(CliError::Usage(format!(
-                    "field `payload_kg` must be a finite mass >= 0 (kg), found {payload}"
+                    "field `payload_kg` must be a finite mass in [0, {MAX_PAYLOAD_KG}] kg, found {payload}"
                 )));
             }
             if n == 2 {
@@ -195,7 +195,8 @@ fn report<const N: usize>(
         && finite(&next.qd))
     {
         return Err(CliError::Usage(
-            "the model is not finite at this input (values too large?)".into(),
+            "the model is not finite at this input: `q`, `qd`, `tau`, `dt` or the mass is too large for f64"
+                .into(),
         ));
     }
     let rows: Vec<Vec<f64>> = (0..N)

@@ -815,10 +815,10 @@ pub(crate) struct VirtualRobotArgs {
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=2))]
     dof: u8,
     /// Override `uncertainty.payload_kg` (kg).
-    #[arg(long, value_name = "KG", allow_negative_numbers = true)]
+    #[arg(long, value_name = "KG", allow_hyphen_values = true)]
     payload: Option<f64>,
     /// Override the run length (s) of the chosen experiment.
-    #[arg(long, value_name = "S", allow_negative_numbers = true)]
+    #[arg(long, value_name = "S", allow_hyphen_values = true)]
     duration: Option<f64>,
     /// Address to listen on (port 0: any free port, printed on stdout).
     #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:7300")]

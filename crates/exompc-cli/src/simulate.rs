@@ -24,10 +24,10 @@ pub(crate) struct SimulateArgs {
     #[arg(long, value_enum)]
     pub(crate) formulation: Option<FormulationArg>,
     /// Override `uncertainty.payload_kg` (kg).
-    #[arg(long, value_name = "KG", allow_negative_numbers = true)]
+    #[arg(long, value_name = "KG", allow_hyphen_values = true)]
     pub(crate) payload: Option<f64>,
     /// Override the run length (s) of the chosen experiment.
-    #[arg(long, value_name = "S", allow_negative_numbers = true)]
+    #[arg(long, value_name = "S", allow_hyphen_values = true)]
     pub(crate) duration: Option<f64>,
     /// Output folder for `trace.csv` and `summary.json`.
     #[arg(long, value_name = "DIR", default_value = "out/simulate")]

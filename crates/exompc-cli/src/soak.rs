@@ -24,7 +24,7 @@ pub(crate) struct SoakArgs {
         long,
         value_name = "H",
         default_value_t = 1.0,
-        allow_negative_numbers = true
+        allow_hyphen_values = true
     )]
     hours: f64,
     /// True payload (kg).
@@ -32,7 +32,7 @@ pub(crate) struct SoakArgs {
         long,
         value_name = "KG",
         default_value_t = 2.0,
-        allow_negative_numbers = true
+        allow_hyphen_values = true
     )]
     payload: f64,
     /// Output folder for `soak.json` (and `soak_trace.csv`).

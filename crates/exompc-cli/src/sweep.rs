@@ -43,7 +43,7 @@ pub(crate) struct SweepArgs {
     #[arg(long, value_enum)]
     formulation: Option<FormulationArg>,
     /// Override the run length (s) of the chosen experiment.
-    #[arg(long, value_name = "S", allow_negative_numbers = true)]
+    #[arg(long, value_name = "S", allow_hyphen_values = true)]
     duration: Option<f64>,
     /// Output folder.
     #[arg(long, value_name = "DIR", default_value = "out/sweep")]

@@ -46,6 +46,17 @@ fn every_numeric_flag_out_of_range_exits_2_naming_flag_and_range() {
             "--payload -inf",
             "[0, 20] kg",
         ),
+        // A value starting with a hyphen after a space is the flag's value, not another flag.
+        (
+            &["simulate", "--payload", "-inf"],
+            "--payload -inf",
+            "[0, 20] kg",
+        ),
+        (
+            &["simulate", "--duration", "-inf"],
+            "--duration -inf",
+            ">= 0.01",
+        ),
         (&["simulate", "--dof", "3"], "--dof", "1..=2"),
         (
             &["simulate", "--gait", g],
@@ -68,6 +79,11 @@ fn every_numeric_flag_out_of_range_exits_2_naming_flag_and_range() {
         (&["soak", "--hours", "-1"], "--hours -1", "(0, 100] h"),
         (&["soak", "--hours", "nan"], "--hours NaN", "(0, 100] h"),
         (&["soak", "--payload", "21"], "--payload 21", "[0, 20] kg"),
+        (
+            &["soak", "--payload", "-inf"],
+            "--payload -inf",
+            "[0, 20] kg",
+        ),
         (
             &["soak", "--trace-every", "-1"],
             "--trace-every",
@@ -191,5 +207,26 @@ fn every_numeric_key_out_of_range_exits_2_naming_key_file_and_range() {
     assert_eq!(r.status.code(), Some(2), "{err}");
     for part in ["kp.toml", "human.kp", "1e308", "> 0", "±1e9"] {
         assert!(err.contains(part), "must name `{part}`: {err}");
+    }
+}
+
+#[test]
+fn model_input_out_of_range_exits_2_naming_field_and_range() {
+    for (input, names) in [
+        (
+            r#"{"link":"robot","payload_kg":1e308,"q":[0.2,-0.5],"qd":[0.5,-1.0],"tau":[3.0,1.0],"dt":0.01}"#,
+            ["`payload_kg`", "[0, 20] kg"],
+        ),
+        (
+            r#"{"link":"robot","payload_kg":1,"q":[0.2,-0.5],"qd":[0.5,-1.0],"tau":[1e308,1.0],"dt":1e9}"#,
+            ["not finite", "`tau`"],
+        ),
+    ] {
+        let r = common::exompc_stdin(&["model"], input);
+        let err = stderr(&r);
+        assert_eq!(r.status.code(), Some(2), "{input}: {err}");
+        for n in names {
+            assert!(err.contains(n), "{input} must name `{n}`: {err}");
+        }
     }
 }

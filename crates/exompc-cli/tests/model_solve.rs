@@ -2,31 +2,15 @@
 //! §8): the closed-form double pendulum, the parallel-axis payload, plant friction, an RK4
 //! step, and the NMPC constraints.
 
+mod common;
+
+use common::exompc_stdin as run;
 use nalgebra::{Matrix2, Vector2};
 use serde_json::Value;
-use std::io::Write;
-use std::process::{Command, Output, Stdio};
 
 const G: f64 = 9.81;
 const KF1: f64 = 0.000899;
 const KF2: f64 = 0.05048;
-
-fn run(args: &[&str], stdin: &str) -> Output {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_exompc"))
-        .args(args)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("spawn exompc");
-    child
-        .stdin
-        .take()
-        .unwrap()
-        .write_all(stdin.as_bytes())
-        .unwrap();
-    child.wait_with_output().unwrap()
-}
 
 fn ok_json(args: &[&str], stdin: &str) -> Value {
     let out = run(args, stdin);

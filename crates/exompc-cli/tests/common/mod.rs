@@ -1,8 +1,9 @@
 //! Helpers shared by the CLI integration tests: run the `exompc` binary, scratch paths.
 #![allow(dead_code)]
 
+use std::io::Write;
 use std::path::PathBuf;
-use std::process::{Command, Output};
+use std::process::{Command, Output, Stdio};
 
 /// Run the `exompc` binary built for these tests with `args`.
 pub fn exompc(args: &[&str]) -> Output {
@@ -10,6 +11,24 @@ pub fn exompc(args: &[&str]) -> Output {
         .args(args)
         .output()
         .expect("run exompc")
+}
+
+/// Run the `exompc` binary with `args`, writing `stdin` to its standard input.
+pub fn exompc_stdin(args: &[&str], stdin: &str) -> Output {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_exompc"))
+        .args(args)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn exompc");
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(stdin.as_bytes())
+        .unwrap();
+    child.wait_with_output().unwrap()
 }
 
 /// A path `name` in this test binary's own scratch folder (`exompc-<test>-tests` below
