@@ -121,7 +121,9 @@ impl PyScenario {
     }
 
     /// A copy with the given keys set: ``s.replace({"uncertainty.payload_kg": 1.0})`` or
-    /// ``s.replace(**{"controller.np": 30})``.
+    /// ``s.replace(**{"controller.np": 30})``. The keys are validated together, so keys that
+    /// depend on each other change in one call: ``s.replace({"trajectory.kind": "recorded",
+    /// "trajectory.file": "walk.csv"})`` (a gait file is read relative to the working folder).
     #[pyo3(signature = (updates = None, **kwargs))]
     fn replace(
         &self,
@@ -129,13 +131,17 @@ impl PyScenario {
         kwargs: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
         catch(|| {
-            let mut s = self.clone();
+            let mut changes = Vec::new();
             for d in [updates, kwargs].into_iter().flatten() {
                 for (k, v) in d.iter() {
-                    s.set(&k.extract::<String>()?, &v)?;
+                    let key = k.extract::<String>()?;
+                    let value = py_to_toml(&key, &v)?;
+                    changes.push((key, value));
                 }
             }
-            Ok(s)
+            let inner = io::set_keys(&self.inner, &changes, std::path::Path::new(""))
+                .map_err(config_err)?;
+            Ok(Self { inner })
         })
     }
 

@@ -1,5 +1,7 @@
 """Monte Carlo studies: reproducible draws, error rows, and Ray == local."""
 
+import pathlib
+
 import numpy as np
 import pytest
 
@@ -72,3 +74,26 @@ def test_ray_backend_equals_local():
         ray.shutdown()
     assert (local["error"] == "").all()
     assert_same_table(local, remote)
+
+
+def test_recorded_gaits_are_a_parameter():
+    root = pathlib.Path(__file__).resolve().parents[3]
+    gaits = sorted(str(p) for p in (root / "examples" / "gaits").glob("walk_*hz.csv"))
+    assert len(gaits) == 3
+    params = {
+        "trajectory.kind": exompc.Choice(["recorded"]),
+        "trajectory.file": exompc.Choice(gaits),
+    }
+    tab = exompc.montecarlo(3, params, short(), seed=1, progress=False)
+    assert list(tab["error"]) == ["", "", ""], tab["error"]
+    for i in range(3):
+        s = short().replace({"trajectory.kind": "recorded", "trajectory.file": tab["trajectory.file"][i]})
+        one = exompc.simulate(s, trace=False)
+        assert tab["rms_force_thigh_n"][i] == one["rms_force_n"]["thigh"]
+    # Different gaits give different runs.
+    by_gait = {f: r for f, r in zip(tab["trajectory.file"], tab["rms_force_thigh_n"])}
+    if len(by_gait) > 1:
+        assert len(set(by_gait.values())) == len(by_gait)
+    # A kind without its file is still refused, naming the key.
+    with pytest.raises(exompc.ConfigError, match="trajectory.file"):
+        short().replace({"trajectory.kind": "recorded"})
