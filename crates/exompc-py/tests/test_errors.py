@@ -244,3 +244,58 @@ def test_ctrl_c_interrupts_long_calls_and_leaves_the_process_usable():
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+RAY_CHILD = textwrap.dedent(
+    """
+    import ray
+    import exompc
+
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    long = exompc.Scenario.default().replace({"timing.duration_2dof_s": 2e4})
+    try:
+        print("ready", flush=True)
+        exompc.montecarlo(4, {"uncertainty.payload_kg": exompc.Uniform(0.0, 2.0)}, long,
+                          backend="ray", progress=False)
+        print("finished", flush=True)
+    except KeyboardInterrupt:
+        print("caught KeyboardInterrupt", flush=True)
+    short = exompc.Scenario.default().replace({"timing.duration_2dof_s": 0.5})
+    t = exompc.montecarlo(2, {"uncertainty.payload_kg": exompc.Uniform(0.0, 2.0)}, short,
+                          backend="ray", progress=False)
+    print("ray usable", list(t["error"]) == ["", ""], flush=True)
+    ray.shutdown()
+    """
+)
+
+
+def test_ctrl_c_interrupts_a_ray_study_and_leaves_ray_usable():
+    """SIGINT during a Ray Monte Carlo of long runs raises KeyboardInterrupt (the pending
+    tasks are cancelled); a short study on the same Ray instance afterwards completes."""
+    pytest.importorskip("ray")
+    proc = subprocess.Popen([sys.executable, "-c", RAY_CHILD], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    lines: "queue.Queue[str]" = queue.Queue()
+    reader = threading.Thread(target=lambda: [lines.put(x.strip()) for x in proc.stdout],
+                              daemon=True)
+    reader.start()
+    seen = []
+
+    def next_line():
+        try:
+            seen.append(lines.get(timeout=120))
+        except queue.Empty:
+            pytest.fail(f"no answer from the child within 120 s; so far {seen}")
+        return seen[-1]
+
+    try:
+        assert next_line() == "ready", seen
+        time.sleep(3.0)  # the tasks are running in the Ray workers
+        proc.send_signal(signal.SIGINT)
+        assert next_line() == "caught KeyboardInterrupt", seen
+        assert next_line() == "ray usable True", seen
+        assert proc.wait(timeout=120) == 0, proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
