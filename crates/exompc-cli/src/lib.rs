@@ -1,16 +1,13 @@
-//! Library part of the `exompc` command-line tool: error type, file I/O helpers, the streamed
-//! trace format and the single-run driver shared by the subcommands (and usable from the CLI's
-//! integration tests).
+//! Library part of the `exompc` command-line tool: the streamed trace format, the single-run
+//! driver and the verdicts shared by the subcommands (and usable from the CLI's integration
+//! tests). Scenario files, gaits, the envelope scan, the error type and the interrupt flag are
+//! in `exompc-study` (shared with the Python package and the fuzz targets), re-exported here.
 #![warn(missing_docs)]
 
-pub mod config_help;
+pub use exompc_study::{config_help, envelope, error, gait, interrupt, io};
+
 pub mod earlier;
-pub mod envelope;
-pub mod error;
 pub mod explain;
-pub mod gait;
-pub mod interrupt;
-pub mod io;
 pub mod layout;
 pub mod run;
 pub mod trace;

@@ -183,6 +183,43 @@ fn commands_are_leaves_and_there_is_no_circle() {
     );
 }
 
+/// Issue 31.3: what a library user needs is outside the binary's crate: the Python package,
+/// the fuzz targets and `exompc-study` do not depend on `exompc-cli`, and `exompc-study` has no
+/// import circle.
+#[test]
+fn python_and_fuzz_do_not_depend_on_the_cli_crate() {
+    let crates = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    for manifest in [
+        "exompc-py/Cargo.toml",
+        "exompc-study/Cargo.toml",
+        "../fuzz/Cargo.toml",
+    ] {
+        let text = std::fs::read_to_string(crates.join(manifest)).unwrap();
+        let deps: Vec<&str> = text
+            .lines()
+            .map(str::trim)
+            .filter(|l| !l.starts_with('#'))
+            .filter(|l| l.starts_with("exompc"))
+            .collect();
+        assert!(
+            deps.iter().any(|l| l.starts_with("exompc ")),
+            "{manifest} must depend on the library: {deps:?}"
+        );
+        assert!(
+            deps.iter().all(|l| !l.starts_with("exompc-cli")),
+            "{manifest} depends on the CLI crate: {deps:?}"
+        );
+    }
+    let src = crates.join("exompc-study/src");
+    let (_, study) = read_target(&src, "lib.rs", "pub mod ");
+    assert!(study.len() >= 5, "found only {} modules", study.len());
+    assert_eq!(
+        find_circle(&graph(&study, "lib")),
+        None,
+        "import circle in exompc-study"
+    );
+}
+
 #[test]
 fn the_scan_finds_command_imports_and_circles() {
     let m = |name: &str, text: &str| (name.to_string(), text.to_string());

@@ -59,7 +59,7 @@ pub fn toml_to_py<'py>(py: Python<'py>, v: &toml::Value) -> PyResult<Bound<'py, 
 const MAX_DEPTH: usize = 16;
 
 /// A Python value as TOML, for setting a scenario key. Strings go through
-/// [`exompc_cli::io::parse_value`] exactly as a value typed on the command line.
+/// [`exompc_study::io::parse_value`] exactly as a value typed on the command line.
 pub fn py_to_toml(key: &str, v: &Bound<'_, PyAny>) -> PyResult<toml::Value> {
     to_toml_at(key, v, 0)
 }
@@ -82,7 +82,7 @@ fn to_toml_at(key: &str, v: &Bound<'_, PyAny>, depth: usize) -> PyResult<toml::V
         return Ok(toml::Value::Float(v.extract()?));
     }
     if let Ok(s) = v.cast::<PyString>() {
-        return Ok(exompc_cli::io::parse_value(&s.to_cow()?));
+        return Ok(exompc_study::io::parse_value(&s.to_cow()?));
     }
     if let Ok(d) = v.cast::<PyDict>() {
         let mut t = toml::Table::new();

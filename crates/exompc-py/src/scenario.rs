@@ -1,11 +1,11 @@
 //! `exompc.Scenario`: a validated scenario, loaded and saved as TOML, read and written key by
-//! key with the CLI's checks and messages (`exompc_cli::io`).
+//! key with the CLI's checks and messages (`exompc_study::io`).
 
 use crate::convert::{py_to_toml, toml_to_py};
 use crate::guard::{catch, os_error};
 use crate::ConfigError;
 use exompc::config::Scenario;
-use exompc_cli::io;
+use exompc_study::io;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyTuple};
 use std::io::Write;

@@ -8,7 +8,7 @@ use crate::{ConfigError, RunError};
 use exompc::config::Scenario;
 use exompc::scenario::{plant_params, run_experiment, uncertainty, Dof, OneDof, TwoDof};
 use exompc::sim::{Plant, Recorder, Sensors, StepRecord, StopWhen, Summary, Trajectory};
-use exompc_cli::io::{parse_value, set_key};
+use exompc_study::io::{parse_value, set_key};
 use numpy::{PyArray1, PyArrayMethods};
 use pyo3::exceptions::PyMemoryError;
 use pyo3::prelude::*;
@@ -551,7 +551,7 @@ pub fn envelope_json<'py>(
     monitors: bool,
     cancel: Option<PyRef<'py, CancelToken>>,
 ) -> PyResult<String> {
-    use exompc_cli::envelope::{scan_until, without_monitors, Grid};
+    use exompc_study::envelope::{scan_until, without_monitors, Grid};
     catch(|| {
         let dof = dof_arg(dof)?;
         let mut base = scenario.map_or_else(Scenario::default, |s| s.inner.clone());
