@@ -22,7 +22,7 @@ stops a long call (the process stays usable). See docs/PYTHON.md.
 from __future__ import annotations
 
 import itertools
-from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence
+from typing import Any, Dict, Iterable, List, Literal, Mapping, Optional, Sequence
 
 import numpy as np
 
@@ -119,21 +119,21 @@ def simulate(
 class MultiStage(Controller):
     """The multi-stage robust NMPC (paper §3.2): ``MultiStage(scenario, dof=2)``."""
 
-    def __new__(cls, scenario: Optional[Scenario] = None, *, dof: int = 2, supervised: bool = True):
+    def __new__(cls, scenario: Optional[Scenario] = None, *, dof: Literal[1, 2] = 2, supervised: bool = True) -> "MultiStage":
         return super().__new__(cls, scenario, "msnmpc", dof=dof, supervised=supervised)
 
 
 class Nmpc(Controller):
     """The non-robust NMPC on the nominal model (paper §3.1): ``Nmpc(scenario, dof=2)``."""
 
-    def __new__(cls, scenario: Optional[Scenario] = None, *, dof: int = 2, supervised: bool = True):
+    def __new__(cls, scenario: Optional[Scenario] = None, *, dof: Literal[1, 2] = 2, supervised: bool = True) -> "Nmpc":
         return super().__new__(cls, scenario, "nmpc", dof=dof, supervised=supervised)
 
 
 class Pd(Controller):
     """The baseline PD on the estimated human intent: ``Pd(scenario, dof=2)``."""
 
-    def __new__(cls, scenario: Optional[Scenario] = None, *, dof: int = 2, supervised: bool = True):
+    def __new__(cls, scenario: Optional[Scenario] = None, *, dof: Literal[1, 2] = 2, supervised: bool = True) -> "Pd":
         return super().__new__(cls, scenario, "pd", dof=dof, supervised=supervised)
 
 
@@ -165,7 +165,7 @@ def scan(
     *,
     dof: int = 2,
     threads: Optional[int] = None,
-    errors: str = "return",
+    errors: Literal["raise", "return"] = "return",
     cancel: Optional[CancelToken] = None,
 ) -> Dict[str, np.ndarray]:
     """Envelope scan: every combination of the dotted-key values in ``grid``, run in parallel.

@@ -1,16 +1,34 @@
 """Type stubs of the native module ``exompc._core`` (re-exported by ``exompc``)."""
 
 from os import PathLike
-from typing import Any, Dict, List, Literal, Mapping, Optional, Sequence, Tuple, Union
+from typing import Any, Dict, List, Literal, Mapping, Optional, Sequence, Tuple, TypeVar, Union, final
 
 import numpy as np
 import numpy.typing as npt
 
+__all__ = [
+    "STATUS_NAMES",
+    "CancelToken",
+    "ConfigError",
+    "Controller",
+    "RunError",
+    "Scenario",
+    "Simulator",
+    "__version__",
+    "_raise_panic",
+    "default_config_toml",
+    "envelope_json",
+    "run_many",
+    "simulate",
+]
+
+_C = TypeVar("_C", bound="Controller")
+
 __version__: str
 STATUS_NAMES: List[str]
 
-FloatVec = Union[npt.NDArray[np.float64], Sequence[float], float]
-Status = Literal["ok", "max_iterations", "max_time", "solver_failed", "bad_measurement", "monitor_tripped"]
+_FloatVec = Union[npt.NDArray[np.float64], Sequence[float], float]
+_Status = Literal["ok", "max_iterations", "max_time", "solver_failed", "bad_measurement", "monitor_tripped"]
 
 class ConfigError(ValueError):
     """A scenario value, key or argument is invalid (or a run too long for the memory
@@ -19,6 +37,7 @@ class ConfigError(ValueError):
 class RunError(RuntimeError):
     """A run could not complete (the simulated plant diverged) or was cancelled."""
 
+@final
 class CancelToken:
     """Stops the long calls it is passed to (``cancel=``) between two control steps, from any
     thread; they raise ``RunError``. A cancelled token stays cancelled."""
@@ -28,10 +47,11 @@ class CancelToken:
     @property
     def cancelled(self) -> bool: ...
 
+@final
 class Scenario:
     """A complete, validated scenario; keys are dotted paths such as ``"uncertainty.payload_kg"``."""
 
-    def __init__(self, toml: Optional[str] = None) -> None: ...
+    def __new__(cls, toml: Optional[str] = None) -> Scenario: ...
     @staticmethod
     def default() -> Scenario: ...
     @staticmethod
@@ -49,9 +69,9 @@ class Scenario:
     def copy(self) -> Scenario: ...
     def __copy__(self) -> Scenario: ...
     def __deepcopy__(self, memo: Any) -> Scenario: ...
-    def __getitem__(self, key: str) -> Any: ...
-    def __setitem__(self, key: str, value: Any) -> None: ...
-    def __eq__(self, other: object) -> bool: ...
+    def __getitem__(self, key: str, /) -> Any: ...
+    def __setitem__(self, key: str, value: Any, /) -> None: ...
+    def __eq__(self, other: object, /) -> bool: ...
 
 class Controller:
     """A feedback controller of the scenario with one ``step`` call per control period.
@@ -59,22 +79,22 @@ class Controller:
     Bound to the thread that created it: a call from another thread raises ``RuntimeError``.
     """
 
-    def __init__(
-        self,
+    def __new__(
+        cls: type[_C],
         scenario: Optional[Scenario] = None,
         kind: Optional[Literal["pd", "nmpc", "msnmpc"]] = None,
         *,
         dof: Literal[1, 2] = 2,
         supervised: bool = True,
-    ) -> None: ...
+    ) -> _C: ...
     def step(
         self,
         t: float,
-        q: FloatVec,
-        qd: FloatVec,
-        force: FloatVec,
+        q: _FloatVec,
+        qd: _FloatVec,
+        force: _FloatVec,
         out: Optional[npt.NDArray[np.float64]] = None,
-    ) -> Tuple[npt.NDArray[np.float64], Status]: ...
+    ) -> Tuple[npt.NDArray[np.float64], _Status]: ...
     def reset(self) -> None: ...
     @property
     def name(self) -> str: ...
@@ -89,10 +109,11 @@ class Controller:
     @property
     def previous_torque(self) -> npt.NDArray[np.float64]: ...
 
+@final
 class Simulator:
     """The simulated plant and sensor chain, to close the loop from Python (thread-safe)."""
 
-    def __init__(self, scenario: Optional[Scenario] = None, *, dof: Literal[1, 2] = 2) -> None: ...
+    def __new__(cls, scenario: Optional[Scenario] = None, *, dof: Literal[1, 2] = 2) -> Simulator: ...
     @property
     def steps(self) -> int: ...
     @property
@@ -102,7 +123,7 @@ class Simulator:
     def measure(
         self,
     ) -> Tuple[float, npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]: ...
-    def advance(self, torque: FloatVec) -> None: ...
+    def advance(self, torque: _FloatVec) -> None: ...
     def state(self) -> Dict[str, Any]: ...
 
 def simulate(

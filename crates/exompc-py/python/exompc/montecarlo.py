@@ -254,7 +254,7 @@ def montecarlo(
             row["error"] = str(e)
 
     bar = _Progress(draws, f"montecarlo[{backend}]", progress)
-    todo = [i for i, s in enumerate(scenarios) if s is not None]
+    todo = {i: s for i, s in enumerate(scenarios) if s is not None}
     bar.update(draws - len(todo))
     results: Dict[int, Dict[str, Any]] = {}
     if backend == "local":
@@ -262,7 +262,7 @@ def montecarlo(
         stop = _core.CancelToken()
         pool = cf.ThreadPoolExecutor(max_workers=n)
         try:
-            futs = {pool.submit(_run_one, scenarios[i], dof, stop): i for i in todo}
+            futs = {pool.submit(_run_one, s, dof, stop): i for i, s in todo.items()}
             for f in cf.as_completed(futs):
                 results[futs[f]] = f.result()
                 bar.update()
@@ -274,15 +274,14 @@ def montecarlo(
         finally:
             pool.shutdown(wait=True, cancel_futures=True)
     else:
-        results = _run_ray(todo, scenarios, dof, bar, ray_address)
+        results = _run_ray(todo, dof, bar, ray_address)
     for i, r in results.items():
         rows[i].update(r)
     return _columns(rows)
 
 
 def _run_ray(
-    todo: List[int],
-    scenarios: Sequence[Optional["_core.Scenario"]],
+    todo: Mapping[int, "_core.Scenario"],
     dof: int,
     bar: _Progress,
     ray_address: Optional[str],
@@ -295,7 +294,7 @@ def _run_ray(
         ray.init(address=ray_address)
     remote = ray.remote(num_cpus=1)(_run_one)
     # Scenarios travel as TOML text (Scenario pickles through it).
-    refs = {remote.remote(scenarios[i], dof): i for i in todo}
+    refs = {remote.remote(s, dof): i for i, s in todo.items()}
     results: Dict[int, Dict[str, Any]] = {}
     pending = list(refs)
     try:
