@@ -211,12 +211,8 @@ impl<const N: usize> Recorder<N> for CsvTrace {
                 );
             }
         }
-        let status = serde_json::to_value(r.status)
-            .ok()
-            .and_then(|v| v.as_str().map(str::to_string))
-            .unwrap_or_default();
         use std::fmt::Write as _;
-        let _ = writeln!(l, "{status},{},{}", r.iterations, r.step_time_us);
+        let _ = writeln!(l, "{},{},{}", r.status.name(), r.iterations, r.step_time_us);
         self.out.write_all(l.as_bytes())
     }
 }

@@ -5,7 +5,7 @@
 //! thread. A call from another thread raises `RuntimeError` naming the rule (the Rust
 //! controllers are not `Send`: the registry may hold any controller).
 
-use crate::convert::{array, status_code, vector, write_into, STATUS_NAMES};
+use crate::convert::{array, vector, write_into, STATUS_NAMES};
 use crate::guard::catch;
 use crate::scenario::PyScenario;
 use crate::simulate::{dof_arg, overrides};
@@ -138,7 +138,7 @@ impl PyController {
         o: ControlOutput<N>,
         out: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyString>)> {
-        let status = self.status_names[usize::from(status_code(o.status))]
+        let status = self.status_names[usize::from(o.status.code())]
             .bind(py)
             .clone();
         let torque = match out {

@@ -7,27 +7,16 @@ use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyList, PyString, PyTuple};
 
-/// Names of the step outcomes, indexed by [`status_code`].
-pub const STATUS_NAMES: [&str; 6] = [
-    "ok",
-    "max_iterations",
-    "max_time",
-    "solver_failed",
-    "bad_measurement",
-    "monitor_tripped",
-];
-
-/// Index of `s` in [`STATUS_NAMES`].
-pub fn status_code(s: StepStatus) -> u8 {
-    match s {
-        StepStatus::Ok => 0,
-        StepStatus::MaxIterations => 1,
-        StepStatus::MaxTime => 2,
-        StepStatus::SolverFailed => 3,
-        StepStatus::BadMeasurement => 4,
-        StepStatus::MonitorTripped => 5,
+/// Names of the step outcomes, indexed by their code ([`StepStatus::code`]).
+pub const STATUS_NAMES: [&str; StepStatus::ALL.len()] = {
+    let mut names = [""; StepStatus::ALL.len()];
+    let mut i = 0;
+    while i < names.len() {
+        names[i] = StepStatus::ALL[i].name();
+        i += 1;
     }
-}
+    names
+};
 
 /// A TOML value as the matching Python object.
 pub fn toml_to_py<'py>(py: Python<'py>, v: &toml::Value) -> PyResult<Bound<'py, PyAny>> {

@@ -1,6 +1,6 @@
 //! `simulate`, `run_many` and the `Simulator` (plant + sensors) of the closed loop.
 
-use crate::convert::{array, status_code, vector};
+use crate::convert::{array, vector};
 use crate::guard::{catch, interruptible, CancelToken, Outcome};
 use crate::memory;
 use crate::scenario::PyScenario;
@@ -72,7 +72,7 @@ impl<const N: usize> Recorder<N> for Columns {
                 self.disturbances.extend_from_slice(x.as_slice());
             }
         }
-        self.status.push(status_code(r.status));
+        self.status.push(r.status.code());
         self.iterations.push(r.iterations);
         self.step_time_us.push(r.step_time_us);
         self.within_limits.push(r.within_limits);

@@ -98,26 +98,62 @@ impl<const N: usize> Measurement<N> {
     }
 }
 
-/// The outcome of one control step, reported beside the torque.
+/// The outcome of one control step, reported beside the torque. This enum is the one table of
+/// status codes: [`StepStatus::code`] is the runtime frame's wire code and the index of
+/// Python's `STATUS_NAMES`, [`StepStatus::name`] the trace CSV's `status` column and the JSON
+/// form.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
+#[repr(u8)]
 pub enum StepStatus {
     /// The optimisation converged (or the controller needs none).
-    Ok,
+    Ok = 0,
     /// The solver hit its iteration cap; its best feasible iterate was used.
-    MaxIterations,
+    MaxIterations = 1,
     /// The solver hit its time budget; its best feasible iterate was used.
-    MaxTime,
+    MaxTime = 2,
     /// The solver failed (QP failure, line search failure, non-finite model values); the
     /// previous torque was held.
-    SolverFailed,
+    SolverFailed = 3,
     /// A measurement was not finite or implausible; the previous torque was held.
-    BadMeasurement,
+    BadMeasurement = 4,
     /// A safety monitor fired; its configured response set the torque.
-    MonitorTripped,
+    MonitorTripped = 5,
 }
 
 impl StepStatus {
+    /// Every status, in the order of its code.
+    pub const ALL: [StepStatus; 6] = [
+        StepStatus::Ok,
+        StepStatus::MaxIterations,
+        StepStatus::MaxTime,
+        StepStatus::SolverFailed,
+        StepStatus::BadMeasurement,
+        StepStatus::MonitorTripped,
+    ];
+
+    /// The status's code (0..=5, its index in [`StepStatus::ALL`]).
+    pub const fn code(self) -> u8 {
+        self as u8
+    }
+
+    /// The status of a code (`None` for an unknown code).
+    pub fn from_code(code: u8) -> Option<Self> {
+        Self::ALL.get(usize::from(code)).copied()
+    }
+
+    /// The status's name, as in the trace CSV and JSON (`"ok"`, `"max_iterations"`, ...).
+    pub const fn name(self) -> &'static str {
+        match self {
+            StepStatus::Ok => "ok",
+            StepStatus::MaxIterations => "max_iterations",
+            StepStatus::MaxTime => "max_time",
+            StepStatus::SolverFailed => "solver_failed",
+            StepStatus::BadMeasurement => "bad_measurement",
+            StepStatus::MonitorTripped => "monitor_tripped",
+        }
+    }
+
     /// True for outcomes that count as solver failures in the summary.
     pub fn is_solver_failure(self) -> bool {
         matches!(
@@ -251,5 +287,28 @@ impl IntentEstimator {
             m.q + self.k1.apply(straps, &m.force),
             m.qd + self.k2.apply(straps, &m.force),
         )
+    }
+}
+
+#[cfg(test)]
+mod status_table {
+    use super::StepStatus;
+
+    /// The one status table: codes are the indices of `ALL`, names are the serde names.
+    #[test]
+    fn codes_and_names_are_one_table() {
+        for (i, s) in StepStatus::ALL.iter().enumerate() {
+            assert_eq!(usize::from(s.code()), i);
+            assert_eq!(StepStatus::from_code(s.code()), Some(*s));
+            assert_eq!(
+                serde_json::to_value(s).unwrap(),
+                serde_json::Value::from(s.name())
+            );
+        }
+        assert_eq!(StepStatus::from_code(StepStatus::ALL.len() as u8), None);
+        let mut names: Vec<&str> = StepStatus::ALL.iter().map(|s| s.name()).collect();
+        names.sort_unstable();
+        names.dedup();
+        assert_eq!(names.len(), StepStatus::ALL.len());
     }
 }

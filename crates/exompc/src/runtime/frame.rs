@@ -673,29 +673,13 @@ impl SeqTracker {
     }
 }
 
-/// Wire code of a controller [`StepStatus`](crate::control::StepStatus).
+/// Wire code of a controller [`StepStatus`](crate::control::StepStatus): its
+/// [`code`](crate::control::StepStatus::code).
 pub fn status_code(s: crate::control::StepStatus) -> u8 {
-    use crate::control::StepStatus as S;
-    match s {
-        S::Ok => 0,
-        S::MaxIterations => 1,
-        S::MaxTime => 2,
-        S::SolverFailed => 3,
-        S::BadMeasurement => 4,
-        S::MonitorTripped => 5,
-    }
+    s.code()
 }
 
 /// The [`StepStatus`](crate::control::StepStatus) of a wire code (`None` for an unknown code).
 pub fn status_from_code(c: u8) -> Option<crate::control::StepStatus> {
-    use crate::control::StepStatus as S;
-    Some(match c {
-        0 => S::Ok,
-        1 => S::MaxIterations,
-        2 => S::MaxTime,
-        3 => S::SolverFailed,
-        4 => S::BadMeasurement,
-        5 => S::MonitorTripped,
-        _ => return None,
-    })
+    crate::control::StepStatus::from_code(c)
 }
