@@ -20,8 +20,10 @@ pub const VELOCITY_GATE: f64 = 0.08;
 pub const FORCE_GATE: f64 = 2.0;
 /// A rejected strap force is accepted again on smoothness alone (three smooth fresh samples)
 /// after this long (s), whatever its estimate says: a real force must not stay hidden behind
-/// its estimate (a jump in the force can be the robot's own doing).
-pub const FORCE_RESYNC_S: f64 = 0.1;
+/// its estimate (a jump in the force can be the robot's own doing). Longer than a 200-ms
+/// spike plus the filter window (with 0.1 s a 30-N, 200-ms spike was believed: 100 N at
+/// 2 kg); the monitors see the measured force meanwhile.
+pub const FORCE_RESYNC_S: f64 = 0.3;
 /// Each gate widens to this many times the RMS of the channel's recent residuals (accepted
 /// samples, time constant [`RESIDUAL_TAU_S`]) when that is larger: a fast or forceful gait's
 /// own innovations are not faults (the fixed gates are for the default gait).
@@ -52,7 +54,8 @@ pub const STUCK_SPEED: f64 = 0.05;
 /// is lost too (or a force) by replaying the gait one period back (the gait frequency of the
 /// supervisor) with the offset it had when the fault began, or, without a known period, by
 /// holding (an angle: integrating the estimated velocity). A rejected channel is accepted again
-/// once a fresh sample lies within [`ACCEPT_GATES`] gates of its estimate, or, after
+/// once a fresh sample lies within [`ACCEPT_GATES`] gates of its estimate (a filtered
+/// velocity or force also moving like its estimate, within one gate), or, after
 /// `resync_after` steps, once three fresh samples are smooth (the estimate then jumps to it:
 /// the supervisor's rate limit bounds the torque step).
 #[derive(Clone, Debug)]
@@ -292,7 +295,13 @@ impl<const N: usize> ChannelGuard<N> {
                     } else {
                         resync_after
                     };
-                    (v - estimate).abs() < ACCEPT_GATES * gate
+                    // A filtered channel (velocity, force) must also move like its estimate:
+                    // the moving average spreads a spike over `window` more samples, whose
+                    // ramp back passes the estimate's value before the spike has left it.
+                    let moves_along = sig == Q
+                        || (v - self.raw[sig][0][j] - (estimate - self.back(sig, 1)[j])).abs()
+                            < gate;
+                    ((v - estimate).abs() < ACCEPT_GATES * gate && moves_along)
                         || (self.bad_for[sig][j] >= resync && self.smooth[sig][j] >= 2)
                 } else {
                     residual <= gate
