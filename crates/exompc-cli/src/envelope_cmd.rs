@@ -155,10 +155,16 @@ fn err(e: impl std::fmt::Display) -> CliError {
 
 /// Colour of an RMS force (N) on a white → yellow → red → dark-red scale, saturating at 60 N.
 fn heat(v: f64) -> RGBColor {
+    heat_scaled(v, 60.0)
+}
+
+/// Colour of a force `v` (N) on the white → yellow → red → dark-red scale of the heat maps,
+/// saturating at `max` N; grey when not finite.
+pub(crate) fn heat_scaled(v: f64, max: f64) -> RGBColor {
     if !v.is_finite() {
         return RGBColor(150, 150, 150);
     }
-    let x = (v / 60.0).clamp(0.0, 1.0);
+    let x = (v / max).clamp(0.0, 1.0);
     let lerp = |a: u8, b: u8, t: f64| (a as f64 + (b as f64 - a as f64) * t).round() as u8;
     let stops = [
         (0.0, (255, 255, 255)),
@@ -215,7 +221,7 @@ where
     let cols = env.grid.payloads_kg.len().max(1) as i32;
     let cw = ((w as i32 - left - bar_w - 10) / cols).max(10);
     let ch = ((h as i32 - top - bottom) / rows).max(10);
-    colour_bar(&root, (w as i32 - bar_w + 20, top), rows * ch, font)?;
+    colour_bar(&root, (w as i32 - bar_w + 20, top), rows * ch, font, 60.0)?;
     for (j, p) in env.grid.payloads_kg.iter().enumerate() {
         let x = left + j as i32 * cw + cw / 2 - 20;
         root.draw(&Text::new(
@@ -292,13 +298,15 @@ where
     Ok(())
 }
 
-/// The colour bar of [`heat`] at `(x, y)`, `height` pixels tall: 0 N at the bottom, 60 N (and
-/// beyond) at the top, ticks every 10 N, titled with the quantity and its unit.
-fn colour_bar<DB: DrawingBackend>(
+/// The colour bar of [`heat_scaled`] up to `max` at `(x, y)`, `height` pixels tall: 0 N at
+/// the bottom, `max` N (and beyond) at the top, six tick intervals, titled with the quantity
+/// and its unit.
+pub(crate) fn colour_bar<DB: DrawingBackend>(
     root: &DrawingArea<DB, plotters::coord::Shift>,
     (x, y): (i32, i32),
     height: i32,
     font: &str,
+    max: f64,
 ) -> Result<(), CliError>
 where
     DB::ErrorType: 'static,
@@ -312,10 +320,10 @@ where
     ))
     .map_err(err)?;
     for k in 0..height {
-        let v = 60.0 * f64::from(height - 1 - k) / f64::from(height - 1);
+        let v = max * f64::from(height - 1 - k) / f64::from(height - 1);
         root.draw(&Rectangle::new(
             [(x, y + k), (x + width, y + k + 1)],
-            heat(v).filled(),
+            heat_scaled(v, max).filled(),
         ))
         .map_err(err)?;
     }
@@ -331,10 +339,11 @@ where
             BLACK.stroke_width(1),
         ))
         .map_err(err)?;
+        let tick = max * f64::from(n) / 6.0;
         let label = if n == 6 {
-            "≥ 60".to_string()
+            format!("≥ {tick}")
         } else {
-            format!("{}", 10 * n)
+            format!("{tick}")
         };
         root.draw(&Text::new(
             label,

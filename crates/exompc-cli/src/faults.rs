@@ -1,18 +1,25 @@
 //! `exompc faults`: the fault-response scan (issue 28): sensor fault kinds × channel groups ×
 //! durations × start times × payloads, each judged against the same run without the fault;
-//! writes `faults.md` and `faults.json` into `--out` (default `out/faults`).
+//! writes `faults.md`, `faults.json` and the heat map `faults.{png,svg}` into `--out` (default
+//! `out/faults`).
 
 use crate::args::{parse_payloads, ConfigOpt};
 use clap::Args;
 use exompc::config::ControllerKind;
-use exompc::scenario::{fault_scan_markdown, run_fault_scan, ChannelGroup, FaultGrid, RunError};
+use exompc::scenario::{
+    fault_scan_markdown, run_fault_scan, ChannelGroup, FaultCell, FaultGrid, RunError,
+};
 use exompc::sim::FaultKind;
 use exompc_cli::error::CliError;
 use exompc_cli::io;
-use std::path::PathBuf;
+use plotters::prelude::*;
+use std::path::{Path, PathBuf};
 
 /// What `faults` writes into its folder.
-const FAULT_FILES: &[&str] = &["faults.md", "faults.json"];
+const FAULT_FILES: &[&str] = &["faults.md", "faults.json", "faults.png", "faults.svg"];
+
+/// The heat map's colour scale saturates at this peak strap force (N).
+const HEAT_MAX_N: f64 = 120.0;
 
 #[derive(Debug, Args)]
 pub(crate) struct FaultsArgs {
@@ -46,8 +53,8 @@ pub(crate) struct FaultsArgs {
     /// Output folder.
     #[arg(long, value_name = "DIR", default_value = "out/faults")]
     out: PathBuf,
-    /// Replace the results of an earlier scan in the output folder (faults.md, faults.json;
-    /// nothing else). Without it such a folder is refused.
+    /// Replace the results of an earlier scan in the output folder (faults.md, faults.json,
+    /// faults.png, faults.svg; nothing else). Without it such a folder is refused.
     #[arg(long)]
     force: bool,
     /// Exit with status 1 when a cell fails its goals.
@@ -137,9 +144,10 @@ pub(crate) fn run(a: FaultsArgs) -> Result<(), CliError> {
     io::write_atomic(&a.out.join("faults.json"), json.as_bytes())?;
     let md = fault_scan_markdown(&cells);
     io::write_atomic(&a.out.join("faults.md"), md.as_bytes())?;
+    heat_map(&grid, &cells, &a.out)?;
     print!("{md}");
     println!(
-        "  wrote {} and faults.json",
+        "  wrote {}, faults.json, faults.png and faults.svg",
         a.out.join("faults.md").display()
     );
     if a.check && cells.iter().any(|c| !c.pass) {
@@ -150,4 +158,172 @@ pub(crate) fn run(a: FaultsArgs) -> Result<(), CliError> {
         )));
     }
     Ok(())
+}
+
+fn err(e: impl std::fmt::Display) -> CliError {
+    CliError::Runtime(format!("drawing the fault heat map: {e}"))
+}
+
+/// Short name of a fault kind (`spike`, `nan`, ...).
+fn kind_name(k: FaultKind) -> String {
+    serde_json::to_value(k)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_string))
+        .unwrap_or_else(|| format!("{k:?}").to_lowercase())
+}
+
+/// The heat map: rows kind × group, columns duration × payload × start (in the grid's
+/// order); each cell coloured by its peak true strap force and labelled with it, a black frame
+/// and `✗` where the cell fails its goals; a colour bar up to [`HEAT_MAX_N`].
+fn draw<DB: DrawingBackend>(
+    root: DrawingArea<DB, plotters::coord::Shift>,
+    grid: &FaultGrid,
+    cells: &[FaultCell],
+) -> Result<(), CliError>
+where
+    DB::ErrorType: 'static,
+{
+    let font = "sans-serif";
+    root.fill(&WHITE).map_err(err)?;
+    let (w, h) = root.dim_in_pixel();
+    root.draw(&Text::new(
+        "Peak true strap force (N) under sensor faults",
+        (20, 12),
+        (font, 20).into_font(),
+    ))
+    .map_err(err)?;
+    let legend = [
+        "✗ fails its goals: peak ≤ 12 N for one channel group, ≤ 35 N for all, ≤ 70 N beyond",
+        "200 ms; RMS ≤ 1.5× the clean run's; no latch.   Grey: the run failed.",
+    ];
+    for (l, text) in legend.into_iter().enumerate() {
+        root.draw(&Text::new(
+            text,
+            (20, 38 + 17 * l as i32),
+            (font, 13).into_font(),
+        ))
+        .map_err(err)?;
+    }
+    let rows: Vec<(FaultKind, ChannelGroup)> = grid
+        .kinds
+        .iter()
+        .flat_map(|&k| grid.groups.iter().map(move |&g| (k, g)))
+        .collect();
+    let cols: Vec<(f64, f64, f64)> = grid
+        .durations_s
+        .iter()
+        .flat_map(|&d| {
+            grid.payloads_kg
+                .iter()
+                .flat_map(move |&p| grid.starts_s.iter().map(move |&t| (d, p, t)))
+        })
+        .collect();
+    let (left, top, bottom, bar_w) = (170i32, 100i32, 64i32, 110i32);
+    let nr = rows.len().max(1) as i32;
+    let nc = cols.len().max(1) as i32;
+    let cw = ((w as i32 - left - bar_w - 10) / nc).max(10);
+    let ch = ((h as i32 - top - bottom) / nr).max(10);
+    crate::envelope_cmd::colour_bar(
+        &root,
+        (w as i32 - bar_w + 20, top),
+        nr * ch,
+        font,
+        HEAT_MAX_N,
+    )?;
+    for (j, &(d, p, t)) in cols.iter().enumerate() {
+        let x = left + j as i32 * cw + 4;
+        let lines = [
+            format!("{:.0} ms", d * 1e3),
+            format!("{p} kg"),
+            format!("at {t} s"),
+        ];
+        for (l, text) in lines.into_iter().enumerate() {
+            root.draw(&Text::new(
+                text,
+                (x, top + nr * ch + 6 + 16 * l as i32),
+                (font, 12).into_font(),
+            ))
+            .map_err(err)?;
+        }
+    }
+    for (i, &(k, g)) in rows.iter().enumerate() {
+        let y = top + i as i32 * ch;
+        root.draw(&Text::new(
+            format!("{} · {}", kind_name(k), g.name()),
+            (10, y + ch / 2 - 7),
+            (font, 13).into_font(),
+        ))
+        .map_err(err)?;
+        for (j, &(d, p, t)) in cols.iter().enumerate() {
+            let x = left + j as i32 * cw;
+            let cell = cells.iter().find(|c| {
+                c.kind == k
+                    && c.group == g
+                    && c.duration_s == d
+                    && c.payload_kg == p
+                    && c.start_s == t
+            });
+            let v = cell.map_or(f64::NAN, |c| c.peak_force_n);
+            root.draw(&Rectangle::new(
+                [(x, y), (x + cw - 2, y + ch - 2)],
+                crate::envelope_cmd::heat_scaled(v, HEAT_MAX_N).filled(),
+            ))
+            .map_err(err)?;
+            let fail = cell.is_some_and(|c| !c.pass);
+            if fail {
+                root.draw(&Rectangle::new(
+                    [(x + 1, y + 1), (x + cw - 3, y + ch - 3)],
+                    BLACK.stroke_width(2),
+                ))
+                .map_err(err)?;
+            }
+            let mut label = if v.is_finite() {
+                format!("{v:.0}")
+            } else {
+                "failed".into()
+            };
+            if fail {
+                label += " ✗";
+            }
+            let color = if v > HEAT_MAX_N / 2.0 { WHITE } else { BLACK };
+            root.draw(&Text::new(
+                label,
+                (x + cw / 2 - 16, y + ch / 2 - 7),
+                (font, 13).into_font().color(&color),
+            ))
+            .map_err(err)?;
+        }
+    }
+    root.present().map_err(err)?;
+    Ok(())
+}
+
+/// Writes `dir/faults.svg` and `dir/faults.png`.
+fn heat_map(grid: &FaultGrid, cells: &[FaultCell], dir: &Path) -> Result<(), CliError> {
+    crate::plot::ensure_font()?;
+    let rows = grid.kinds.len() * grid.groups.len();
+    let cols = grid.durations_s.len() * grid.payloads_kg.len() * grid.starts_s.len();
+    let size = (
+        (290 + 64 * cols).clamp(700, 4000) as u32,
+        (170 + 30 * rows).clamp(300, 4000) as u32,
+    );
+    let mut svg = String::new();
+    draw(
+        SVGBackend::with_string(&mut svg, size).into_drawing_area(),
+        grid,
+        cells,
+    )?;
+    io::write_atomic(&dir.join("faults.svg"), svg.as_bytes())?;
+    let png_path = dir.join("faults.png");
+    let tmp = dir.join(format!(".faults.tmp.{}.png", std::process::id()));
+    if let Err(e) = draw(
+        BitMapBackend::new(&tmp, size).into_drawing_area(),
+        grid,
+        cells,
+    ) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(e);
+    }
+    std::fs::rename(&tmp, &png_path)
+        .map_err(|e| CliError::io(format!("writing {}", png_path.display()), e))
 }

@@ -387,3 +387,42 @@ fn killed_run_leaves_no_truncated_results() {
     assert!(!out_dir.join("trace.csv").exists());
     assert!(!out_dir.join("summary.json").exists());
 }
+
+/// `exompc faults` on a one-cell grid (a 60-ms NaN on the strap forces, 4-s runs): the table,
+/// the JSON and the heat map (a PNG and an SVG naming the row) are written; a second scan into
+/// the same folder without `--force` is refused (exit 2) and leaves the results as they were.
+#[test]
+fn fault_scan_writes_table_json_and_heat_map() {
+    let dir = fresh_dir("fault-scan");
+    let d = dir.to_str().unwrap();
+    let args = [
+        "faults",
+        "--kinds",
+        "nan",
+        "--groups",
+        "forces",
+        "--durations",
+        "0.06",
+        "--payloads",
+        "0",
+        "--run-s",
+        "4",
+        "--out",
+        d,
+    ];
+    let out = exompc(&args);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let md = std::fs::read_to_string(dir.join("faults.md")).unwrap();
+    assert!(md.contains("| nan | forces | 0.06 |"), "{md}");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("faults.json")).unwrap()).unwrap();
+    assert_eq!(json["cells"].as_array().map(Vec::len), Some(1));
+    let png = std::fs::read(dir.join("faults.png")).unwrap();
+    assert!(png.starts_with(b"\x89PNG\r\n\x1a\n") && png.len() > 1000);
+    let svg = std::fs::read_to_string(dir.join("faults.svg")).unwrap();
+    assert!(svg.contains("nan · forces") && svg.contains("force (N)"));
+    let again = exompc(&args);
+    assert_eq!(again.status.code(), Some(2), "{}", stderr(&again));
+    assert!(stderr(&again).contains("--force"));
+    assert_eq!(std::fs::read(dir.join("faults.png")).unwrap(), png);
+}

@@ -1219,12 +1219,11 @@ fn force_stats(steps: &[RobotStep<2>]) -> (f64, f64) {
 /// strap force stays within 1.5× the same run without the outage, the peak ≤ 35 N, no
 /// protective stop, no limit violation.
 ///
-/// Ignored: open goal of issue 28. With the sensor-fault ride-through supervisor merged, the
-/// 120-ms outage at 3 s peaks at 47.7 N (goal 35 N; measured on 2026-12-03 on the merged tree,
-/// `cargo test --release -p exompc --test runtime link_outages -- --ignored`); the robot-side
-/// ride-through alone met it (peak ≤ 21.0 N).
+/// The loop restarts its filter windows after the gap and the supervisor its fallback's
+/// estimates: before, the 120-ms outage at 3 s peaked at 47.7 N (the controller resumed on a
+/// filtered velocity of the wrong sign, and the torque-oscillation monitor's fallback
+/// differentiated its encoder history across the gap).
 #[test]
-#[ignore = "issue 28: a 120-ms link outage at 3 s peaks at 47.7 N against the 35-N goal"]
 fn link_outages_are_ridden_through() {
     let s = scenario(4.0);
     let periods = 400;
@@ -1251,6 +1250,43 @@ fn link_outages_are_ridden_through() {
             assert!(peak <= 35.0, "{ms} ms at {at} s: peak {peak} N");
             assert!(rms <= 1.5 * rms0, "{ms} ms at {at} s: RMS {rms} vs {rms0}");
         }
+    }
+}
+
+/// Measurement (ignored; about 2 s): link outages of 60/120/200 ms starting every 0.1 s from
+/// 0.5 s to 3.6 s into a 2-kg run (other phases of the gait than the goal test's 1 s and 3 s):
+/// prints the peak true strap force (N) and the RMS against the clean run per start, and the
+/// number of outages over the goals; asserts only the robot's limits and no protective stop.
+/// `cargo test --release -p exompc --test runtime link_outage_phases -- --ignored --nocapture`
+#[test]
+#[ignore = "measurement: prints the outage grid over gait phases (docs/REALTIME.md)"]
+fn link_outage_phases() {
+    let s = scenario(4.5);
+    let periods = 450;
+    let clean = run(&s, periods, Direct::new(robot(&s, 20))).0.steps;
+    let (peak0, rms0) = force_stats(&clean);
+    println!("clean: peak {peak0:.1} N, RMS {rms0:.2} N; per start (s): peak N / RMS x clean");
+    for ms in [60u32, 120, 200] {
+        let (mut over, mut worst, mut worst_rms) = (0, 0.0f64, 0.0f64);
+        let mut line = String::new();
+        for i in 0..32 {
+            let at = 0.5 + 0.1 * f64::from(i);
+            let first = (at / s.timing.dt).round() as u32 + 1;
+            let mut link = Direct::new(robot(&s, 20));
+            link.drop_samples = (first..first + ms / 10).map(u64::from).collect();
+            link.drop_commands = (first..first + ms / 10).collect();
+            let (link, lp, _) = run(&s, periods, link);
+            assert_eq!(link.vr.stats().protective_stops, 0, "{ms} ms at {at:.1} s");
+            assert!(link.steps.iter().all(|x| x.within_limits));
+            assert_eq!(lp.stats().limit_violations, 0);
+            let (peak, rms) = force_stats(&link.steps);
+            over += usize::from(peak > 35.0 || rms > 1.5 * rms0);
+            worst = worst.max(peak);
+            worst_rms = worst_rms.max(rms / rms0);
+            line += &format!(" {at:.1}:{peak:.0}/{:.2}", rms / rms0);
+        }
+        println!("{ms} ms:{line}");
+        println!("{ms} ms: {over} of 32 over the goals, worst peak {worst:.1} N, worst RMS x{worst_rms:.2}");
     }
 }
 

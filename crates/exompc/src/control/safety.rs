@@ -674,6 +674,9 @@ pub struct Supervisor<const N: usize, C> {
     guard: ChannelGuard<N>,
     /// Last time a channel was rejected (latch grace).
     fault_t: f64,
+    /// Time of the previous measurement (s; NaN before the first): a later one more than
+    /// 1.5 periods on follows a gap in the data.
+    last_t: f64,
     /// How long (s) some strap force has read full scale, and whether the sensor-timeout
     /// monitor tripped on that (configured response) rather than on a sensor fault (stop).
     railed_for: f64,
@@ -741,6 +744,7 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             t0: 0.0,
             guard,
             fault_t: f64::NEG_INFINITY,
+            last_t: f64::NAN,
             railed_for: 0.0,
             railed_trip: false,
             tripped: [false; 5],
@@ -1034,7 +1038,16 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         self.engaged = controller_failed || self.latched;
         let tripped = self.is_tripped() || self.latched;
         let prev = self.prev;
+        // Periods without a measurement (the runtime steps no controller then): the
+        // fallback's finite differences and fits would span the gap as if it were one period.
+        let gap = m.t - self.last_t > 1.5 * self.dt();
+        if m.t.is_finite() {
+            self.last_t = m.t;
+        }
         if let Some(fb) = self.fallback.as_mut() {
+            if gap {
+                fb.restart();
+            }
             if valid && !rep.any_rejected {
                 fb.observe(m, &prev);
             } else if valid {

@@ -139,6 +139,8 @@ pub struct ControlLoop<const N: usize, C> {
     cmd_seq: u32,
     last_t: f64,
     started: bool,
+    /// The previous period had no sample (a gap in the data).
+    missed: bool,
     stopping: bool,
     stats: LoopStats,
     timing: TimingStats,
@@ -162,6 +164,7 @@ impl<const N: usize, C: Controller<N>> ControlLoop<N, C> {
             cmd_seq: 0,
             last_t: 0.0,
             started: false,
+            missed: false,
             stopping: false,
             stats: LoopStats::default(),
             timing: TimingStats::with_capacity(capacity),
@@ -364,6 +367,14 @@ impl<const N: usize, C: Controller<N>> ControlLoop<N, C> {
                 self.started = true;
                 let t = s.stamp_ns as f64 * 1e-9;
                 self.last_t = t;
+                // After a gap the filter windows restart: the samples from before the gap
+                // would pull the filtered velocity and force back to the leg's motion of
+                // up to `filter_window` samples before it (a 120-ms outage at 3 s into a 2-kg
+                // run: the controller resumed on a velocity of the wrong sign).
+                if std::mem::take(&mut self.missed) {
+                    self.vel.reset();
+                    self.force.reset();
+                }
                 Measurement {
                     t,
                     q: s.q,
@@ -373,6 +384,7 @@ impl<const N: usize, C: Controller<N>> ControlLoop<N, C> {
             }
             None => {
                 self.stats.missing_samples += 1;
+                self.missed = true;
                 self.last_t += dt_s;
                 Measurement {
                     t: self.last_t,
