@@ -6,6 +6,7 @@
 //! robot boundary ([`exompc::runtime::RobotInterface`]).
 
 mod bus;
+pub mod canopen;
 mod frame;
 
 pub use bus::{BusCounters, BusError, BusState, CanBus};
