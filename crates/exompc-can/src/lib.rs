@@ -8,6 +8,13 @@
 mod bus;
 pub mod canopen;
 mod frame;
+pub mod timing;
+pub mod virtual_bus;
 
 pub use bus::{BusCounters, BusError, BusState, CanBus};
 pub use frame::{CanFrame, CanId, FrameError, MAX_EXTENDED_ID, MAX_STANDARD_ID};
+pub use timing::{frame_bits, frame_time, Stuffing};
+pub use virtual_bus::{
+    BusLoad, NodeTx, TimeBase, VirtualBus, VirtualBusSettings, VirtualClock, VirtualEndpoint,
+    VirtualNode,
+};
