@@ -7,6 +7,7 @@
 
 mod bus;
 pub mod canopen;
+pub mod cia402;
 mod frame;
 pub mod timing;
 pub mod virtual_bus;

@@ -416,29 +416,41 @@ impl SdoClient {
     }
 }
 
+/// The time of a bus: the OS clock for real adapters, the bus's own clock for the virtual bus
+/// (whose simulated time moves only while someone waits on it).
+pub type Now<'a> = &'a dyn Fn() -> Duration;
+
+/// A [`Now`] on the OS monotonic clock, epoch at the call.
+pub fn os_clock() -> impl Fn() -> Duration {
+    let t0 = Instant::now();
+    move || t0.elapsed()
+}
+
 /// Run one client transfer to its end over `bus`: send `first`, answer the server until done,
 /// handing every other received frame to `other` (PDOs, heartbeats keep flowing).
 pub fn transfer<B: CanBus + ?Sized>(
     bus: &mut B,
+    now: Now<'_>,
     client: &mut SdoClient,
     first: CanFrame,
     other: &mut dyn FnMut(&CanFrame),
 ) -> Result<SdoDone, SdoError> {
-    let t0 = Instant::now();
+    let t0 = now();
+    client.deadline = t0 + client.timeout;
     bus.send(&first)?;
     loop {
-        let now = t0.elapsed();
-        if let Some((err, abort)) = client.poll(now) {
+        let now_ = now();
+        if let Some((err, abort)) = client.poll(now_) {
             // Best effort: the transfer has failed anyway.
             let _ = bus.send(&abort);
             return Err(err);
         }
         let wait = client
             .deadline
-            .saturating_sub(now)
-            .min(Duration::from_millis(20));
+            .saturating_sub(now_)
+            .clamp(Duration::from_micros(100), Duration::from_millis(20));
         let Some(f) = bus.recv(wait)? else { continue };
-        match client.on_frame(&f, t0.elapsed()) {
+        match client.on_frame(&f, now()) {
             None => other(&f),
             Some(ClientStep::Send(next)) => bus.send(&next)?,
             Some(ClientStep::Done(done)) => return Ok(done),
@@ -455,6 +467,7 @@ pub fn transfer<B: CanBus + ?Sized>(
 /// Write `data` to (index, sub) of the client's node over `bus`.
 pub fn write<B: CanBus + ?Sized>(
     bus: &mut B,
+    now: Now<'_>,
     client: &mut SdoClient,
     index: u16,
     sub: u8,
@@ -462,19 +475,20 @@ pub fn write<B: CanBus + ?Sized>(
     other: &mut dyn FnMut(&CanFrame),
 ) -> Result<(), SdoError> {
     let first = client.download(index, sub, data, Duration::ZERO)?;
-    transfer(bus, client, first, other).map(|_| ())
+    transfer(bus, now, client, first, other).map(|_| ())
 }
 
 /// Read (index, sub) of the client's node over `bus`.
 pub fn read<B: CanBus + ?Sized>(
     bus: &mut B,
+    now: Now<'_>,
     client: &mut SdoClient,
     index: u16,
     sub: u8,
     other: &mut dyn FnMut(&CanFrame),
 ) -> Result<Vec<u8>, SdoError> {
     let first = client.upload(index, sub, Duration::ZERO)?;
-    match transfer(bus, client, first, other)? {
+    match transfer(bus, now, client, first, other)? {
         SdoDone::Uploaded(v) => Ok(v),
         SdoDone::Downloaded => Ok(Vec::new()),
     }
