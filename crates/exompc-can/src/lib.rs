@@ -8,6 +8,7 @@
 mod bus;
 pub mod canopen;
 pub mod cia402;
+pub mod force_node;
 mod frame;
 pub mod timing;
 pub mod virtual_bus;
