@@ -6,6 +6,7 @@
 //! robot boundary ([`exompc::runtime::RobotInterface`]).
 
 mod bus;
+pub mod config;
 mod frame;
 #[cfg(unix)]
 pub mod serial;
