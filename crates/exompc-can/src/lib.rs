@@ -5,8 +5,10 @@
 //! The numerical core of `exompc` knows nothing of CAN; this crate meets it at the runtime's
 //! robot boundary ([`exompc::runtime::RobotInterface`]).
 
+pub mod ak;
 mod bus;
 pub mod config;
+pub mod emulator;
 mod frame;
 #[cfg(unix)]
 pub mod serial;
