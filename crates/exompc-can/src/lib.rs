@@ -5,9 +5,12 @@
 //! The numerical core of `exompc` knows nothing of CAN; this crate meets it at the runtime's
 //! robot boundary ([`exompc::runtime::RobotInterface`]).
 
+pub mod ak;
 mod bus;
 pub mod canopen;
 pub mod cia402;
+pub mod config;
+pub mod emulator;
 pub mod force_node;
 mod frame;
 #[cfg(unix)]
