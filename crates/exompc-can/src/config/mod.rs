@@ -7,14 +7,19 @@
 //! same file and ignores them. Every value is checked by [`HardwareConfig::validate`]; an error
 //! names the key by its dotted path and the allowed range.
 //!
-//! Drivers are enums tagged by `driver = "..."`: a joint is `ak` ([`AkJoint`], in `ak.rs`);
-//! a force sensor is `raw` ([`RawForceSensor`], in `force_raw.rs`). Other drivers add a
-//! variant and a file of their own.
+//! Drivers are enums tagged by `driver = "..."`: a joint is `ak` ([`AkJoint`], in `ak.rs`) or
+//! `cia402` ([`Cia402Joint`], in `cia402.rs`); a force sensor is `raw` ([`RawForceSensor`], in
+//! `force_raw.rs`) or `canopen` ([`CanopenForceSensor`], in `force_canopen.rs`). Other drivers
+//! add a variant and a file of their own.
 
 mod ak;
+mod cia402;
+mod force_canopen;
 mod force_raw;
 
 pub use ak::{AkJoint, AkModel, AkReplyEffort, AK_MODELS};
+pub use cia402::{Cia402Joint, Cia402Mode, VelocityUnit};
+pub use force_canopen::CanopenForceSensor;
 pub use force_raw::{ForceChannel, RawForceSensor};
 
 use serde::Deserialize;
@@ -198,6 +203,8 @@ impl Joints {
 pub enum Joint {
     /// A T-Motor/CubeMars AK actuator in MIT mode.
     Ak(AkJoint),
+    /// A CANopen CiA 402 drive (cyclic synchronous or profile torque).
+    Cia402(Cia402Joint),
 }
 
 /// Which strap force a sensor channel measures.
@@ -216,6 +223,8 @@ pub enum Strap {
 pub enum ForceSensor {
     /// A node sending the forces in a plain CAN frame (a custom amplifier).
     Raw(RawForceSensor),
+    /// A CANopen node (CiA 404-style analog inputs in a TPDO): thigh and shank.
+    Canopen(CanopenForceSensor),
 }
 
 impl ForceSensor {
@@ -223,6 +232,7 @@ impl ForceSensor {
     pub fn straps(&self) -> Vec<Strap> {
         match self {
             ForceSensor::Raw(r) => r.channels.iter().map(|c| c.strap).collect(),
+            ForceSensor::Canopen(_) => vec![Strap::Thigh, Strap::Shank],
         }
     }
 }
@@ -300,6 +310,18 @@ impl HardwareConfig {
                     a.validate(&key)?;
                     ids.push((u32::from(a.can_id), format!("{key}.can_id")));
                 }
+                Joint::Cia402(c) => {
+                    c.validate(&key)?;
+                    // CANopen node ids live in their own number space (COB-IDs 0x180 + id …).
+                    ids.push((0x1000 + u32::from(c.node_id), format!("{key}.node_id")));
+                }
+            }
+        }
+        for (i, f) in self.force_sensors.iter().enumerate() {
+            if let ForceSensor::Canopen(c) = f {
+                c.validate(&format!("robot.force_sensors[{i}]"))?;
+                let key = format!("robot.force_sensors[{i}].node_id");
+                ids.push((0x1000 + u32::from(c.node_id), key));
             }
         }
         for w in 0..ids.len() {
@@ -307,7 +329,7 @@ impl HardwareConfig {
                 if ids[w].0 == ids[v].0 {
                     return Err(err(
                         ids[v].1.clone(),
-                        format!("{} is also {}", ids[v].0, ids[w].1),
+                        format!("{} is also {}", ids[v].0 & 0xFFF, ids[w].1),
                     ));
                 }
             }
@@ -317,6 +339,7 @@ impl HardwareConfig {
             let key = format!("robot.force_sensors[{i}]");
             match f {
                 ForceSensor::Raw(r) => r.validate(&key)?,
+                ForceSensor::Canopen(c) => c.validate(&key)?,
             }
             for s in f.straps() {
                 if seen.contains(&s) {

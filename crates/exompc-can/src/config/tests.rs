@@ -46,7 +46,9 @@ fn the_hardware_tables_split_off_and_parse() {
     assert!(!kept.contains("transport") && !kept.contains("AK80-9"));
     let cfg = HardwareConfig::from_table(hw.unwrap()).unwrap();
     assert!(matches!(cfg.bus, BusConfig::Virtual(ref v) if v.bitrate == 1_000_000 && v.quantise));
-    let Joint::Ak(knee) = &cfg.joints.knee;
+    let Joint::Ak(knee) = &cfg.joints.knee else {
+        panic!("the knee is an AK motor")
+    };
     assert_eq!(knee.direction, -1);
     assert_eq!(knee.ranges().unwrap().t_max, 18.0);
     assert_eq!(knee.joint_torque_limit(), 18.0);
