@@ -279,6 +279,11 @@ impl Cia402Emulator {
         move |code| this.lock().unwrap_or_else(|e| e.into_inner()).pending_fault = Some(code)
     }
 
+    /// Inject a fault (0x603F `code`) at the drive's next tick.
+    pub fn inject_fault(&mut self, code: u16) {
+        self.pending_fault = Some(code);
+    }
+
     /// Go silent (a cut cable, a dead drive): no frame in or out from now on.
     pub fn set_silent(&mut self, silent: bool) {
         self.silent = silent;
@@ -373,10 +378,14 @@ impl Cia402Emulator {
         self.od.set(obj::STATUSWORD, 0, i64::from(sw));
     }
 
+    /// A new controlword: the state machine moves; torque off takes effect at once, a new
+    /// target in profile torque too, in CST only at the next SYNC.
     fn on_controlword(&mut self, now: Duration) {
         let cw = self.od.get(obj::CONTROLWORD, 0).unwrap_or(0) as u16;
         self.fsm.on_controlword(cw);
-        self.apply_torque(now);
+        if !self.fsm.torque_enabled() || self.mode() == Some(Mode::ProfileTorque) {
+            self.apply_torque(now);
+        }
         self.update_status(now);
     }
 
@@ -486,6 +495,12 @@ impl VirtualNode for Cia402Emulator {
     fn on_wakeup(&mut self, now: Duration, tx: &mut NodeTx) {
         self.next_tick = now + self.tick;
         if self.silent {
+            // Cut off the bus, the drive still watches the master's heartbeat: it faults and
+            // drops the torque by itself once that is lost (it cannot send the EMCY).
+            if self.consumer.check(now).is_some() {
+                let mut sink = NodeTx::default();
+                self.enter_fault(ERROR_HEARTBEAT, now, &mut sink);
+            }
             return;
         }
         if !self.booted {

@@ -6,7 +6,9 @@
 //! [`emulator::Cia402Emulator`] a virtual drive honouring the same protocol.
 
 pub mod emulator;
+pub mod leg;
 pub mod master;
+pub mod robot;
 
 use std::f64::consts::TAU;
 
