@@ -1,8 +1,7 @@
-//! Strap-force sensor nodes: the thigh and shank strap forces arrive either from a CANopen
-//! node (CiA 404-style analog inputs: process values 0x7130 sub 1 = thigh, sub 2 = shank,
-//! INTEGER16, mapped into a TPDO sent on every SYNC; N = value × scale + offset), or from a
-//! custom amplifier's raw frame (an identifier, a byte offset, length, signedness and byte
-//! order per channel, and a scale). [`ForceNodeEmulator`] is a virtual CANopen sensor node.
+//! CANopen strap-force sensor nodes (CiA 404-style analog inputs): the thigh and shank process
+//! values 0x7130 sub 1 and 2 (INTEGER16), mapped into a TPDO sent on every SYNC;
+//! N = value × scale + offset. [`ForceNodeEmulator`] is a virtual node. (A custom amplifier's
+//! raw frame is [`crate::config::RawForceSensor`].)
 
 use crate::canopen::heartbeat::{HeartbeatConsumer, HeartbeatProducer};
 use crate::canopen::nmt::{NmtCommand, NmtState};
@@ -11,7 +10,7 @@ use crate::canopen::pdo::{self, ActivePdo, Direction, Mapped, PdoConfig};
 use crate::canopen::sdo::{self, Now, SdoClient, SdoError, SdoServer};
 use crate::canopen::{cob, heartbeat, std_id, sync, NodeId};
 use crate::virtual_bus::{NodeTx, VirtualNode};
-use crate::{CanBus, CanFrame, CanId};
+use crate::{CanBus, CanFrame};
 use std::time::Duration;
 use thiserror::Error;
 
@@ -19,47 +18,6 @@ use thiserror::Error;
 pub const AI_PROCESS_VALUE: u16 = 0x7130;
 /// CiA 404 analog input field value (INTEGER16, the raw ADC reading).
 pub const AI_FIELD_VALUE: u16 = 0x7100;
-
-/// One channel of a raw frame.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct RawField {
-    /// First byte.
-    pub offset: u8,
-    /// Length in bytes: 1, 2 or 4.
-    pub size: u8,
-    /// Two's complement.
-    pub signed: bool,
-    /// Big-endian (most significant byte first) instead of little-endian.
-    pub big_endian: bool,
-    /// N per count.
-    pub scale: f64,
-    /// N added after scaling.
-    pub offset_n: f64,
-}
-
-impl RawField {
-    /// The force in N, `None` when the frame is too short.
-    pub fn decode(&self, data: &[u8]) -> Option<f64> {
-        let (o, n) = (usize::from(self.offset), usize::from(self.size));
-        let bytes = data.get(o..o + n)?;
-        let mut v: u32 = 0;
-        for i in 0..n {
-            let b = if self.big_endian {
-                bytes[i]
-            } else {
-                bytes[n - 1 - i]
-            };
-            v = v << 8 | u32::from(b);
-        }
-        let x = if self.signed {
-            let shift = 32 - 8 * n as u32;
-            f64::from(((v << shift) as i32) >> shift)
-        } else {
-            f64::from(v)
-        };
-        Some(x * self.scale + self.offset_n)
-    }
-}
 
 /// Where the strap forces come from.
 #[derive(Clone, Debug, PartialEq)]
@@ -78,13 +36,6 @@ pub enum ForceSource {
         configure: bool,
         /// Heartbeat period asked of the node (when configuring) and the timeout watched.
         heartbeat: Option<(Duration, Duration)>,
-    },
-    /// A custom amplifier's frame.
-    Raw {
-        /// The frame's identifier.
-        id: CanId,
-        /// Thigh and shank channels.
-        fields: [RawField; 2],
     },
 }
 
@@ -221,15 +172,6 @@ impl ForceSensor {
                 let pv = |i: usize| f64::from(i16::from_le_bytes([d[2 * i], d[2 * i + 1]]));
                 [pv(0) * scale + offset[0], pv(1) * scale + offset[1]]
             }
-            ForceSource::Raw { id, fields } => {
-                if f.id() != *id || f.is_remote() {
-                    return false;
-                }
-                match (fields[0].decode(f.data()), fields[1].decode(f.data())) {
-                    (Some(a), Some(b)) => [a, b],
-                    _ => return true,
-                }
-            }
         };
         self.sample = Some(ForceSample {
             thigh: forces[0],
@@ -267,7 +209,7 @@ impl ForceSensor {
                     silent,
                 })
             }
-            _ => Ok(()),
+            (_, None) => Ok(()),
         }
     }
 }
@@ -423,50 +365,5 @@ impl VirtualNode for ForceNodeEmulator {
         if let Some(a) = self.sdo.poll(now) {
             tx.send_at(now, a);
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn raw_fields_decode_like_an_independent_formula() {
-        let be = RawField {
-            offset: 1,
-            size: 2,
-            signed: true,
-            big_endian: true,
-            scale: 0.5,
-            offset_n: 1.0,
-        };
-        // 0xFF38 = -200 → -200 · 0.5 + 1 = -99.
-        assert_eq!(be.decode(&[0, 0xFF, 0x38]), Some(-99.0));
-        assert_eq!(be.decode(&[0, 0xFF]), None, "too short");
-        let le = RawField {
-            offset: 0,
-            size: 4,
-            signed: false,
-            big_endian: false,
-            scale: 1e-3,
-            offset_n: 0.0,
-        };
-        assert_eq!(le.decode(&[0x40, 0x42, 0x0F, 0x00]), Some(1000.0));
-        let s1 = RawField {
-            offset: 3,
-            size: 1,
-            signed: true,
-            big_endian: false,
-            scale: 1.0,
-            offset_n: 0.0,
-        };
-        assert_eq!(s1.decode(&[0, 0, 0, 0x80]), Some(-128.0));
-        let s4 = RawField {
-            size: 4,
-            offset: 0,
-            signed: true,
-            ..s1
-        };
-        assert_eq!(s4.decode(&(-7i32).to_le_bytes()), Some(-7.0));
     }
 }

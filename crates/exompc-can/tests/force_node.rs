@@ -1,12 +1,10 @@
 //! The strap-force sensor: a virtual CiA 404-style node configured by SDO and read by SYNC,
-//! its heartbeat loss, and the raw-frame option.
+//! and its heartbeat loss.
 
 use exompc_can::canopen::sync::SyncProducer;
 use exompc_can::canopen::NodeId;
-use exompc_can::force_node::{
-    ForceNodeEmulator, ForceNodeError, ForceSensor, ForceSource, RawField,
-};
-use exompc_can::{CanBus, CanFrame, CanId, TimeBase, VirtualBus, VirtualBusSettings};
+use exompc_can::force_node::{ForceNodeEmulator, ForceNodeError, ForceSensor, ForceSource};
+use exompc_can::{CanBus, TimeBase, VirtualBus, VirtualBusSettings};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -70,40 +68,4 @@ fn a_canopen_force_node_is_configured_and_read_every_sync() {
         assert!(bus.now() - cut < Duration::from_millis(400));
     };
     assert!(matches!(err, ForceNodeError::HeartbeatLost { .. }), "{err}");
-}
-
-#[test]
-fn a_raw_amplifier_frame_is_decoded_by_its_fields() {
-    let bus = VirtualBus::new(VirtualBusSettings::default(), TimeBase::Simulated);
-    let mut amp = bus.endpoint();
-    let mut ep = bus.endpoint();
-    let field = |offset, big_endian| RawField {
-        offset,
-        size: 2,
-        signed: true,
-        big_endian,
-        scale: 0.1,
-        offset_n: 0.0,
-    };
-    let mut sensor = ForceSensor::new(ForceSource::Raw {
-        id: CanId::Extended(0x18FF_1234),
-        fields: [field(0, false), field(2, true)],
-    });
-    let mut d = [0u8; 4];
-    d[..2].copy_from_slice(&(-123i16).to_le_bytes());
-    d[2..].copy_from_slice(&456i16.to_be_bytes());
-    amp.send(&CanFrame::new(CanId::Extended(0x18FF_1234), &d).unwrap())
-        .unwrap();
-    // Same number on a standard id: not the amplifier.
-    amp.send(&CanFrame::standard(0x234, &d).unwrap()).unwrap();
-    while let Some(f) = ep.recv(Duration::from_millis(1)).unwrap() {
-        sensor.on_frame(&f, bus.now());
-    }
-    let s = sensor.take_sample().unwrap();
-    assert!((s.thigh + 12.3).abs() < 1e-9 && (s.shank - 45.6).abs() < 1e-9);
-    assert!(
-        sensor.take_sample().is_none(),
-        "the standard-id frame was not taken"
-    );
-    sensor.check(bus.now()).unwrap();
 }
