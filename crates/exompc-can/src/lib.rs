@@ -10,6 +10,7 @@ mod bus;
 pub mod config;
 pub mod emulator;
 mod frame;
+pub mod robot;
 #[cfg(unix)]
 pub mod serial;
 pub mod slcan;
