@@ -246,7 +246,14 @@ impl AkDrive {
         if !self.is_reply(f) {
             return None;
         }
-        let m = unpack_reply(&self.ranges, f.data())?;
+        let mut m = unpack_reply(&self.ranges, f.data())?;
+        // The firmware truncates (⌊·⌋) when it packs: the value lies in [u, u + 1) steps, so
+        // the mid-point is the unbiased reading (truncation alone biases a velocity by
+        // −½·2·v_max/4095, −0.012 rad/s on an AK80-9).
+        let r = &self.ranges;
+        m.p += r.p_max / f64::from(u16::MAX);
+        m.v += r.v_max / 4095.0;
+        m.effort += r.t_max / 4095.0;
         let motor_torque = match self.effort {
             AkReplyEffort::Torque => m.effort,
             AkReplyEffort::Current => m.effort * self.per_amp,

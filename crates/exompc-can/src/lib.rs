@@ -13,6 +13,7 @@ pub mod config;
 pub mod emulator;
 pub mod force_node;
 mod frame;
+pub mod robot;
 #[cfg(unix)]
 pub mod serial;
 pub mod slcan;
