@@ -149,6 +149,8 @@ fn closed_loop(mode: Mode) -> ([f64; 2], [f64; 2]) {
     assert!(recs.iter().all(|x| x.within_limits && x.sample.is_some()));
     assert_eq!(r.robot.stats().missing_samples, 0);
     assert_eq!(r.robot.stats().protective_stops, 0);
+    // (Before the leg is locked: the bus calls into the leg to reach the present.)
+    let load = r.bus.load();
     let leg = r.leg.lock().unwrap();
     let h: Vec<_> = leg.history().iter().filter(|x| x.t < 10.0 - 1e-9).collect();
     assert_eq!(h.len(), 1000);
@@ -161,7 +163,12 @@ fn closed_loop(mode: Mode) -> ([f64; 2], [f64; 2]) {
         sim.rms_force_n.thigh.unwrap(),
         sim.rms_force_n.shank.unwrap(),
     ];
-    eprintln!("CiA 402 {mode:?}: {can:.3?} N, simulate {want:.3?} N");
+    eprintln!(
+        "CiA 402 {mode:?}: {can:.3?} N, simulate {want:.3?} N; bus load {:.1} % ({} frames in {:.2} s)",
+        100.0 * load.fraction(),
+        load.frames,
+        load.elapsed.as_secs_f64()
+    );
     assert!(leg
         .drive_stats()
         .iter()
