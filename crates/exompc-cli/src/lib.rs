@@ -3,6 +3,7 @@
 //! integration tests).
 #![warn(missing_docs)]
 
+pub mod can;
 pub mod config_help;
 pub mod earlier;
 pub mod envelope;
