@@ -47,7 +47,11 @@ pub fn drives<const N: usize>(
     let js = joints::<N>(hw);
     let mut out = Vec::with_capacity(N);
     for (name, j) in js {
-        let Joint::Ak(a) = j;
+        let Joint::Ak(a) = j else {
+            return Err(CliError::Config(format!(
+                "robot.joints.{name}.driver: every joint must be \"ak\" when one is"
+            )));
+        };
         out.push(AkDrive::new(a).ok_or_else(|| {
             CliError::Config(format!(
                 "robot.joints.{name}.model: unknown model {:?}",
@@ -65,8 +69,9 @@ pub fn drives<const N: usize>(
 pub fn force_sensors(hw: &HardwareConfig) -> Vec<RawForceSensor> {
     hw.force_sensors
         .iter()
-        .map(|f| match f {
-            ForceSensor::Raw(r) => r.clone(),
+        .filter_map(|f| match f {
+            ForceSensor::Raw(r) => Some(r.clone()),
+            ForceSensor::Canopen(_) => None,
         })
         .collect()
 }
@@ -102,7 +107,11 @@ where
     let mut motors = Vec::with_capacity(N);
     let mut mounts = Vec::with_capacity(N);
     for (name, j) in js {
-        let Joint::Ak(a) = j;
+        let Joint::Ak(a) = j else {
+            return Err(CliError::Config(format!(
+                "robot.joints.{name}.driver: every joint must be \"ak\" when one is"
+            )));
+        };
         let ranges = a.ranges().ok_or_else(|| {
             CliError::Config(format!(
                 "robot.joints.{name}.model: unknown model {:?}",

@@ -4,6 +4,7 @@
 #![warn(missing_docs)]
 
 pub mod can;
+pub mod can_cia402;
 pub mod config_help;
 pub mod earlier;
 pub mod envelope;

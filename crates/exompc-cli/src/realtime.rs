@@ -544,6 +544,12 @@ pub(crate) fn run(a: RunArgs) -> Result<(), CliError> {
     }
     if let Some(hw) = hw {
         check_out(&a.out, a.force)?;
+        if exompc_cli::can_cia402::uses_cia402(&hw) {
+            return match a.dof {
+                1 => run_cia402::<OneDof, 1>(&s, &a, &hw),
+                _ => run_cia402::<TwoDof, 2>(&s, &a, &hw),
+            };
+        }
         return match a.dof {
             1 => run_can::<OneDof, 1>(&s, &a, &hw),
             _ => run_can::<TwoDof, 2>(&s, &a, &hw),
@@ -1399,4 +1405,74 @@ fn service<const N: usize, Tr: exompc::sim::Trajectory<N>>(
             in_f.submit_tagged(link_t(clock), from, raw);
         }
     }
+}
+
+/// `run --config` with CiA 402 drives (`driver = "cia402"`): the robot of
+/// `exompc_cli::can_cia402`, through the same loop, trace and summary as the AK robot.
+fn run_cia402<D: Dof<N>, const N: usize>(
+    s: &Scenario,
+    a: &RunArgs,
+    hw: &exompc_can::config::HardwareConfig,
+) -> Result<(), CliError>
+where
+    D::Traj: Send + 'static,
+{
+    let periods = a
+        .duration
+        .map_or(s.control_steps(D::DOF), |d| (d / s.timing.dt) as usize + 16)
+        .min(1 << 22);
+    let mut rig = exompc_cli::can_cia402::rig::<D, N>(
+        s,
+        hw,
+        Duration::from_micros(a.rt.spin_us),
+        periods + 64,
+    )?;
+    if !a.rt.quiet {
+        eprintln!("exompc run: CAN robot on the {}", rig.label);
+    }
+    let label = rig.label.clone();
+    let bus = rig.bus.clone();
+    let leg = rig.leg.clone();
+    let dt = s.timing.dt;
+    drive::<D, N, _, _>(s, a, &mut rig.robot, rig.clock, &label, move |robot| {
+        use exompc_can::CanBus as _;
+        // The bus load first: reaching the present calls into the leg.
+        let load = bus.map(|b| {
+            let l = b.load();
+            serde_json::json!({
+                "fraction": l.fraction(),
+                "frames": l.frames,
+                "error_frames": l.error_frames,
+                "elapsed_s": l.elapsed.as_secs_f64(),
+            })
+        });
+        let rms_true = leg.map(|l| {
+            let l = l.lock().unwrap_or_else(|e| e.into_inner());
+            let h = l.history();
+            (0..N)
+                .map(|j| {
+                    let n = h.len().max(1) as f64;
+                    (h.iter()
+                        .map(|x| x.force_true[j] * x.force_true[j])
+                        .sum::<f64>()
+                        / n)
+                        .sqrt()
+                })
+                .collect::<Vec<f64>>()
+        });
+        let c = robot.bus().counters();
+        Some(serde_json::json!({
+            "driver": "cia402",
+            "stats": robot.stats(),
+            "stops": robot.stop_events(),
+            "bus": {
+                "sent": c.sent, "received": c.received, "send_errors": c.send_errors,
+                "receive_errors": c.receive_errors, "error_frames": c.error_frames,
+                "dropped": c.dropped,
+            },
+            "bus_load": load,
+            "rms_force_true_n": rms_true,
+            "period_s": dt,
+        }))
+    })
 }
