@@ -29,11 +29,12 @@ pub fn uses_cia402(hw: &HardwareConfig) -> bool {
         .any(|(_, j)| matches!(j, Joint::Cia402(_)))
 }
 
+/// The named CiA 402 joints and the CANopen force node of a run.
+type Parts<const N: usize> = ([(&'static str, Cia402Joint); N], CanopenForceSensor);
+
 /// The CiA 402 joints of an `N`-DOF run (hip and knee, or the knee alone) and the CANopen
 /// force node; a mixed config is refused with the key named.
-fn parts<const N: usize>(
-    hw: &HardwareConfig,
-) -> Result<([(&'static str, Cia402Joint); N], CanopenForceSensor), CliError> {
+fn parts<const N: usize>(hw: &HardwareConfig) -> Result<Parts<N>, CliError> {
     let all = hw.joints.iter();
     let mut joints = Vec::with_capacity(N);
     for (name, j) in &all[2 - N..] {
