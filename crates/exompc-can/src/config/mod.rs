@@ -298,7 +298,7 @@ impl HardwareConfig {
             match j {
                 Joint::Ak(a) => {
                     a.validate(&key)?;
-                    ids.push((u32::from(a.can_id), format!("{key}.can_id")));
+                    ids.push((a.can_id, format!("{key}.can_id")));
                 }
             }
         }
