@@ -170,11 +170,11 @@ impl AkDrive {
     /// The drive of a (validated) joint config; `None` for an unknown model.
     pub fn new(cfg: &AkJoint) -> Option<Self> {
         Some(AkDrive {
-            id: u16::from(cfg.can_id),
-            reply_id: cfg.reply_id,
+            id: cfg.can_id.min(0x7F) as u16,
+            reply_id: cfg.reply_id.min(0x7FF) as u16,
             ranges: cfg.ranges()?,
             ratio: cfg.gear_ratio,
-            dir: f64::from(cfg.direction),
+            dir: if cfg.direction < 0 { -1.0 } else { 1.0 },
             zero: cfg.zero_offset_rad,
             limit: cfg.joint_torque_limit(),
             effort: cfg.reply_effort,

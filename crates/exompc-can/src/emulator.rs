@@ -1,6 +1,6 @@
 //! Virtual devices on the virtual bus: AK motors in MIT mode and a raw-frame strap-force node,
 //! with the simulated human + exoskeleton of `exompc simulate` (the same
-//! [`Plant`](exompc::sim::Plant) and [`Sensors`](exompc::sim::Sensors)) behind them.
+//! [`Plant`] and [`Sensors`]) behind them.
 //!
 //! [`VirtualLeg`] is one [`VirtualNode`]: the plant steps every `dt` of bus time (from bus time
 //! 0) with the torques the motors apply; the sensors are read once per step (noise, faults);

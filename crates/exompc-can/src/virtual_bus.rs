@@ -4,7 +4,7 @@
 //!
 //! Time is either the OS clock ([`TimeBase::Real`]) or a simulated clock that moves only when
 //! someone waits on the bus ([`TimeBase::Simulated`]: [`VirtualEndpoint::recv`] and
-//! [`VirtualClock::sleep_until`] advance it), so a closed loop over the bus runs as fast as it
+//! sleeping on a [`VirtualClock`] advance it), so a closed loop over the bus runs as fast as it
 //! computes and gives the same result every time. Either way the bus is a discrete-event
 //! simulation: a frame queued at time `t` starts when the bus is idle (the lowest identifier
 //! among the frames waiting wins arbitration), occupies it for [`frame_time`], and reaches

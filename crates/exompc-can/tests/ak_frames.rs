@@ -209,7 +209,7 @@ fn unpacking_inverts_packing_to_within_one_step() {
     assert!(unpack_reply(&m, &bytes[..5]).is_none());
 }
 
-fn joint(dir: i8, ratio: f64, zero: f64) -> AkJoint {
+fn joint(dir: i64, ratio: f64, zero: f64) -> AkJoint {
     AkJoint {
         can_id: 2,
         model: "AK80-9".into(),

@@ -20,7 +20,7 @@ use std::time::Duration;
 type Traj = <TwoDof as Dof<2>>::Traj;
 type Leg = VirtualLeg<2, Traj>;
 
-fn joint(id: u8, fine: bool) -> AkJoint {
+fn joint(id: u32, fine: bool) -> AkJoint {
     AkJoint {
         can_id: id,
         model: "AK80-9".into(),

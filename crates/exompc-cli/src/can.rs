@@ -90,7 +90,7 @@ pub fn settings(s: &Scenario, hw: &HardwareConfig, phase: Option<f64>) -> CanRob
 }
 
 /// The simulated leg behind virtual AK motors and the first raw force node, as the config
-/// describes them.
+/// describes them; it keeps a record of `history` plant steps (0: none).
 pub fn virtual_leg<D: Dof<N>, const N: usize>(
     s: &Scenario,
     hw: &HardwareConfig,
@@ -118,9 +118,13 @@ where
                 a.model
             ))
         })?;
-        motors.push(AkEmulator::new(a.can_id, a.reply_id, ranges));
+        motors.push(AkEmulator::new(
+            a.can_id.min(0x7F) as u8,
+            a.reply_id.min(0x7FF) as u16,
+            ranges,
+        ));
         mounts.push(Mount {
-            direction: f64::from(a.direction),
+            direction: if a.direction < 0 { -1.0 } else { 1.0 },
             gear_ratio: a.gear_ratio,
             zero_offset: a.zero_offset_rad,
         });
@@ -138,7 +142,7 @@ where
     let mounts: [Mount; N] = mounts
         .try_into()
         .map_err(|_| CliError::Runtime("joint count".into()))?;
-    Ok(VirtualLeg::new(
+    let leg = VirtualLeg::new(
         plant,
         sensors,
         motors,
@@ -146,8 +150,12 @@ where
         sensor,
         Duration::from_secs_f64(s.timing.dt),
         latency,
-    )
-    .with_history(history))
+    );
+    Ok(if history > 0 {
+        leg.with_history(history)
+    } else {
+        leg
+    })
 }
 
 /// A virtual bus for the config (`transport = "virtual"` settings, or the defaults).

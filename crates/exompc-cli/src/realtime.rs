@@ -1019,6 +1019,12 @@ struct NetFaultReport {
 pub(crate) fn virtual_robot(a: VirtualRobotArgs) -> Result<(), CliError> {
     let mut s = a.config.load()?;
     crate::args::apply_overrides(&mut s, a.dof, None, None, a.payload, a.duration)?;
+    if let Some(hw) = exompc_cli::can::hardware_of(a.config.config.as_deref())? {
+        return match a.dof {
+            1 => serve_can::<OneDof, 1>(&s, &a, &hw),
+            _ => serve_can::<TwoDof, 2>(&s, &a, &hw),
+        };
+    }
     secs("connect-timeout", a.connect_timeout, 0.0, 3600.0)?;
     if let Some(v) = a.auto_restart_after {
         secs("auto-restart-after", v, 0.0, 3600.0)?;
@@ -1053,6 +1059,70 @@ pub(crate) fn virtual_robot(a: VirtualRobotArgs) -> Result<(), CliError> {
         1 => robot_dof::<OneDof, 1>(&s, &a, faults, psk),
         _ => robot_dof::<TwoDof, 2>(&s, &a, faults, psk),
     }
+}
+
+/// `virtual-robot --config` with `[robot]` hardware tables: the virtual AK motors and force
+/// node of the config, with the simulated leg behind them, served as an slcan adapter on a new
+/// pseudo-terminal (its path printed on stdout) until `--duration` or SIGINT/SIGTERM.
+#[cfg(unix)]
+fn serve_can<D: Dof<N>, const N: usize>(
+    s: &Scenario,
+    a: &VirtualRobotArgs,
+    hw: &exompc_can::config::HardwareConfig,
+) -> Result<(), CliError>
+where
+    D::Traj: Send + 'static,
+{
+    use std::io::Write as _;
+    let pty = exompc_can::Pty::open().map_err(|e| CliError::io("opening a pseudo-terminal", e))?;
+    let bus = exompc_cli::can::virtual_bus(hw, exompc_can::TimeBase::Real);
+    let leg = Arc::new(std::sync::Mutex::new(exompc_cli::can::virtual_leg::<D, N>(
+        s, hw, 0,
+    )?));
+    bus.attach(leg.clone());
+    let master = pty
+        .master()
+        .map_err(|e| CliError::io("opening the pseudo-terminal", e))?;
+    let mut adapter = exompc_can::SlcanAdapter::new(bus.endpoint(), master, hw.bus.bitrate());
+    let sig = Signals::install()?;
+    println!("{}", pty.path().display());
+    let _ = std::io::stdout().flush();
+    eprintln!(
+        "virtual robot: {N} virtual AK motor(s) and a force node behind slcan on {} ({} bit/s); \
+         payload {} kg; stop with Ctrl-C",
+        pty.path().display(),
+        hw.bus.bitrate(),
+        s.uncertainty.payload_kg
+    );
+    let start = std::time::Instant::now();
+    while !sig.any() && a.duration.is_none_or(|d| start.elapsed().as_secs_f64() < d) {
+        adapter
+            .serve(Duration::from_micros(200))
+            .map_err(|e| CliError::io("serving slcan", e))?;
+    }
+    let c = adapter.counters();
+    let load = bus.load();
+    println!(
+        "virtual robot: {} frames to the bus, {} to the host, {} refused, {} dropped; bus load \
+         {:.1} %",
+        c.to_bus,
+        c.to_host,
+        c.refused,
+        c.dropped,
+        100.0 * load.fraction()
+    );
+    Ok(())
+}
+
+#[cfg(not(unix))]
+fn serve_can<D: Dof<N>, const N: usize>(
+    _s: &Scenario,
+    _a: &VirtualRobotArgs,
+    _hw: &exompc_can::config::HardwareConfig,
+) -> Result<(), CliError> {
+    Err(CliError::Usage(
+        "virtual-robot --config with [robot] hardware needs a pseudo-terminal (Unix)".into(),
+    ))
 }
 
 /// Restart requests typed at the robot: a line `restart` on stdin (read by a thread).

@@ -104,7 +104,7 @@ fn one() -> f64 {
     1.0
 }
 
-fn dir() -> i8 {
+fn dir() -> i64 {
     1
 }
 
@@ -117,21 +117,21 @@ fn dir() -> i8 {
 #[serde(deny_unknown_fields)]
 pub struct AkJoint {
     /// The motor's CAN ID (its command frames' standard identifier), 1..=127.
-    pub can_id: u8,
+    pub can_id: u32,
     /// The model (`AK80-9`, `AK60-6`, `AK70-10`, `AK10-9`, `AK80-6`, `AK80-64`): the MIT
     /// ranges of [`AK_MODELS`].
     pub model: String,
     /// The CAN ID the motor's replies carry (its "master ID"; the motor ID is in byte 0);
     /// 0..=0x7FF; default 0.
     #[serde(default)]
-    pub reply_id: u16,
+    pub reply_id: u32,
     /// Ratio of an external transmission between the actuator's output and the joint (joint
     /// torque / actuator torque), 0.1..=100; default 1 (the actuator drives the joint directly).
     #[serde(default = "one")]
     pub gear_ratio: f64,
     /// +1 or −1: whether the motor's positive direction is the joint's; default +1.
     #[serde(default = "dir")]
-    pub direction: i8,
+    pub direction: i64,
     /// The joint angle when the motor reads position 0 (rad), −2π..=2π; default 0.
     #[serde(default)]
     pub zero_offset_rad: f64,
@@ -195,7 +195,7 @@ impl AkJoint {
                 ),
             ));
         }
-        if self.reply_id == u16::from(self.can_id) {
+        if self.reply_id == self.can_id {
             return Err(err(
                 format!("{key}.reply_id"),
                 format!(

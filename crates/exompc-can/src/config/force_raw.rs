@@ -12,10 +12,10 @@ pub struct ForceChannel {
     /// Which strap.
     pub strap: Strap,
     /// First byte, 0..=7.
-    pub byte: u8,
+    pub byte: u32,
     /// Width: 1, 2 or 4 bytes; default 2.
     #[serde(default = "two")]
-    pub bytes: u8,
+    pub bytes: u32,
     /// Whether the integer is signed (two's complement); default true.
     #[serde(default = "yes")]
     pub signed: bool,
@@ -29,7 +29,7 @@ pub struct ForceChannel {
     pub offset_n: f64,
 }
 
-fn two() -> u8 {
+fn two() -> u32 {
     2
 }
 
@@ -61,7 +61,7 @@ pub struct RawForceSensor {
 impl ForceChannel {
     /// The force (N) in `data`, `None` if the frame is too short.
     pub fn decode(&self, data: &[u8]) -> Option<f64> {
-        let (b, n) = (usize::from(self.byte), usize::from(self.bytes));
+        let (b, n) = (self.byte as usize, self.bytes as usize);
         let s = data.get(b..b + n)?;
         let mut v: u64 = 0;
         for i in 0..n {
@@ -79,7 +79,7 @@ impl ForceChannel {
 
     /// The bytes of `force` (N) written into `data` (rounded, saturated to the width).
     pub fn encode(&self, force: f64, data: &mut [u8; 8]) {
-        let (b, n) = (usize::from(self.byte), usize::from(self.bytes));
+        let (b, n) = (self.byte as usize, self.bytes as usize);
         let raw = ((force - self.offset_n) / self.scale).round();
         let bits = 8 * n as u32;
         let (lo, hi) = if self.signed {
@@ -115,7 +115,7 @@ impl RawForceSensor {
     pub fn frame_len(&self) -> usize {
         self.channels
             .iter()
-            .map(|c| usize::from(c.byte) + usize::from(c.bytes))
+            .map(|c| c.byte as usize + c.bytes as usize)
             .max()
             .unwrap_or(0)
     }
@@ -140,7 +140,7 @@ impl RawForceSensor {
                     format!("{} is not allowed (allowed: 1, 2 or 4)", c.bytes),
                 ));
             }
-            if usize::from(c.byte) + usize::from(c.bytes) > 8 {
+            if c.byte + c.bytes > 8 {
                 return Err(err(
                     format!("{k}.byte"),
                     format!(

@@ -308,7 +308,7 @@ impl HardwareConfig {
             match j {
                 Joint::Ak(a) => {
                     a.validate(&key)?;
-                    ids.push((u32::from(a.can_id), format!("{key}.can_id")));
+                    ids.push((a.can_id, format!("{key}.can_id")));
                 }
                 Joint::Cia402(c) => {
                     c.validate(&key)?;
