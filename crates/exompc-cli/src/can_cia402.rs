@@ -83,6 +83,46 @@ pub struct Cia402Rig<const N: usize, Tr: exompc::sim::Trajectory<N>> {
     pub label: String,
 }
 
+/// The simulated leg behind the config's virtual CiA 402 drives and CANopen force node
+/// (`history`: plant steps to keep).
+pub fn virtual_leg<D: Dof<N>, const N: usize>(
+    s: &Scenario,
+    hw: &HardwareConfig,
+    history: usize,
+) -> Result<Cia402Leg<N, D::Traj>, CliError>
+where
+    D::Traj: Send,
+{
+    let (joints, force) = parts::<N>(hw)?;
+    let dt = Duration::from_secs_f64(s.timing.dt);
+    s.check_trajectory(D::DOF)
+        .map_err(|e| CliError::Config(e.to_string()))?;
+    let plant = Plant::new(plant_params::<D, N>(s), D::trajectory(s));
+    let sensors = Sensors::new(uncertainty(s), s.uncertainty.filter_window).with_faults(&s.faults);
+    let node = |id: u8| NodeId::new(u32::from(id)).map_err(|e| CliError::Config(e.to_string()));
+    let mut drives = Vec::with_capacity(N);
+    for (_, j) in &joints {
+        drives.push(LegDrive {
+            node: node(j.node_id)?,
+            scaling: j.scaling(),
+        });
+    }
+    let drives: [LegDrive; N] = drives
+        .try_into()
+        .map_err(|_| CliError::Runtime("joint count".into()))?;
+    Ok(Cia402Leg::new(
+        plant,
+        sensors,
+        drives,
+        LegForceNode {
+            node: node(force.node_id)?,
+            scale: force.scale,
+        },
+        dt,
+    )
+    .with_history(history))
+}
+
 /// Build the CiA 402 robot of the config; `history`: leg steps to keep (virtual transport).
 pub fn rig<D: Dof<N>, const N: usize>(
     s: &Scenario,
@@ -119,34 +159,7 @@ where
     };
     match &hw.bus {
         BusConfig::Virtual(_) => {
-            s.check_trajectory(D::DOF)
-                .map_err(|e| CliError::Config(e.to_string()))?;
-            let plant = Plant::new(plant_params::<D, N>(s), D::trajectory(s));
-            let sensors =
-                Sensors::new(uncertainty(s), s.uncertainty.filter_window).with_faults(&s.faults);
-            let node =
-                |id: u8| NodeId::new(u32::from(id)).map_err(|e| CliError::Config(e.to_string()));
-            let mut drives = Vec::with_capacity(N);
-            for (_, j) in &joints {
-                drives.push(LegDrive {
-                    node: node(j.node_id)?,
-                    scaling: j.scaling(),
-                });
-            }
-            let drives: [LegDrive; N] = drives
-                .try_into()
-                .map_err(|_| CliError::Runtime("joint count".into()))?;
-            let leg = Cia402Leg::new(
-                plant,
-                sensors,
-                drives,
-                LegForceNode {
-                    node: node(force.node_id)?,
-                    scale: force.scale,
-                },
-                dt,
-            )
-            .with_history(history);
+            let leg = virtual_leg::<D, N>(s, hw, history)?;
             let bus = virtual_bus(hw, TimeBase::Real);
             let leg = Arc::new(Mutex::new(leg));
             bus.attach(leg.clone());

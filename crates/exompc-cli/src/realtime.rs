@@ -1076,10 +1076,15 @@ where
     use std::io::Write as _;
     let pty = exompc_can::Pty::open().map_err(|e| CliError::io("opening a pseudo-terminal", e))?;
     let bus = exompc_cli::can::virtual_bus(hw, exompc_can::TimeBase::Real);
-    let leg = Arc::new(std::sync::Mutex::new(exompc_cli::can::virtual_leg::<D, N>(
-        s, hw, 0,
-    )?));
-    bus.attach(leg.clone());
+    if exompc_cli::can_cia402::uses_cia402(hw) {
+        let leg = exompc_cli::can_cia402::virtual_leg::<D, N>(s, hw, 0)?;
+        bus.attach(Arc::new(std::sync::Mutex::new(leg)));
+    } else {
+        let leg = Arc::new(std::sync::Mutex::new(exompc_cli::can::virtual_leg::<D, N>(
+            s, hw, 0,
+        )?));
+        bus.attach(leg.clone());
+    }
     let master = pty
         .master()
         .map_err(|e| CliError::io("opening the pseudo-terminal", e))?;
