@@ -82,6 +82,16 @@ impl CanFrame {
         Self::new(CanId::Standard(id), data)
     }
 
+    /// An 8-byte data frame with a standard identifier below 256 (cannot fail).
+    pub fn with_id8(id: u8, data: &[u8; 8]) -> Self {
+        Self {
+            id: CanId::Standard(u16::from(id)),
+            len: 8,
+            data: *data,
+            rtr: false,
+        }
+    }
+
     /// A remote request for `len` bytes (0..=8).
     pub fn remote(id: CanId, len: usize) -> Result<Self, FrameError> {
         check_id(id)?;

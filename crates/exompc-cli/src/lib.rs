@@ -6,6 +6,8 @@
 
 pub use exompc_study::{config_help, envelope, error, gait, interrupt, io};
 
+pub mod can;
+pub mod can_cia402;
 pub mod earlier;
 pub mod explain;
 pub mod layout;

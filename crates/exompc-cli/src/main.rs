@@ -4,6 +4,7 @@
 
 mod args;
 mod bench;
+mod cia402_cmd;
 mod envelope_cmd;
 mod faults;
 mod gait_cmd;
@@ -114,6 +115,9 @@ enum Command {
     /// payloads, each against the same run without the fault (peak true strap force, RMS
     /// ratio, trips, held steps, latch); writes faults.md and faults.json (docs/RELIABILITY.md).
     Faults(faults::FaultsArgs),
+    /// CiA 402 over slcan: `serve` a virtual drive on a pseudo-terminal, or run exompc's
+    /// `master` against a drive behind an slcan port (see docs/HARDWARE.md).
+    Cia402(cia402_cmd::Cia402Args),
 }
 
 fn main() -> ExitCode {
@@ -152,6 +156,7 @@ fn run(cli: Cli) -> Result<(), CliError> {
         Command::Envelope(a) => envelope_cmd::run(a),
         Command::Gait(a) => gait_cmd::run(a),
         Command::Faults(a) => faults::run(a),
+        Command::Cia402(a) => cia402_cmd::run(a),
     }
 }
 

@@ -472,6 +472,10 @@ pub(crate) struct RunArgs {
     /// Move the results of an earlier run in the output folder aside (without it, refused).
     #[arg(long)]
     force: bool,
+    /// Override `uncertainty.payload_kg` (kg) of the simulated leg: only with a `[robot.bus]`
+    /// of `transport = "virtual"` (docs/HARDWARE.md).
+    #[arg(long, value_name = "KG", allow_negative_numbers = true)]
+    payload: Option<f64>,
     #[command(flatten)]
     rt: RtOpts,
 }
@@ -496,6 +500,9 @@ struct RunSummary {
     rms_force_measured_n: Vec<f64>,
     trace_error: Option<String>,
     realtime: RtStatus,
+    /// The CAN robot's counters, stops and bus load (`run --config` with `[robot.bus]`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    can: Option<serde_json::Value>,
 }
 
 /// Why `run` ended.
@@ -511,7 +518,19 @@ enum RunEnd {
 
 pub(crate) fn run(a: RunArgs) -> Result<(), CliError> {
     let mut s = a.config.load()?;
-    crate::args::apply_overrides(&mut s, a.dof, a.controller, None, None, None)?;
+    let hw = exompc_cli::can::hardware_of(a.config.config.as_deref())?;
+    let virtual_bus = matches!(
+        hw.as_ref().map(|h| &h.bus),
+        Some(exompc_can::config::BusConfig::Virtual(_))
+    );
+    if a.payload.is_some() && !virtual_bus {
+        return Err(CliError::Usage(
+            "--payload is for the virtual devices only: a config with [robot.bus] transport = \
+             \"virtual\""
+                .into(),
+        ));
+    }
+    crate::args::apply_overrides(&mut s, a.dof, a.controller, None, a.payload, None)?;
     if let Some(d) = a.duration {
         secs("duration", d, 0.0, 1e6)?;
     }
@@ -523,6 +542,19 @@ pub(crate) fn run(a: RunArgs) -> Result<(), CliError> {
     if let Some(ms) = a.sample_timeout_ms {
         secs("sample-timeout-ms", ms * 1e-3, 0.0, s.timing.dt)?;
     }
+    if let Some(hw) = hw {
+        check_out(&a.out, a.force)?;
+        if exompc_cli::can_cia402::uses_cia402(&hw) {
+            return match a.dof {
+                1 => run_cia402::<OneDof, 1>(&s, &a, &hw),
+                _ => run_cia402::<TwoDof, 2>(&s, &a, &hw),
+            };
+        }
+        return match a.dof {
+            1 => run_can::<OneDof, 1>(&s, &a, &hw),
+            _ => run_can::<TwoDof, 2>(&s, &a, &hw),
+        };
+    }
     let psk = load_key(a.key.as_deref())?;
     check_out(&a.out, a.force)?;
     warn_exposed("--bind", a.bind);
@@ -532,12 +564,98 @@ pub(crate) fn run(a: RunArgs) -> Result<(), CliError> {
     }
 }
 
+/// `run --config` with `[robot.bus]`: the CAN robot the config describes.
+fn run_can<D: Dof<N>, const N: usize>(
+    s: &Scenario,
+    a: &RunArgs,
+    hw: &exompc_can::config::HardwareConfig,
+) -> Result<(), CliError>
+where
+    D::Traj: Send + 'static,
+{
+    let periods = a
+        .duration
+        .map_or(s.control_steps(D::DOF), |d| (d / s.timing.dt) as usize + 16)
+        .min(1 << 22);
+    let mut rig =
+        exompc_cli::can::rig::<D, N>(s, hw, Duration::from_micros(a.rt.spin_us), periods + 64)?;
+    if !a.rt.quiet {
+        eprintln!("exompc run: CAN robot on the {}", rig.label);
+    }
+    let label = rig.label.clone();
+    let bus = rig.bus.clone();
+    let leg = rig.leg.clone();
+    let dt = s.timing.dt;
+    drive::<D, N, _, _>(s, a, &mut rig.robot, rig.clock, &label, move |robot| {
+        use exompc_can::CanBus as _;
+        let rms_true = leg.map(|l| {
+            let l = l.lock().unwrap_or_else(|e| e.into_inner());
+            let h = l.history();
+            (0..N)
+                .map(|j| {
+                    let n = h.len().max(1) as f64;
+                    (h.iter()
+                        .map(|x| x.force_true[j] * x.force_true[j])
+                        .sum::<f64>()
+                        / n)
+                        .sqrt()
+                })
+                .collect::<Vec<f64>>()
+        });
+        let load = bus.map(|b| {
+            let l = b.load();
+            serde_json::json!({
+                "fraction": l.fraction(),
+                "frames": l.frames,
+                "error_frames": l.error_frames,
+                "elapsed_s": l.elapsed.as_secs_f64(),
+            })
+        });
+        let c = robot.bus().counters();
+        Some(serde_json::json!({
+            "stats": robot.stats(),
+            "stops": robot.stop_events(),
+            "bus": {
+                "sent": c.sent, "received": c.received, "send_errors": c.send_errors,
+                "receive_errors": c.receive_errors, "error_frames": c.error_frames,
+                "dropped": c.dropped,
+            },
+            "bus_load": load,
+            "rms_force_true_n": rms_true,
+            "period_s": dt,
+        }))
+    })
+}
+
 /// Sequence numbers a frame may be ahead of the last one: about 1 s of periods.
 fn max_ahead(dt: f64) -> u32 {
     (1.0 / dt).ceil().clamp(2.0, 1e6) as u32
 }
 
 fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs, psk: Psk) -> Result<(), CliError> {
+    let mut robot = UdpRobot::<N>::connect(a.bind, a.robot, psk, max_ahead(s.timing.dt))
+        .map_err(|e| CliError::io(format!("binding {}", a.bind), e))?;
+    let clock = MonotonicClock::new(Duration::from_micros(a.rt.spin_us));
+    if !a.rt.quiet {
+        eprintln!(
+            "exompc run: robot {} (from {})",
+            a.robot,
+            robot.local_addr().map_or("?".into(), |x| x.to_string())
+        );
+    }
+    drive::<D, N, _, _>(s, a, &mut robot, clock, &a.robot.to_string(), |_| None)
+}
+
+/// The control loop of `run` against any robot: connect, run the periods, write the trace
+/// and the summary (`extra`: what the robot adds to it).
+fn drive<D: Dof<N>, const N: usize, R: RobotInterface<N>, K: Clock>(
+    s: &Scenario,
+    a: &RunArgs,
+    robot: &mut R,
+    mut clock: K,
+    robot_label: &str,
+    extra: impl FnOnce(&mut R) -> Option<serde_json::Value>,
+) -> Result<(), CliError> {
     let dt = Duration::from_secs_f64(s.timing.dt);
     let mut settings = LoopSettings::new(dt, s.uncertainty.filter_window, limits(s));
     if let Some(ms) = a.lead_ms {
@@ -556,16 +674,11 @@ fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs, psk: Psk) -> Re
     let mut lp = ControlLoop::new(sup, settings, capacity);
     let sig = Signals::install()?;
     let rt = rt_setup(&a.rt);
-    let mut robot = UdpRobot::<N>::connect(a.bind, a.robot, psk, max_ahead(s.timing.dt))
-        .map_err(|e| CliError::io(format!("binding {}", a.bind), e))?;
-    let mut clock = MonotonicClock::new(Duration::from_micros(a.rt.spin_us));
     if !a.rt.quiet {
         eprintln!(
-            "exompc run: {name}, {}-DOF, period {} ms, robot {} (from {})",
+            "exompc run: {name}, {}-DOF, period {} ms",
             D::DOF,
             s.timing.dt * 1e3,
-            a.robot,
-            robot.local_addr().map_or("?".into(), |x| x.to_string())
         );
     }
     let io_err = |e| CliError::io("robot link", e);
@@ -576,7 +689,7 @@ fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs, psk: Psk) -> Re
             return Err(sig.error(format!(
                 "interrupted by {} while connecting to the robot at {}; nothing written",
                 sig.name(),
-                a.robot
+                robot_label
             )));
         }
         let left = connect_end.saturating_sub(clock.now());
@@ -585,7 +698,7 @@ fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs, psk: Psk) -> Re
                 "no session with the robot at {} within {} s: is it running with the same \
                  --key, and not in a protective stop (restart it)? (link: {} datagrams \
                  received, {} rejected)",
-                a.robot,
+                robot_label,
                 a.connect_timeout,
                 robot.link_stats().received,
                 robot.link_stats().rejected.total()
@@ -593,7 +706,7 @@ fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs, psk: Psk) -> Re
         }
         if lp
             .connect(
-                &mut robot,
+                robot,
                 &mut clock,
                 left.min(Duration::from_millis(200)),
                 Duration::from_millis(100),
@@ -637,7 +750,7 @@ fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs, psk: Psk) -> Re
                 )));
             }
         }
-        let rec = match lp.period(&mut robot, &mut clock) {
+        let rec = match lp.period(robot, &mut clock) {
             Ok(r) => r,
             Err(e) => {
                 // The link failed: the robot stops itself when no command reaches it.
@@ -729,7 +842,7 @@ fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs, psk: Psk) -> Re
             }
         }
     }
-    let _ = lp.send_stop(&mut robot, &clock, 3);
+    let _ = lp.send_stop(robot, &clock, 3);
     let _ = robot.deactivate();
     let trace_error = trace.finish();
     let end = match (end, &trace_error) {
@@ -746,7 +859,7 @@ fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs, psk: Psk) -> Re
     let summary = RunSummary {
         controller: name,
         dof: D::DOF,
-        robot: a.robot.to_string(),
+        robot: robot_label.to_string(),
         stop_reason,
         completed: matches!(end, RunEnd::Planned(_)),
         duration_s: lp.stats().periods as f64 * s.timing.dt,
@@ -765,6 +878,11 @@ fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs, psk: Psk) -> Re
             .collect(),
         trace_error: trace_error.clone(),
         realtime: rt,
+        can: None,
+    };
+    let summary = RunSummary {
+        can: extra(robot),
+        ..summary
     };
     let wrote = write_json(&a.out.join("summary.json"), &summary);
     let t = &summary.timing_us;
@@ -901,6 +1019,12 @@ struct NetFaultReport {
 pub(crate) fn virtual_robot(a: VirtualRobotArgs) -> Result<(), CliError> {
     let mut s = a.config.load()?;
     crate::args::apply_overrides(&mut s, a.dof, None, None, a.payload, a.duration)?;
+    if let Some(hw) = exompc_cli::can::hardware_of(a.config.config.as_deref())? {
+        return match a.dof {
+            1 => serve_can::<OneDof, 1>(&s, &a, &hw),
+            _ => serve_can::<TwoDof, 2>(&s, &a, &hw),
+        };
+    }
     secs("connect-timeout", a.connect_timeout, 0.0, 3600.0)?;
     if let Some(v) = a.auto_restart_after {
         secs("auto-restart-after", v, 0.0, 3600.0)?;
@@ -935,6 +1059,75 @@ pub(crate) fn virtual_robot(a: VirtualRobotArgs) -> Result<(), CliError> {
         1 => robot_dof::<OneDof, 1>(&s, &a, faults, psk),
         _ => robot_dof::<TwoDof, 2>(&s, &a, faults, psk),
     }
+}
+
+/// `virtual-robot --config` with `[robot]` hardware tables: the virtual AK motors and force
+/// node of the config, with the simulated leg behind them, served as an slcan adapter on a new
+/// pseudo-terminal (its path printed on stdout) until `--duration` or SIGINT/SIGTERM.
+#[cfg(unix)]
+fn serve_can<D: Dof<N>, const N: usize>(
+    s: &Scenario,
+    a: &VirtualRobotArgs,
+    hw: &exompc_can::config::HardwareConfig,
+) -> Result<(), CliError>
+where
+    D::Traj: Send + 'static,
+{
+    use std::io::Write as _;
+    let pty = exompc_can::Pty::open().map_err(|e| CliError::io("opening a pseudo-terminal", e))?;
+    let bus = exompc_cli::can::virtual_bus(hw, exompc_can::TimeBase::Real);
+    if exompc_cli::can_cia402::uses_cia402(hw) {
+        let leg = exompc_cli::can_cia402::virtual_leg::<D, N>(s, hw, 0)?;
+        bus.attach(Arc::new(std::sync::Mutex::new(leg)));
+    } else {
+        let leg = Arc::new(std::sync::Mutex::new(exompc_cli::can::virtual_leg::<D, N>(
+            s, hw, 0,
+        )?));
+        bus.attach(leg.clone());
+    }
+    let master = pty
+        .master()
+        .map_err(|e| CliError::io("opening the pseudo-terminal", e))?;
+    let mut adapter = exompc_can::SlcanAdapter::new(bus.endpoint(), master, hw.bus.bitrate());
+    let sig = Signals::install()?;
+    println!("{}", pty.path().display());
+    let _ = std::io::stdout().flush();
+    eprintln!(
+        "virtual robot: {N} virtual AK motor(s) and a force node behind slcan on {} ({} bit/s); \
+         payload {} kg; stop with Ctrl-C",
+        pty.path().display(),
+        hw.bus.bitrate(),
+        s.uncertainty.payload_kg
+    );
+    let start = std::time::Instant::now();
+    while !sig.any() && a.duration.is_none_or(|d| start.elapsed().as_secs_f64() < d) {
+        adapter
+            .serve(Duration::from_micros(200))
+            .map_err(|e| CliError::io("serving slcan", e))?;
+    }
+    let c = adapter.counters();
+    let load = bus.load();
+    println!(
+        "virtual robot: {} frames to the bus, {} to the host, {} refused, {} dropped; bus load \
+         {:.1} %",
+        c.to_bus,
+        c.to_host,
+        c.refused,
+        c.dropped,
+        100.0 * load.fraction()
+    );
+    Ok(())
+}
+
+#[cfg(not(unix))]
+fn serve_can<D: Dof<N>, const N: usize>(
+    _s: &Scenario,
+    _a: &VirtualRobotArgs,
+    _hw: &exompc_can::config::HardwareConfig,
+) -> Result<(), CliError> {
+    Err(CliError::Usage(
+        "virtual-robot --config with [robot] hardware needs a pseudo-terminal (Unix)".into(),
+    ))
 }
 
 /// Restart requests typed at the robot: a line `restart` on stdin (read by a thread).
@@ -1287,4 +1480,74 @@ fn service<const N: usize, Tr: exompc::sim::Trajectory<N>>(
             in_f.submit_tagged(link_t(clock), from, raw);
         }
     }
+}
+
+/// `run --config` with CiA 402 drives (`driver = "cia402"`): the robot of
+/// `exompc_cli::can_cia402`, through the same loop, trace and summary as the AK robot.
+fn run_cia402<D: Dof<N>, const N: usize>(
+    s: &Scenario,
+    a: &RunArgs,
+    hw: &exompc_can::config::HardwareConfig,
+) -> Result<(), CliError>
+where
+    D::Traj: Send + 'static,
+{
+    let periods = a
+        .duration
+        .map_or(s.control_steps(D::DOF), |d| (d / s.timing.dt) as usize + 16)
+        .min(1 << 22);
+    let mut rig = exompc_cli::can_cia402::rig::<D, N>(
+        s,
+        hw,
+        Duration::from_micros(a.rt.spin_us),
+        periods + 64,
+    )?;
+    if !a.rt.quiet {
+        eprintln!("exompc run: CAN robot on the {}", rig.label);
+    }
+    let label = rig.label.clone();
+    let bus = rig.bus.clone();
+    let leg = rig.leg.clone();
+    let dt = s.timing.dt;
+    drive::<D, N, _, _>(s, a, &mut rig.robot, rig.clock, &label, move |robot| {
+        use exompc_can::CanBus as _;
+        // The bus load first: reaching the present calls into the leg.
+        let load = bus.map(|b| {
+            let l = b.load();
+            serde_json::json!({
+                "fraction": l.fraction(),
+                "frames": l.frames,
+                "error_frames": l.error_frames,
+                "elapsed_s": l.elapsed.as_secs_f64(),
+            })
+        });
+        let rms_true = leg.map(|l| {
+            let l = l.lock().unwrap_or_else(|e| e.into_inner());
+            let h = l.history();
+            (0..N)
+                .map(|j| {
+                    let n = h.len().max(1) as f64;
+                    (h.iter()
+                        .map(|x| x.force_true[j] * x.force_true[j])
+                        .sum::<f64>()
+                        / n)
+                        .sqrt()
+                })
+                .collect::<Vec<f64>>()
+        });
+        let c = robot.bus().counters();
+        Some(serde_json::json!({
+            "driver": "cia402",
+            "stats": robot.stats(),
+            "stops": robot.stop_events(),
+            "bus": {
+                "sent": c.sent, "received": c.received, "send_errors": c.send_errors,
+                "receive_errors": c.receive_errors, "error_frames": c.error_frames,
+                "dropped": c.dropped,
+            },
+            "bus_load": load,
+            "rms_force_true_n": rms_true,
+            "period_s": dt,
+        }))
+    })
 }

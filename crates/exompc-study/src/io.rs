@@ -74,6 +74,13 @@ pub fn parse_scenario_with_origins_in(
     text: &str,
     base: &Path,
 ) -> Result<(Scenario, KeyOrigins), String> {
+    // The hardware tables of `[robot]` (bus, joints, force sensors) are `run --config`'s;
+    // checked here so that every command rejects a bad one, then left out of the scenario.
+    let (text, hw) = exompc_can::config::split_hardware(text).map_err(|e| e.to_string())?;
+    if let Some(hw) = hw {
+        exompc_can::config::HardwareConfig::from_table(hw).map_err(|e| e.to_string())?;
+    }
+    let text = text.as_str();
     let table: toml::Table =
         toml::from_str(text).map_err(|e| describe_toml_error(text, &e, "TOML syntax error"))?;
     check_keys(&table, &schema(), "")?;

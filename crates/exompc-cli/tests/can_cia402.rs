@@ -1,0 +1,75 @@
+//! `exompc run --config` with CiA 402 drives on the in-process virtual bus: a short closed loop
+//! writes the trace and summary with the CAN section; bad CiA 402 keys exit 2 naming the key.
+
+use std::path::{Path, PathBuf};
+
+mod common;
+use common::{exompc, fresh_dir, scratch, stderr};
+
+fn example() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/can-cia402-virtual.toml")
+}
+
+#[test]
+fn run_closes_the_loop_over_virtual_cia402_drives() {
+    let out = fresh_dir("cia402-run");
+    let o = exompc(&[
+        "run",
+        "--config",
+        example().to_str().unwrap(),
+        "--payload",
+        "2",
+        "--duration",
+        "1",
+        "--quiet",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(s["completed"], true);
+    let can = &s["can"];
+    assert_eq!(can["driver"], "cia402");
+    assert_eq!(can["stats"]["protective_stops"], 0);
+    assert!(can["stats"]["samples"].as_u64().unwrap() >= 95);
+    assert_eq!(can["stops"].as_array().unwrap().len(), 0);
+    assert!(out.join("trace.csv").is_file());
+}
+
+#[test]
+fn bad_cia402_keys_exit_2_naming_the_key() {
+    let text = std::fs::read_to_string(example()).unwrap();
+    for (from, to, want) in [
+        (
+            "node_id = 2",
+            "node_id = 1",
+            "robot.joints.knee.node_id: 1 is also robot.joints.hip.node_id",
+        ),
+        (
+            "mode = \"cst\"                # cyclic",
+            "mode = \"csp\"                # cyclic",
+            "unknown variant `csp`",
+        ),
+        (
+            "driver = \"canopen\"",
+            "driver = \"canopen\"\ncob_id = 5",
+            "robot.force_sensors[0].cob_id: 5 is out of range (allowed 385..=1407)",
+        ),
+    ] {
+        assert!(text.contains(from), "{from}");
+        let bad = scratch("bad-cia402.toml");
+        std::fs::write(&bad, text.replacen(from, to, 1)).unwrap();
+        let o = exompc(&[
+            "run",
+            "--config",
+            bad.to_str().unwrap(),
+            "--duration",
+            "1",
+            "--out",
+            fresh_dir("bad-cia402-out").to_str().unwrap(),
+        ]);
+        assert_eq!(o.status.code(), Some(2), "{to}: {}", stderr(&o));
+        assert!(stderr(&o).contains(want), "{to}: {}", stderr(&o));
+    }
+}
