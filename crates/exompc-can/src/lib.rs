@@ -18,6 +18,8 @@ pub mod robot;
 pub mod serial;
 pub mod slcan;
 pub mod slcan_adapter;
+#[cfg(all(target_os = "linux", feature = "socketcan"))]
+pub mod socketcan_bus;
 pub mod timing;
 pub mod virtual_bus;
 

@@ -179,6 +179,9 @@ pub enum AnyBus {
     /// An slcan adapter on a serial port (or a pty of `exompc virtual-robot --config`).
     #[cfg(unix)]
     Slcan(exompc_can::SlcanBus<exompc_can::FdPort>),
+    /// A Linux SocketCAN interface (feature `socketcan`).
+    #[cfg(all(target_os = "linux", feature = "socketcan"))]
+    SocketCan(exompc_can::socketcan_bus::SocketCanBus),
 }
 
 impl CanBus for AnyBus {
@@ -187,6 +190,8 @@ impl CanBus for AnyBus {
             AnyBus::Virtual(b) => b.send(frame),
             #[cfg(unix)]
             AnyBus::Slcan(b) => b.send(frame),
+            #[cfg(all(target_os = "linux", feature = "socketcan"))]
+            AnyBus::SocketCan(b) => b.send(frame),
         }
     }
 
@@ -195,6 +200,8 @@ impl CanBus for AnyBus {
             AnyBus::Virtual(b) => b.recv(timeout),
             #[cfg(unix)]
             AnyBus::Slcan(b) => b.recv(timeout),
+            #[cfg(all(target_os = "linux", feature = "socketcan"))]
+            AnyBus::SocketCan(b) => b.recv(timeout),
         }
     }
 
@@ -203,6 +210,8 @@ impl CanBus for AnyBus {
             AnyBus::Virtual(b) => b.counters(),
             #[cfg(unix)]
             AnyBus::Slcan(b) => b.counters(),
+            #[cfg(all(target_os = "linux", feature = "socketcan"))]
+            AnyBus::SocketCan(b) => b.counters(),
         }
     }
 
@@ -211,6 +220,8 @@ impl CanBus for AnyBus {
             AnyBus::Virtual(b) => b.state(),
             #[cfg(unix)]
             AnyBus::Slcan(b) => b.state(),
+            #[cfg(all(target_os = "linux", feature = "socketcan"))]
+            AnyBus::SocketCan(b) => b.state(),
         }
     }
 }
@@ -315,13 +326,41 @@ where
                 label: format!("slcan {} at {} bit/s", sl.port, sl.bitrate),
             })
         }
-        other => Err(CliError::Config(format!(
-            "robot.bus.transport: {:?} is not available in this build (available: \"virtual\", \
-             \"slcan\")",
-            match other {
-                BusConfig::Socketcan(_) => "socketcan",
-                _ => "?",
-            }
-        ))),
+        #[cfg(all(target_os = "linux", feature = "socketcan"))]
+        BusConfig::Socketcan(sc) => {
+            let bus =
+                exompc_can::socketcan_bus::SocketCanBus::open(&sc.interface).map_err(|e| {
+                    CliError::io(
+                        format!(
+                            "opening SocketCAN interface {} (robot.bus.interface)",
+                            sc.interface
+                        ),
+                        e,
+                    )
+                })?;
+            let clock = AnyClock::Monotonic(MonotonicClock::new(spin));
+            let robot = CanRobot::new(
+                AnyBus::SocketCan(bus),
+                clock.clone(),
+                drives,
+                names,
+                sensors,
+                settings(s, hw, None),
+            );
+            Ok(CanRig {
+                robot,
+                clock,
+                bus: None,
+                leg: None,
+                label: format!("SocketCAN {}", sc.interface),
+            })
+        }
+        #[allow(unreachable_patterns)]
+        _ => Err(CliError::Config(
+            "robot.bus.transport: \"socketcan\" needs a Linux build with the feature \
+             `socketcan` (cargo build --release --features exompc-cli/socketcan); available \
+             here: \"virtual\", \"slcan\""
+                .into(),
+        )),
     }
 }

@@ -88,6 +88,30 @@ fn bad_hardware_values_exit_2_naming_the_key_and_range() {
             assert!(e.contains(key) && e.contains(range), "{cmd}: {e}");
         }
     }
+    // SocketCAN in a build without the feature: refused, saying how to build it.
+    #[cfg(not(feature = "socketcan"))]
+    {
+        let f = write(
+            &dir,
+            "socketcan.toml",
+            &text
+                .replacen(
+                    "transport = \"virtual\"",
+                    "transport = \"socketcan\"\ninterface = \"can0\"",
+                    1,
+                )
+                .replacen("device_latency_us = 100\n", "", 1),
+        );
+        let o = exompc(&[
+            "run",
+            "--config",
+            f.to_str().unwrap(),
+            "--out",
+            dir.join("o").to_str().unwrap(),
+        ]);
+        assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+        assert!(stderr(&o).contains("robot.bus.transport") && stderr(&o).contains("feature"));
+    }
     // --payload only for virtual devices.
     let f = write(
         &dir,

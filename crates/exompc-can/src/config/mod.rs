@@ -124,10 +124,6 @@ fn default_latency_us() -> u32 {
     100
 }
 
-fn default_true() -> bool {
-    true
-}
-
 /// `transport = "virtual"`.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -148,10 +144,6 @@ pub struct VirtualTransport {
     /// Time a virtual device takes to answer (µs), 0..=5000; default 100.
     #[serde(default = "default_latency_us")]
     pub device_latency_us: u32,
-    /// Whether the virtual AK motors quantise the MIT fields as the firmware does; default
-    /// true (false only to measure what quantisation costs).
-    #[serde(default = "default_true")]
-    pub quantise: bool,
 }
 
 fn default_seed() -> u64 {

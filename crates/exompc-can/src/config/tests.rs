@@ -45,7 +45,7 @@ fn the_hardware_tables_split_off_and_parse() {
     assert!(kept.contains("viscous_friction") && kept.contains("[robot.thigh]"));
     assert!(!kept.contains("transport") && !kept.contains("AK80-9"));
     let cfg = HardwareConfig::from_table(hw.unwrap()).unwrap();
-    assert!(matches!(cfg.bus, BusConfig::Virtual(ref v) if v.bitrate == 1_000_000 && v.quantise));
+    assert!(matches!(cfg.bus, BusConfig::Virtual(ref v) if v.bitrate == 1_000_000));
     let Joint::Ak(knee) = &cfg.joints.knee else {
         panic!("the knee is an AK motor")
     };
