@@ -75,27 +75,45 @@
 //! scenario description) and [`scenario`] (builders, the controller registry, experiments).
 //! Imports run only from a later module to an earlier one. The most used items are
 //! re-exported at the crate root; their module paths work as well.
+//!
+//! # Without `std`
+//!
+//! With the default `std` feature off, the numerical core ([`model`], [`solver`], [`estimate`],
+//! [`control`]) builds `#![no_std]` with `alloc`, e.g. for a Cortex-M7 (`thumbv7em-none-eabihf`;
+//! `docs/EMBEDDED.md`): f64 math through `libm`, no solve time budget, multi-stage scenarios in
+//! turn. The rest of the library needs `std`.
 #![warn(missing_docs)]
+#![cfg_attr(not(feature = "std"), no_std)]
+
+extern crate alloc;
 
 mod check;
+#[cfg(feature = "std")]
 pub mod config;
 pub mod control;
 pub mod estimate;
+#[cfg(not(feature = "std"))]
+mod math;
 pub mod model;
+#[cfg(feature = "std")]
 pub mod runtime;
+#[cfg(feature = "std")]
 pub mod scenario;
+#[cfg(feature = "std")]
 pub mod sim;
 pub mod solver;
 #[cfg(test)]
 mod test_rng;
 
 pub use check::InvalidField;
+#[cfg(feature = "std")]
 pub use config::{ControllerKind, Scenario};
 pub use control::{
     ControlOutput, Controller, Measurement, MultiStage, Nmpc, StepStatus, Supervisor, TorqueLimits,
 };
 pub use estimate::EkfBank;
 pub use model::RobotModel;
+#[cfg(feature = "std")]
 pub use scenario::{build_controller, build_supervised, run_experiment, Dof, OneDof, TwoDof};
 
 /// The repository's README, whose Rust snippet (the library example) is compiled and run as
