@@ -78,42 +78,40 @@
 //!
 //! # Without `std`
 //!
-//! With the default `std` feature off, the numerical core ([`model`], [`solver`], [`estimate`],
-//! [`control`]) builds `#![no_std]` with `alloc`, e.g. for a Cortex-M7 (`thumbv7em-none-eabihf`;
-//! `docs/EMBEDDED.md`): f64 math through `libm`, no solve time budget, multi-stage scenarios in
-//! turn. The rest of the library needs `std`.
+//! With the default `std` feature off, everything but [`runtime`] builds `#![no_std]` with
+//! `alloc`, e.g. for a Cortex-M7 (`thumbv7em-none-eabihf`; `docs/EMBEDDED.md`): the numerical
+//! core, the plant, the scenario and its builders and the closed-loop experiment. Without `std`:
+//! f64 math through `libm`, no clock (no solve time budget), multi-stage scenarios in turn, no
+//! exact Hessian, no fault scan (rayon), no controller registration at run time.
 #![warn(missing_docs)]
 #![cfg_attr(not(feature = "std"), no_std)]
 
 extern crate alloc;
 
 mod check;
-#[cfg(feature = "std")]
+#[cfg(not(feature = "std"))]
+mod clock;
 pub mod config;
 pub mod control;
 pub mod estimate;
-#[cfg(not(feature = "std"))]
+#[cfg(any(not(feature = "std"), test))]
 mod math;
 pub mod model;
 #[cfg(feature = "std")]
 pub mod runtime;
-#[cfg(feature = "std")]
 pub mod scenario;
-#[cfg(feature = "std")]
 pub mod sim;
 pub mod solver;
 #[cfg(test)]
 mod test_rng;
 
 pub use check::InvalidField;
-#[cfg(feature = "std")]
 pub use config::{ControllerKind, Scenario};
 pub use control::{
     ControlOutput, Controller, Measurement, MultiStage, Nmpc, StepStatus, Supervisor, TorqueLimits,
 };
 pub use estimate::EkfBank;
 pub use model::RobotModel;
-#[cfg(feature = "std")]
 pub use scenario::{build_controller, build_supervised, run_experiment, Dof, OneDof, TwoDof};
 
 /// The repository's README, whose Rust snippet (the library example) is compiled and run as

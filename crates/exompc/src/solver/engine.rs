@@ -9,25 +9,11 @@
 //! stage form (`control::ocp::StructuredSqp` with [`super::RiccatiQp`]) run the same engine, so
 //! warm-start projection, Armijo line search and termination are written once.
 
+#[cfg(not(feature = "std"))]
+use crate::clock::Instant;
 use core::time::Duration;
 #[cfg(feature = "std")]
 use std::time::Instant;
-
-/// Without `std` there is no clock: a solve is bounded by its iteration limits only, its time
-/// budget (`SqpSettings::max_time`) is not checked and its `solve_time` is zero.
-#[cfg(not(feature = "std"))]
-#[derive(Clone, Copy)]
-struct Instant;
-
-#[cfg(not(feature = "std"))]
-impl Instant {
-    fn now() -> Self {
-        Instant
-    }
-    fn elapsed(&self) -> Duration {
-        Duration::ZERO
-    }
-}
 
 use nalgebra::DVector;
 
