@@ -90,7 +90,7 @@ extern crate alloc;
 
 mod check;
 #[cfg(not(feature = "std"))]
-mod clock;
+pub mod clock;
 pub mod config;
 pub mod control;
 pub mod estimate;

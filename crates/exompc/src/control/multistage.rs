@@ -556,6 +556,8 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
         // Back from estimated channels: the filters resume at the measurement like after a gap.
         let resync = self.was_estimating && !self.estimating;
         let gap = !self.started || m.t - self.last_t > 1.5 * dt || resync;
+        #[cfg(not(feature = "std"))]
+        let ekf_start = crate::clock::Instant::now();
         if !self.started {
             self.bank.reset_to(&m.q, &m.qd);
             if let Some(b) = self.dbank.as_mut() {
@@ -596,6 +598,8 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
                     b.step_per_scenario(&y, &self.prev, |i| models[i].straps.torque(&forces[i]));
             }
         }
+        #[cfg(not(feature = "std"))]
+        crate::clock::account(crate::clock::Part::EkfBank, ekf_start.elapsed());
         self.last_t = m.t;
         self.was_estimating = self.estimating;
         let mut x0 = JointState { q: m.q, qd: m.qd };

@@ -98,6 +98,8 @@ pub(crate) fn solve<B: SqpSteps + ?Sized>(
     };
     info.status = run(steps, s, z_trial, z, &mut info, start);
     info.solve_time = start.elapsed();
+    #[cfg(not(feature = "std"))]
+    crate::clock::account(crate::clock::Part::Solver, info.solve_time);
     info
 }
 
