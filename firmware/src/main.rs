@@ -27,7 +27,7 @@ use cortex_m_rt::entry;
 use cortex_m_semihosting::{debug, hio, nr};
 use embedded_alloc::LlffHeap;
 use exompc::config::{ControllerKind, Scenario};
-use exompc::scenario::{multistage, run_experiment_report, TwoDof};
+use exompc::scenario::{build_supervised, multistage, run_experiment_report, TwoDof};
 use exompc::sim::{RecordResult, Recorder, StepRecord};
 
 /// Heap arena (a static array; the heap's peak use is measured).
@@ -328,6 +328,18 @@ fn main() -> ! {
         2 * rounds
     ));
     out(&header(&keys));
+    // The heap the controller alone holds (supervised, as the run builds it; it allocates
+    // nothing per step): built, measured and dropped before the run.
+    let before = HEAP.heap.used();
+    let controller_heap = match build_supervised::<TwoDof, 2>(&s, s.controller.kind) {
+        Ok(c) => {
+            let used = HEAP.heap.used() - before;
+            drop(c);
+            used
+        }
+        Err(e) => fail(&format!("{e}")),
+    };
+    out(&format!("I,controller_heap_bytes={controller_heap}\n"));
 
     exompc::clock::set_clock(now_ns);
     let _ = exompc::clock::take_parts();
