@@ -3,7 +3,8 @@
 //! the key inside its own table, so the scenario layer ([`crate::config`]) only prefixes the
 //! table path (`mass_kg` → `robot.thigh.mass_kg`).
 
-use std::fmt;
+use alloc::{format, string::String, string::ToString};
+use core::fmt;
 
 /// A setting outside its allowed range; `field` is the key inside its own table
 /// (`hip_amplitude`, `events[0].start_s`), so a scenario layer can prefix its table path
@@ -39,6 +40,7 @@ impl InvalidField {
 
 /// Allowed range of a real setting (every variant also requires the value to be finite).
 #[derive(Debug, Clone, Copy)]
+#[cfg_attr(not(feature = "std"), allow(dead_code))] // some ranges are the std-only layers'
 pub(crate) enum Range {
     /// Any finite value.
     Any,

@@ -13,8 +13,11 @@
 //! Units are SI throughout (m, kg, s, rad, N, N·m).
 
 use crate::check::{self, InvalidField, Range as R};
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
+use alloc::{boxed::Box, format, string::String, string::ToString, vec, vec::Vec};
+use core::fmt;
 use serde::{Deserialize, Deserializer, Serialize};
-use std::fmt;
 
 mod controller_kind;
 mod keys;
@@ -430,7 +433,7 @@ pub use crate::control::{
     FilterAware, GainSetting, IntentEstimate, Method, RobustIntentGains, RobustSettings,
 };
 use crate::solver::{SolverError, SqpSettings};
-use std::time::Duration;
+use core::time::Duration;
 
 /// `[controller]`: intent estimation and NMPC (MODEL.md §8, paper eqs. 5-9, Table 1).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

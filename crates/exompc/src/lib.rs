@@ -75,13 +75,29 @@
 //! scenario description) and [`scenario`] (builders, the controller registry, experiments).
 //! Imports run only from a later module to an earlier one. The most used items are
 //! re-exported at the crate root; their module paths work as well.
+//!
+//! # Without `std`
+//!
+//! With the default `std` feature off, everything but [`runtime`] builds `#![no_std]` with
+//! `alloc`, e.g. for a Cortex-M7 (`thumbv7em-none-eabihf`; `docs/EMBEDDED.md`): the numerical
+//! core, the plant, the scenario and its builders and the closed-loop experiment. Without `std`:
+//! f64 math through `libm`, no clock (no solve time budget), multi-stage scenarios in turn, no
+//! exact Hessian, no fault scan (rayon), no controller registration at run time.
 #![warn(missing_docs)]
+#![cfg_attr(not(feature = "std"), no_std)]
+
+extern crate alloc;
 
 mod check;
+#[cfg(not(feature = "std"))]
+pub mod clock;
 pub mod config;
 pub mod control;
 pub mod estimate;
+#[cfg(any(not(feature = "std"), test))]
+mod math;
 pub mod model;
+#[cfg(feature = "std")]
 pub mod runtime;
 pub mod scenario;
 pub mod sim;

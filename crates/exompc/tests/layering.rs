@@ -22,7 +22,7 @@ use std::path::{Path, PathBuf};
 
 /// The layers, lowest first. A module may import modules of strictly lower layers only.
 const LAYERS: &[&[&str]] = &[
-    &["check", "test_rng"],
+    &["check", "test_rng", "math", "clock"],
     &["model", "solver"],
     &["estimate"],
     &["control"],

@@ -1,8 +1,9 @@
 //! `controller.kind`: the name of a controller of the controller registry.
 
 use super::ConfigError;
+use alloc::{format, string::String};
+use core::fmt;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
-use std::fmt;
 
 /// Longest controller name (bytes).
 const MAX_LEN: usize = 31;
@@ -85,7 +86,7 @@ impl ControllerKind {
     /// The name.
     pub fn as_str(&self) -> &str {
         // Only ASCII bytes are ever stored (see `well_formed`).
-        std::str::from_utf8(&self.bytes[..usize::from(self.len)]).unwrap_or_default()
+        core::str::from_utf8(&self.bytes[..usize::from(self.len)]).unwrap_or_default()
     }
 }
 
@@ -117,7 +118,7 @@ impl fmt::Debug for ControllerKind {
     }
 }
 
-impl std::str::FromStr for ControllerKind {
+impl core::str::FromStr for ControllerKind {
     type Err = ConfigError;
     fn from_str(s: &str) -> Result<Self, ConfigError> {
         Self::new(s)

@@ -8,7 +8,8 @@
 //! [`Scenario::validate`]: super::Scenario::validate
 
 use super::{scenarios, MAX_CONTROL_STEPS, MAX_PAYLOAD_KG, MAX_SCENARIOS};
-use std::fmt::Write as _;
+use alloc::{format, string::String, vec::Vec};
+use core::fmt::Write as _;
 
 /// One end of an allowed real or integer range: a number or another key's value.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -21,8 +22,8 @@ pub enum Limit {
     InverseLen(&'static str),
 }
 
-impl std::fmt::Display for Limit {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+impl core::fmt::Display for Limit {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
             Limit::Num(v) => write!(f, "{v}"),
             Limit::Key(k) => f.write_str(k),

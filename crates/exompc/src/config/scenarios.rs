@@ -30,6 +30,7 @@
 
 use super::{ConfigError, Link, Robot, Scenario, Straps, MAX_PAYLOAD_KG, MAX_SCENARIOS};
 use crate::check::{self, Range};
+use alloc::{format, string::String, vec::Vec};
 use serde::{Deserialize, Serialize};
 
 // ---------------------------------------------------------------------------------------------

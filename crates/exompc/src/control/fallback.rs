@@ -2,7 +2,10 @@
 //! carries the robot and its (estimated) payload itself, so that the straps carry little.
 
 use super::Measurement;
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
 use crate::model::{RobotModel, Straps};
+use alloc::{vec, vec::Vec};
 use nalgebra::{SMatrix, SVector};
 use serde::{Deserialize, Serialize};
 
@@ -359,7 +362,7 @@ impl<const N: usize> Transparent<N> {
             let v = (self.q[0] - self.q[2]) / (2.0 * dt);
             let a = (self.q[0] - 2.0 * self.q[1] + self.q[2]) / (dt * dt);
             let gamma =
-                1.0 - (-2.0 * std::f64::consts::PI * self.s.acceleration_cutoff_hz * dt).exp();
+                1.0 - (-2.0 * core::f64::consts::PI * self.s.acceleration_cutoff_hz * dt).exp();
             self.acc += (a - self.acc) * gamma;
             let (t0, y) = self.inverse_dynamics(&self.q[1], &v, &a);
             // The torque over [k−2, k] drove the acceleration at k−1.

@@ -15,6 +15,7 @@
 //! and forth.
 
 use super::PredictionModel;
+use alloc::vec::Vec;
 
 /// Which scenarios count as heavy; see the module documentation. Allocated in
 /// [`InertiaGate::new`]; [`InertiaGate::update`] does not allocate.

@@ -21,7 +21,9 @@
 
 use super::prediction::{HorizonInputs, PredictionModel, StepJacobian};
 use crate::model::JointState;
+use alloc::{vec, vec::Vec};
 use nalgebra::{DMatrix, SMatrix, SVector};
+#[cfg(feature = "std")]
 use num_dual::HyperDual64;
 
 /// The symmetric `3N × 3N` Hessian of `λ_qᵀ q⁺ + λ_vᵀ qd⁺` of one prediction step with respect
@@ -112,6 +114,7 @@ impl<const N: usize> PredictionModel<N> {
     /// `(q, qd, u)`: the stage block `W_j` of the exact-Hessian SQP (module docs). Forward-mode
     /// hyper-dual numbers, one pass per pair of variables (`3N(3N+1)/2` passes); allocates
     /// nothing.
+    #[cfg(feature = "std")]
     pub fn step_lagrangian_hessian(
         &self,
         x: &JointState<f64, N>,
@@ -146,6 +149,28 @@ impl<const N: usize> PredictionModel<N> {
                     v += lam_q[i] * s.q[i].eps1eps2 + lam_v[i] * s.qd[i].eps1eps2;
                 }
                 h.set_upper(a, b, v);
+            }
+        }
+        h
+    }
+
+    /// Without `std` there are no hyper-dual numbers (`num-dual` needs `std`):
+    /// [`crate::solver::SqpSettings::validate`] rejects `HessianModel::Exact`, and this block
+    /// is all NaN, so that a solve reaching it anyway fails with a safe fallback.
+    #[cfg(not(feature = "std"))]
+    pub fn step_lagrangian_hessian(
+        &self,
+        _x: &JointState<f64, N>,
+        _u: &SVector<f64, N>,
+        _tau0: f64,
+        _inp: &HorizonInputs<N>,
+        _lam_q: &SVector<f64, N>,
+        _lam_v: &SVector<f64, N>,
+    ) -> StepHessian<N> {
+        let mut h = StepHessian::zeros();
+        for a in 0..3 * N {
+            for b in a..3 * N {
+                h.set_upper(a, b, f64::NAN);
             }
         }
         h

@@ -1,6 +1,8 @@
 //! The high-pass filter shared by the oscillation detectors (`safety::OscillationDetector` of
 //! the supervisor and `lag::HfShareDetector` of the robust method).
 
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
 use nalgebra::SVector;
 
 /// Second-order Butterworth high-pass per channel, by the bilinear transform with
@@ -48,8 +50,8 @@ impl<const N: usize> HighPass<N> {
         } else {
             0.3 * nyquist
         };
-        let k = (std::f64::consts::PI * fc * dt).tan();
-        let r2 = std::f64::consts::SQRT_2;
+        let k = (core::f64::consts::PI * fc * dt).tan();
+        let r2 = core::f64::consts::SQRT_2;
         let norm = 1.0 / (1.0 + r2 * k + k * k);
         (
             [norm, -2.0 * norm, norm],

@@ -12,6 +12,7 @@
 //! was measured and not kept: docs/ROBUSTNESS.md §4.)
 
 use crate::model::Straps;
+use alloc::{format, string::String};
 use nalgebra::SVector;
 
 /// `κ1` (rad/m) of `k1 = "auto"`: `K1 = κ1 / ks`; the paper's 0.005 rad/N at its default

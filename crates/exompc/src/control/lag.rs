@@ -15,7 +15,10 @@
 
 use super::highpass::HighPass;
 use super::Measurement;
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
 use crate::model::Straps;
+use alloc::{vec, vec::Vec};
 use nalgebra::SVector;
 
 /// Moving average of the encoder angles over the sensor filter's window and the Smith-predicted
@@ -49,7 +52,7 @@ impl<const N: usize> LowPassAcceleration<N> {
     pub(crate) fn new(dt: f64, bandwidth_hz: f64) -> Self {
         LowPassAcceleration {
             dt,
-            gamma: 1.0 - (-2.0 * std::f64::consts::PI * bandwidth_hz * dt).exp(),
+            gamma: 1.0 - (-2.0 * core::f64::consts::PI * bandwidth_hz * dt).exp(),
             prev: None,
             acc: SVector::zeros(),
         }

@@ -14,9 +14,13 @@ use super::{
     TorqueLimits,
 };
 use crate::estimate::{EkfBank, EkfSettings, EstimateError, EstimatorOptions};
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
 use crate::model::JointState;
 use crate::solver::{Constraints, LeastSquares, SolverError, Sqp, SqpInfo};
+use alloc::{boxed::Box, vec, vec::Vec};
 use nalgebra::{DMatrix, DVector, SVector};
+#[cfg(feature = "std")]
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -158,7 +162,7 @@ impl<const N: usize> LeastSquares for CoupledProblem<N> {
 
     fn residuals(&mut self, z: &[f64], r: &mut [f64]) -> bool {
         let m1 = self.ri.len();
-        let mut zi = std::mem::take(&mut self.zi);
+        let mut zi = core::mem::take(&mut self.zi);
         let mut ok = true;
         for i in 0..self.scenarios.len() {
             self.gather(z, i, &mut zi);
@@ -173,8 +177,8 @@ impl<const N: usize> LeastSquares for CoupledProblem<N> {
 
     fn residuals_jacobian(&mut self, z: &[f64], r: &mut [f64], jac: &mut DMatrix<f64>) -> bool {
         let (sh, pr, m1) = (self.shared(), self.private(), self.ri.len());
-        let mut zi = std::mem::take(&mut self.zi);
-        let mut jaci = std::mem::replace(&mut self.jaci, DMatrix::zeros(0, 0));
+        let mut zi = core::mem::take(&mut self.zi);
+        let mut jaci = core::mem::replace(&mut self.jaci, DMatrix::zeros(0, 0));
         jac.fill(0.0);
         let mut ok = true;
         for i in 0..self.scenarios.len() {
@@ -257,7 +261,7 @@ impl<const N: usize> CoupledCore<N> {
     ) -> SqpInfo {
         let (sh, pr) = (self.problem.shared(), self.problem.private());
         // Warm start: shift each scenario's plan one step; shared part is the weighted mean.
-        let mut sh_buf = std::mem::take(&mut self.shared);
+        let mut sh_buf = core::mem::take(&mut self.shared);
         sh_buf.fill(0.0);
         for (i, w) in weights.iter().enumerate() {
             self.problem.gather(self.z.as_slice(), i, &mut self.zi);
@@ -336,6 +340,7 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     inputs: Vec<HorizonInputs<N>>,
     weights: Vec<f64>,
     dist: Vec<SVector<f64, N>>,
+    #[cfg_attr(not(feature = "std"), allow(dead_code))] // only `parallel` is read, with std
     options: MultiStageOptions,
     intent: IntentEstimator,
     limits: TorqueLimits,
@@ -551,6 +556,8 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
         // Back from estimated channels: the filters resume at the measurement like after a gap.
         let resync = self.was_estimating && !self.estimating;
         let gap = !self.started || m.t - self.last_t > 1.5 * dt || resync;
+        #[cfg(not(feature = "std"))]
+        let ekf_start = crate::clock::Instant::now();
         if !self.started {
             self.bank.reset_to(&m.q, &m.qd);
             if let Some(b) = self.dbank.as_mut() {
@@ -591,6 +598,8 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
                     b.step_per_scenario(&y, &self.prev, |i| models[i].straps.torque(&forces[i]));
             }
         }
+        #[cfg(not(feature = "std"))]
+        crate::clock::account(crate::clock::Part::EkfBank, ekf_start.elapsed());
         self.last_t = m.t;
         self.was_estimating = self.estimating;
         let mut x0 = JointState { q: m.q, qd: m.qd };
@@ -674,7 +683,12 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
             let solve = |(i, core): (usize, &mut NmpcCore<N>)| {
                 core.solve(x0, prev, inputs[i], &limits).status
             };
-            if self.options.parallel {
+            #[cfg(feature = "std")]
+            let parallel = self.options.parallel;
+            #[cfg(not(feature = "std"))]
+            let parallel = false; // no threads without std: the scenarios run in turn
+            if parallel {
+                #[cfg(feature = "std")]
                 self.cores.par_iter_mut().enumerate().for_each(|p| {
                     solve(p);
                 });

@@ -7,6 +7,7 @@ use super::prediction::{HorizonInputs, PredictionModel};
 use super::{ControlOutput, Controller, IntentEstimator, Measurement, StepStatus, TorqueLimits};
 use crate::model::JointState;
 use crate::solver::{Constraints, LeastSquares, SolverError, Sqp, SqpInfo, SqpStatus};
+use alloc::boxed::Box;
 use nalgebra::{DVector, SVector};
 
 /// The SQP of one scenario, with the QP back-end the settings' [`QpBackend`] resolves to (only
@@ -55,7 +56,7 @@ impl<const N: usize> NmpcCore<N> {
                 qp_iterations: 0,
                 cost: 0.0,
                 kkt_residual: 0.0,
-                solve_time: std::time::Duration::ZERO,
+                solve_time: core::time::Duration::ZERO,
             },
         })
     }

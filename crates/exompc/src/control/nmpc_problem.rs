@@ -5,8 +5,11 @@
 use super::hessian::CurvatureWork;
 use super::prediction::{HorizonInputs, PredictionModel, StepJacobian};
 use super::TorqueLimits;
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
 use crate::model::JointState;
 use crate::solver::{Constraints, LeastSquares, SqpSettings};
+use alloc::{vec, vec::Vec};
 use nalgebra::{DMatrix, SMatrix, SVector};
 use serde::{Deserialize, Serialize};
 

@@ -25,12 +25,15 @@ use super::hessian::costates;
 use super::nmpc_problem::{NmpcProblem, NmpcSettings};
 use super::prediction::StepJacobian;
 use super::TorqueLimits;
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
 use crate::model::JointState;
 use crate::solver::engine::{self, finite_or_inf, BoundCheck, HessianShift, KktTest, SqpSteps};
 use crate::solver::riccati::held_congruence;
 use crate::solver::{
     HessianModel, QpInfo, QpStatus, RiccatiQp, SolverError, SqpInfo, SqpSettings, SqpStatus,
 };
+use alloc::{vec, vec::Vec};
 use nalgebra::{DVector, SMatrix, SVector};
 
 /// SQP (Gauss–Newton or exact Hessian) over the multiple-shooting form of eq. 7 with the
@@ -811,8 +814,8 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
         w.torques.copy_from_slice(&w.torques_trial);
         w.grad.copy_from_slice(&w.qp.g);
         if w.exact {
-            std::mem::swap(&mut w.states, &mut w.states_trial);
-            std::mem::swap(&mut w.held, &mut w.held_trial);
+            core::mem::swap(&mut w.states, &mut w.states_trial);
+            core::mem::swap(&mut w.held, &mut w.held_trial);
         }
         true
     }

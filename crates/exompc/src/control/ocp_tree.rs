@@ -17,9 +17,12 @@ use super::nmpc_problem::QpBackend;
 use super::nmpc_problem::{NmpcProblem, NmpcSettings};
 use super::prediction::StepJacobian;
 use super::TorqueLimits;
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
 use crate::model::JointState;
 use crate::solver::engine::{self, finite_or_inf, BoundCheck, SqpSteps};
 use crate::solver::{QpInfo, SolverError, SqpInfo, SqpSettings, SqpStatus, TreeQp};
+use alloc::{vec, vec::Vec};
 use nalgebra::DVector;
 
 /// Smallest number of coupled decision variables `N·(Nr + S·(Nc − Nr))` for which

@@ -5,6 +5,7 @@ use crate::model::{
     c, rk4_step, ChainConstants, JointState, Real, RobotModel, StageTorque, Straps, TailoredRk4,
 };
 use nalgebra::{SMatrix, SVector};
+#[cfg(feature = "std")]
 use num_dual::{DualSVec64, DualStruct};
 use serde::{Deserialize, Serialize};
 
@@ -109,6 +110,7 @@ impl<const N: usize> PredictionModel<N> {
     /// and `u` in three passes. The reference for [`Self::step_with_jacobian`] (same values to
     /// rounding), about ten times slower. A test and benchmark oracle, hidden from the docs.
     #[doc(hidden)]
+    #[cfg(feature = "std")]
     pub fn step_with_jacobian_dual(
         &self,
         x: &JointState<f64, N>,

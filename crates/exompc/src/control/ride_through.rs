@@ -2,6 +2,9 @@
 //! for a rejected channel ([`ChannelGuard`], used by the [`Supervisor`](super::Supervisor)).
 
 use super::Measurement;
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
+use alloc::{vec, vec::Vec};
 use nalgebra::SVector;
 
 /// Index of the angle, velocity and force signal of a measurement.
@@ -154,7 +157,7 @@ impl<const N: usize> ChannelGuard<N> {
             window: window.clamp(1, 1000),
             bounds,
             gates,
-            hist: std::array::from_fn(|_| vec![SVector::zeros(); len]),
+            hist: core::array::from_fn(|_| vec![SVector::zeros(); len]),
             pos: 0,
             filled: 0,
             raw: [[SVector::repeat(f64::NAN); 2]; 3],
@@ -233,7 +236,7 @@ impl<const N: usize> ChannelGuard<N> {
         // Linear extrapolations of the estimates, and the mean slope of the angle over the
         // filter window (what a clean filtered velocity equals).
         let pred: [SVector<f64, N>; 3] =
-            std::array::from_fn(|s| self.back(s, 1) * 2.0 - self.back(s, 2));
+            core::array::from_fn(|s| self.back(s, 1) * 2.0 - self.back(s, 2));
         let span = (self.window - 1).max(1);
         let force_resync = (FORCE_RESYNC_S / self.dt).ceil().max(1.0) as u64;
         for j in 0..N {

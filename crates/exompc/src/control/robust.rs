@@ -22,6 +22,8 @@
 use super::intent::{GainSetting, IntentGain};
 use super::lag::{ForceLag, HfShareDetector};
 use super::Measurement;
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
 use nalgebra::SVector;
 use serde::{Deserialize, Serialize};
 

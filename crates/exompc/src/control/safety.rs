@@ -7,6 +7,9 @@ use super::{
     TorqueLimits, Transparent,
 };
 use crate::check::{self, InvalidField, Range};
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
+use alloc::{boxed::Box, format, vec, vec::Vec};
 use nalgebra::{SMatrix, SVector};
 use serde::{Deserialize, Serialize};
 
@@ -46,7 +49,7 @@ pub struct SafetySettings {
 
 impl SafetySettings {
     /// Plausibility limit on joint angles (rad).
-    pub const ANGLE_MAX: f64 = std::f64::consts::PI;
+    pub const ANGLE_MAX: f64 = core::f64::consts::PI;
     /// Plausibility limit on joint velocities (rad/s).
     pub const VELOCITY_MAX: f64 = 30.0;
     /// Default hold-off before a monitor clears (s).

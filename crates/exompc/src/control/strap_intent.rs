@@ -42,7 +42,10 @@
 
 use super::lag::{ForceLag, LowPassAcceleration};
 use super::Measurement;
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
 use crate::model::Straps;
+use alloc::vec::Vec;
 use nalgebra::{SMatrix, SVector};
 
 /// One scenario's strap observer.

@@ -11,6 +11,8 @@
 //!
 //! [`RobustSettings::weight_smoothing_s`]: super::robust::RobustSettings::weight_smoothing_s
 
+use alloc::{vec, vec::Vec};
+
 /// The probability one scenario must exceed before [`WeightSmoother`] starts low-passing
 /// (more than half: that scenario is more likely than all the others together). Any value
 /// from 0.35 to 0.99 gives the same standard envelope (docs/ROBUSTNESS.md, eighth pass).

@@ -1,7 +1,10 @@
 //! The bank of scenario filters and the scenario probabilities of paper eqs. 10-11.
 
 use super::{EkfError, EkfSettings, EstimateError, EstimatorOptions, ScenarioEkf};
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
 use crate::model::RobotModel;
+use alloc::{vec, vec::Vec};
 use nalgebra::SVector;
 
 /// Scenario probability update of paper eqs. 10-11, in the log domain.
@@ -242,7 +245,7 @@ impl<const N: usize, const NA: usize, const NY: usize> EkfBank<N, NA, NY> {
             self.floor,
             &mut self.scratch,
         );
-        std::mem::swap(&mut self.probabilities, &mut self.scratch);
+        core::mem::swap(&mut self.probabilities, &mut self.scratch);
         Ok(())
     }
 

@@ -1,5 +1,7 @@
 //! A generic extended Kalman filter on fixed-size nalgebra types.
 
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
 use nalgebra::{Cholesky, SMatrix, SVector};
 
 /// Why an [`Ekf`] step was rejected. The filter is left exactly as it was.
@@ -54,7 +56,7 @@ impl<const NY: usize> InnovationStats<NY> {
     pub fn log_likelihood(&self, c1: f64) -> f64 {
         let ny = NY as f64;
         -0.5 * c1 * self.mahalanobis.abs()
-            - 0.5 * (ny * (2.0 * std::f64::consts::PI).ln() + ny * c1.ln() + self.log_det_s)
+            - 0.5 * (ny * (2.0 * core::f64::consts::PI).ln() + ny * c1.ln() + self.log_det_s)
     }
 }
 

@@ -6,7 +6,10 @@ use super::{
 use crate::model::{
     rk4_step, ChainConstants, HeldTorque, JointState, Real, RobotModel, TailoredRk4,
 };
-use nalgebra::{Const, SMatrix, SVector, U1};
+#[cfg(feature = "std")]
+use nalgebra::{Const, U1};
+use nalgebra::{SMatrix, SVector};
+#[cfg(feature = "std")]
 use num_dual::DualSVec64;
 
 /// Result of one [`ScenarioEkf::step`]: the innovation entering paper eq. 10 (standard or paper
@@ -275,6 +278,7 @@ impl<const N: usize, const NA: usize, const NY: usize> ScenarioEkf<N, NA, NY> {
     /// [`predict_with_jacobian`](Self::predict_with_jacobian) (same values to rounding), about
     /// ten times slower. A test oracle, hidden from the docs.
     #[doc(hidden)]
+    #[cfg(feature = "std")]
     pub fn predict_with_jacobian_dual(
         &self,
         x: &SVector<f64, NA>,

@@ -2,6 +2,8 @@
 
 use super::Link;
 use crate::check::{self, InvalidField, Range};
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
 use serde::{Deserialize, Serialize};
 
 /// One human leg segment as Winter's fractions (MODEL.md §2 table): of body mass, of height,

@@ -21,14 +21,20 @@ pub use robot::{tanh, Friction, RobotModel};
 pub use straps::Straps;
 pub use trig::{sin_cos, sin_cos_near};
 
+#[cfg(feature = "std")]
 use num_dual::DualNum;
 
 /// Standard gravity (m/s²), MODEL.md §1.
 pub const GRAVITY: f64 = 9.81;
 
 /// A real scalar: `f64` or a forward-mode dual number over `f64`.
+#[cfg(feature = "std")]
 pub trait Real: DualNum<Primitive = f64> + Copy {}
+#[cfg(feature = "std")]
 impl<T: DualNum<Primitive = f64> + Copy> Real for T {}
+
+#[cfg(not(feature = "std"))]
+pub use crate::math::Real;
 
 /// Lift an `f64` constant into the scalar type.
 #[inline(always)]

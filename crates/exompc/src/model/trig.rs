@@ -10,7 +10,9 @@
 // The fdlibm constants as published (more digits than an f64 holds; they round to the intended values).
 #![allow(clippy::excessive_precision)]
 
-use std::f64::consts::{FRAC_2_PI, FRAC_PI_4};
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
+use core::f64::consts::{FRAC_2_PI, FRAC_PI_4};
 
 const PIO2_1: f64 = 1.570_796_326_734_125_614_17e0;
 const PIO2_1T: f64 = 6.077_100_506_506_192_249_32e-11;

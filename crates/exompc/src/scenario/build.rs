@@ -13,6 +13,7 @@ use crate::control::{
 use crate::control::{AUTO_K1_PER_STIFFNESS, AUTO_K2_PER_STIFFNESS};
 use crate::estimate::EstimatorOptions;
 use crate::sim::Trajectory;
+use alloc::{boxed::Box, vec};
 use nalgebra::SVector;
 
 /// NMPC settings of a scenario.

@@ -27,5 +27,5 @@ pub enum RunError {
     },
     /// A recorder failed (e.g. a trace file could not be written).
     #[error("recording failed: {0}")]
-    Io(#[from] std::io::Error),
+    Io(#[from] crate::sim::RecordError),
 }

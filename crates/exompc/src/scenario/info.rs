@@ -4,6 +4,7 @@
 use super::error::RunError;
 use crate::config::{ControllerKind, Scenario};
 use crate::control::Controller;
+use alloc::boxed::Box;
 use nalgebra::SVector;
 
 /// Builds a controller of scenario `s` with `N` joints and initial previous torque `t0`.

@@ -7,6 +7,7 @@
 
 mod build;
 mod error;
+#[cfg(feature = "std")]
 mod fault_scan;
 mod info;
 mod layout;
@@ -19,6 +20,7 @@ pub use build::{
     multistage_nmpc_settings, nmpc_settings,
 };
 pub use error::RunError;
+#[cfg(feature = "std")]
 pub use fault_scan::{
     cell_scenario, fault_scan_markdown, peak_goal_n, run_fault_scan, spike_magnitude, ChannelGroup,
     FaultCell, FaultGrid, RMS_RATIO_GOAL,
@@ -27,8 +29,10 @@ pub use info::{Builder, ControllerInfo};
 pub use layout::{
     gait_demand, plant_params, prediction_model, scenario_robot, uncertainty, Dof, OneDof, TwoDof,
 };
+#[cfg(feature = "std")]
+pub use registry::register_controller;
 pub use registry::{
-    build_controller, build_supervised, controller_by_name, controller_info, controllers,
-    register_controller, validate, DuplicateController, BUILTIN,
+    build_controller, build_supervised, controller_by_name, controller_info, controllers, validate,
+    DuplicateController, BUILTIN,
 };
 pub use run::{run_experiment, run_experiment_report, run_soak, soak_scenario, SoakReport};

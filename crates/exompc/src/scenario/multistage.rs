@@ -8,10 +8,13 @@ pub use crate::config::scenarios::*;
 use crate::config::Scenario;
 use crate::control::PredictionModel;
 use crate::estimate::{EkfBank, EstimatorOptions};
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
 use crate::model::JointState;
 use crate::sim::Trajectory;
+use alloc::{format, string::String, string::ToString, vec, vec::Vec};
+use core::fmt;
 use nalgebra::SVector;
-use std::fmt;
 
 /// The prediction model of every scenario for layout `D` (docs/MODEL.md §8): the base model
 /// with the scenario's override and payload. The EKF bank uses each model's robot.
@@ -31,7 +34,7 @@ pub const IDENTIFY_WINDOW_S: f64 = 5.0;
 
 /// Smallest accumulated log-likelihood ratio counted as distinguishable: `ln 10`, a 10:1
 /// probability ratio from uniform.
-pub const MIN_EVIDENCE: f64 = std::f64::consts::LN_10;
+pub const MIN_EVIDENCE: f64 = core::f64::consts::LN_10;
 
 /// Why two scenarios cannot be told apart by the EKF bank.
 #[derive(Debug, Clone, PartialEq)]
@@ -251,7 +254,7 @@ fn evidence<D: Dof<N>, const N: usize, const NA: usize, const NY: usize>(
     let steps = ((IDENTIFY_WINDOW_S / dt).round() as usize).max(1);
     // Computed-torque gains of the data generator: a 2 %-overshoot 5 Hz loop.
     let (kp, kd) = {
-        let w = 2.0 * std::f64::consts::PI * 5.0;
+        let w = 2.0 * core::f64::consts::PI * 5.0;
         (w * w, 1.6 * w)
     };
     let zero = SVector::<f64, N>::zeros();

@@ -14,6 +14,8 @@ use super::info::ControllerInfo;
 use super::layout::{Dof, OneDof, TwoDof};
 use crate::config::{ConfigError, ControllerKind, MonitorResponse, Scenario};
 use crate::control::{Controller, SafetySettings, Supervisor};
+use alloc::{boxed::Box, format, string::String, vec::Vec};
+#[cfg(feature = "std")]
 use std::sync::{PoisonError, RwLock};
 
 /// The controllers of exompc, in the order help texts, tables and legends list them.
@@ -48,6 +50,7 @@ pub const BUILTIN: &[ControllerInfo] = &[
 ];
 
 /// Controllers added by [`register_controller`], after [`BUILTIN`].
+#[cfg(feature = "std")]
 static REGISTERED: RwLock<Vec<&'static ControllerInfo>> = RwLock::new(Vec::new());
 
 /// Error of [`register_controller`].
@@ -79,6 +82,7 @@ pub struct DuplicateController(pub ControllerKind);
 /// exompc::scenario::validate(&s).unwrap();
 /// assert!(register_controller(&MINE).is_err());
 /// ```
+#[cfg(feature = "std")]
 pub fn register_controller(info: &'static ControllerInfo) -> Result<(), DuplicateController> {
     let mut all = REGISTERED.write().unwrap_or_else(PoisonError::into_inner);
     if BUILTIN
@@ -95,7 +99,10 @@ pub fn register_controller(info: &'static ControllerInfo) -> Result<(), Duplicat
 /// Every registered controller: [`BUILTIN`], then those of [`register_controller`] in the
 /// order they were registered.
 pub fn controllers() -> Vec<&'static ControllerInfo> {
+    #[cfg(feature = "std")]
     let extra = REGISTERED.read().unwrap_or_else(PoisonError::into_inner);
+    #[cfg(not(feature = "std"))]
+    let extra: [&'static ControllerInfo; 0] = []; // no registry without std: the built-ins
     BUILTIN.iter().chain(extra.iter().copied()).collect()
 }
 

@@ -5,14 +5,18 @@ use super::build::limits;
 use super::error::RunError;
 use super::layout::{plant_params, uncertainty, Dof, TwoDof};
 use super::registry::build_supervised;
+#[cfg(not(feature = "std"))]
+use crate::clock::Instant;
 use crate::config::{ControllerKind, Scenario};
 use crate::control::{Controller, MonitorEvent, SafetyReport};
 use crate::sim::{
     default_schedule, repeat_schedule, run_closed_loop, Metrics, Plant, Recorder, SafetySummary,
     Sensors, SoakStats, StepRecord, Summary,
 };
+use alloc::{string::String, vec::Vec};
 use nalgebra::SVector;
 use serde::Serialize;
+#[cfg(feature = "std")]
 use std::time::Instant;
 
 /// Run the closed loop of scenario `s` with controller `s.controller.kind` in layout `D` for
@@ -34,13 +38,13 @@ struct DivergenceGuard {
 }
 
 impl<const N: usize> Recorder<N> for DivergenceGuard {
-    fn record(&mut self, r: &StepRecord<'_, N>) -> std::io::Result<()> {
+    fn record(&mut self, r: &StepRecord<'_, N>) -> crate::sim::RecordResult {
         let finite = |v: &SVector<f64, N>| v.iter().all(|x| x.is_finite());
         if finite(&r.robot.q) && finite(&r.robot.qd) && finite(&r.human.q) && finite(&r.human.qd) {
             Ok(())
         } else {
             self.diverged_at = Some(r.t);
-            Err(std::io::Error::other("plant state is not finite"))
+            Err(crate::sim::record_error("plant state is not finite"))
         }
     }
 }
@@ -83,6 +87,7 @@ pub fn run_experiment_report<D: Dof<N>, const N: usize>(
         }
         match result {
             // Ended early on request: the summary covers the steps run (`steps` tells).
+            #[cfg(feature = "std")]
             Err(e) if crate::sim::is_stop_requested(&e) => {}
             r => r?,
         }

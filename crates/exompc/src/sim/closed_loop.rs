@@ -3,10 +3,34 @@
 use super::plant::Plant;
 use super::trajectory::Trajectory;
 use super::Sensors;
+#[cfg(not(feature = "std"))]
+use crate::clock::Instant;
 use crate::control::{Controller, StepStatus, TorqueLimits};
 use crate::model::JointState;
+use alloc::{vec, vec::Vec};
 use nalgebra::SVector;
+#[cfg(feature = "std")]
 use std::time::Instant;
+
+/// The error of a [`Recorder`]: an I/O error with `std`; without `std` (no files) a message.
+#[cfg(feature = "std")]
+pub type RecordError = std::io::Error;
+/// The error of a [`Recorder`]: an I/O error with `std`; without `std` (no files) a message.
+#[cfg(not(feature = "std"))]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct RecordError(pub &'static str);
+
+/// What [`Recorder::record`] returns (`std::io::Result<()>` with `std`).
+pub type RecordResult = Result<(), RecordError>;
+
+/// A recorder error with the message `msg`.
+pub fn record_error(msg: &'static str) -> RecordError {
+    #[cfg(feature = "std")]
+    return std::io::Error::other(msg);
+    #[cfg(not(feature = "std"))]
+    return RecordError(msg);
+}
 
 /// Everything known about one control period, handed to each [`Recorder`].
 #[derive(Clone, Copy, Debug)]
@@ -50,29 +74,34 @@ pub trait Recorder<const N: usize> {
     /// Record one step; an error stops the run and is returned to the caller (a
     /// [`StopRequested`] error ends it early with the results so far instead, see
     /// [`stop_requested`]).
-    fn record(&mut self, r: &StepRecord<'_, N>) -> std::io::Result<()>;
+    fn record(&mut self, r: &StepRecord<'_, N>) -> RecordResult;
 }
 
 /// The error a [`Recorder`] returns to end a run early on purpose (a user's Ctrl-C): the
 /// experiment drivers ([`crate::scenario::run_experiment`]) then return the summary of the
 /// steps run so far (its `steps` below the planned count) instead of an error.
+#[cfg(feature = "std")]
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct StopRequested;
 
+#[cfg(feature = "std")]
 impl std::fmt::Display for StopRequested {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str("run stopped on request")
     }
 }
 
+#[cfg(feature = "std")]
 impl std::error::Error for StopRequested {}
 
 /// The I/O error carrying [`StopRequested`], for a [`Recorder`] to return.
+#[cfg(feature = "std")]
 pub fn stop_requested() -> std::io::Error {
     std::io::Error::other(StopRequested)
 }
 
 /// Whether `e` is the [`stop_requested`] error.
+#[cfg(feature = "std")]
 pub fn is_stop_requested(e: &std::io::Error) -> bool {
     e.get_ref()
         .is_some_and(|inner| inner.downcast_ref::<StopRequested>().is_some())
@@ -82,8 +111,10 @@ pub fn is_stop_requested(e: &std::io::Error) -> bool {
 /// once per step, before the plant advances), with the [`stop_requested`] error (the
 /// experiment drivers then return the summary of the steps run): the hook to cancel a long run from outside (Ctrl-C, a
 /// cancel button, a deadline), e.g. `StopWhen(|| flag.load(Ordering::Relaxed))`.
+#[cfg(feature = "std")]
 pub struct StopWhen<F: Fn() -> bool>(pub F);
 
+#[cfg(feature = "std")]
 impl<const N: usize, F: Fn() -> bool> Recorder<N> for StopWhen<F> {
     fn record(&mut self, _r: &StepRecord<'_, N>) -> std::io::Result<()> {
         if (self.0)() {
@@ -129,7 +160,7 @@ pub struct TraceLog<const N: usize> {
 }
 
 impl<const N: usize> Recorder<N> for TraceLog<N> {
-    fn record(&mut self, r: &StepRecord<'_, N>) -> std::io::Result<()> {
+    fn record(&mut self, r: &StepRecord<'_, N>) -> RecordResult {
         self.rows.push(TraceRow {
             t: r.t,
             robot: r.robot,
@@ -157,7 +188,7 @@ pub fn run_closed_loop<const N: usize, Tr: Trajectory<N>, C: Controller<N> + ?Si
     limits: &TorqueLimits,
     steps: usize,
     recorders: &mut [&mut dyn Recorder<N>],
-) -> std::io::Result<()> {
+) -> RecordResult {
     let mut dist =
         vec![SVector::<f64, N>::zeros(); controller.probabilities().map_or(0, |p| p.len())];
     for k in 0..steps {

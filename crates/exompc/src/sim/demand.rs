@@ -9,6 +9,8 @@
 
 use super::plant::PlantParams;
 use super::trajectory::Trajectory;
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
 use crate::model::RobotModel;
 use nalgebra::SVector;
 

@@ -3,6 +3,9 @@
 use super::closed_loop::{Recorder, StepRecord};
 use crate::check::{self, InvalidField, Range};
 use crate::control::{Measurement, StepStatus};
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
+use alloc::{format, vec, vec::Vec};
 use serde::{Deserialize, Serialize};
 
 /// Kind of an injected sensor fault.
@@ -364,7 +367,7 @@ pub struct SoakStats {
 }
 
 impl<const N: usize> Recorder<N> for SoakStats {
-    fn record(&mut self, r: &StepRecord<'_, N>) -> std::io::Result<()> {
+    fn record(&mut self, r: &StepRecord<'_, N>) -> super::closed_loop::RecordResult {
         self.steps += 1;
         let finite = r.torque_robot.iter().all(|v| v.is_finite())
             && r.robot

@@ -11,11 +11,27 @@ use super::spline::{CubicSpline, SplineEnds};
 use super::trajectory::{KneeTrajectory, SwingTrajectory, Trajectory};
 use crate::check::InvalidField;
 use crate::model::Real;
+use alloc::{format, string::ToString, vec, vec::Vec};
+use core::fmt;
 use nalgebra::SVector;
 use serde::{Deserialize, Serialize};
-use std::fmt;
+#[cfg(feature = "std")]
 use std::path::PathBuf;
-use std::sync::Arc;
+
+/// A file name without `std` (nothing reads files on the target): the text as written.
+#[cfg(not(feature = "std"))]
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct PathBuf(pub alloc::string::String);
+
+#[cfg(not(feature = "std"))]
+impl PathBuf {
+    /// The file name as written.
+    pub fn display(&self) -> &str {
+        &self.0
+    }
+}
+use alloc::sync::Arc;
 
 /// Which desired motion the human follows (`[trajectory] kind`).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -304,7 +320,7 @@ impl GaitRecording {
                         value,
                     });
                 }
-                if column != RecordingColumn::Time && value.abs() > 2.0 * std::f64::consts::PI {
+                if column != RecordingColumn::Time && value.abs() > 2.0 * core::f64::consts::PI {
                     return Err(RecordingError::Implausible {
                         sample,
                         column,

@@ -16,7 +16,7 @@ impl<const N: usize> HumanLeg<N> {
     /// The leg's chain for body mass `body_mass` (kg).
     pub fn chain(&self, body_mass: f64) -> Chain<N> {
         let links: [Link; N] =
-            std::array::from_fn(|i| self.segments[i].link(body_mass, self.height));
+            core::array::from_fn(|i| self.segments[i].link(body_mass, self.height));
         Chain::new(links)
     }
 }

@@ -1,6 +1,9 @@
 //! Metrics of paper Table 2 (MODEL.md §9), accumulated online from the closed loop.
 
 use super::closed_loop::{Recorder, StepRecord};
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
+use alloc::{string::String, string::ToString, vec, vec::Vec};
 use serde::{Deserialize, Serialize};
 
 /// Controller compute time per step (µs).
@@ -145,7 +148,7 @@ impl Metrics {
 }
 
 impl<const N: usize> Recorder<N> for Metrics {
-    fn record(&mut self, r: &StepRecord<'_, N>) -> std::io::Result<()> {
+    fn record(&mut self, r: &StepRecord<'_, N>) -> super::closed_loop::RecordResult {
         if self.sum_f2.is_empty() {
             self.sum_f2 = vec![0.0; N];
             self.delta_max = vec![0.0; N];

@@ -19,9 +19,11 @@ mod trajectory;
 mod uncertainty;
 
 pub use crate::check::InvalidField;
+#[cfg(feature = "std")]
+pub use closed_loop::{is_stop_requested, stop_requested, StopRequested, StopWhen};
 pub use closed_loop::{
-    is_stop_requested, run_closed_loop, stop_requested, Recorder, StepRecord, StopRequested,
-    StopWhen, TraceLog, TraceRow,
+    record_error, run_closed_loop, RecordError, RecordResult, Recorder, StepRecord, TraceLog,
+    TraceRow,
 };
 pub use demand::{actuator_demand, required_torque, ActuatorDemand};
 pub use faults::{

@@ -240,7 +240,7 @@ pub fn robot_model<const N: usize>(
     payload_position: f64,
     mass_perturbation: f64,
 ) -> RobotModel<N> {
-    let mut l: [Link; N] = std::array::from_fn(|i| links[i].with_mass_added(mass_perturbation));
+    let mut l: [Link; N] = core::array::from_fn(|i| links[i].with_mass_added(mass_perturbation));
     l[N - 1] = l[N - 1].with_point_mass(payload_kg, payload_position);
     RobotModel {
         chain: crate::model::Chain::new(l),

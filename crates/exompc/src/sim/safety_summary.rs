@@ -3,6 +3,7 @@
 //! response set, and steps held on a rejected measurement (read from the [`SafetyReport`]).
 
 use crate::control::{MonitorAction, SafetyReport};
+use alloc::{format, string::String, vec::Vec};
 use serde::{Deserialize, Serialize};
 
 /// Trips of one monitor kind during a run.

@@ -1,5 +1,6 @@
 //! Sensors and filters: the moving average of the most recent samples (paper §4.1, MODEL.md §5).
 
+use alloc::{vec, vec::Vec};
 use nalgebra::SVector;
 
 /// Mean of the `window` most recent samples (fewer at start-up), allocation-free after `new`.

@@ -15,7 +15,10 @@
 //! exact (the derivatives of the piecewise cubic), not finite differences. Outside the samples
 //! the end pieces are extended (not-a-knot) or time wraps around (periodic).
 
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
 use crate::model::Real;
+use alloc::{vec, vec::Vec};
 
 /// How the spline ends (see the module documentation).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -15,6 +15,9 @@
 
 use super::closed_loop::TraceLog;
 use crate::control::TorqueLimits;
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
+use alloc::vec::Vec;
 use serde::{Deserialize, Serialize};
 
 /// Thresholds of [`classify_run`] and of the envelope acceptance (issue "Done when").
@@ -158,7 +161,7 @@ pub fn high_frequency_fraction(x: &[f64], dt: f64, cutoff_hz: f64) -> f64 {
     let mut low = 0.0;
     for k in 0..=kc {
         // X_k by a rotating phasor (recomputed exactly every 64 samples against drift).
-        let w = -2.0 * std::f64::consts::PI * k as f64 / n as f64;
+        let w = -2.0 * core::f64::consts::PI * k as f64 / n as f64;
         let (mut re, mut im) = (0.0, 0.0);
         let (step_s, step_c) = w.sin_cos();
         let (mut s, mut c) = (0.0f64, 1.0f64);

@@ -2,11 +2,14 @@
 //! second-order dual numbers (`num_dual::second_derivative`).
 
 use crate::check::{real as check, InvalidField, Range};
+#[cfg(not(feature = "std"))]
+use crate::math::{second_derivative, Dual2};
 use crate::model::Real;
+use core::f64::consts::PI;
 use nalgebra::SVector;
+#[cfg(feature = "std")]
 use num_dual::{second_derivative, Dual2};
 use serde::{Deserialize, Serialize};
-use std::f64::consts::PI;
 
 /// A desired trajectory `q_d(t)` with velocity and acceleration.
 pub trait Trajectory<const N: usize> {

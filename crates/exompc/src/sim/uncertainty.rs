@@ -2,8 +2,10 @@
 //! measurement noise, human mass ramp.
 
 use crate::check::{self, InvalidField, Range};
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
+use core::f64::consts::PI;
 use serde::{Deserialize, Serialize};
-use std::f64::consts::PI;
 
 /// Upper bound on any payload (kg) a scenario accepts (`[uncertainty] payload_kg`, the
 /// multi-stage scenarios' payloads).

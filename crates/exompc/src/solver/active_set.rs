@@ -10,6 +10,7 @@
 
 use super::cholesky::{chol_solve, cholesky};
 use super::qp::{QpInfo, QpSettings, QpStatus};
+use alloc::vec::Vec;
 
 /// The workspace the loop reads and writes, borrowed from the solver.
 pub(crate) struct BoxParts<'a> {

@@ -30,6 +30,7 @@ use super::active_set::{add_violated_bounds, bounds_status, box_dual_from_fields
 use super::cholesky::{chol_solve, cholesky};
 use super::qp::{QpInfo, QpSettings, QpStatus};
 use super::SolverError;
+use alloc::{vec, vec::Vec};
 
 /// The scenario-tree QP described in the module documentation, with all workspace allocated at
 /// construction. Trajectory vectors (`g`, `lo`, `hi`, solution, multipliers) use the layout
@@ -472,7 +473,7 @@ impl TreeQp {
                         self.cn[col * nx + rr] = s;
                     }
                 }
-                std::mem::swap(&mut self.cm, &mut self.cn);
+                core::mem::swap(&mut self.cm, &mut self.cn);
                 // P_j = Q_j + AᵀPA.
                 for c in 0..nx {
                     for rr in 0..nx {

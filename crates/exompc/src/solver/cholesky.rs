@@ -2,6 +2,9 @@
 //! recursions (`riccati.rs`, `arrowhead.rs`) and the active-set loop on their bounds
 //! (`active_set.rs`).
 
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
+
 /// In-place lower Cholesky factor of the `n × n` column-major `m` (upper part ignored).
 /// Returns `false` unless the matrix is numerically positive definite.
 /// The stage sizes of the NMPC (`n = 1, 2`) get their own unrolled copy of the same arithmetic.

@@ -9,7 +9,11 @@
 //! stage form (`control::ocp::StructuredSqp` with [`super::RiccatiQp`]) run the same engine, so
 //! warm-start projection, Armijo line search and termination are written once.
 
-use std::time::{Duration, Instant};
+#[cfg(not(feature = "std"))]
+use crate::clock::Instant;
+use core::time::Duration;
+#[cfg(feature = "std")]
+use std::time::Instant;
 
 use nalgebra::DVector;
 
@@ -94,6 +98,8 @@ pub(crate) fn solve<B: SqpSteps + ?Sized>(
     };
     info.status = run(steps, s, z_trial, z, &mut info, start);
     info.solve_time = start.elapsed();
+    #[cfg(not(feature = "std"))]
+    crate::clock::account(crate::clock::Part::Solver, info.solve_time);
     info
 }
 

@@ -18,6 +18,9 @@
 //! All workspace is allocated by [`DenseQp::new`]; [`DenseQp::solve`] allocates nothing and never
 //! panics.
 
+#[cfg(not(feature = "std"))]
+use crate::math::Float;
+use alloc::{vec, vec::Vec};
 use nalgebra::{DMatrix, DVector};
 
 use super::{check_range, SolverError};

@@ -28,6 +28,7 @@ use super::active_set::{add_violated_bounds, bounds_status, box_dual_from_fields
 use super::cholesky::{chol_solve, cholesky};
 use super::qp::{QpInfo, QpSettings, QpStatus};
 use super::SolverError;
+use alloc::{vec, vec::Vec};
 use nalgebra::{SMatrix, SVector};
 
 /// The stage-structured QP described in the module documentation, with all workspace allocated

@@ -2,7 +2,7 @@
 //! (`solver/engine.rs`) and its back-ends, the dense [`Sqp`](super::Sqp) and the stage-structured
 //! `control::StructuredSqp`.
 
-use std::time::Duration;
+use core::time::Duration;
 
 use super::qp::QpSettings;
 use super::{check_range, SolverError};
@@ -75,6 +75,14 @@ impl SqpSettings {
 
     /// Checks every field against its allowed range; the error names the field and value.
     pub fn validate(&self) -> Result<(), SolverError> {
+        #[cfg(not(feature = "std"))]
+        if self.hessian == HessianModel::Exact {
+            return Err(SolverError::InvalidSetting {
+                field: "hessian",
+                value: f64::NAN,
+                allowed: "gauss_newton or structured_secant (exact needs the `std` feature)",
+            });
+        }
         if !(1..=Self::MAX_ITERATIONS).contains(&self.max_iterations) {
             return Err(SolverError::InvalidSetting {
                 field: "max_iterations",

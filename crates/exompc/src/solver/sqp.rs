@@ -7,6 +7,7 @@
 //! This is the form of the NMPC problem of the paper (Aliyari & Vossoughi, eq. 7, with the input
 //! and torque constraints of eqs. 8–9 written as box and linear rows).
 
+use alloc::{vec, vec::Vec};
 use nalgebra::{DMatrix, DVector};
 
 use super::engine::{self, finite_or_inf, BoundCheck, HessianShift, SqpSteps};
@@ -341,7 +342,7 @@ impl<P: LeastSquares + ?Sized> SqpSteps for DenseSteps<'_, P> {
                 w.az.gemv(1.0, &self.cons.a, z_new, 0.0);
             }
         }
-        std::mem::swap(&mut w.r, &mut w.r_trial);
+        core::mem::swap(&mut w.r, &mut w.r_trial);
         true
     }
 

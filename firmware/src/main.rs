@@ -1,0 +1,384 @@
+//! exompc's closed loop on a Cortex-M7 (QEMU `-machine mps2-an500 -cpu cortex-m7`): the
+//! default scenario's plant, sensors and controller (with its EKF bank), the same library code
+//! and the same `run_experiment_report` as `exompc simulate`, streaming to the host over
+//! semihosting one line per record (docs/EMBEDDED.md; `firmware/qemu` splits them):
+//!
+//! - `I,key=value ...` the run's settings, the timer calibration and the memory figures,
+//! - `H,<columns>` and `T,<row>` the trace in `exompc simulate`'s `trace.csv` format,
+//! - `C,<step>,<solver>,<ekf_bank>` the cost of each control step in clock nanoseconds (with
+//!   QEMU's `-icount shift=0` one nanosecond is one executed instruction),
+//! - `S,<json>` the summary (`simulate`'s `summary.json`), `E,<message>` an error.
+//!
+//! Arguments come from the semihosting command line: `controller=msnmpc|nmpc payload=KG
+//! duration=S`.
+
+#![no_std]
+#![no_main]
+
+extern crate alloc;
+
+use alloc::format;
+use alloc::string::String;
+use alloc::vec::Vec;
+use core::alloc::{GlobalAlloc, Layout};
+use core::fmt::Write as _;
+use core::sync::atomic::{AtomicU32, AtomicUsize, Ordering};
+use cortex_m_rt::entry;
+use cortex_m_semihosting::{debug, hio, nr};
+use embedded_alloc::LlffHeap;
+use exompc::config::{ControllerKind, Scenario};
+use exompc::scenario::{build_supervised, multistage, run_experiment_report, TwoDof};
+use exompc::sim::{RecordResult, Recorder, StepRecord};
+
+/// Heap arena (a static array; the heap's peak use is measured).
+const HEAP_BYTES: usize = 1 << 20;
+/// Painted into the free RAM below the stack at start; the lowest overwritten word is the
+/// stack's peak.
+const PAINT: u32 = 0xDEAD_BEEF;
+/// CMSDK APB timer 0 of the mps2-an500: a 32-bit down-counter on the 25 MHz system clock.
+const TIMER0: usize = 0x4000_0000;
+/// Nanoseconds per timer tick (25 MHz).
+const NS_PER_TICK: u64 = 40;
+
+/// The allocator with its peak use.
+struct PeakHeap {
+    heap: LlffHeap,
+    peak: AtomicUsize,
+}
+
+unsafe impl GlobalAlloc for PeakHeap {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        // SAFETY: forwarded with the caller's guarantees.
+        let p = unsafe { self.heap.alloc(layout) };
+        self.peak.fetch_max(self.heap.used(), Ordering::Relaxed);
+        p
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: forwarded with the caller's guarantees.
+        unsafe { self.heap.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static HEAP: PeakHeap = PeakHeap {
+    heap: LlffHeap::empty(),
+    peak: AtomicUsize::new(0),
+};
+
+static mut HEAP_MEM: [u8; HEAP_BYTES] = [0; HEAP_BYTES];
+
+fn timer_reg(offset: usize) -> *mut u32 {
+    (TIMER0 + offset) as *mut u32
+}
+
+fn timer_start() {
+    // SAFETY: the CMSDK timer's registers (CTRL 0x0, VALUE 0x4, RELOAD 0x8) on this board.
+    unsafe {
+        timer_reg(0x8).write_volatile(u32::MAX);
+        timer_reg(0x4).write_volatile(u32::MAX);
+        timer_reg(0x0).write_volatile(1);
+    }
+}
+
+static LAST: AtomicU32 = AtomicU32::new(0);
+static WRAPS: AtomicU32 = AtomicU32::new(0);
+
+/// Timer ticks since start, extended to 64 bits (called far more often than every 171 s).
+fn ticks() -> u64 {
+    // SAFETY: reading the running timer's VALUE register.
+    let up = !unsafe { timer_reg(0x4).read_volatile() };
+    if up < LAST.swap(up, Ordering::Relaxed) {
+        WRAPS.fetch_add(1, Ordering::Relaxed);
+    }
+    (u64::from(WRAPS.load(Ordering::Relaxed)) << 32) | u64::from(up)
+}
+
+/// The library's clock: timer nanoseconds.
+fn now_ns() -> u64 {
+    ticks() * NS_PER_TICK
+}
+
+/// Writes `s` to the host's stdout in one semihosting call.
+fn out(s: &str) {
+    if let Ok(mut o) = hio::hstdout() {
+        let _ = o.write_all(s.as_bytes());
+    }
+}
+
+fn fail(msg: &str) -> ! {
+    out(&format!("E,{msg}\n"));
+    debug::exit(debug::EXIT_FAILURE);
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
+
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    let mut s = String::new();
+    let _ = writeln!(s, "E,panic: {info}");
+    out(&s);
+    debug::exit(debug::EXIT_FAILURE);
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
+
+/// The semihosting command line (`SYS_GET_CMDLINE`).
+fn command_line(buf: &mut [u8; 256]) -> &str {
+    let mut block = [buf.as_mut_ptr() as usize, buf.len()];
+    // SAFETY: GET_CMDLINE writes at most `len` bytes into `buf` and the length into `block`.
+    let r = unsafe { cortex_m_semihosting::syscall1(nr::GET_CMDLINE, block.as_mut_ptr() as usize) };
+    if r != 0 {
+        return "";
+    }
+    let n = block[1].min(buf.len());
+    core::str::from_utf8(&buf[..n]).unwrap_or("")
+}
+
+/// `exompc simulate`'s trace row (`exompc-cli`'s `CsvTrace`), `T,`-prefixed, and the step's
+/// cost line.
+struct Stream {
+    scenarios: usize,
+    line: String,
+}
+
+fn push(l: &mut String, v: f64) {
+    let _ = write!(l, "{v},");
+}
+
+impl Recorder<2> for Stream {
+    fn record(&mut self, r: &StepRecord<'_, 2>) -> RecordResult {
+        let (solver_ns, ekf_ns) = exompc::clock::take_parts();
+        let l = &mut self.line;
+        l.clear();
+        l.push_str("T,");
+        push(l, r.t);
+        for j in 0..2 {
+            for v in [
+                r.robot.q[j],
+                r.robot.qd[j],
+                r.human.q[j],
+                r.human.qd[j],
+                r.desired[j],
+                r.torque_robot[j],
+                r.torque_human[j],
+            ] {
+                push(l, v);
+            }
+        }
+        for s in 0..2 {
+            push(l, r.force_true[s]);
+            push(l, r.force_measured[s]);
+        }
+        for i in 0..self.scenarios {
+            push(
+                l,
+                r.probabilities
+                    .and_then(|p| p.get(i).copied())
+                    .unwrap_or(f64::NAN),
+            );
+        }
+        for i in 0..self.scenarios {
+            for j in 0..2 {
+                push(
+                    l,
+                    r.disturbances
+                        .and_then(|d| d.get(i))
+                        .map_or(f64::NAN, |d| d[j]),
+                );
+            }
+        }
+        let status = serde_json::to_value(r.status)
+            .ok()
+            .and_then(|v| v.as_str().map(String::from))
+            .unwrap_or_default();
+        let _ = writeln!(l, "{status},{},{}", r.iterations, r.step_time_us);
+        let step_ns = (r.step_time_us * 1e3 + 0.5) as u64;
+        let _ = writeln!(l, "C,{step_ns},{solver_ns},{ekf_ns}");
+        out(l);
+        Ok(())
+    }
+}
+
+/// `exompc simulate`'s trace header for 2 joints and `keys` scenarios.
+fn header(keys: &[String]) -> String {
+    let mut h: Vec<String> = Vec::new();
+    h.push("t".into());
+    for j in ["hip", "knee"] {
+        for c in [
+            "q_robot",
+            "qd_robot",
+            "q_human",
+            "qd_human",
+            "q_desired",
+            "torque_robot",
+            "torque_human",
+        ] {
+            h.push(format!("{c}_{j}"));
+        }
+    }
+    for s in ["thigh", "shank"] {
+        h.push(format!("force_true_{s}"));
+        h.push(format!("force_measured_{s}"));
+    }
+    for i in keys {
+        h.push(format!("mu_{i}"));
+    }
+    for i in keys {
+        for j in ["hip", "knee"] {
+            h.push(format!("dist_{i}_{j}"));
+        }
+    }
+    for c in ["status", "iterations", "step_us"] {
+        h.push(c.into());
+    }
+    format!("H,{}\n", h.join(","))
+}
+
+/// Instructions of a loop of known length per timer tick: `n` rounds of `subs` + `bne`.
+fn calibrate(n: u32) -> u64 {
+    let t0 = ticks();
+    // SAFETY: a register-only countdown loop.
+    unsafe {
+        core::arch::asm!(
+            "2:",
+            "subs {0}, {0}, #1",
+            "bne 2b",
+            inout(reg) n => _,
+            options(nomem, nostack),
+        );
+    }
+    ticks() - t0
+}
+
+extern "C" {
+    static __sdata: u32;
+    static __edata: u32;
+    static __sidata: u32;
+    static __sbss: u32;
+    static __ebss: u32;
+    static __sheap: u32;
+    static _stack_start: u32;
+}
+
+fn addr(s: &u32) -> usize {
+    s as *const u32 as usize
+}
+
+#[entry]
+fn main() -> ! {
+    // Paint the free RAM between the statics and the current stack.
+    let sp = cortex_m::register::msp::read() as usize;
+    // SAFETY: linker symbols; the painted words lie between the end of the statics and 256
+    // bytes below the current stack pointer, memory nothing else uses.
+    let (ram_start, ram_free, stack_top) =
+        unsafe { (addr(&__sdata), addr(&__sheap), addr(&_stack_start)) };
+    let mut p = ram_free;
+    while p + 4 <= sp - 256 {
+        // SAFETY: see above.
+        unsafe { (p as *mut u32).write_volatile(PAINT) };
+        p += 4;
+    }
+    // SAFETY: the arena is used by the allocator only, initialised once here.
+    unsafe {
+        HEAP.heap
+            .init(core::ptr::addr_of_mut!(HEAP_MEM) as usize, HEAP_BYTES)
+    }
+    timer_start();
+    let rounds = 1_000_000;
+    let calib_ticks = calibrate(rounds);
+
+    let mut buf = [0u8; 256];
+    let args = command_line(&mut buf);
+    let mut s = Scenario::default();
+    for a in args.split_whitespace() {
+        match a.split_once('=') {
+            Some(("controller", v)) => match v.parse::<ControllerKind>() {
+                Ok(k) => s.controller.kind = k,
+                Err(_) => fail(&format!("controller={v}: allowed msnmpc, nmpc, pd")),
+            },
+            Some(("payload", v)) => match v.parse::<f64>() {
+                Ok(p) => s.uncertainty.payload_kg = p,
+                Err(_) => fail(&format!("payload={v}: not a number (kg)")),
+            },
+            Some(("duration", v)) => match v.parse::<f64>() {
+                Ok(d) => s.timing.duration_2dof_s = d,
+                Err(_) => fail(&format!("duration={v}: not a number (s)")),
+            },
+            _ => {}
+        }
+    }
+    if let Err(e) = s.validate() {
+        fail(&format!("{e}"));
+    }
+    let keys: Vec<String> = match exompc::scenario::controller_info(s.controller.kind) {
+        Ok(info) if info.multistage => (1..=multistage::count(&s))
+            .map(|i| format!("{i}"))
+            .collect(),
+        Ok(_) => Vec::new(),
+        Err(e) => fail(&format!("{e}")),
+    };
+    out(&format!(
+        "I,controller={} payload_kg={} duration_s={} calibration_rounds={rounds} \
+         calibration_instructions={} calibration_ticks={calib_ticks}\n",
+        s.controller.kind,
+        s.uncertainty.payload_kg,
+        s.timing.duration_2dof_s,
+        2 * rounds
+    ));
+    out(&header(&keys));
+    // The heap the controller alone holds (supervised, as the run builds it; it allocates
+    // nothing per step): built, measured and dropped before the run.
+    let before = HEAP.heap.used();
+    let controller_heap = match build_supervised::<TwoDof, 2>(&s, s.controller.kind) {
+        Ok(c) => {
+            let used = HEAP.heap.used() - before;
+            drop(c);
+            used
+        }
+        Err(e) => fail(&format!("{e}")),
+    };
+    out(&format!("I,controller_heap_bytes={controller_heap}\n"));
+
+    exompc::clock::set_clock(now_ns);
+    let _ = exompc::clock::take_parts();
+    let mut stream = Stream {
+        scenarios: keys.len(),
+        line: String::with_capacity(1024),
+    };
+    let (summary, _report) = match run_experiment_report::<TwoDof, 2>(&s, &mut [&mut stream]) {
+        Ok(r) => r,
+        Err(e) => fail(&format!("{e}")),
+    };
+    match serde_json::to_string(&summary) {
+        Ok(j) => out(&format!("S,{j}\n")),
+        Err(e) => fail(&format!("summary: {e}")),
+    }
+
+    // Memory: the statics (less the heap arena), the heap's peak, the stack's peak.
+    // SAFETY: linker symbols.
+    let (data, bss, flash_end) = unsafe {
+        (
+            addr(&__edata) - addr(&__sdata),
+            addr(&__ebss) - addr(&__sbss),
+            addr(&__sidata) + (addr(&__edata) - addr(&__sdata)),
+        )
+    };
+    let mut low = ram_free;
+    // SAFETY: reading the painted region.
+    while low < sp - 256 && unsafe { (low as *const u32).read_volatile() } == PAINT {
+        low += 4;
+    }
+    out(&format!(
+        "I,flash_bytes={flash_end} static_bytes={} heap_arena_bytes={HEAP_BYTES} \
+         heap_peak_bytes={} stack_peak_bytes={} ram_start={ram_start:#x}\n",
+        data + bss - HEAP_BYTES,
+        HEAP.peak.load(Ordering::Relaxed),
+        stack_top - low,
+    ));
+    debug::exit(debug::EXIT_SUCCESS);
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
