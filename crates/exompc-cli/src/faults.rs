@@ -223,7 +223,7 @@ where
     let nc = cols.len().max(1) as i32;
     let cw = ((w as i32 - left - bar_w - 10) / nc).max(10);
     let ch = ((h as i32 - top - bottom) / nr).max(10);
-    crate::envelope_cmd::colour_bar(
+    crate::plot::colour_bar(
         &root,
         (w as i32 - bar_w + 20, top),
         nr * ch,
@@ -266,7 +266,7 @@ where
             let v = cell.map_or(f64::NAN, |c| c.peak_force_n);
             root.draw(&Rectangle::new(
                 [(x, y), (x + cw - 2, y + ch - 2)],
-                crate::envelope_cmd::heat_scaled(v, HEAT_MAX_N).filled(),
+                crate::plot::heat_scaled(v, HEAT_MAX_N).filled(),
             ))
             .map_err(err)?;
             let fail = cell.is_some_and(|c| !c.pass);

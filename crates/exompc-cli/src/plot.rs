@@ -993,6 +993,96 @@ pub(crate) fn draw_dir(dir: &Path) -> Result<Vec<PathBuf>, CliError> {
     Ok(files)
 }
 
+/// Colour of a force `v` (N) on the white → yellow → red → dark-red scale of the heat maps,
+/// saturating at `max` N; grey when not finite.
+pub(crate) fn heat_scaled(v: f64, max: f64) -> RGBColor {
+    if !v.is_finite() {
+        return RGBColor(150, 150, 150);
+    }
+    let x = (v / max).clamp(0.0, 1.0);
+    let lerp = |a: u8, b: u8, t: f64| (a as f64 + (b as f64 - a as f64) * t).round() as u8;
+    let stops = [
+        (0.0, (255, 255, 255)),
+        (1.0 / 6.0, (255, 237, 160)),
+        (1.0 / 3.0, (253, 141, 60)),
+        (2.0 / 3.0, (215, 48, 31)),
+        (1.0, (127, 0, 0)),
+    ];
+    for w in stops.windows(2) {
+        let ((x0, c0), (x1, c1)) = (w[0], w[1]);
+        if x <= x1 {
+            let t = (x - x0) / (x1 - x0);
+            return RGBColor(
+                lerp(c0.0, c1.0, t),
+                lerp(c0.1, c1.1, t),
+                lerp(c0.2, c1.2, t),
+            );
+        }
+    }
+    RGBColor(127, 0, 0)
+}
+
+/// The colour bar of [`heat_scaled`] up to `max` at `(x, y)`, `height` pixels tall: 0 N at
+/// the bottom, `max` N (and beyond) at the top, six tick intervals, titled with the quantity
+/// and its unit.
+pub(crate) fn colour_bar<DB: DrawingBackend>(
+    root: &DrawingArea<DB, plotters::coord::Shift>,
+    (x, y): (i32, i32),
+    height: i32,
+    font: &str,
+    max: f64,
+) -> Result<(), CliError>
+where
+    DB::ErrorType: 'static,
+{
+    let height = height.max(60);
+    let width = 16;
+    root.draw(&Text::new(
+        "force (N)",
+        (x - 14, y - 22),
+        (font, 14).into_font(),
+    ))
+    .map_err(heat_err)?;
+    for k in 0..height {
+        let v = max * f64::from(height - 1 - k) / f64::from(height - 1);
+        root.draw(&Rectangle::new(
+            [(x, y + k), (x + width, y + k + 1)],
+            heat_scaled(v, max).filled(),
+        ))
+        .map_err(heat_err)?;
+    }
+    root.draw(&Rectangle::new(
+        [(x, y), (x + width, y + height)],
+        BLACK.stroke_width(1),
+    ))
+    .map_err(heat_err)?;
+    for n in 0..=6 {
+        let ty = y + (f64::from(height - 1) * (1.0 - f64::from(n) / 6.0)).round() as i32;
+        root.draw(&PathElement::new(
+            vec![(x + width, ty), (x + width + 4, ty)],
+            BLACK.stroke_width(1),
+        ))
+        .map_err(heat_err)?;
+        let tick = max * f64::from(n) / 6.0;
+        let label = if n == 6 {
+            format!("≥ {tick}")
+        } else {
+            format!("{tick}")
+        };
+        root.draw(&Text::new(
+            label,
+            (x + width + 7, ty - 6),
+            (font, 12).into_font(),
+        ))
+        .map_err(heat_err)?;
+    }
+    Ok(())
+}
+
+fn heat_err(e: impl std::fmt::Display) -> CliError {
+    CliError::Runtime(format!("drawing the heat map: {e}"))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
