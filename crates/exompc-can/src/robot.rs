@@ -314,11 +314,7 @@ impl<const N: usize, B: CanBus, K: Clock> CanRobot<N, B, K> {
         self.state = Lifecycle::Error;
         self.stats.protective_stops += 1;
         let at = self.clock.now();
-        let dt = self.s.dt.as_secs_f64().max(1e-6);
-        let biggest = self.applied.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        let by_rate = (biggest / self.s.limits.rate.max(1e-9)).ceil();
-        let by_time = (self.s.stop_ramp.as_secs_f64() / dt).ceil();
-        let steps = by_rate.min(by_time.max(1.0)).max(1.0) as u32;
+        let steps = stop_ramp_steps(&self.applied, &self.s.limits, self.s.stop_ramp, self.s.dt);
         let start = self.applied;
         let mut failures = 0u64;
         let mut zero_at = None;
@@ -396,7 +392,23 @@ impl<const N: usize, B: CanBus, K: Clock> CanRobot<N, B, K> {
     }
 }
 
-fn io_err(msg: String) -> std::io::Error {
+/// Periods of a protective stop's ramp from `applied` to zero (at least one): the periods the
+/// torque-rate limit needs, capped by the periods of the `stop_ramp` time.
+pub(crate) fn stop_ramp_steps<const N: usize>(
+    applied: &SVector<f64, N>,
+    limits: &TorqueLimits,
+    stop_ramp: Duration,
+    dt: Duration,
+) -> u32 {
+    let dt = dt.as_secs_f64().max(1e-6);
+    let biggest = applied.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let by_rate = (biggest / limits.rate.max(1e-9)).ceil();
+    let by_time = (stop_ramp.as_secs_f64() / dt).ceil();
+    by_rate.min(by_time.max(1.0)).max(1.0) as u32
+}
+
+/// An I/O error with a message, for the robot interface's `Result`s.
+pub(crate) fn io_err(msg: String) -> std::io::Error {
     std::io::Error::other(msg)
 }
 

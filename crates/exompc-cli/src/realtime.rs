@@ -588,38 +588,14 @@ where
     let dt = s.timing.dt;
     drive::<D, N, _, _>(s, a, &mut rig.robot, rig.clock, &label, move |robot| {
         use exompc_can::CanBus as _;
-        let rms_true = leg.map(|l| {
-            let l = l.lock().unwrap_or_else(|e| e.into_inner());
-            let h = l.history();
-            (0..N)
-                .map(|j| {
-                    let n = h.len().max(1) as f64;
-                    (h.iter()
-                        .map(|x| x.force_true[j] * x.force_true[j])
-                        .sum::<f64>()
-                        / n)
-                        .sqrt()
-                })
-                .collect::<Vec<f64>>()
-        });
-        let load = bus.map(|b| {
-            let l = b.load();
-            serde_json::json!({
-                "fraction": l.fraction(),
-                "frames": l.frames,
-                "error_frames": l.error_frames,
-                "elapsed_s": l.elapsed.as_secs_f64(),
-            })
-        });
+        let rms_true =
+            leg.map(|l| rms_force_true(l.lock().unwrap_or_else(|e| e.into_inner()).history()));
+        let load = bus.map(|b| bus_load_json(&b.load()));
         let c = robot.bus().counters();
         Some(serde_json::json!({
             "stats": robot.stats(),
             "stops": robot.stop_events(),
-            "bus": {
-                "sent": c.sent, "received": c.received, "send_errors": c.send_errors,
-                "receive_errors": c.receive_errors, "error_frames": c.error_frames,
-                "dropped": c.dropped,
-            },
+            "bus": bus_counters_json(&c),
             "bus_load": load,
             "rms_force_true_n": rms_true,
             "period_s": dt,
@@ -1512,42 +1488,51 @@ where
     drive::<D, N, _, _>(s, a, &mut rig.robot, rig.clock, &label, move |robot| {
         use exompc_can::CanBus as _;
         // The bus load first: reaching the present calls into the leg.
-        let load = bus.map(|b| {
-            let l = b.load();
-            serde_json::json!({
-                "fraction": l.fraction(),
-                "frames": l.frames,
-                "error_frames": l.error_frames,
-                "elapsed_s": l.elapsed.as_secs_f64(),
-            })
-        });
-        let rms_true = leg.map(|l| {
-            let l = l.lock().unwrap_or_else(|e| e.into_inner());
-            let h = l.history();
-            (0..N)
-                .map(|j| {
-                    let n = h.len().max(1) as f64;
-                    (h.iter()
-                        .map(|x| x.force_true[j] * x.force_true[j])
-                        .sum::<f64>()
-                        / n)
-                        .sqrt()
-                })
-                .collect::<Vec<f64>>()
-        });
+        let load = bus.map(|b| bus_load_json(&b.load()));
+        let rms_true =
+            leg.map(|l| rms_force_true(l.lock().unwrap_or_else(|e| e.into_inner()).history()));
         let c = robot.bus().counters();
         Some(serde_json::json!({
             "driver": "cia402",
             "stats": robot.stats(),
             "stops": robot.stop_events(),
-            "bus": {
-                "sent": c.sent, "received": c.received, "send_errors": c.send_errors,
-                "receive_errors": c.receive_errors, "error_frames": c.error_frames,
-                "dropped": c.dropped,
-            },
+            "bus": bus_counters_json(&c),
             "bus_load": load,
             "rms_force_true_n": rms_true,
             "period_s": dt,
         }))
+    })
+}
+
+/// RMS of the true strap forces (N) over a virtual leg's history, per strap.
+fn rms_force_true<const N: usize>(h: &[exompc_can::emulator::LegStep<N>]) -> Vec<f64> {
+    let n = h.len().max(1) as f64;
+    (0..N)
+        .map(|j| {
+            (h.iter()
+                .map(|x| x.force_true[j] * x.force_true[j])
+                .sum::<f64>()
+                / n)
+                .sqrt()
+        })
+        .collect()
+}
+
+/// A virtual bus's load, for the summary's `can` section.
+fn bus_load_json(l: &exompc_can::BusLoad) -> serde_json::Value {
+    serde_json::json!({
+        "fraction": l.fraction(),
+        "frames": l.frames,
+        "error_frames": l.error_frames,
+        "elapsed_s": l.elapsed.as_secs_f64(),
+    })
+}
+
+/// A bus endpoint's counters, for the summary's `can` section.
+fn bus_counters_json(c: &exompc_can::BusCounters) -> serde_json::Value {
+    serde_json::json!({
+        "sent": c.sent, "received": c.received, "send_errors": c.send_errors,
+        "receive_errors": c.receive_errors, "error_frames": c.error_frames,
+        "dropped": c.dropped,
     })
 }

@@ -25,6 +25,7 @@ use super::master::{Cia402Master, DriveSample};
 use crate::bus::{BusState, CanBus};
 use crate::canopen::sync::SyncProducer;
 use crate::force_node::{ForceSample, ForceSensor};
+use crate::robot::{io_err, stop_ramp_steps};
 use crate::CanFrame;
 use exompc::control::TorqueLimits;
 use exompc::runtime::frame::{command_flags, robot_flags};
@@ -102,10 +103,6 @@ pub struct Cia402Robot<const N: usize, B: CanBus, K: Clock> {
     link: LinkStats,
     stops: Vec<Cia402StopEvent>,
     heartbeat_buf: Vec<CanFrame>,
-}
-
-fn io_err(msg: String) -> std::io::Error {
-    std::io::Error::other(msg)
 }
 
 impl<const N: usize, B: CanBus, K: Clock> Cia402Robot<N, B, K> {
@@ -287,11 +284,7 @@ impl<const N: usize, B: CanBus, K: Clock> Cia402Robot<N, B, K> {
         self.state = Lifecycle::Error;
         self.stats.protective_stops += 1;
         let at = self.clock.now();
-        let dt = self.s.dt.as_secs_f64().max(1e-6);
-        let biggest = self.applied.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        let by_rate = (biggest / self.s.limits.rate.max(1e-9)).ceil();
-        let by_time = (self.s.stop_ramp.as_secs_f64() / dt).ceil();
-        let steps = by_rate.min(by_time.max(1.0)).max(1.0) as u32;
+        let steps = stop_ramp_steps(&self.applied, &self.s.limits, self.s.stop_ramp, self.s.dt);
         let start = self.applied;
         let mut failures = 0u64;
         let mut zero_at = None;
