@@ -392,9 +392,11 @@ impl<const N: usize, B: CanBus, K: Clock> CanRobot<N, B, K> {
     }
 }
 
-/// Periods of a protective stop's ramp from `applied` to zero (at least one): the periods the
-/// torque-rate limit needs, capped by the periods of the `stop_ramp` time.
-pub(crate) fn stop_ramp_steps<const N: usize>(
+/// Periods of a protective stop's ramp from `applied` to zero (at least one): the periods of
+/// the `stop_ramp` time, or more where the torque-rate limit needs them, so no step of the ramp
+/// changes a joint's torque by more than `limits.rate` (paper eq. 9, a hard guarantee on every
+/// output; `stop_ramp` can only make the ramp gentler).
+pub fn stop_ramp_steps<const N: usize>(
     applied: &SVector<f64, N>,
     limits: &TorqueLimits,
     stop_ramp: Duration,
@@ -402,9 +404,16 @@ pub(crate) fn stop_ramp_steps<const N: usize>(
 ) -> u32 {
     let dt = dt.as_secs_f64().max(1e-6);
     let biggest = applied.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    // A non-finite torque is refused before it is applied; should one get here, ramp from the
+    // torque limit instead of scheduling an endless ramp.
+    let biggest = if biggest.is_finite() {
+        biggest
+    } else {
+        limits.max
+    };
     let by_rate = (biggest / limits.rate.max(1e-9)).ceil();
     let by_time = (stop_ramp.as_secs_f64() / dt).ceil();
-    by_rate.min(by_time.max(1.0)).max(1.0) as u32
+    by_rate.max(by_time).clamp(1.0, f64::from(u32::MAX)) as u32
 }
 
 /// An I/O error with a message, for the robot interface's `Result`s.
@@ -615,5 +624,46 @@ impl<const N: usize, B: CanBus, K: Clock> RobotInterface<N> for CanRobot<N, B, K
 
     fn link_stats(&self) -> LinkStats {
         self.link
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// Every step of the ramp (`applied / steps`) stays within the rate limit, and the ramp
+        /// takes at least the `stop_ramp` time.
+        #[test]
+        fn the_stop_ramp_never_exceeds_the_rate_limit(
+            a in -60.0f64..60.0,
+            b in -60.0f64..60.0,
+            rate in 0.01f64..20.0,
+            ramp_ms in 0u64..5000,
+            dt_us in 100u64..20_000,
+        ) {
+            let applied = SVector::<f64, 2>::new(a, b);
+            let limits = TorqueLimits { max: 60.0, rate };
+            let (ramp, dt) = (Duration::from_millis(ramp_ms), Duration::from_micros(dt_us));
+            let steps = stop_ramp_steps(&applied, &limits, ramp, dt);
+            let step = a.abs().max(b.abs()) / f64::from(steps);
+            prop_assert!(step <= rate * (1.0 + 1e-12), "{step} > {rate} in {steps} steps");
+            prop_assert!(f64::from(steps) * dt.as_secs_f64() >= ramp.as_secs_f64() - 1e-9);
+            prop_assert!(steps >= 1);
+        }
+    }
+
+    #[test]
+    fn a_non_finite_torque_ramps_from_the_limit() {
+        let limits = TorqueLimits {
+            max: 30.0,
+            rate: 10.0,
+        };
+        let dt = Duration::from_millis(10);
+        let applied = SVector::<f64, 1>::new(f64::INFINITY);
+        assert_eq!(stop_ramp_steps(&applied, &limits, Duration::ZERO, dt), 3);
+        let applied = SVector::<f64, 1>::new(f64::NAN);
+        assert_eq!(stop_ramp_steps(&applied, &limits, Duration::ZERO, dt), 1);
     }
 }

@@ -81,8 +81,16 @@ fn rig() -> Rig {
 }
 
 fn rig_with(fine: bool) -> Rig {
+    rig_opts(fine, Duration::ZERO, None)
+}
+
+/// A rig with the protective stop's `stop_ramp` and, if given, the torque-rate limit (N·m/s).
+fn rig_opts(fine: bool, stop_ramp: Duration, torque_rate_max: Option<f64>) -> Rig {
     let mut s = Scenario::default();
     s.controller.torque_max = 18.0;
+    if let Some(r) = torque_rate_max {
+        s.controller.torque_rate_max = r;
+    }
     let dt = Duration::from_secs_f64(s.timing.dt);
     let bus = VirtualBus::new(VirtualBusSettings::default(), TimeBase::Simulated);
     let plant = Plant::new(plant_params::<TwoDof, 2>(&s), TwoDof::trajectory(&s));
@@ -124,7 +132,7 @@ fn rig_with(fine: bool) -> Rig {
             dt,
             ready_timeout: Duration::from_millis(200),
             reply_timeout: Duration::from_millis(30),
-            stop_ramp: Duration::from_millis(200),
+            stop_ramp,
             limits: limits(&s),
             phase: Some(0.5),
         },
@@ -266,6 +274,61 @@ fn a_silent_motor_ends_in_a_protective_stop_with_the_torque_ramped_to_zero() {
     let hip = &leg.motors_mut()[0];
     assert!(!hip.motor_mode);
     assert!(hip.command.t.abs() < 0.01, "{:?}", hip.command);
+}
+
+/// The joint torques the leg applied from the period the stop began: each period's change stays
+/// within the rate limit (plus one MIT torque step), and the ramp reaches zero.
+fn stop_ramp_torques(stop_ramp: Duration, rate_per_s: f64) -> (f64, Vec<[f64; 2]>) {
+    let mut r = rig_opts(false, stop_ramp, Some(rate_per_s));
+    let at = 100;
+    expect_stop(
+        &mut r,
+        at,
+        |rig| rig.leg.lock().unwrap().set_force_silent(true),
+        |c| matches!(c, CanStopCause::DeviceTimeout(_)),
+    );
+    let rate = limits(&r.s).rate;
+    let leg = r.leg.lock().unwrap();
+    let torques: Vec<[f64; 2]> = leg.history()[at..]
+        .iter()
+        .map(|h| [h.torque[0], h.torque[1]])
+        .collect();
+    (rate, torques)
+}
+
+#[test]
+fn the_protective_stop_ramps_within_the_rate_limit() {
+    // 0.5 N·m per period: the torque at the stop needs several periods to reach zero.
+    let (rate, tq) = stop_ramp_torques(Duration::ZERO, 50.0);
+    let quantum = 2.0 * 18.0 / 4095.0;
+    let biggest = tq[0][0].abs().max(tq[0][1].abs());
+    assert!(
+        biggest > 2.0 * rate,
+        "torque at the stop {biggest} N·m: too small to test"
+    );
+    for w in tq.windows(2) {
+        for j in 0..2 {
+            let d = (w[1][j] - w[0][j]).abs();
+            assert!(d <= rate + quantum, "joint {j}: step {d} N·m > {rate} N·m");
+        }
+    }
+    let last = tq.last().unwrap();
+    assert!(
+        last[0].abs() < quantum && last[1].abs() < quantum,
+        "{last:?}"
+    );
+}
+
+#[test]
+fn a_longer_stop_ramp_ramps_more_gently() {
+    // 100 ms at 100 Hz: at least ten periods from the torque at the stop to zero.
+    let (_, tq) = stop_ramp_torques(Duration::from_millis(100), 1000.0);
+    let quantum = 2.0 * 18.0 / 4095.0;
+    let zero = tq
+        .iter()
+        .position(|t| t[0].abs() < quantum && t[1].abs() < quantum)
+        .expect("the ramp reaches zero");
+    assert!(zero >= 10, "zero after {zero} periods");
 }
 
 #[test]

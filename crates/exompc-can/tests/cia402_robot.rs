@@ -97,7 +97,7 @@ fn rig_mode(mode: Mode) -> Rig {
         Cia402RobotSettings {
             dt,
             sample_timeout: Duration::from_millis(30),
-            stop_ramp: Duration::from_millis(200),
+            stop_ramp: Duration::ZERO,
             limits: limits(&s),
             phase: Some(0.5),
         },

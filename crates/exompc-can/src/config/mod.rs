@@ -239,8 +239,9 @@ pub struct SafetyConfig {
     /// Longest time without a reply from a motor or a frame from a sensor node while active
     /// (ms), 1..=1000; default 30 (three periods at 100 Hz). Longer → protective stop.
     pub reply_timeout_ms: f64,
-    /// Time the protective stop takes to ramp the torque to zero at most (ms), 0..=5000;
-    /// default 200 (the ramp is also bounded by the torque-rate limit).
+    /// Shortest time of the protective stop's ramp of the torque to zero (ms), 0..=5000;
+    /// default 0: at the torque-rate limit, as the UDP robot. A longer time ramps more gently;
+    /// the rate limit can make the ramp longer, never shorter (`robot::stop_ramp_steps`).
     pub stop_ramp_ms: f64,
 }
 
@@ -249,7 +250,7 @@ impl Default for SafetyConfig {
         SafetyConfig {
             ready_timeout_ms: 2000.0,
             reply_timeout_ms: 30.0,
-            stop_ramp_ms: 200.0,
+            stop_ramp_ms: 0.0,
         }
     }
 }
