@@ -307,8 +307,8 @@ fn the_protective_stop_ramps_within_the_rate_limit() {
         "torque at the stop {biggest} N·m: too small to test"
     );
     for w in tq.windows(2) {
-        for j in 0..2 {
-            let d = (w[1][j] - w[0][j]).abs();
+        for (j, (a, b)) in w[0].iter().zip(&w[1]).enumerate() {
+            let d = (b - a).abs();
             assert!(d <= rate + quantum, "joint {j}: step {d} N·m > {rate} N·m");
         }
     }
