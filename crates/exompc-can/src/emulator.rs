@@ -1,4 +1,4 @@
-//! Virtual devices on the virtual bus: AK motors in MIT mode and a raw-frame strap-force node,
+//! Virtual devices on the virtual bus: AK motors in MIT mode and raw-frame strap-force nodes,
 //! with the simulated human + exoskeleton of `exompc simulate` (the same
 //! [`Plant`] and [`Sensors`]) behind them.
 //!
@@ -137,18 +137,23 @@ pub struct LegStep<const N: usize> {
     pub torque: SVector<f64, N>,
 }
 
-/// The simulated leg behind virtual AK motors and a raw-frame force node.
+/// A raw-frame force node of a [`VirtualLeg`] and when it sends next.
+struct ForceNode {
+    cfg: RawForceSensor,
+    next: Duration,
+    period: Duration,
+}
+
+/// The simulated leg behind virtual AK motors and raw-frame force nodes.
 pub struct VirtualLeg<const N: usize, Tr: Trajectory<N>> {
     plant: Plant<N, Tr>,
     sensors: Sensors<N>,
     motors: [AkEmulator; N],
     mounts: [Mount; N],
-    force: RawForceSensor,
+    forces: Vec<ForceNode>,
     dt: Duration,
     latency: Duration,
     k: u64,
-    next_force: Duration,
-    force_period: Duration,
     q_raw: SVector<f64, N>,
     qd_raw: SVector<f64, N>,
     force_raw: SVector<f64, N>,
@@ -159,28 +164,34 @@ pub struct VirtualLeg<const N: usize, Tr: Trajectory<N>> {
 
 impl<const N: usize, Tr: Trajectory<N> + Send> VirtualLeg<N, Tr> {
     /// A leg over `plant` and `sensors` stepped every `dt`, driven by `motors` mounted as
-    /// `mounts`, its strap forces sent by the node `force`; devices answer after `latency`.
+    /// `mounts`, its strap forces sent by the nodes `forces` (each its own channels at its own
+    /// rate); devices answer after `latency`.
     pub fn new(
         plant: Plant<N, Tr>,
         sensors: Sensors<N>,
         motors: [AkEmulator; N],
         mounts: [Mount; N],
-        force: RawForceSensor,
+        forces: Vec<RawForceSensor>,
         dt: Duration,
         latency: Duration,
     ) -> Self {
-        let force_period = Duration::from_secs_f64(1.0 / force.rate_hz.max(1.0));
+        let forces = forces
+            .into_iter()
+            .map(|cfg| ForceNode {
+                period: Duration::from_secs_f64(1.0 / cfg.rate_hz.max(1.0)),
+                next: Duration::ZERO,
+                cfg,
+            })
+            .collect();
         let mut leg = VirtualLeg {
             plant,
             sensors,
             motors,
             mounts,
-            force,
+            forces,
             dt,
             latency,
             k: 0,
-            next_force: Duration::ZERO,
-            force_period,
             q_raw: SVector::zeros(),
             qd_raw: SVector::zeros(),
             force_raw: SVector::zeros(),
@@ -214,7 +225,7 @@ impl<const N: usize, Tr: Trajectory<N> + Send> VirtualLeg<N, Tr> {
         &mut self.motors
     }
 
-    /// Fault injection: the force node stops sending.
+    /// Fault injection: the force nodes stop sending.
     pub fn set_force_silent(&mut self, silent: bool) {
         self.force_silent = silent;
     }
@@ -246,9 +257,9 @@ impl<const N: usize, Tr: Trajectory<N> + Send> VirtualLeg<N, Tr> {
         tau
     }
 
-    fn force_frame(&self) -> Option<CanFrame> {
+    fn force_frame(&self, node: &RawForceSensor) -> Option<CanFrame> {
         let mut data = [0u8; 8];
-        for c in &self.force.channels {
+        for c in &node.channels {
             let i = match c.strap {
                 Strap::Thigh => 0,
                 Strap::Shank => N - 1,
@@ -258,12 +269,12 @@ impl<const N: usize, Tr: Trajectory<N> + Send> VirtualLeg<N, Tr> {
             }
             c.encode(self.force_raw[i], &mut data);
         }
-        let id = if self.force.extended {
-            CanId::Extended(self.force.can_id)
+        let id = if node.extended {
+            CanId::Extended(node.can_id)
         } else {
-            CanId::Standard(self.force.can_id as u16)
+            CanId::Standard(node.can_id as u16)
         };
-        CanFrame::new(id, &data[..self.force.frame_len()]).ok()
+        CanFrame::new(id, &data[..node.frame_len()]).ok()
     }
 }
 
@@ -287,7 +298,7 @@ impl<const N: usize, Tr: Trajectory<N> + Send> VirtualNode for VirtualLeg<N, Tr>
 
     fn next_wakeup(&self) -> Option<Duration> {
         let step = self.dt * (self.k as u32 + 1);
-        Some(step.min(self.next_force))
+        Some(self.forces.iter().fold(step, |t, f| t.min(f.next)))
     }
 
     fn on_wakeup(&mut self, now: Duration, tx: &mut NodeTx) {
@@ -306,11 +317,14 @@ impl<const N: usize, Tr: Trajectory<N> + Send> VirtualNode for VirtualLeg<N, Tr>
             self.k += 1;
             self.sample();
         }
-        if now >= self.next_force {
-            self.next_force += self.force_period;
-            if !self.force_silent {
-                if let Some(f) = self.force_frame() {
-                    tx.send_at(now, f);
+        for i in 0..self.forces.len() {
+            if now >= self.forces[i].next {
+                let period = self.forces[i].period;
+                self.forces[i].next += period;
+                if !self.force_silent {
+                    if let Some(f) = self.force_frame(&self.forces[i].cfg) {
+                        tx.send_at(now, f);
+                    }
                 }
             }
         }

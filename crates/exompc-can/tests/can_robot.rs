@@ -81,11 +81,29 @@ fn rig() -> Rig {
 }
 
 fn rig_with(fine: bool) -> Rig {
-    rig_opts(fine, Duration::ZERO, None)
+    rig_opts(fine, Duration::ZERO, None, vec![force_node()])
 }
 
-/// A rig with the protective stop's `stop_ramp` and, if given, the torque-rate limit (N·m/s).
-fn rig_opts(fine: bool, stop_ramp: Duration, torque_rate_max: Option<f64>) -> Rig {
+/// The thigh and the shank strap on nodes of their own, at different rates.
+fn two_force_nodes() -> Vec<RawForceSensor> {
+    let mut thigh = force_node();
+    thigh.channels.truncate(1);
+    let mut shank = force_node();
+    shank.can_id = 0x301;
+    shank.rate_hz = 500.0;
+    shank.channels.remove(0);
+    shank.channels[0].byte = 0;
+    vec![thigh, shank]
+}
+
+/// A rig with the protective stop's `stop_ramp`, if given the torque-rate limit (N·m/s), and
+/// the force nodes `forces`.
+fn rig_opts(
+    fine: bool,
+    stop_ramp: Duration,
+    torque_rate_max: Option<f64>,
+    forces: Vec<RawForceSensor>,
+) -> Rig {
     let mut s = Scenario::default();
     s.controller.torque_max = 18.0;
     if let Some(r) = torque_rate_max {
@@ -110,7 +128,7 @@ fn rig_opts(fine: bool, stop_ramp: Duration, torque_rate_max: Option<f64>) -> Ri
         sensors,
         [AkEmulator::new(1, 0, ak), AkEmulator::new(2, 0, ak)],
         [mount; 2],
-        force_node(),
+        forces.clone(),
         dt,
         Duration::from_micros(100),
     )
@@ -127,7 +145,7 @@ fn rig_opts(fine: bool, stop_ramp: Duration, torque_rate_max: Option<f64>) -> Ri
             AkDrive::new(&joint(2, fine)).unwrap(),
         ],
         ["hip", "knee"],
-        vec![force_node()],
+        forces,
         CanRobotSettings {
             dt,
             ready_timeout: Duration::from_millis(200),
@@ -279,7 +297,7 @@ fn a_silent_motor_ends_in_a_protective_stop_with_the_torque_ramped_to_zero() {
 /// The joint torques the leg applied from the period the stop began: each period's change stays
 /// within the rate limit (plus one MIT torque step), and the ramp reaches zero.
 fn stop_ramp_torques(stop_ramp: Duration, rate_per_s: f64) -> (f64, Vec<[f64; 2]>) {
-    let mut r = rig_opts(false, stop_ramp, Some(rate_per_s));
+    let mut r = rig_opts(false, stop_ramp, Some(rate_per_s), vec![force_node()]);
     let at = 100;
     expect_stop(
         &mut r,
@@ -409,4 +427,39 @@ fn no_torque_before_every_device_is_ready() {
     // The hip motor got enter-motor-mode but not a single torque command.
     assert_eq!(leg.motors_mut()[0].commands, 0);
     assert_eq!(r.robot.state(), Lifecycle::Inactive);
+}
+
+/// RMS true strap forces (thigh, shank) of the first 3 s of a rig's closed loop; every sample
+/// carries both straps' forces as the leg's sensors read them.
+fn three_seconds(forces: Vec<RawForceSensor>) -> [f64; 2] {
+    let mut r = rig_opts(true, Duration::ZERO, None, forces);
+    let recs = run(&mut r, 300, |_, _| {});
+    assert_eq!(recs.len(), 300);
+    assert_eq!(r.robot.stats().protective_stops, 0);
+    assert_eq!(r.robot.stats().missing_samples, 0);
+    let last = recs.last().unwrap().sample.unwrap().force;
+    let leg = r.leg.lock().unwrap();
+    let truth = leg.history().last().unwrap().force_true;
+    for j in 0..2 {
+        assert!(
+            (last[j] - truth[j]).abs() < 1.0,
+            "strap {j}: read {last} vs true {truth}"
+        );
+    }
+    let h = leg.history();
+    [0, 1].map(|j| rms(&h.iter().map(|x| x.force_true[j]).collect::<Vec<_>>()))
+}
+
+/// Thigh and shank on force nodes of their own (other IDs, the shank at 500 Hz): the virtual
+/// leg serves both and the loop runs as with one node.
+#[test]
+fn two_force_nodes_feed_the_loop() {
+    let one = three_seconds(vec![force_node()]);
+    let two = three_seconds(two_force_nodes());
+    for j in 0..2 {
+        assert!(
+            (one[j] - two[j]).abs() <= 0.05 * one[j],
+            "strap {j}: one node {one:?} vs two {two:?}"
+        );
+    }
 }

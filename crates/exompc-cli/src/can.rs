@@ -129,9 +129,12 @@ where
             zero_offset: a.zero_offset_rad,
         });
     }
-    let sensor = force_sensors(hw).into_iter().next().ok_or_else(|| {
-        CliError::Config("robot.force_sensors: a virtual robot needs a raw force node".into())
-    })?;
+    let nodes = force_sensors(hw);
+    if nodes.is_empty() {
+        return Err(CliError::Config(
+            "robot.force_sensors: a virtual robot needs a raw force node".into(),
+        ));
+    }
     let latency = match &hw.bus {
         BusConfig::Virtual(v) => Duration::from_micros(u64::from(v.device_latency_us)),
         _ => Duration::from_micros(100),
@@ -147,7 +150,7 @@ where
         sensors,
         motors,
         mounts,
-        sensor,
+        nodes,
         Duration::from_secs_f64(s.timing.dt),
         latency,
     );

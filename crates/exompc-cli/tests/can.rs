@@ -160,6 +160,52 @@ fn run_closes_the_loop_over_the_virtual_bus() {
     assert!(trace.lines().count() > 95);
 }
 
+/// One joint (`--dof 1`: the knee) with its strap forces on two raw nodes of their own: the
+/// virtual leg serves every node, the loop runs without a stop.
+#[test]
+fn run_drives_one_joint_with_two_force_nodes() {
+    let dir = empty_dir("dof1");
+    let two_nodes = example_text().replacen(
+        r#"channels = [
+  { strap = "thigh", byte = 0, bytes = 4, scale = 0.001 },
+  { strap = "shank", byte = 4, bytes = 4, scale = 0.001 },
+]"#,
+        r#"channels = [{ strap = "thigh", byte = 0, bytes = 4, scale = 0.001 }]
+
+[[robot.force_sensors]]
+driver = "raw"
+can_id = 0x301
+rate_hz = 500.0
+channels = [{ strap = "shank", byte = 0, bytes = 4, scale = 0.001 }]"#,
+        1,
+    );
+    assert_ne!(
+        two_nodes,
+        example_text(),
+        "the example's force node changed"
+    );
+    let f = write(&dir, "two.toml", &two_nodes);
+    let out = dir.join("out");
+    let o = exompc(&[
+        "run",
+        "--config",
+        f.to_str().unwrap(),
+        "--dof",
+        "1",
+        "--duration",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let s = summary(&out);
+    assert_eq!(s["counters"]["limit_violations"], 0);
+    assert_eq!(s["can"]["stats"]["protective_stops"], 0);
+    assert!(s["can"]["stats"]["samples"].as_u64().unwrap() >= 95);
+    assert_eq!(s["can"]["rms_force_true_n"].as_array().unwrap().len(), 1);
+}
+
 #[test]
 #[cfg(unix)]
 fn run_drives_a_virtual_robot_process_over_an_slcan_pty() {
