@@ -1,10 +1,10 @@
 //! The trace CSV written by `simulate`, `sweep` and `soak`, streamed row by row (nothing held in
 //! memory) through an [`AtomicWriter`], and read back by `plot`.
 //!
-//! Columns: `t`; per joint J (`hip`, `knee`; 1-DOF: `knee`) `q_robot_J, qd_robot_J, q_human_J,
-//! qd_human_J, q_desired_J, torque_robot_J, torque_human_J`; per strap S (`thigh`, `shank`;
-//! 1-DOF: `shank`) `force_true_S, force_measured_S`; per scenario `mu_K` and per scenario and
-//! joint `dist_K_J`; then `status, iterations, step_us`. Units SI (rad, rad/s, N·m, N), time in s.
+//! Columns: the library's table ([`exompc::sim::trace::TRACE_COLUMNS`], listed in
+//! docs/REPRODUCING.md): `t`; per joint J (`hip`, `knee`; 1-DOF: `knee`) `q_robot_J, …,
+//! torque_human_J`; per strap S `force_true_S, force_measured_S`; per scenario `mu_K` and per
+//! scenario and joint `dist_K_J`; then `status, iterations, step_us`.
 //! The scenario key `K` is its number `1, 2, ...` for the `multistage.payloads_kg` shorthand
 //! (whose names `"0 kg"`, ... are in `summary.json`) and its name for
 //! `[[multistage.scenarios]]` (e.g. `mu_soft straps`).
@@ -15,23 +15,7 @@ use exompc::sim::{Recorder, StepRecord};
 use std::io::Write;
 use std::path::Path;
 
-/// Joint names for `n` joints.
-pub fn joint_names(n: usize) -> &'static [&'static str] {
-    if n == 1 {
-        &["knee"]
-    } else {
-        &["hip", "knee"]
-    }
-}
-
-/// Strap names for `n` joints.
-pub fn strap_names(n: usize) -> &'static [&'static str] {
-    if n == 1 {
-        &["shank"]
-    } else {
-        &["thigh", "shank"]
-    }
-}
+pub use exompc::sim::trace::{joint_names, strap_names};
 
 /// Column names of a trace with `n` joints and `scenarios` scenarios keyed `1, 2, ...`.
 pub fn header(n: usize, scenarios: usize) -> Vec<String> {
@@ -44,36 +28,9 @@ pub fn numbered(scenarios: usize) -> Vec<String> {
 }
 
 /// Column names of a trace with `n` joints and one scenario per key of `scenarios` (columns
-/// `mu_K`, `dist_K_J`).
+/// `mu_K`, `dist_K_J`): the library's table ([`exompc::sim::trace::csv_header`]).
 pub fn header_with(n: usize, scenarios: &[String]) -> Vec<String> {
-    let mut h = vec!["t".to_string()];
-    for j in joint_names(n) {
-        for c in [
-            "q_robot",
-            "qd_robot",
-            "q_human",
-            "qd_human",
-            "q_desired",
-            "torque_robot",
-            "torque_human",
-        ] {
-            h.push(format!("{c}_{j}"));
-        }
-    }
-    for s in strap_names(n) {
-        h.push(format!("force_true_{s}"));
-        h.push(format!("force_measured_{s}"));
-    }
-    for i in scenarios {
-        h.push(format!("mu_{i}"));
-    }
-    for i in scenarios {
-        for j in joint_names(n) {
-            h.push(format!("dist_{i}_{j}"));
-        }
-    }
-    h.extend(["status", "iterations", "step_us"].map(String::from));
-    h
+    exompc::sim::trace::csv_header(n, scenarios)
 }
 
 /// Where a [`CsvTrace`] writes: a temporary file renamed when finished, or (`run`,
@@ -165,55 +122,12 @@ impl CsvTrace {
     }
 }
 
-fn push(line: &mut String, v: f64) {
-    use std::fmt::Write as _;
-    let _ = write!(line, "{v},");
-}
-
 impl<const N: usize> Recorder<N> for CsvTrace {
     fn record(&mut self, r: &StepRecord<'_, N>) -> std::io::Result<()> {
         debug_assert_eq!(N, self.n);
-        let l = &mut self.line;
-        l.clear();
-        push(l, r.t);
-        for j in 0..N {
-            for v in [
-                r.robot.q[j],
-                r.robot.qd[j],
-                r.human.q[j],
-                r.human.qd[j],
-                r.desired[j],
-                r.torque_robot[j],
-                r.torque_human[j],
-            ] {
-                push(l, v);
-            }
-        }
-        for s in 0..N {
-            push(l, r.force_true[s]);
-            push(l, r.force_measured[s]);
-        }
-        for i in 0..self.scenarios {
-            push(
-                l,
-                r.probabilities
-                    .and_then(|p| p.get(i).copied())
-                    .unwrap_or(f64::NAN),
-            );
-        }
-        for i in 0..self.scenarios {
-            for j in 0..N {
-                push(
-                    l,
-                    r.disturbances
-                        .and_then(|d| d.get(i))
-                        .map_or(f64::NAN, |d| d[j]),
-                );
-            }
-        }
-        use std::fmt::Write as _;
-        let _ = writeln!(l, "{},{},{}", r.status.name(), r.iterations, r.step_time_us);
-        self.out.write_all(l.as_bytes())
+        self.line.clear();
+        exompc::sim::trace::csv_row(r, self.scenarios, &mut self.line);
+        self.out.write_all(self.line.as_bytes())
     }
 }
 

@@ -1,6 +1,7 @@
 //! Conversions between Python objects, TOML values, numpy arrays and nalgebra vectors.
 
 use exompc::control::StepStatus;
+use exompc::sim::trace::{Field, Per, TraceColumn, TRACE_COLUMNS};
 use nalgebra::SVector;
 use numpy::{PyArray1, PyArrayDescrMethods, PyArrayMethods, PyUntypedArray, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyTypeError, PyValueError};
@@ -17,6 +18,47 @@ pub const STATUS_NAMES: [&str; StepStatus::ALL.len()] = {
     }
     names
 };
+
+/// The trace's per-joint and per-strap columns that Python returns (those of the library's
+/// column table with a Python key), in table order.
+pub fn trace_vector_columns() -> impl Iterator<Item = &'static TraceColumn> {
+    TRACE_COLUMNS
+        .iter()
+        .filter(|c| c.python.is_some() && matches!(c.per, Per::Joint | Per::Strap))
+}
+
+/// The Python trace key of `field` (the column table's).
+pub fn trace_key(field: Field) -> &'static str {
+    TRACE_COLUMNS
+        .iter()
+        .find(|c| c.field == field)
+        .and_then(|c| c.python)
+        .unwrap_or("?")
+}
+
+/// The column table for Python (`exompc.TRACE_COLUMNS`): one dict per entry with `python`
+/// (the trace key), `csv` (the CSV column or its prefix), `per` (`step`, `joint`, `strap`,
+/// `scenario`, `scenario_joint`), `unit` and `meaning`; a key absent from an output is `None`.
+pub fn trace_columns(py: Python<'_>) -> PyResult<Bound<'_, PyList>> {
+    let out = PyList::empty(py);
+    for c in &TRACE_COLUMNS {
+        let d = PyDict::new(py);
+        d.set_item("python", c.python)?;
+        d.set_item("csv", c.csv)?;
+        let per = match c.per {
+            Per::Step => "step",
+            Per::Joint => "joint",
+            Per::Strap => "strap",
+            Per::Scenario => "scenario",
+            Per::ScenarioJoint => "scenario_joint",
+        };
+        d.set_item("per", per)?;
+        d.set_item("unit", c.unit)?;
+        d.set_item("meaning", c.meaning)?;
+        out.append(d)?;
+    }
+    Ok(out)
+}
 
 /// A TOML value as the matching Python object.
 pub fn toml_to_py<'py>(py: Python<'py>, v: &toml::Value) -> PyResult<Bound<'py, PyAny>> {

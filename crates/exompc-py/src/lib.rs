@@ -38,6 +38,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("RunError", py.get_type::<RunError>())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("STATUS_NAMES", convert::STATUS_NAMES.to_vec())?;
+    m.add("TRACE_COLUMNS", convert::trace_columns(py)?)?;
     m.add_class::<scenario::PyScenario>()?;
     m.add_class::<controller::PyController>()?;
     m.add_class::<simulate::PySimulator>()?;

@@ -39,7 +39,8 @@ pub fn scenario_count(s: &Scenario) -> usize {
 
 /// Bytes per step of `simulate`'s trace columns for `n` joints and `scenarios` scenarios.
 pub fn trace_per_step(n: usize, scenarios: usize) -> u64 {
-    let f64s = 1 + 10 * n + scenarios + scenarios * n; // t, 10 columns, μ, disturbances
+    // t, the per-joint/strap columns, μ, disturbances
+    let f64s = 1 + crate::convert::trace_vector_columns().count() * n + scenarios + scenarios * n;
     (f64s * 8 + 1 + 4 + 8 + 1) as u64 + PY_STATUS_PER_STEP // status, iterations, time, limits
 }
 

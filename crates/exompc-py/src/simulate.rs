@@ -1,12 +1,13 @@
 //! `simulate`, `run_many` and the `Simulator` (plant + sensors) of the closed loop.
 
-use crate::convert::{array, vector};
+use crate::convert::{array, trace_key as key, trace_vector_columns as vector_columns, vector};
 use crate::guard::{catch, interruptible, CancelToken, Outcome};
 use crate::memory;
 use crate::scenario::PyScenario;
 use crate::{ConfigError, RunError};
 use exompc::config::Scenario;
 use exompc::scenario::{plant_params, run_experiment, uncertainty, Dof, OneDof, TwoDof};
+use exompc::sim::trace::{self, Field};
 use exompc::sim::{Plant, Recorder, Sensors, StepRecord, StopWhen, Summary, Trajectory};
 use exompc_study::io::{parse_value, set_key};
 use numpy::{PyArray1, PyArrayMethods};
@@ -15,13 +16,14 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use rayon::prelude::*;
 
-/// The trace of one run as flat columns (row-major `steps × width`).
-#[derive(Default)]
+/// The trace of one run as flat columns (row-major `steps × width`), keyed as the library's
+/// column table says (the `python` keys of [`trace::TRACE_COLUMNS`]).
 struct Columns {
     n: usize,
     scenarios: usize,
     t: Vec<f64>,
-    vec: [Vec<f64>; 10],
+    /// One per [`vector_columns`] entry.
+    vec: Vec<Vec<f64>>,
     probabilities: Vec<f64>,
     disturbances: Vec<f64>,
     status: Vec<u8>,
@@ -30,38 +32,12 @@ struct Columns {
     within_limits: Vec<bool>,
 }
 
-/// Names of the `N`-wide columns, in the order of `Columns::vec`.
-const VEC_NAMES: [&str; 10] = [
-    "q_robot",
-    "qd_robot",
-    "q_human",
-    "qd_human",
-    "q_desired",
-    "torque_robot",
-    "torque_prev",
-    "torque_human",
-    "force_true",
-    "force_measured",
-];
-
 impl<const N: usize> Recorder<N> for Columns {
     fn record(&mut self, r: &StepRecord<'_, N>) -> std::io::Result<()> {
         self.n = N;
         self.t.push(r.t);
-        let cols = [
-            &r.robot.q,
-            &r.robot.qd,
-            &r.human.q,
-            &r.human.qd,
-            &r.desired,
-            &r.torque_robot,
-            &r.torque_prev,
-            &r.torque_human,
-            &r.force_true,
-            &r.force_measured,
-        ];
-        for (c, v) in self.vec.iter_mut().zip(cols) {
-            c.extend_from_slice(v.as_slice());
+        for (c, v) in vector_columns().zip(&mut self.vec) {
+            v.extend((0..N).map(|j| trace::value(r, c.field, j)));
         }
         if let Some(p) = r.probabilities {
             self.scenarios = p.len();
@@ -84,8 +60,19 @@ impl Columns {
     /// Empty columns with room for `steps` rows of `n` joints and `scenarios` scenarios,
     /// reserved up front (a `MemoryError` if the system refuses, never an abort).
     fn with_capacity(steps: usize, n: usize, scenarios: usize) -> PyResult<Self> {
-        let mut c = Columns::default();
         let oom = |_| PyMemoryError::new_err(format!("cannot allocate the trace of {steps} steps"));
+        let mut c = Columns {
+            n,
+            scenarios: 0,
+            t: Vec::new(),
+            vec: vector_columns().map(|_| Vec::new()).collect(),
+            probabilities: Vec::new(),
+            disturbances: Vec::new(),
+            status: Vec::new(),
+            iterations: Vec::new(),
+            step_time_us: Vec::new(),
+            within_limits: Vec::new(),
+        };
         c.t.try_reserve_exact(steps).map_err(oom)?;
         for v in &mut c.vec {
             v.try_reserve_exact(steps.saturating_mul(n)).map_err(oom)?;
@@ -106,17 +93,18 @@ impl Columns {
     fn into_dict(self, py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
         let d = PyDict::new(py);
         let steps = self.t.len();
-        d.set_item("t", PyArray1::from_vec(py, self.t))?;
-        for (name, c) in VEC_NAMES.iter().zip(self.vec) {
-            d.set_item(name, PyArray1::from_vec(py, c).reshape([steps, self.n])?)?;
+        d.set_item(key(Field::Time), PyArray1::from_vec(py, self.t))?;
+        for (c, v) in vector_columns().zip(self.vec) {
+            let name = c.python.unwrap_or("?");
+            d.set_item(name, PyArray1::from_vec(py, v).reshape([steps, self.n])?)?;
         }
         if self.scenarios > 0 {
             d.set_item(
-                "probabilities",
+                key(Field::Probability),
                 PyArray1::from_vec(py, self.probabilities).reshape([steps, self.scenarios])?,
             )?;
             d.set_item(
-                "disturbances",
+                key(Field::Disturbance),
                 PyArray1::from_vec(py, self.disturbances).reshape([
                     steps,
                     self.scenarios,
@@ -124,10 +112,19 @@ impl Columns {
                 ])?,
             )?;
         }
-        d.set_item("status", PyArray1::from_vec(py, self.status))?;
-        d.set_item("iterations", PyArray1::from_vec(py, self.iterations))?;
-        d.set_item("step_time_us", PyArray1::from_vec(py, self.step_time_us))?;
-        d.set_item("within_limits", PyArray1::from_vec(py, self.within_limits))?;
+        d.set_item(key(Field::Status), PyArray1::from_vec(py, self.status))?;
+        d.set_item(
+            key(Field::Iterations),
+            PyArray1::from_vec(py, self.iterations),
+        )?;
+        d.set_item(
+            key(Field::StepTime),
+            PyArray1::from_vec(py, self.step_time_us),
+        )?;
+        d.set_item(
+            key(Field::WithinLimits),
+            PyArray1::from_vec(py, self.within_limits),
+        )?;
         Ok(d)
     }
 }

@@ -183,6 +183,18 @@ def test_trace_columns_and_summary():
     assert "trace" not in exompc.simulate(duration=1.0, trace=False)
 
 
+def test_trace_keys_are_the_column_tables():
+    # One table (the library's sim::trace::TRACE_COLUMNS) names the CSV columns, these keys and
+    # the docs' column table: a key added here only, or there only, fails.
+    keys = {c["python"] for c in exompc.TRACE_COLUMNS if c["python"]}
+    tr = exompc.simulate(duration=0.5)["trace"]
+    assert set(tr) == keys | {"status_code"}
+    tr = exompc.simulate(duration=0.5, controller="nmpc")["trace"]
+    assert set(tr) == keys - {"probabilities", "disturbances"} | {"status_code"}
+    for c in exompc.TRACE_COLUMNS:
+        assert c["per"] in {"step", "joint", "strap", "scenario", "scenario_joint"} and c["unit"]
+
+
 def test_bad_values_raise_naming_the_field():
     s = exompc.Scenario.default()
     cases = [

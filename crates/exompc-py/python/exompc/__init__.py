@@ -29,6 +29,7 @@ import numpy as np
 from . import _core
 from ._core import (
     STATUS_NAMES,
+    TRACE_COLUMNS,
     CancelToken,
     ConfigError,
     Controller,
@@ -43,6 +44,7 @@ from .montecarlo import Choice, Normal, Uniform, draw_parameters, montecarlo, su
 
 __all__ = [
     "STATUS_NAMES",
+    "TRACE_COLUMNS",
     "CancelToken",
     "Choice",
     "ConfigError",

@@ -8,6 +8,7 @@ import numpy.typing as npt
 
 __all__ = [
     "STATUS_NAMES",
+    "TRACE_COLUMNS",
     "CancelToken",
     "ConfigError",
     "Controller",
@@ -26,6 +27,7 @@ _C = TypeVar("_C", bound="Controller")
 
 __version__: str
 STATUS_NAMES: List[str]
+TRACE_COLUMNS: List[Dict[str, Optional[str]]]
 
 _FloatVec = Union[npt.NDArray[np.float64], Sequence[float], float]
 _Status = Literal["ok", "max_iterations", "max_time", "solver_failed", "bad_measurement", "monitor_tripped"]

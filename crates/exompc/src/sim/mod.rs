@@ -15,6 +15,7 @@ mod safety_summary;
 mod sensors;
 mod spline;
 mod stability;
+pub mod trace;
 mod trajectory;
 mod uncertainty;
 
