@@ -68,16 +68,17 @@ pub enum CanStopCause {
     SendFailed(String),
 }
 
-/// A protective stop (robot clock, s).
+/// A protective stop of a CAN robot (robot clock, s): the AK robot's cause is a
+/// [`CanStopCause`], the CiA 402 robot's a text naming the device and its fault.
 #[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct CanStopEvent {
+pub struct CanStopEvent<C = CanStopCause> {
     /// Why.
-    pub cause: CanStopCause,
+    pub cause: C,
     /// When it began.
     pub at: f64,
     /// When the last ramp frame was sent (`None`: the ramp could not be sent).
     pub zero_at: Option<f64>,
-    /// Ramp frames that could not be sent (the bus no longer listening).
+    /// Ramp periods whose frames could not all be sent (the bus no longer listening).
     pub ramp_send_failures: u64,
 }
 
@@ -315,27 +316,7 @@ impl<const N: usize, B: CanBus, K: Clock> CanRobot<N, B, K> {
         self.stats.protective_stops += 1;
         let at = self.clock.now();
         let steps = stop_ramp_steps(&self.applied, &self.s.limits, self.s.stop_ramp, self.s.dt);
-        let start = self.applied;
-        let mut failures = 0u64;
-        let mut zero_at = None;
-        for n in 1..=steps {
-            let torque = start * (1.0 - f64::from(n) / f64::from(steps));
-            let mut ok = true;
-            for i in 0..N {
-                let f = self.drives[i].torque_frame(torque[i]);
-                ok &= self.send(&f);
-            }
-            self.applied = torque;
-            if !ok {
-                failures += 1;
-            }
-            if n == steps {
-                zero_at = (failures == 0).then(|| self.clock.now().as_secs_f64());
-                break;
-            }
-            let next = self.clock.now() + self.s.dt;
-            self.receive_until(next, |_| false);
-        }
+        let (failures, zero_at) = ramp_to_zero(self, steps);
         for i in 0..N {
             let f = self.drives[i].exit();
             self.send(&f);
@@ -414,6 +395,66 @@ pub fn stop_ramp_steps<const N: usize>(
     let by_rate = (biggest / limits.rate.max(1e-9)).ceil();
     let by_time = (stop_ramp.as_secs_f64() / dt).ceil();
     by_rate.max(by_time).clamp(1.0, f64::from(u32::MAX)) as u32
+}
+
+/// What a protective stop's ramp needs of a CAN robot (AK or CiA 402).
+pub(crate) trait RampPeriods<const N: usize> {
+    /// The torques applied now (the ramp's start).
+    fn applied_torque(&self) -> SVector<f64, N>;
+    /// Send one period's torques (every joint, and the SYNC where the protocol has one) and
+    /// take them as applied; false when a send failed.
+    fn send_torques(&mut self, torque: &SVector<f64, N>) -> bool;
+    /// Handle what arrives for one period.
+    fn wait_period(&mut self);
+    /// Bus time now.
+    fn bus_now(&self) -> Duration;
+}
+
+/// The ramp of a protective stop: from the applied torques to zero in `steps` periods (see
+/// [`stop_ramp_steps`]), one [`RampPeriods::send_torques`] per period. Returns the periods whose
+/// sends failed and the bus time (s) zero was sent, `None` when any send failed.
+pub(crate) fn ramp_to_zero<const N: usize, R: RampPeriods<N>>(
+    r: &mut R,
+    steps: u32,
+) -> (u64, Option<f64>) {
+    let start = r.applied_torque();
+    let mut failures = 0u64;
+    for n in 1..=steps {
+        let torque = start * (1.0 - f64::from(n) / f64::from(steps));
+        if !r.send_torques(&torque) {
+            failures += 1;
+        }
+        if n == steps {
+            break;
+        }
+        r.wait_period();
+    }
+    (failures, (failures == 0).then(|| r.bus_now().as_secs_f64()))
+}
+
+impl<const N: usize, B: CanBus, K: Clock> RampPeriods<N> for CanRobot<N, B, K> {
+    fn applied_torque(&self) -> SVector<f64, N> {
+        self.applied
+    }
+
+    fn send_torques(&mut self, torque: &SVector<f64, N>) -> bool {
+        let mut ok = true;
+        for i in 0..N {
+            let f = self.drives[i].torque_frame(torque[i]);
+            ok &= self.send(&f);
+        }
+        self.applied = *torque;
+        ok
+    }
+
+    fn wait_period(&mut self) {
+        let next = self.clock.now() + self.s.dt;
+        self.receive_until(next, |_| false);
+    }
+
+    fn bus_now(&self) -> Duration {
+        self.clock.now()
+    }
 }
 
 /// An I/O error with a message, for the robot interface's `Result`s.

@@ -25,7 +25,7 @@ use super::master::{Cia402Master, DriveSample};
 use crate::bus::{BusState, CanBus};
 use crate::canopen::sync::SyncProducer;
 use crate::force_node::{ForceSample, ForceSensor};
-use crate::robot::{io_err, stop_ramp_steps};
+use crate::robot::{io_err, ramp_to_zero, stop_ramp_steps, CanStopEvent, RampPeriods};
 use crate::CanFrame;
 use exompc::control::TorqueLimits;
 use exompc::runtime::frame::{command_flags, robot_flags};
@@ -51,18 +51,8 @@ pub struct Cia402RobotSettings {
     pub phase: Option<f64>,
 }
 
-/// A protective stop.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct Cia402StopEvent {
-    /// Why (the device and its fault, or the bus state).
-    pub cause: String,
-    /// When it began (robot clock, s).
-    pub at: f64,
-    /// When the last ramp frame was sent (`None`: the ramp could not be sent).
-    pub zero_at: Option<f64>,
-    /// Ramp periods whose frames could not all be sent.
-    pub ramp_send_failures: u64,
-}
+/// A protective stop: its cause names the device and its fault, or the bus state.
+pub type Cia402StopEvent = CanStopEvent<String>;
 
 /// Counters of a [`Cia402Robot`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
@@ -285,28 +275,7 @@ impl<const N: usize, B: CanBus, K: Clock> Cia402Robot<N, B, K> {
         self.stats.protective_stops += 1;
         let at = self.clock.now();
         let steps = stop_ramp_steps(&self.applied, &self.s.limits, self.s.stop_ramp, self.s.dt);
-        let start = self.applied;
-        let mut failures = 0u64;
-        let mut zero_at = None;
-        for n in 1..=steps {
-            let torque = start * (1.0 - f64::from(n) / f64::from(steps));
-            let mut ok = true;
-            for i in 0..N {
-                let f = self.drives[i].command(torque[i]);
-                ok &= self.send(&f);
-            }
-            ok &= self.send_sync();
-            self.applied = torque;
-            if !ok {
-                failures += 1;
-            }
-            if n == steps {
-                zero_at = (failures == 0).then(|| self.clock.now().as_secs_f64());
-                break;
-            }
-            let next = self.clock.now() + self.s.dt;
-            self.receive_until(next, |_| false);
-        }
+        let (failures, zero_at) = ramp_to_zero(self, steps);
         for i in 0..N {
             let f = self.drives[i].stop();
             self.send(&f);
@@ -316,7 +285,7 @@ impl<const N: usize, B: CanBus, K: Clock> Cia402Robot<N, B, K> {
         self.receive_until(until, |_| false);
         self.applied = SVector::zeros();
         if self.stops.len() < self.stops.capacity() {
-            self.stops.push(Cia402StopEvent {
+            self.stops.push(CanStopEvent {
                 cause,
                 at: at.as_secs_f64(),
                 zero_at,
@@ -356,6 +325,32 @@ impl<const N: usize, B: CanBus, K: Clock> Cia402Robot<N, B, K> {
         self.s
             .phase
             .map_or(Duration::ZERO, |p| self.s.dt.mul_f64(p.clamp(0.0, 0.99)))
+    }
+}
+
+impl<const N: usize, B: CanBus, K: Clock> RampPeriods<N> for Cia402Robot<N, B, K> {
+    fn applied_torque(&self) -> SVector<f64, N> {
+        self.applied
+    }
+
+    fn send_torques(&mut self, torque: &SVector<f64, N>) -> bool {
+        let mut ok = true;
+        for i in 0..N {
+            let f = self.drives[i].command(torque[i]);
+            ok &= self.send(&f);
+        }
+        ok &= self.send_sync();
+        self.applied = *torque;
+        ok
+    }
+
+    fn wait_period(&mut self) {
+        let next = self.clock.now() + self.s.dt;
+        self.receive_until(next, |_| false);
+    }
+
+    fn bus_now(&self) -> Duration {
+        self.clock.now()
     }
 }
 
