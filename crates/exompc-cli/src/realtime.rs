@@ -10,9 +10,12 @@ use exompc::control::{Controller, StepStatus};
 use exompc::runtime::frame::status_from_code;
 use exompc::runtime::{
     Clock, ControlLoop, Lifecycle, LoopSettings, MonotonicClock, NetFaultSettings, NetFaults, Psk,
-    RobotInterface, RobotRx, Schedule, StopCause, TimingStats, UdpPeer, UdpRobot, VirtualRobot,
+    RobotInterface, RobotRx, Schedule, TimingStats, UdpPeer, UdpRobot,
 };
-use exompc::scenario::{build_supervised, limits, plant_params, uncertainty, Dof, OneDof, TwoDof};
+use exompc::scenario::{
+    build_supervised, limits, plant_params, uncertainty, Dof, OneDof, StopCause, TwoDof,
+    VirtualRobot,
+};
 use exompc::sim::{Metrics, Plant, Recorder, Sensors, StepRecord};
 use exompc_cli::error::CliError;
 use exompc_cli::io;
@@ -975,9 +978,9 @@ struct RobotSummary {
     summary: exompc::sim::Summary,
     stop_reason: String,
     lifecycle: Lifecycle,
-    robot: exompc::runtime::RobotStats,
-    watchdog_events: Vec<exompc::runtime::WatchdogEvent>,
-    protective_stops: Vec<exompc::runtime::StopEvent>,
+    robot: exompc::scenario::RobotStats,
+    watchdog_events: Vec<exompc::scenario::WatchdogEvent>,
+    protective_stops: Vec<exompc::scenario::StopEvent>,
     link: exompc::runtime::LinkStats,
     net_faults: NetFaultReport,
     timing_us: exompc::runtime::TimingSummary,

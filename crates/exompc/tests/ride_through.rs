@@ -6,8 +6,9 @@
 
 use exompc::config::{ControllerKind, Scenario};
 use exompc::control::{ChannelGuard, Measurement, MonitorAction, MonitorKind, StepStatus};
+use exompc::estimate::MovingAverage;
 use exompc::scenario::{run_experiment_report, TwoDof};
-use exompc::sim::{Channel, FaultEvent, FaultKind, MovingAverage, TraceLog};
+use exompc::sim::{Channel, FaultEvent, FaultKind, TraceLog};
 use nalgebra::SVector;
 
 fn scenario(kind: ControllerKind, payload: f64, seconds: f64) -> Scenario {

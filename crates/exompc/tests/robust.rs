@@ -7,9 +7,10 @@ use exompc::config::{
     ControllerKind, FilterAware, IntentEstimate, Method, RobustIntentGains, Scenario,
 };
 use exompc::control::{ForceLag, HfShareDetector, Measurement, VelocityTracking};
+use exompc::estimate::MovingAverage;
 use exompc::model::Straps;
 use exompc::scenario::{run_experiment, OneDof, TwoDof};
-use exompc::sim::{high_frequency_fraction, rms, MovingAverage, TraceLog};
+use exompc::sim::{high_frequency_fraction, rms, TraceLog};
 use nalgebra::SVector;
 
 const DT: f64 = 0.01;

@@ -16,11 +16,11 @@ use exompc::runtime::frame::{
 use exompc::runtime::{
     decode, encode_command, encode_sample, Clock, ControlLoop, ControllerLink, Frame, FrameError,
     Key, Lifecycle, LinkStats, LoopSettings, NetFaultSettings, NetFaults, Psk, RejectCounts,
-    RobotCommand, RobotInterface, RobotLink, RobotRx, RobotSample, RobotStep, SeqTracker,
-    StopCause, VirtualRobot,
+    RobotCommand, RobotInterface, RobotLink, RobotRx, RobotSample, SeqTracker,
 };
 use exompc::scenario::{
-    build_supervised, limits, plant_params, run_experiment, uncertainty, Dof, TwoDof,
+    build_supervised, limits, plant_params, run_experiment, uncertainty, Dof, RobotStep, StopCause,
+    TwoDof, VirtualRobot,
 };
 use exompc::sim::{Plant, Sensors, TraceLog};
 use nalgebra::{SVector, Vector2};

@@ -41,10 +41,12 @@
 
 mod bank;
 mod ekf;
+mod moving_average;
 mod scenario;
 
 pub use bank::{update_probabilities, EkfBank};
 pub use ekf::{Ekf, EkfError, InnovationStats};
+pub use moving_average::MovingAverage;
 pub use scenario::{ScenarioEkf, ScenarioUpdate};
 
 use crate::check::{self, InvalidField, Range};

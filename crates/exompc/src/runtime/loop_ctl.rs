@@ -4,7 +4,7 @@ use super::frame::{command_flags, robot_flags, status_code, RobotCommand, RobotS
 use super::timing::{Clock, TimingStats};
 use super::{Lifecycle, RobotInterface};
 use crate::control::{ControlOutput, Controller, Measurement, StepStatus, TorqueLimits};
-use crate::sim::MovingAverage;
+use crate::estimate::MovingAverage;
 use nalgebra::SVector;
 use serde::Serialize;
 use std::time::Duration;

@@ -1,5 +1,5 @@
 //! Real-time runtime: the robot interface, the binary frame of the UDP link, the periodic
-//! controller loop, a virtual robot to test against, and injectable network faults.
+//! controller loop, and injectable network faults.
 //!
 //! * [`RobotInterface`] is the hardware boundary, shaped like ros2_control's hardware
 //!   interface: a lifecycle ([`Lifecycle`]: configure, activate, deactivate, error), then
@@ -15,10 +15,9 @@
 //!   to the robot's sample timestamps (wake at `T_k`, read the newest sample with a timeout,
 //!   filter, supervised controller step, write the torque), written against the [`Clock`] and [`RobotInterface`] traits so that it runs
 //!   in tests without sockets or real time.
-//! * [`VirtualRobot`]: the simulated human + exoskeleton of `exompc simulate` (the same
-//!   [`Plant`](crate::sim::Plant) and [`Sensors`](crate::sim::Sensors)) behind the robot side of
-//!   the protocol: its own torque and rate limits, the ride-through of brief command gaps and
-//!   the protective stop.
+//! * The virtual robot to test against (the simulated human + exoskeleton behind the robot side
+//!   of the protocol) is [`crate::scenario::VirtualRobot`], where simulator and runtime meet:
+//!   the runtime does not import the simulator.
 //! * [`NetFaults`]: packet loss, delay spikes, duplication, reordering and a disconnection,
 //!   injected into a stream of frames.
 
@@ -26,7 +25,6 @@ pub mod frame;
 mod key;
 mod loop_ctl;
 mod netfault;
-mod robot;
 pub mod session;
 mod timing;
 mod udp;
@@ -37,7 +35,6 @@ pub use frame::{
 };
 pub use loop_ctl::{ControlLoop, LoopSettings, LoopStats, PeriodRecord};
 pub use netfault::{NetFaultCounts, NetFaultSettings, NetFaults};
-pub use robot::{RobotStats, RobotStep, StopCause, StopEvent, VirtualRobot, WatchdogEvent};
 pub use session::{ControllerLink, Key, KeyError, Psk, RobotLink, RobotRx};
 pub use timing::{
     Clock, MonotonicClock, Percentiles, Schedule, TestClock, TimingStats, TimingSummary,

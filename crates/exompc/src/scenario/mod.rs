@@ -14,6 +14,8 @@ mod layout;
 pub mod multistage;
 mod registry;
 mod run;
+#[cfg(feature = "std")]
+mod virtual_robot;
 
 pub use build::{
     build_multistage, build_nmpc, build_pd, fallback, initial_torque, intent, limits,
@@ -36,3 +38,5 @@ pub use registry::{
     DuplicateController, BUILTIN,
 };
 pub use run::{run_experiment, run_experiment_report, run_soak, soak_scenario, SoakReport};
+#[cfg(feature = "std")]
+pub use virtual_robot::{RobotStats, RobotStep, StopCause, StopEvent, VirtualRobot, WatchdogEvent};

@@ -12,7 +12,6 @@ mod human;
 mod metrics;
 mod plant;
 mod safety_summary;
-mod sensors;
 mod spline;
 mod stability;
 pub mod trace;
@@ -39,7 +38,6 @@ pub use human::{HumanBrain, HumanLeg};
 pub use metrics::{Metrics, StepTimeStats, Summary};
 pub use plant::{robot_model, Plant, PlantParams, PlantState};
 pub use safety_summary::{MonitorTally, SafetySummary};
-pub use sensors::MovingAverage;
 pub use spline::{CubicSpline, SplineEnds};
 pub use stability::{
     cell_verdict, classify, classify_run, high_frequency_fraction, rms, CellVerdict, RunClass,
@@ -49,6 +47,7 @@ pub use trajectory::{KneeTrajectory, SwingTrajectory, Trajectory};
 pub use uncertainty::{Uncertainty, MAX_PAYLOAD_KG};
 
 use crate::control::Measurement;
+use crate::estimate::MovingAverage;
 use nalgebra::SVector;
 
 /// The sensor chain of MODEL.md §5: exact encoders, noisy velocity and force sensors sampled at the

@@ -1,4 +1,5 @@
-//! Sensors and filters: the moving average of the most recent samples (paper §4.1, MODEL.md §5).
+//! The moving-average filter of the most recent samples (paper §4.1, MODEL.md §5): the
+//! simulated sensors' filter and the runtime loop's.
 
 use alloc::{vec, vec::Vec};
 use nalgebra::SVector;

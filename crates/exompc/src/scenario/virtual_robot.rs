@@ -1,12 +1,16 @@
 //! The virtual robot: the simulated human + exoskeleton of `exompc simulate` behind the robot
 //! side of the protocol, with the lifecycle of [`Lifecycle`], its own torque and torque-rate
 //! limits, the ride-through of brief command gaps and the protective stop. Time advances one
-//! period per [`VirtualRobot::advance`]; the caller paces it in real time.
+//! period per [`VirtualRobot::advance`]; the caller paces it in real time. It lives here, where
+//! the simulator and the runtime meet, so that the runtime's robot boundary does not import the
+//! simulator.
 
-use super::frame::{command_flags, robot_flags, FrameError, RobotCommand, RobotSample, PLAN_LEN};
-use super::Lifecycle;
 use crate::control::TorqueLimits;
 use crate::model::JointState;
+use crate::runtime::frame::{
+    command_flags, robot_flags, FrameError, RobotCommand, RobotSample, PLAN_LEN,
+};
+use crate::runtime::Lifecycle;
 use crate::sim::{Plant, Sensors, Trajectory};
 use nalgebra::SVector;
 use serde::Serialize;
