@@ -27,6 +27,7 @@ extern crate alloc;
 
 use alloc::format;
 use alloc::string::String;
+#[cfg(not(feature = "controller-only"))]
 use alloc::vec::Vec;
 use core::alloc::{GlobalAlloc, Layout};
 use core::fmt::Write as _;
@@ -35,13 +36,18 @@ use cortex_m_rt::entry;
 use cortex_m_semihosting::{debug, hio, nr};
 use embedded_alloc::LlffHeap;
 use exompc::config::{ControllerKind, Scenario};
+use exompc::control::Supervisor;
 use exompc::control::{Controller, Measurement};
 use exompc::runtime::frame::{
     command_flags, max_frame_len, robot_flags, status_code, RobotCommand,
 };
 use exompc::runtime::{ControllerLink, Deframer, LinkStats, Psk};
-use exompc::scenario::{build_supervised, limits, multistage, run_experiment_report, TwoDof};
-use exompc::sim::{MovingAverage, RecordResult, Recorder, StepRecord};
+use exompc::scenario::{limits, RunError, TwoDof};
+#[cfg(not(feature = "controller-only"))]
+use exompc::scenario::{multistage, run_experiment_report};
+use exompc::sim::MovingAverage;
+#[cfg(not(feature = "controller-only"))]
+use exompc::sim::{RecordResult, Recorder, StepRecord};
 use nalgebra::SVector;
 
 /// Heap arena (a static array; the heap's peak use is measured).
@@ -183,6 +189,7 @@ fn command_line(buf: &mut [u8; 512]) -> &str {
     core::str::from_utf8(&buf[..n]).unwrap_or("")
 }
 
+#[cfg(not(feature = "controller-only"))]
 /// `exompc simulate`'s trace row (`exompc-cli`'s `CsvTrace`), `T,`-prefixed, and the step's
 /// cost line.
 struct Stream {
@@ -190,10 +197,12 @@ struct Stream {
     line: String,
 }
 
+#[cfg(not(feature = "controller-only"))]
 fn push(l: &mut String, v: f64) {
     let _ = write!(l, "{v},");
 }
 
+#[cfg(not(feature = "controller-only"))]
 impl Recorder<2> for Stream {
     fn record(&mut self, r: &StepRecord<'_, 2>) -> RecordResult {
         let (solver_ns, ekf_ns) = exompc::clock::take_parts();
@@ -248,6 +257,7 @@ impl Recorder<2> for Stream {
     }
 }
 
+#[cfg(not(feature = "controller-only"))]
 /// `exompc simulate`'s trace header for 2 joints and `keys` scenarios.
 fn header(keys: &[String]) -> String {
     let mut h: Vec<String> = Vec::new();
@@ -313,6 +323,40 @@ fn addr(s: &u32) -> usize {
     s as *const u32 as usize
 }
 
+/// The supervised controller of the image: any registered one (the full image), or the one
+/// controller the controller-only image holds.
+type Ctrl = Supervisor<2, alloc::boxed::Box<dyn Controller<2>>>;
+
+#[cfg(not(feature = "controller-only"))]
+fn build(s: &Scenario) -> Result<Ctrl, RunError> {
+    exompc::scenario::build_supervised::<TwoDof, 2>(s, s.controller.kind)
+}
+
+#[cfg(feature = "controller-only")]
+fn build(s: &Scenario) -> Result<Ctrl, RunError> {
+    use exompc::scenario::{initial_torque, supervise};
+    #[cfg(feature = "serial-msnmpc")]
+    let (kind, builder) = (
+        ControllerKind::MSNMPC,
+        exompc::scenario::build_multistage::<TwoDof, 2, 6, 4>,
+    );
+    #[cfg(all(feature = "serial-nmpc", not(feature = "serial-msnmpc")))]
+    let (kind, builder) = (
+        ControllerKind::NMPC,
+        exompc::scenario::build_nmpc::<TwoDof, 2>,
+    );
+    if s.controller.kind != kind {
+        fail(&format!(
+            "controller={}: this controller-only image holds {kind}",
+            s.controller.kind
+        ));
+    }
+    Ok(supervise::<TwoDof, 2>(
+        s,
+        builder(s, initial_torque::<TwoDof, 2>(s))?,
+    ))
+}
+
 fn hex32(text: &str) -> Option<[u8; 32]> {
     let t = text.as_bytes();
     if t.len() != 64 {
@@ -356,7 +400,7 @@ fn serial(s: &Scenario, key: &str, nonce: [u8; 32]) -> LinkStats {
     let max_ahead = (1.0 / s.timing.dt).clamp(2.0, 1e6) as u32 + 1;
     let mut link = ControllerLink::<2>::new(psk, max_ahead);
     let mut deframer = Deframer::new(max_frame_len(2));
-    let mut sup = match build_supervised::<TwoDof, 2>(s, s.controller.kind) {
+    let mut sup = match build(s) {
         Ok(c) => c,
         Err(e) => fail(&format!("{e}")),
     };
@@ -480,13 +524,6 @@ fn main() -> ! {
     if let Err(e) = s.validate() {
         fail(&format!("{e}"));
     }
-    let keys: Vec<String> = match exompc::scenario::controller_info(s.controller.kind) {
-        Ok(info) if info.multistage => (1..=multistage::count(&s))
-            .map(|i| format!("{i}"))
-            .collect(),
-        Ok(_) => Vec::new(),
-        Err(e) => fail(&format!("{e}")),
-    };
     out(&format!(
         "I,controller={} payload_kg={} duration_s={} calibration_rounds={rounds} \
          calibration_instructions={} calibration_ticks={calib_ticks}\n",
@@ -498,7 +535,7 @@ fn main() -> ! {
     // The heap the controller alone holds (supervised, as the run builds it; it allocates
     // nothing per step): built, measured and dropped before the run.
     let before = HEAP.heap.used();
-    let controller_heap = match build_supervised::<TwoDof, 2>(&s, s.controller.kind) {
+    let controller_heap = match build(&s) {
         Ok(c) => {
             let used = HEAP.heap.used() - before;
             drop(c);
@@ -515,7 +552,10 @@ fn main() -> ! {
         };
         serial(&s, key, nonce);
     } else {
-        closed_loop(&s, &keys);
+        #[cfg(not(feature = "controller-only"))]
+        closed_loop(&s);
+        #[cfg(feature = "controller-only")]
+        fail("this is the controller-only image: mode=serial only");
     }
     memory_report(ram_free, sp, stack_top, ram_start);
     debug::exit(debug::EXIT_SUCCESS);
@@ -526,8 +566,14 @@ fn main() -> ! {
 
 /// The closed loop on the MCU (`mode=closed-loop`): plant, sensors and controller, streaming
 /// the trace and the summary.
-fn closed_loop(s: &Scenario, keys: &[String]) {
-    out(&header(keys));
+#[cfg(not(feature = "controller-only"))]
+fn closed_loop(s: &Scenario) {
+    let keys: Vec<String> = match exompc::scenario::controller_info(s.controller.kind) {
+        Ok(info) if info.multistage => (1..=multistage::count(s)).map(|i| format!("{i}")).collect(),
+        Ok(_) => Vec::new(),
+        Err(e) => fail(&format!("{e}")),
+    };
+    out(&header(&keys));
     let _ = exompc::clock::take_parts();
     let mut stream = Stream {
         scenarios: keys.len(),
