@@ -177,7 +177,7 @@ fn secs(name: &str, v: f64, lo: f64, hi: f64) -> Result<Duration, CliError> {
     }
 }
 
-fn write_json(path: &Path, v: &impl Serialize) -> Result<(), CliError> {
+pub(crate) fn write_json(path: &Path, v: &impl Serialize) -> Result<(), CliError> {
     let json = serde_json::to_string_pretty(v)
         .map_err(|e| CliError::Runtime(format!("serialising summary: {e}")))?;
     io::write_atomic(path, json.as_bytes())
@@ -330,7 +330,7 @@ fn earlier_results(dir: &Path) -> Vec<String> {
 
 /// Refuse an output folder holding an earlier run's results (without `--force`) or that is not
 /// a folder; creates nothing.
-fn check_out(dir: &Path, force: bool) -> Result<(), CliError> {
+pub(crate) fn check_out(dir: &Path, force: bool) -> Result<(), CliError> {
     if dir.exists() && !dir.is_dir() {
         return Err(CliError::Usage(format!(
             "output path {} exists and is not a folder",
@@ -351,7 +351,7 @@ fn check_out(dir: &Path, force: bool) -> Result<(), CliError> {
 
 /// Create the output folder and, with `--force`, move an earlier run's results aside
 /// (`trace.csv` → `trace.csv.replaced-<unix seconds>`): nothing is deleted.
-fn open_out(dir: &Path, force: bool) -> Result<(), CliError> {
+pub(crate) fn open_out(dir: &Path, force: bool) -> Result<(), CliError> {
     io::ensure_out_dir(dir)?;
     if force {
         let stamp = std::time::SystemTime::now()
@@ -374,14 +374,14 @@ fn open_out(dir: &Path, force: bool) -> Result<(), CliError> {
 
 /// A live trace that stops writing at its first error (keeping what was written) and
 /// remembers the error, naming the file.
-struct LiveTrace {
+pub(crate) struct LiveTrace {
     trace: Option<CsvTrace>,
     path: PathBuf,
     error: Option<String>,
 }
 
 impl LiveTrace {
-    fn create(dir: &Path, n: usize, keys: &[String]) -> Result<Self, CliError> {
+    pub(crate) fn create(dir: &Path, n: usize, keys: &[String]) -> Result<Self, CliError> {
         let path = dir.join("trace.csv");
         Ok(LiveTrace {
             trace: Some(CsvTrace::create_live(&path, n, keys)?),
@@ -396,7 +396,7 @@ impl LiveTrace {
     }
 
     /// Record a row; `false` on the first failure.
-    fn record<const N: usize>(&mut self, r: &StepRecord<'_, N>) -> bool {
+    pub(crate) fn record<const N: usize>(&mut self, r: &StepRecord<'_, N>) -> bool {
         let Some(t) = self.trace.as_mut() else {
             return self.error.is_none();
         };
@@ -419,7 +419,7 @@ impl LiveTrace {
     }
 
     /// Flush and fsync; the error message, if any write failed.
-    fn finish(mut self) -> Option<String> {
+    pub(crate) fn finish(mut self) -> Option<String> {
         if let Some(t) = self.trace.take() {
             if let Err(e) = t.finish() {
                 self.error = Some(format!("{} ({e})", self.path.display()));
@@ -607,7 +607,7 @@ where
 }
 
 /// Sequence numbers a frame may be ahead of the last one: about 1 s of periods.
-fn max_ahead(dt: f64) -> u32 {
+pub(crate) fn max_ahead(dt: f64) -> u32 {
     (1.0 / dt).ceil().clamp(2.0, 1e6) as u32
 }
 
@@ -962,6 +962,16 @@ pub(crate) struct VirtualRobotArgs {
     /// Seed of the network fault draws.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Serve the controller on a byte stream instead of UDP: create the Unix socket PATH
+    /// (QEMU's `-serial unix:PATH` connects to it: the firmware's UART) and run in lockstep,
+    /// each period waiting for its command (up to --connect-timeout of wall time).
+    #[arg(long, value_name = "PATH")]
+    serial: Option<PathBuf>,
+    /// With --serial: at this robot time (s), send a forged copy of the sample (one bit
+    /// flipped) and a replay of the previous sample before the real one; the controller must
+    /// reject both (counted in its link counters).
+    #[arg(long, value_name = "S", requires = "serial")]
+    inject_forged_at: Option<f64>,
     /// Output folder for the robot's `trace.csv` (true states, written as the run goes) and
     /// `summary.json`.
     #[arg(long, value_name = "DIR", default_value = "out/robot")]
@@ -1034,6 +1044,29 @@ pub(crate) fn virtual_robot(a: VirtualRobotArgs) -> Result<(), CliError> {
         .map_err(|e| CliError::Usage(format!("network fault: {e}")))?;
     let psk = load_key(a.key.as_deref())?;
     check_out(&a.out, a.force)?;
+    #[cfg(not(unix))]
+    if a.serial.is_some() {
+        return Err(CliError::Usage("--serial: Unix sockets only".into()));
+    }
+    #[cfg(unix)]
+    if let Some(path) = &a.serial {
+        if let Some(v) = a.inject_forged_at {
+            secs("inject-forged-at", v, 0.0, 1e6)?;
+        }
+        let o = crate::serial_robot::SerialOpts {
+            path,
+            timeout: Duration::from_secs_f64(a.connect_timeout),
+            watchdog_periods: a.watchdog_periods,
+            inject_forged_at: a.inject_forged_at,
+            out: &a.out,
+            force: a.force,
+            quiet: a.rt.quiet,
+        };
+        return match a.dof {
+            1 => crate::serial_robot::serve::<OneDof, 1>(&s, &o, psk),
+            _ => crate::serial_robot::serve::<TwoDof, 2>(&s, &o, psk),
+        };
+    }
     match a.dof {
         1 => robot_dof::<OneDof, 1>(&s, &a, faults, psk),
         _ => robot_dof::<TwoDof, 2>(&s, &a, faults, psk),
@@ -1350,7 +1383,7 @@ fn robot_dof<D: Dof<N>, const N: usize>(
     let trace_error = trace.finish();
     let summary = RobotSummary {
         summary: metrics.summary(
-            &format!("{:?}", s.controller.kind).to_lowercase(),
+            &s.controller.kind.to_string(),
             D::DOF,
             s.uncertainty.payload_kg,
             dt,

@@ -78,9 +78,11 @@
 //!
 //! # Without `std`
 //!
-//! With the default `std` feature off, everything but [`runtime`] builds `#![no_std]` with
-//! `alloc`, e.g. for a Cortex-M7 (`thumbv7em-none-eabihf`; `docs/EMBEDDED.md`): the numerical
-//! core, the plant, the scenario and its builders and the closed-loop experiment. Without `std`:
+//! With the default `std` feature off, the library builds `#![no_std]` with `alloc`, e.g. for a
+//! Cortex-M7 (`thumbv7em-none-eabihf`; `docs/EMBEDDED.md`): the numerical core, the plant, the
+//! scenario and its builders, the closed-loop experiment, and of [`runtime`] the link's frames,
+//! keys, handshake and session state and the stream deframer (its loop, clocks, sockets and
+//! virtual robot need `std`). Without `std`:
 //! f64 math through `libm`, no clock (no solve time budget), multi-stage scenarios in turn, no
 //! exact Hessian, no fault scan (rayon), no controller registration at run time.
 #![warn(missing_docs)]
@@ -97,7 +99,6 @@ pub mod estimate;
 #[cfg(any(not(feature = "std"), test))]
 mod math;
 pub mod model;
-#[cfg(feature = "std")]
 pub mod runtime;
 pub mod scenario;
 pub mod sim;

@@ -23,6 +23,7 @@
 //! read, so a frame without the key is rejected whatever it holds.
 
 use super::key::{Key, NONCE_LEN};
+use alloc::vec::Vec;
 use nalgebra::SVector;
 use serde::Serialize;
 

@@ -10,6 +10,8 @@ pub const MIN_KEY_LEN: usize = 32;
 /// Longest pre-shared key accepted (bytes).
 pub const MAX_KEY_LEN: usize = 4096;
 
+use alloc::vec::Vec;
+
 const HANDSHAKE_CONTEXT: &str = "exompc 2026-12-03 robot link v2 handshake key";
 const SESSION_CONTEXT: &str = "exompc 2026-12-03 robot link v2 session key";
 
@@ -17,8 +19,8 @@ const SESSION_CONTEXT: &str = "exompc 2026-12-03 robot link v2 session key";
 #[derive(Clone, PartialEq, Eq)]
 pub struct Key([u8; 32]);
 
-impl std::fmt::Debug for Key {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+impl core::fmt::Debug for Key {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.write_str("Key(..)")
     }
 }
@@ -62,8 +64,8 @@ pub struct Psk {
     handshake: Key,
 }
 
-impl std::fmt::Debug for Psk {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+impl core::fmt::Debug for Psk {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         write!(f, "Psk({} bytes)", self.bytes.len())
     }
 }
@@ -87,6 +89,7 @@ impl Psk {
 
     /// The contents of a fresh key file: 32 bytes from the OS's random source, as 64 lowercase
     /// hex digits and a newline.
+    #[cfg(feature = "std")]
     pub fn generate_file() -> std::io::Result<String> {
         let mut b = [0u8; 32];
         getrandom::fill(&mut b).map_err(std::io::Error::other)?;
@@ -116,6 +119,7 @@ impl Psk {
 }
 
 /// A fresh nonce from the OS's random source.
+#[cfg(feature = "std")]
 pub fn random_nonce() -> std::io::Result<[u8; NONCE_LEN]> {
     let mut n = [0u8; NONCE_LEN];
     getrandom::fill(&mut n).map_err(std::io::Error::other)?;

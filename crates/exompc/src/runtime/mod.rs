@@ -18,30 +18,47 @@
 //! * The virtual robot to test against (the simulated human + exoskeleton behind the robot side
 //!   of the protocol) is [`crate::scenario::VirtualRobot`], where simulator and runtime meet:
 //!   the runtime does not import the simulator.
+//! * [`stream`]: frames over a byte stream (a UART or serial port), delimited by their own
+//!   header ([`Deframer`]).
 //! * [`NetFaults`]: packet loss, delay spikes, duplication, reordering and a disconnection,
 //!   injected into a stream of frames.
+//!
+//! Without the `std` feature only [`frame`], [`session`] (keys, handshake, both ends' protocol
+//! state), [`stream`] and [`LinkStats`] build (`no_std` + `alloc`: the firmware's serial link
+//! runs this same code); the rest needs `std`.
 
 pub mod frame;
 mod key;
+#[cfg(feature = "std")]
 mod loop_ctl;
+#[cfg(feature = "std")]
 mod netfault;
 pub mod session;
+pub mod stream;
+#[cfg(feature = "std")]
 mod timing;
+#[cfg(feature = "std")]
 mod udp;
 
 pub use frame::{
     decode, encode_command, encode_sample, Frame, FrameError, RejectCounts, RobotCommand,
     RobotSample, SeqTracker, PLAN_LEN,
 };
+#[cfg(feature = "std")]
 pub use loop_ctl::{ControlLoop, LoopSettings, LoopStats, PeriodRecord};
+#[cfg(feature = "std")]
 pub use netfault::{NetFaultCounts, NetFaultSettings, NetFaults};
 pub use session::{ControllerLink, Key, KeyError, Psk, RobotLink, RobotRx};
+pub use stream::Deframer;
+#[cfg(feature = "std")]
 pub use timing::{
     Clock, MonotonicClock, Percentiles, Schedule, TestClock, TimingStats, TimingSummary,
 };
+#[cfg(feature = "std")]
 pub use udp::{UdpPeer, UdpRobot};
 
 use serde::Serialize;
+#[cfg(feature = "std")]
 use std::time::Duration;
 
 /// Counters of one end of a link.
@@ -93,6 +110,7 @@ pub enum Lifecycle {
 /// ros2_control hardware interface), with its lifecycle. Implementations count what they
 /// reject in [`LinkStats`] and never panic on bad input. The lifecycle methods have defaults
 /// for an interface that is always active (an in-process test double).
+#[cfg(feature = "std")]
 pub trait RobotInterface<const N: usize> {
     /// The interface's lifecycle state.
     fn state(&self) -> Lifecycle {

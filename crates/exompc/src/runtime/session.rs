@@ -15,9 +15,12 @@ use super::frame::{
     decode, encode_challenge, encode_command, encode_hello, encode_sample, max_frame_len,
     Challenge, Frame, FrameError, Hello, RobotCommand, RobotSample, SeqTracker,
 };
-pub use super::key::{random_nonce, Key, KeyError, Psk, MAX_KEY_LEN, MIN_KEY_LEN, NONCE_LEN};
+#[cfg(feature = "std")]
+pub use super::key::random_nonce;
+pub use super::key::{Key, KeyError, Psk, MAX_KEY_LEN, MIN_KEY_LEN, NONCE_LEN};
 use super::LinkStats;
-use std::net::SocketAddr;
+use alloc::vec::Vec;
+use core::net::SocketAddr;
 
 /// The controller's end of a session (protocol state only).
 #[derive(Debug)]

@@ -34,8 +34,8 @@ pub use layout::{
 #[cfg(feature = "std")]
 pub use registry::register_controller;
 pub use registry::{
-    build_controller, build_supervised, controller_by_name, controller_info, controllers, validate,
-    DuplicateController, BUILTIN,
+    build_controller, build_supervised, controller_by_name, controller_info, controllers,
+    supervise, validate, DuplicateController, BUILTIN,
 };
 pub use run::{run_experiment, run_experiment_report, run_soak, soak_scenario, SoakReport};
 #[cfg(feature = "std")]

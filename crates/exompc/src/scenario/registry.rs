@@ -152,13 +152,21 @@ pub fn build_supervised<D: Dof<N>, const N: usize>(
     s: &Scenario,
     kind: ControllerKind,
 ) -> Result<Supervisor<N, Box<dyn Controller<N>>>, RunError> {
-    let sup = Supervisor::new(
-        build_controller::<D, N>(s, kind)?,
-        SafetySettings::from_scenario(s),
-    );
-    Ok(if s.monitors.response == MonitorResponse::Fallback {
+    Ok(supervise::<D, N>(s, build_controller::<D, N>(s, kind)?))
+}
+
+/// `ctrl` under the supervisor of scenario `s` (its safety settings, and the transparent
+/// fallback when `monitors.response = "fallback"`), as [`build_supervised`] builds it; for a
+/// build that names its controller's builder directly instead of going through the registry
+/// (the firmware's controller-only image links one controller only).
+pub fn supervise<D: Dof<N>, const N: usize>(
+    s: &Scenario,
+    ctrl: Box<dyn Controller<N>>,
+) -> Supervisor<N, Box<dyn Controller<N>>> {
+    let sup = Supervisor::new(ctrl, SafetySettings::from_scenario(s));
+    if s.monitors.response == MonitorResponse::Fallback {
         sup.with_fallback(fallback::<D, N>(s))
     } else {
         sup
-    })
+    }
 }
