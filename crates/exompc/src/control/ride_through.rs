@@ -54,14 +54,17 @@ pub const STUCK_SPEED: f64 = 0.05;
 /// [`VELOCITY_GATE`] from the encoder's mean slope over the filter window (what a clean
 /// filtered velocity equals), a force further than [`FORCE_GATE`] from its linear
 /// extrapolation. A rejected channel is estimated: an angle by integrating its good velocity,
-/// a velocity from its good angle's slope over the filter window, and a channel whose partner
+/// a velocity from its good angle's slope over the filter window (once the window holds
+/// accepted angles only: before that the slope spans the jump from an estimate back to the
+/// measurement, and the velocity counts as one whose angle is lost), and a channel whose partner
 /// is lost too (or a force) by replaying the gait one period back (the gait frequency of the
 /// supervisor) with the offset it had when the fault began, or, without a known period, by
 /// holding (an angle: integrating the estimated velocity). A rejected channel is accepted again
 /// once a fresh sample lies within [`ACCEPT_GATES`] gates of its estimate (a filtered
 /// velocity or force also moving like its estimate, within one gate), or, after
 /// `resync_after` steps, once three fresh samples are smooth (the estimate then jumps to it:
-/// the supervisor's rate limit bounds the torque step).
+/// the supervisor's rate limit bounds the torque step). The two samples after a re-acceptance
+/// are not gated: the extrapolation still runs through the estimate.
 #[derive(Clone, Debug)]
 pub struct ChannelGuard<const N: usize> {
     dt: f64,
@@ -94,6 +97,12 @@ pub struct ChannelGuard<const N: usize> {
     res_alpha: f64,
     /// Per strap: the force's current rejection began with a full-scale reading.
     railed: [bool; N],
+    /// Samples after a re-acceptance whose innovation is not gated (the extrapolation still
+    /// runs through the estimate that stood in for the channel).
+    after_accept: [[u8; N]; 3],
+    /// Per joint: consecutive accepted angle samples (the angle's slope over the filter
+    /// window stands for the velocity only once the window holds no estimate).
+    q_good_for: [u32; N],
 }
 
 /// Which channels of a measurement stand in for rejected ones and must not update a
@@ -170,6 +179,8 @@ impl<const N: usize> ChannelGuard<N> {
             res_ms: [SVector::zeros(); 3],
             res_alpha: 1.0 - (-dt / RESIDUAL_TAU_S).exp(),
             railed: [false; N],
+            after_accept: [[0; N]; 3],
+            q_good_for: [0; N],
             last_t: f64::NAN,
         }
     }
@@ -242,6 +253,9 @@ impl<const N: usize> ChannelGuard<N> {
         for j in 0..N {
             // Angle first: the velocity check needs the angle's verdict.
             for sig in [Q, QD, F] {
+                // The angle's slope over the window is a velocity measurement only once the
+                // window holds measured angles alone.
+                let slope_ok = self.slope_ok(j);
                 let v = vals[sig][j];
                 let in_range = v.is_finite()
                     && if sig == F {
@@ -261,7 +275,7 @@ impl<const N: usize> ChannelGuard<N> {
                 let stuck = warm && repeated && (sig != Q || moving);
                 let residual = if !warm {
                     0.0
-                } else if sig == QD && self.bad_for[Q][j] == 0 {
+                } else if sig == QD && slope_ok {
                     // `out[Q]` is this step's accepted angle.
                     (v - self.slope(&out, j, span)).abs()
                 } else {
@@ -284,12 +298,14 @@ impl<const N: usize> ChannelGuard<N> {
                         .iter()
                         .any(|r| r[j].is_finite() && r[j].abs() >= self.bounds[F]);
                 definite |= !in_range || stuck;
+                let after_accept = !was_bad && self.after_accept[sig][j] > 0;
                 let good = if !in_range || stuck {
                     false
-                } else if (was_bad && self.railed[j]) || (!was_bad && after_rail) {
+                } else if (was_bad && self.railed[j]) || (!was_bad && (after_rail || after_accept))
+                {
                     true
                 } else if was_bad {
-                    let estimate = if sig == QD && self.bad_for[Q][j] == 0 {
+                    let estimate = if sig == QD && slope_ok {
                         v - residual
                     } else {
                         pred[sig][j]
@@ -320,7 +336,11 @@ impl<const N: usize> ChannelGuard<N> {
                     self.railed[j] = railed;
                 }
                 if good {
-                    if !was_bad && !after_rail {
+                    if was_bad {
+                        self.after_accept[sig][j] = 2;
+                    } else if after_accept {
+                        self.after_accept[sig][j] -= 1;
+                    } else if !after_rail {
                         if residual / gate > self.peak_ratio[sig] {
                             self.peak_ratio[sig] = residual / gate;
                         }
@@ -343,6 +363,13 @@ impl<const N: usize> ChannelGuard<N> {
                     };
                     longest = longest.max(age);
                 }
+                if sig == Q {
+                    self.q_good_for[j] = if good {
+                        self.q_good_for[j].saturating_add(1)
+                    } else {
+                        0
+                    };
+                }
                 self.raw[sig][1][j] = self.raw[sig][0][j];
                 self.raw[sig][0][j] = v;
             }
@@ -350,7 +377,7 @@ impl<const N: usize> ChannelGuard<N> {
             // a velocity from its good angle, else the replay.
             for sig in [Q, QD, F] {
                 if self.bad_for[sig][j] > 0 {
-                    let q_bad = self.bad_for[Q][j] > 0;
+                    let q_bad = self.bad_for[Q][j] > 0 || (sig == QD && !self.slope_ok(j));
                     let qd_bad = self.bad_for[QD][j] > 0;
                     // The model for an angle whose velocity is measured (its filter updates
                     // on the velocity); with both encoders lost, the gait replay when a
@@ -398,6 +425,11 @@ impl<const N: usize> ChannelGuard<N> {
         }
     }
 
+    /// The angle of joint `j` has been accepted over the whole filter window.
+    fn slope_ok(&self, j: usize) -> bool {
+        self.q_good_for[j] as usize >= self.window
+    }
+
     /// The angle's mean slope over the last `span` periods, `out[Q]` being this step's angle.
     fn slope(&self, out: &[SVector<f64, N>; 3], j: usize, span: usize) -> f64 {
         (out[Q][j] - self.back(Q, span)[j]) / (span as f64 * self.dt)
@@ -420,7 +452,7 @@ impl<const N: usize> ChannelGuard<N> {
             Q if self.bad_for[QD][j] == 0 && out[QD][j].is_finite() => {
                 return prev + self.dt * out[QD][j];
             }
-            QD if self.bad_for[Q][j] == 0 => {
+            QD if self.slope_ok(j) => {
                 return self.slope(out, j, (self.window - 1).max(1));
             }
             _ => {}

@@ -701,6 +701,11 @@ pub struct Supervisor<const N: usize, C> {
     handover_pos: usize,
     latch_monitor: MonitorKind,
     report: SafetyReport,
+    /// Applied torques of the last [`ChannelGuard::HISTORY_S`] (ring, allocated once), for
+    /// the torque replay while every encoder channel is lost.
+    torque_hist: Vec<SVector<f64, N>>,
+    torque_pos: usize,
+    torque_filled: usize,
 }
 
 impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
@@ -730,6 +735,8 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         );
         let gait = GaitFrequency::new(settings.dt);
         let cutoff_hz = settings.monitors.oscillation_cutoff_hz;
+        let hist_len = ((ChannelGuard::<N>::HISTORY_S / settings.dt.max(1e-6)).ceil() as usize)
+            .clamp(8, 1 << 16);
         let guard = ChannelGuard::new(
             settings.dt,
             settings.filter_window,
@@ -767,6 +774,9 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
                 events: Vec::with_capacity(cap),
                 ..Default::default()
             },
+            torque_hist: vec![SVector::zeros(); hist_len],
+            torque_pos: 0,
+            torque_filled: 0,
         };
         sup.inner.set_previous_torque(prev);
         sup
@@ -1089,6 +1099,24 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             self.report.bad_measurement_steps += 1;
             (prev, StepStatus::BadMeasurement, 0)
         };
+        // Every encoder channel lost (the estimates are the gait replayed one period back):
+        // the torque replays the torque applied one gait period back (the rate limit bounds
+        // the step into it), so the robot keeps following the leg as it did a period ago.
+        // The controller keeps stepping on the estimates; its output, carried over after a
+        // period of replayed estimates, drove the robot away from the leg (issue 28: 200-ms
+        // dropouts of every sensor at 0 kg 32.8 → 19.7 N, docs/RELIABILITY.md §2).
+        let coast =
+            valid && rep.estimated.q.iter().all(|&e| e) && rep.estimated.qd.iter().all(|&e| e);
+        let replay_period = period
+            .map(|p| (p / self.dt()).round() as usize)
+            .filter(|&p| p >= 2 && p + 2 < self.torque_filled);
+        let desired = match replay_period {
+            Some(p) if coast && !gap => {
+                let len = self.torque_hist.len();
+                self.torque_hist[(self.torque_pos + len - p) % len]
+            }
+            _ => desired,
+        };
         let desired = if tripped {
             self.report.monitor_steps += 1;
             if self.latched && !self.is_tripped() {
@@ -1100,6 +1128,13 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             desired
         };
         let torque = self.s.limits.clamp(&prev, &desired);
+        if gap {
+            self.torque_filled = 0;
+        }
+        let len = self.torque_hist.len();
+        self.torque_hist[self.torque_pos] = torque;
+        self.torque_pos = (self.torque_pos + 1) % len;
+        self.torque_filled = (self.torque_filled + 1).min(len);
         self.prev = torque;
         if self.inner.previous_torque() != torque {
             self.inner.set_previous_torque(torque);
