@@ -341,9 +341,10 @@ fn spikes_on_filtered_channels_are_ridden_through() {
 /// Issue 28, every sensor lost: a 200-ms dropout of every channel at 0 kg, a 200-ms stuck
 /// fault of every channel at 2 kg and a 60-ms NaN on every channel at 0 kg (the default
 /// scan's 10-s runs, msnmpc) keep the peak true strap force ≤ 35 N and the RMS ≤ 1.5× the
-/// clean run's, without a latch. While every encoder channel is an estimate the torque
-/// replays the torque of one gait period back (before: 32.8 N / RMS 1.95×, 72.8 N and
-/// 37.2 N: docs/RELIABILITY.md §2a).
+/// clean run's, without a latch. While every encoder channel is an estimate, and until
+/// every channel is back, the torque replays the torque of one gait period back, then blends
+/// back to the controller's (before: 32.8 N / RMS 1.95×, 72.8 N and 37.2 N:
+/// docs/RELIABILITY.md §2a).
 #[test]
 fn losing_every_sensor_is_ridden_through_on_the_replayed_torque() {
     const ALL: [Channel; 6] = [

@@ -619,6 +619,10 @@ pub struct SafetyReport {
     pub sensor_faults: u64,
 }
 
+/// Steps over which the torque goes back from the replay of one gait period back (every
+/// encoder channel lost) to the controller's, linearly (0.1 s at 10 ms).
+pub const REPLAY_HANDBACK_STEPS: u32 = 10;
+
 /// Runtime safety supervision (exoskeleton-firmware style): measurement plausibility checks
 /// with a safe fallback, and the `[monitors]` of the scenario, wrapped around any controller.
 ///
@@ -706,6 +710,10 @@ pub struct Supervisor<const N: usize, C> {
     torque_hist: Vec<SVector<f64, N>>,
     torque_pos: usize,
     torque_filled: usize,
+    /// The torque replay had the torque on the previous step.
+    coasting: bool,
+    /// Steps left of the blend from the replay back to the controller.
+    handback: u32,
 }
 
 impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
@@ -777,6 +785,8 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             torque_hist: vec![SVector::zeros(); hist_len],
             torque_pos: 0,
             torque_filled: 0,
+            coasting: false,
+            handback: 0,
         };
         sup.inner.set_previous_torque(prev);
         sup
@@ -1101,21 +1111,36 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         };
         // Every encoder channel lost (the estimates are the gait replayed one period back):
         // the torque replays the torque applied one gait period back (the rate limit bounds
-        // the step into it), so the robot keeps following the leg as it did a period ago.
-        // The controller keeps stepping on the estimates; its output, carried over after a
-        // period of replayed estimates, drove the robot away from the leg (issue 28: 200-ms
-        // dropouts of every sensor at 0 kg 32.8 → 19.7 N, docs/RELIABILITY.md §2).
-        let coast =
+        // the step into it), so the robot keeps following the leg as it did a period ago,
+        // until every channel is measured again; then it blends back to the controller's
+        // over `REPLAY_HANDBACK_STEPS`. The controller keeps stepping on the estimates; its
+        // output, carried over after a period of replayed estimates, drove the robot away
+        // from the leg (issue 28, docs/RELIABILITY.md §2).
+        let all_lost =
             valid && rep.estimated.q.iter().all(|&e| e) && rep.estimated.qd.iter().all(|&e| e);
+        let coast = all_lost || (self.coasting && valid && rep.any_rejected);
         let replay_period = period
             .map(|p| (p / self.dt()).round() as usize)
             .filter(|&p| p >= 2 && p + 2 < self.torque_filled);
-        let desired = match replay_period {
-            Some(p) if coast && !gap => {
-                let len = self.torque_hist.len();
-                self.torque_hist[(self.torque_pos + len - p) % len]
+        let len = self.torque_hist.len();
+        let replay = replay_period.map(|p| self.torque_hist[(self.torque_pos + len - p) % len]);
+        let desired = match replay {
+            Some(r) if coast && !gap => {
+                self.coasting = true;
+                self.handback = REPLAY_HANDBACK_STEPS;
+                r
             }
-            _ => desired,
+            Some(r) if self.handback > 0 && !gap && valid => {
+                self.coasting = false;
+                let a = 1.0 - f64::from(self.handback) / f64::from(REPLAY_HANDBACK_STEPS + 1);
+                self.handback -= 1;
+                r + (desired - r) * a
+            }
+            _ => {
+                self.coasting = false;
+                self.handback = 0;
+                desired
+            }
         };
         let desired = if tripped {
             self.report.monitor_steps += 1;
