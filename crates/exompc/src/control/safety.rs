@@ -1112,7 +1112,8 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         // Every encoder channel lost (the estimates are the gait replayed one period back):
         // the torque replays the torque applied one gait period back (the rate limit bounds
         // the step into it), so the robot keeps following the leg as it did a period ago,
-        // until every channel is measured again; then it blends back to the controller's
+        // until every channel is measured again (before the gait period is known it holds
+        // the torque); then it blends back to the controller's
         // over `REPLAY_HANDBACK_STEPS`. The controller keeps stepping on the estimates; its
         // output, carried over after a period of replayed estimates, drove the robot away
         // from the leg (issue 28, docs/RELIABILITY.md §2).
@@ -1123,7 +1124,11 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             .map(|p| (p / self.dt()).round() as usize)
             .filter(|&p| p >= 2 && p + 2 < self.torque_filled);
         let len = self.torque_hist.len();
-        let replay = replay_period.map(|p| self.torque_hist[(self.torque_pos + len - p) % len]);
+        // Before the gait period is known (the first gait period), the replay holds the torque.
+        let replay = match replay_period {
+            Some(p) => Some(self.torque_hist[(self.torque_pos + len - p) % len]),
+            None => (self.torque_filled > 0).then_some(prev),
+        };
         let desired = match replay {
             Some(r) if coast && !gap => {
                 self.coasting = true;
