@@ -23,11 +23,12 @@ pub const VELOCITY_GATE: f64 = 0.08;
 pub const FORCE_GATE: f64 = 2.0;
 /// A rejected strap force is accepted again on smoothness alone (three smooth fresh samples)
 /// after this long (s), whatever its estimate says: a real force must not stay hidden behind
-/// its estimate (a jump in the force can be the robot's own doing). So a smooth 30-N spike
-/// longer than this is believed (200 ms at 2 kg: 69 N); 0.3 s rode it through (6 N) but hid
-/// the real forces after a 200-ms link outage (45 N against 20 N, test
-/// `link_outages_are_ridden_through`).
-pub const FORCE_RESYNC_S: f64 = 0.1;
+/// its estimate (a jump in the force can be the robot's own doing). A smooth 30-N spike
+/// longer than this is believed. 0.1 s believed 200-ms spikes (74.4 / 43.7 N at 0 / 2 kg);
+/// 0.3 s rides them through (5.4 / 6.0 N) and, with the slope's window rule and the ungated
+/// samples after a re-acceptance, no longer hides the real forces after a 200-ms link outage
+/// (test `link_outages_are_ridden_through`: 19.8 N either way; docs/RELIABILITY.md §2a).
+pub const FORCE_RESYNC_S: f64 = 0.3;
 /// Each gate widens to this many times the RMS of the channel's recent residuals (accepted
 /// samples, time constant [`RESIDUAL_TAU_S`]) when that is larger: a fast or forceful gait's
 /// own innovations are not faults (the fixed gates are for the default gait).
