@@ -23,11 +23,12 @@ pub const VELOCITY_GATE: f64 = 0.08;
 pub const FORCE_GATE: f64 = 2.0;
 /// A rejected strap force is accepted again on smoothness alone (three smooth fresh samples)
 /// after this long (s), whatever its estimate says: a real force must not stay hidden behind
-/// its estimate (a jump in the force can be the robot's own doing). So a smooth 30-N spike
-/// longer than this is believed (200 ms at 2 kg: 69 N); 0.3 s rode it through (6 N) but hid
-/// the real forces after a 200-ms link outage (45 N against 20 N, test
-/// `link_outages_are_ridden_through`).
-pub const FORCE_RESYNC_S: f64 = 0.1;
+/// its estimate (a jump in the force can be the robot's own doing). A smooth 30-N spike
+/// longer than this is believed. 0.1 s believed 200-ms spikes (74.4 / 43.7 N at 0 / 2 kg);
+/// 0.3 s rides them through (5.4 / 6.0 N) and, with the slope's window rule and the ungated
+/// samples after a re-acceptance, no longer hides the real forces after a 200-ms link outage
+/// (test `link_outages_are_ridden_through`: 19.8 N either way; docs/RELIABILITY.md §2a).
+pub const FORCE_RESYNC_S: f64 = 0.3;
 /// Each gate widens to this many times the RMS of the channel's recent residuals (accepted
 /// samples, time constant [`RESIDUAL_TAU_S`]) when that is larger: a fast or forceful gait's
 /// own innovations are not faults (the fixed gates are for the default gait).
@@ -54,14 +55,17 @@ pub const STUCK_SPEED: f64 = 0.05;
 /// [`VELOCITY_GATE`] from the encoder's mean slope over the filter window (what a clean
 /// filtered velocity equals), a force further than [`FORCE_GATE`] from its linear
 /// extrapolation. A rejected channel is estimated: an angle by integrating its good velocity,
-/// a velocity from its good angle's slope over the filter window, and a channel whose partner
+/// a velocity from its good angle's slope over the filter window (once the window holds
+/// accepted angles only: before that the slope spans the jump from an estimate back to the
+/// measurement, and the velocity counts as one whose angle is lost), and a channel whose partner
 /// is lost too (or a force) by replaying the gait one period back (the gait frequency of the
 /// supervisor) with the offset it had when the fault began, or, without a known period, by
 /// holding (an angle: integrating the estimated velocity). A rejected channel is accepted again
 /// once a fresh sample lies within [`ACCEPT_GATES`] gates of its estimate (a filtered
 /// velocity or force also moving like its estimate, within one gate), or, after
 /// `resync_after` steps, once three fresh samples are smooth (the estimate then jumps to it:
-/// the supervisor's rate limit bounds the torque step).
+/// the supervisor's rate limit bounds the torque step). The two samples after a re-acceptance
+/// are not gated: the extrapolation still runs through the estimate.
 #[derive(Clone, Debug)]
 pub struct ChannelGuard<const N: usize> {
     dt: f64,
@@ -94,6 +98,12 @@ pub struct ChannelGuard<const N: usize> {
     res_alpha: f64,
     /// Per strap: the force's current rejection began with a full-scale reading.
     railed: [bool; N],
+    /// Samples after a re-acceptance whose innovation is not gated (the extrapolation still
+    /// runs through the estimate that stood in for the channel).
+    after_accept: [[u8; N]; 3],
+    /// Per joint: consecutive accepted angle samples (the angle's slope over the filter
+    /// window stands for the velocity only once the window holds no estimate).
+    q_good_for: [u32; N],
 }
 
 /// Which channels of a measurement stand in for rejected ones and must not update a
@@ -170,6 +180,8 @@ impl<const N: usize> ChannelGuard<N> {
             res_ms: [SVector::zeros(); 3],
             res_alpha: 1.0 - (-dt / RESIDUAL_TAU_S).exp(),
             railed: [false; N],
+            after_accept: [[0; N]; 3],
+            q_good_for: [0; N],
             last_t: f64::NAN,
         }
     }
@@ -242,6 +254,9 @@ impl<const N: usize> ChannelGuard<N> {
         for j in 0..N {
             // Angle first: the velocity check needs the angle's verdict.
             for sig in [Q, QD, F] {
+                // The angle's slope over the window is a velocity measurement only once the
+                // window holds measured angles alone.
+                let slope_ok = self.slope_ok(j);
                 let v = vals[sig][j];
                 let in_range = v.is_finite()
                     && if sig == F {
@@ -261,7 +276,7 @@ impl<const N: usize> ChannelGuard<N> {
                 let stuck = warm && repeated && (sig != Q || moving);
                 let residual = if !warm {
                     0.0
-                } else if sig == QD && self.bad_for[Q][j] == 0 {
+                } else if sig == QD && slope_ok {
                     // `out[Q]` is this step's accepted angle.
                     (v - self.slope(&out, j, span)).abs()
                 } else {
@@ -284,12 +299,14 @@ impl<const N: usize> ChannelGuard<N> {
                         .iter()
                         .any(|r| r[j].is_finite() && r[j].abs() >= self.bounds[F]);
                 definite |= !in_range || stuck;
+                let after_accept = !was_bad && self.after_accept[sig][j] > 0;
                 let good = if !in_range || stuck {
                     false
-                } else if (was_bad && self.railed[j]) || (!was_bad && after_rail) {
+                } else if (was_bad && self.railed[j]) || (!was_bad && (after_rail || after_accept))
+                {
                     true
                 } else if was_bad {
-                    let estimate = if sig == QD && self.bad_for[Q][j] == 0 {
+                    let estimate = if sig == QD && slope_ok {
                         v - residual
                     } else {
                         pred[sig][j]
@@ -320,7 +337,11 @@ impl<const N: usize> ChannelGuard<N> {
                     self.railed[j] = railed;
                 }
                 if good {
-                    if !was_bad && !after_rail {
+                    if was_bad {
+                        self.after_accept[sig][j] = 2;
+                    } else if after_accept {
+                        self.after_accept[sig][j] -= 1;
+                    } else if !after_rail {
                         if residual / gate > self.peak_ratio[sig] {
                             self.peak_ratio[sig] = residual / gate;
                         }
@@ -343,6 +364,13 @@ impl<const N: usize> ChannelGuard<N> {
                     };
                     longest = longest.max(age);
                 }
+                if sig == Q {
+                    self.q_good_for[j] = if good {
+                        self.q_good_for[j].saturating_add(1)
+                    } else {
+                        0
+                    };
+                }
                 self.raw[sig][1][j] = self.raw[sig][0][j];
                 self.raw[sig][0][j] = v;
             }
@@ -350,7 +378,7 @@ impl<const N: usize> ChannelGuard<N> {
             // a velocity from its good angle, else the replay.
             for sig in [Q, QD, F] {
                 if self.bad_for[sig][j] > 0 {
-                    let q_bad = self.bad_for[Q][j] > 0;
+                    let q_bad = self.bad_for[Q][j] > 0 || (sig == QD && !self.slope_ok(j));
                     let qd_bad = self.bad_for[QD][j] > 0;
                     // The model for an angle whose velocity is measured (its filter updates
                     // on the velocity); with both encoders lost, the gait replay when a
@@ -398,6 +426,11 @@ impl<const N: usize> ChannelGuard<N> {
         }
     }
 
+    /// The angle of joint `j` has been accepted over the whole filter window.
+    fn slope_ok(&self, j: usize) -> bool {
+        self.q_good_for[j] as usize >= self.window
+    }
+
     /// The angle's mean slope over the last `span` periods, `out[Q]` being this step's angle.
     fn slope(&self, out: &[SVector<f64, N>; 3], j: usize, span: usize) -> f64 {
         (out[Q][j] - self.back(Q, span)[j]) / (span as f64 * self.dt)
@@ -420,7 +453,7 @@ impl<const N: usize> ChannelGuard<N> {
             Q if self.bad_for[QD][j] == 0 && out[QD][j].is_finite() => {
                 return prev + self.dt * out[QD][j];
             }
-            QD if self.bad_for[Q][j] == 0 => {
+            QD if self.slope_ok(j) => {
                 return self.slope(out, j, (self.window - 1).max(1));
             }
             _ => {}

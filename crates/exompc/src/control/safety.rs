@@ -619,6 +619,10 @@ pub struct SafetyReport {
     pub sensor_faults: u64,
 }
 
+/// Steps over which the torque goes back from the replay of one gait period back (every
+/// encoder channel lost) to the controller's, linearly (0.1 s at 10 ms).
+pub const REPLAY_HANDBACK_STEPS: u32 = 10;
+
 /// Runtime safety supervision (exoskeleton-firmware style): measurement plausibility checks
 /// with a safe fallback, and the `[monitors]` of the scenario, wrapped around any controller.
 ///
@@ -701,6 +705,15 @@ pub struct Supervisor<const N: usize, C> {
     handover_pos: usize,
     latch_monitor: MonitorKind,
     report: SafetyReport,
+    /// Applied torques of the last [`ChannelGuard::HISTORY_S`] (ring, allocated once), for
+    /// the torque replay while every encoder channel is lost.
+    torque_hist: Vec<SVector<f64, N>>,
+    torque_pos: usize,
+    torque_filled: usize,
+    /// The torque replay had the torque on the previous step.
+    coasting: bool,
+    /// Steps left of the blend from the replay back to the controller.
+    handback: u32,
 }
 
 impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
@@ -730,6 +743,8 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         );
         let gait = GaitFrequency::new(settings.dt);
         let cutoff_hz = settings.monitors.oscillation_cutoff_hz;
+        let hist_len = ((ChannelGuard::<N>::HISTORY_S / settings.dt.max(1e-6)).ceil() as usize)
+            .clamp(8, 1 << 16);
         let guard = ChannelGuard::new(
             settings.dt,
             settings.filter_window,
@@ -767,6 +782,11 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
                 events: Vec::with_capacity(cap),
                 ..Default::default()
             },
+            torque_hist: vec![SVector::zeros(); hist_len],
+            torque_pos: 0,
+            torque_filled: 0,
+            coasting: false,
+            handback: 0,
         };
         sup.inner.set_previous_torque(prev);
         sup
@@ -1089,6 +1109,44 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             self.report.bad_measurement_steps += 1;
             (prev, StepStatus::BadMeasurement, 0)
         };
+        // Every encoder channel lost (the estimates are the gait replayed one period back):
+        // the torque replays the torque applied one gait period back (the rate limit bounds
+        // the step into it), so the robot keeps following the leg as it did a period ago,
+        // until every channel is measured again (before the gait period is known it holds
+        // the torque); then it blends back to the controller's
+        // over `REPLAY_HANDBACK_STEPS`. The controller keeps stepping on the estimates; its
+        // output, carried over after a period of replayed estimates, drove the robot away
+        // from the leg (issue 28, docs/RELIABILITY.md §2).
+        let all_lost =
+            valid && rep.estimated.q.iter().all(|&e| e) && rep.estimated.qd.iter().all(|&e| e);
+        let coast = all_lost || (self.coasting && valid && rep.any_rejected);
+        let replay_period = period
+            .map(|p| (p / self.dt()).round() as usize)
+            .filter(|&p| p >= 2 && p + 2 < self.torque_filled);
+        let len = self.torque_hist.len();
+        // Before the gait period is known (the first gait period), the replay holds the torque.
+        let replay = match replay_period {
+            Some(p) => Some(self.torque_hist[(self.torque_pos + len - p) % len]),
+            None => (self.torque_filled > 0).then_some(prev),
+        };
+        let desired = match replay {
+            Some(r) if coast && !gap => {
+                self.coasting = true;
+                self.handback = REPLAY_HANDBACK_STEPS;
+                r
+            }
+            Some(r) if self.handback > 0 && !gap && valid => {
+                self.coasting = false;
+                let a = 1.0 - f64::from(self.handback) / f64::from(REPLAY_HANDBACK_STEPS + 1);
+                self.handback -= 1;
+                r + (desired - r) * a
+            }
+            _ => {
+                self.coasting = false;
+                self.handback = 0;
+                desired
+            }
+        };
         let desired = if tripped {
             self.report.monitor_steps += 1;
             if self.latched && !self.is_tripped() {
@@ -1100,6 +1158,13 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             desired
         };
         let torque = self.s.limits.clamp(&prev, &desired);
+        if gap {
+            self.torque_filled = 0;
+        }
+        let len = self.torque_hist.len();
+        self.torque_hist[self.torque_pos] = torque;
+        self.torque_pos = (self.torque_pos + 1) % len;
+        self.torque_filled = (self.torque_filled + 1).min(len);
         self.prev = torque;
         if self.inner.previous_torque() != torque {
             self.inner.set_previous_torque(torque);
