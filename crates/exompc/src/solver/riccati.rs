@@ -25,8 +25,9 @@
 //! with [`super::DenseQp`] to rounding.
 
 use super::active_set::{add_violated_bounds, bounds_status, box_dual_from_fields};
-use super::cholesky::{chol_solve, cholesky};
+use super::cholesky::chol_solve;
 use super::qp::{QpInfo, QpSettings, QpStatus};
+use super::stage::{self, neg_adjugate_solve};
 use super::SolverError;
 use alloc::{vec, vec::Vec};
 use nalgebra::{SMatrix, SVector};
@@ -107,21 +108,7 @@ impl RiccatiQp {
         settings: QpSettings,
     ) -> Result<Self, SolverError> {
         settings.validate()?;
-        let dim = |what, value: usize, ok: bool, allowed| {
-            if ok {
-                Ok(())
-            } else {
-                Err(SolverError::InvalidDimension {
-                    what,
-                    value,
-                    allowed,
-                })
-            }
-        };
-        dim("nx", nx, nx >= 1, "at least 1")?;
-        dim("nu", nu, nu >= 1, "at least 1")?;
-        dim("np", np, np >= 1, "at least 1")?;
-        dim("nc", nc, nc >= 1 && nc <= np, "1 ≤ nc ≤ np")?;
+        stage::check_dims(nx, nu, np, nc)?;
         let len = nc * nu + np * nx;
         // At most nc·nu linearly independent active constraints; one spare for the entering one.
         let cap = nc * nu + 1;
@@ -397,20 +384,11 @@ impl RiccatiQp {
         j: usize,
         sb: &SMatrix<f64, NU, NX>,
     ) -> Option<SMatrix<f64, NU, NX>> {
+        let mut kg = SMatrix::<f64, NU, NX>::zeros();
+        let adj = (NU == 2 && !self.cross).then_some(&mut self.madj[j * 4..(j + 1) * 4]);
         let ls = &mut self.lchol[j * NU * NU..(j + 1) * NU * NU];
-        let m = [ls[0], ls[NU * NU / 2], ls[NU * NU - 1]];
-        if !cholesky(ls, NU) {
+        if !stage::stage_gain(NX, NU, ls, sb.as_slice(), kg.as_mut_slice(), adj) {
             return None;
-        }
-        let mut kg = -sb;
-        if NU == 2 && !self.cross {
-            let adj = adjugate_2x2(m);
-            self.madj[j * 4..(j + 1) * 4].copy_from_slice(&adj);
-            gain_2x2(&adj, sb.as_slice(), kg.as_mut_slice());
-        } else {
-            for c in 0..NX {
-                chol_solve(ls, NU, &mut kg.as_mut_slice()[c * NU..(c + 1) * NU]);
-            }
         }
         self.sbar[j * NU * NX..(j + 1) * NU * NX].copy_from_slice(sb.as_slice());
         self.kgain[j * NU * NX..(j + 1) * NU * NX].copy_from_slice(kg.as_slice());
@@ -426,94 +404,42 @@ impl RiccatiQp {
             let (head, tail) = self.pm.split_at_mut((j + 1) * n2);
             let p = &tail[..n2];
             let a = &self.a[j * n2..(j + 1) * n2];
-            // PA = P A.
-            for c in 0..nx {
-                for rr in 0..nx {
-                    let mut s = 0.0;
-                    for k in 0..nx {
-                        s += p[k * nx + rr] * a[c * nx + k];
-                    }
-                    self.pa[c * nx + rr] = s;
-                }
-            }
+            stage::p_times(nx, nx, p, a, &mut self.pa);
+            let (su, sx) = (
+                j * nu * nu..(j + 1) * nu * nu,
+                j * nu * nx..(j + 1) * nu * nx,
+            );
             if j < nc {
                 let b = &self.b[j * nx * nu..(j + 1) * nx * nu];
-                for c in 0..nu {
-                    for rr in 0..nx {
-                        let mut s = 0.0;
-                        for k in 0..nx {
-                            s += p[k * nx + rr] * b[c * nx + k];
-                        }
-                        self.pb[c * nx + rr] = s;
-                    }
-                }
-                let l = &mut self.lchol[j * nu * nu..(j + 1) * nu * nu];
-                let rj = &self.r[j * nu * nu..(j + 1) * nu * nu];
-                for c in 0..nu {
-                    for rr in 0..nu {
-                        let mut s = rj[c * nu + rr];
-                        for k in 0..nx {
-                            s += b[rr * nx + k] * self.pb[c * nx + k];
-                        }
-                        l[c * nu + rr] = s;
-                    }
-                }
-                let sb = &mut self.sbar[j * nu * nx..(j + 1) * nu * nx];
-                for c in 0..nx {
-                    for rr in 0..nu {
-                        let mut s = 0.0;
-                        for k in 0..nx {
-                            s += b[rr * nx + k] * self.pa[c * nx + k];
-                        }
-                        sb[c * nu + rr] = s;
-                    }
-                }
+                stage::p_times(nx, nu, p, b, &mut self.pb);
+                let l = &mut self.lchol[su.clone()];
+                stage::bt_times(nx, nu, nu, Some(&self.r[su]), b, &self.pb, l);
+                let sb = &mut self.sbar[sx.clone()];
+                stage::bt_times(nx, nu, nx, None, b, &self.pa, sb);
                 if self.cross {
-                    for (v, sj) in sb.iter_mut().zip(&self.s[j * nu * nx..(j + 1) * nu * nx]) {
+                    for (v, sj) in sb.iter_mut().zip(&self.s[sx.clone()]) {
                         *v += sj;
                     }
                 }
-                let m = [l[0], l[nu * nu / 2], l[nu * nu - 1]];
-                if !cholesky(l, nu) {
+                let adj = (nu == 2 && !self.cross).then_some(&mut self.madj[j * 4..(j + 1) * 4]);
+                if !stage::stage_gain(nx, nu, l, sb, &mut self.kgain[sx.clone()], adj) {
                     return false;
-                }
-                let kg = &mut self.kgain[j * nu * nx..(j + 1) * nu * nx];
-                if nu == 2 && !self.cross {
-                    let adj = adjugate_2x2(m);
-                    self.madj[j * 4..(j + 1) * 4].copy_from_slice(&adj);
-                    gain_2x2(&adj, sb, kg);
-                } else {
-                    for c in 0..nx {
-                        let col = &mut kg[c * nu..(c + 1) * nu];
-                        for rr in 0..nu {
-                            col[rr] = -sb[c * nu + rr];
-                        }
-                        chol_solve(l, nu, col);
-                    }
                 }
             }
             if j == 0 {
                 break;
             }
-            let pj = &mut head[j * n2..(j + 1) * n2];
+            let gain = (j < nc).then(|| (&self.sbar[sx.clone()], &self.kgain[sx]));
             let qj = &self.q[(j - 1) * n2..j * n2];
-            for c in 0..nx {
-                for rr in 0..=c {
-                    let mut s = qj[c * nx + rr];
-                    for k in 0..nx {
-                        s += a[rr * nx + k] * self.pa[c * nx + k];
-                    }
-                    if j < nc {
-                        let sb = &self.sbar[j * nu * nx..(j + 1) * nu * nx];
-                        let kg = &self.kgain[j * nu * nx..(j + 1) * nu * nx];
-                        for i in 0..nu {
-                            s += sb[rr * nu + i] * kg[c * nu + i];
-                        }
-                    }
-                    pj[c * nx + rr] = s;
-                    pj[rr * nx + c] = s;
-                }
-            }
+            stage::cost_to_go(
+                nx,
+                nu,
+                qj,
+                a,
+                &self.pa,
+                gain,
+                &mut head[j * n2..(j + 1) * n2],
+            );
         }
         all_finite(&self.lchol) && all_finite(&self.kgain)
     }
@@ -671,46 +597,25 @@ impl RiccatiQp {
         for j in top + 1..nc {
             self.kff[j * nu..(j + 1) * nu].fill(0.0);
         }
+        let adj2 = nu == 2 && !self.cross;
         for j in (0..=top).rev() {
             let (head, tail) = self.pv.split_at_mut((j + 1) * nx);
             let pn = &tail[..nx];
+            let (su, sx) = (j * nu..(j + 1) * nu, j * nu * nx..(j + 1) * nu * nx);
             if j < nc {
                 let b = &self.b[j * nx * nu..(j + 1) * nx * nu];
-                let k = &mut self.kff[j * nu..(j + 1) * nu];
-                for i in 0..nu {
-                    let mut s = lin[j * nu + i];
-                    for t in 0..nx {
-                        s += b[i * nx + t] * pn[t];
-                    }
-                    k[i] = -s;
-                }
-                if nu == 2 && !self.cross {
-                    let (k0, k1) = neg_adjugate_solve(&self.madj[j * 4..(j + 1) * 4], -k[0], -k[1]);
-                    k[0] = k0;
-                    k[1] = k1;
-                } else {
-                    chol_solve(&self.lchol[j * nu * nu..(j + 1) * nu * nu], nu, k);
-                }
+                let l = &self.lchol[j * nu * nu..(j + 1) * nu * nu];
+                let adj = adj2.then_some(&self.madj[j * 4..(j + 1) * 4]);
+                let k = &mut self.kff[su.clone()];
+                stage::feed_forward(nx, nu, b, &lin[su.clone()], pn, (l, adj), k);
             }
             if j == 0 {
                 break;
             }
             let a = &self.a[j * n2..(j + 1) * n2];
-            let pj = &mut head[j * nx..(j + 1) * nx];
             let xo = off + (j - 1) * nx;
-            for c in 0..nx {
-                let mut s = lin[xo + c];
-                for t in 0..nx {
-                    s += a[c * nx + t] * pn[t];
-                }
-                if j < nc {
-                    let sb = &self.sbar[j * nu * nx..(j + 1) * nu * nx];
-                    for i in 0..nu {
-                        s += sb[c * nu + i] * self.kff[j * nu + i];
-                    }
-                }
-                pj[c] = s;
-            }
+            let gain = (j < nc).then(|| (&self.sbar[sx], &self.kff[su]));
+            stage::costate(nx, nu, a, &lin[xo..xo + nx], pn, gain, &mut head[j * nx..]);
         }
         // Forward pass from x_0 = 0.
         let out: &mut [f64] = if out_is_yp {
@@ -722,25 +627,14 @@ impl RiccatiQp {
         for j in 0..np {
             let a = &self.a[j * n2..(j + 1) * n2];
             let xo = off + j * nx;
-            for rr in 0..nx {
-                let mut s = 0.0;
-                for c in 0..nx {
-                    s += a[c * nx + rr] * self.xs[c];
-                }
-                out[xo + rr] = s;
-            }
+            stage::a_times(nx, a, &self.xs, &mut out[xo..xo + nx]);
             if j < nc {
                 let kg = &self.kgain[j * nu * nx..(j + 1) * nu * nx];
                 let b = &self.b[j * nx * nu..(j + 1) * nx * nu];
                 for i in 0..nu {
-                    let mut s = self.kff[j * nu + i];
-                    for c in 0..nx {
-                        s += kg[c * nu + i] * self.xs[c];
-                    }
+                    let s = stage::feedback(nx, nu, i, self.kff[j * nu + i], kg, &self.xs);
                     out[j * nu + i] = s;
-                    for rr in 0..nx {
-                        out[xo + rr] += b[i * nx + rr] * s;
-                    }
+                    stage::add_input(nx, b, i, s, &mut out[xo..xo + nx]);
                 }
             }
             self.xs.copy_from_slice(&out[xo..xo + nx]);
@@ -973,40 +867,6 @@ pub(crate) fn held_congruence<const NX: usize, const NU: usize>(
         }
     }
     w
-}
-
-/// The gain `K = −M⁻¹ S̄` of a two-input stage (`M = [[a, b], [b, c]]` given as `[a, b, c]`,
-/// positive definite: checked by the caller's [`cholesky`]; `S̄`, `K` column-major `2 × nx`) by
-/// the adjugate, `M⁻¹ = [[c, −b], [−b, a]] / (ac − b²)`: one division and two multiply-adds deep
-/// from `M`, where the Cholesky factor and its substitutions are a chain of two square roots,
-/// three divisions and six multiply-adds (the Riccati recursion runs through it at every stage).
-/// Equal to the factor's solve to rounding; the factor is still kept for the sweeps. Used for
-/// the Gauss–Newton QPs (no cross terms); the exact Hessian's stages (whose `M` may be close to
-/// singular before the inertia correction) keep the factor's substitutions: with the adjugate
-/// one exact-Hessian test instance (tests/exact_hessian.rs, 2-DOF n = 3, case 6) took 5
-/// iterations against the dense back-end's 4 at KKT tolerance 1e-10.
-#[inline(always)]
-fn gain_2x2(adj: &[f64; 4], sb: &[f64], kg: &mut [f64]) {
-    for (k, s) in kg.chunks_exact_mut(2).zip(sb.chunks_exact(2)) {
-        let (k0, k1) = neg_adjugate_solve(adj, s[0], s[1]);
-        k[0] = k0;
-        k[1] = k1;
-    }
-}
-
-/// `[a, b, c, 1/(ac − b²)]` of `M = [[a, b], [b, c]]` given as `[a, b, c]`.
-#[inline(always)]
-fn adjugate_2x2(m: [f64; 3]) -> [f64; 4] {
-    let [a, b, c] = m;
-    [a, b, c, 1.0 / (a * c - b * b)]
-}
-
-/// `−M⁻¹ s` by the adjugate of [`adjugate_2x2`] (three operations deep from `s`; used by the
-/// gain and, with the same `M`, by the sweeps' feed-forward terms).
-#[inline(always)]
-fn neg_adjugate_solve(adj: &[f64], s0: f64, s1: f64) -> (f64, f64) {
-    let (a, b, c, idet) = (adj[0], adj[1], adj[2], adj[3]);
-    ((b * s1 - c * s0) * idet, (b * s0 - a * s1) * idet)
 }
 
 /// Whether every entry is finite, without a branch per entry: `x − x` is 0 for a finite `x`
