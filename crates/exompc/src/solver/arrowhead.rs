@@ -26,10 +26,10 @@
 //! iterates are those of the dense method on the condensed QP and the solution agrees with
 //! [`super::DenseQp`] to rounding.
 
-use super::active_set::{add_violated_bounds, bounds_status, box_dual_from_fields};
+use super::active_set::{box_dual_from_fields, solve_box, BoxWork};
 use super::cholesky::{chol_solve, cholesky};
-use super::qp::{QpInfo, QpSettings, QpStatus};
-use super::stage::{self, dim, quad};
+use super::qp::{QpInfo, QpSettings};
+use super::stage::{self, dim, quad, with_stage_size};
 use super::SolverError;
 use alloc::{vec, vec::Vec};
 
@@ -80,17 +80,8 @@ pub struct TreeQp {
     kff: Vec<f64>,
     ev: Vec<f64>,
     xs: Vec<f64>,
-    // Solution, multipliers and active set.
-    sol: Vec<f64>,
-    mult: Vec<f64>,
-    unit: Vec<f64>,
-    act: Vec<(usize, f64)>,
-    mu: Vec<f64>,
-    ycols: Vec<f64>,
-    yp: Vec<f64>,
-    zdir: Vec<f64>,
-    mmat: Vec<f64>,
-    rvec: Vec<f64>,
+    /// Solution, multipliers and active set.
+    w: BoxWork,
 }
 
 /// Which scenarios' right-hand sides a sweep reads: `lo..hi`, backward from stage `top`.
@@ -153,16 +144,7 @@ impl TreeQp {
             kff: vec![0.0; ns * nc * nu],
             ev: vec![0.0; nsh],
             xs: vec![0.0; nx],
-            sol: vec![0.0; len],
-            mult: vec![0.0; len],
-            unit: vec![0.0; len],
-            act: Vec::with_capacity(cap),
-            mu: vec![0.0; cap],
-            ycols: vec![0.0; cap * len],
-            yp: vec![0.0; len],
-            zdir: vec![0.0; len],
-            mmat: vec![0.0; cap * cap],
-            rvec: vec![0.0; cap],
+            w: BoxWork::new(len, cap),
         })
     }
 
@@ -202,34 +184,14 @@ impl TreeQp {
         self.num_inputs() + (i * self.np + j - 1) * self.nx + k
     }
 
-    /// The solution of the last solve, in trajectory layout.
-    pub fn solution(&self) -> &[f64] {
-        &self.sol
-    }
-
-    /// Multipliers of the bounds in trajectory layout, with the sign convention of
-    /// [`super::DenseQp`]: negative for an active lower bound, positive for an active upper
-    /// bound, so that `∇(objective) + Σ multᵢ ∇(trajectoryᵢ) = 0` at the solution.
-    pub fn multipliers(&self) -> &[f64] {
-        &self.mult
-    }
-
-    /// Number of active bounds at the last solution.
-    pub fn num_active(&self) -> usize {
-        self.act.len()
-    }
-
     /// Largest diagonal entry of the condensed Hessian (in the inputs) of the current data:
     /// for scenario `i`'s input `(j, k)`, `(R_{i,j} + B_{i,j}ᵀ V_{i,j} B_{i,j})_kk` with
     /// `V_{i,Np−1} = Q_{i,Np}`, `V_{i,j} = Q_{i,j+1} + A_{i,j+1}ᵀ V_{i,j+1} A_{i,j+1}`; for a
     /// shared input the sum over the scenarios plus `R̄_j`. Uses the factor workspace (call
     /// before [`Self::solve`]); `O(S·Np·nx³)`.
     pub fn max_condensed_diagonal(&mut self) -> f64 {
-        match (self.nx, self.nu) {
-            (3, 1) => self.max_condensed_diagonal_dims(3, 1),
-            (6, 2) => self.max_condensed_diagonal_dims(6, 2),
-            (nx, nu) => self.max_condensed_diagonal_dims(nx, nu),
-        }
+        with_stage_size!((self.nx, self.nu), |nx, nu| self
+            .max_condensed_diagonal_dims(nx, nu))
     }
 
     #[inline(always)]
@@ -285,11 +247,7 @@ impl TreeQp {
     /// `false` when a reduced Hessian is not numerically positive definite.
     fn factor(&mut self) -> bool {
         // The NMPC's stage sizes (1-DOF, 2-DOF) as constants: unrolled, bounds checks removed.
-        match (self.nx, self.nu) {
-            (3, 1) => self.factor_dims(3, 1),
-            (6, 2) => self.factor_dims(6, 2),
-            (nx, nu) => self.factor_dims(nx, nu),
-        }
+        with_stage_size!((self.nx, self.nu), |nx, nu| self.factor_dims(nx, nu))
     }
 
     #[inline(always)]
@@ -403,11 +361,8 @@ impl TreeQp {
     /// where `lin` (`g` or `unit`) is zero outside the shared inputs and the scenarios of `act`,
     /// and in those zero on every stage after `act.top`.
     fn sweep(&mut self, use_unit: bool, act: Active, out_is_yp: bool) {
-        match (self.nx, self.nu) {
-            (3, 1) => self.sweep_dims(3, 1, use_unit, act, out_is_yp),
-            (6, 2) => self.sweep_dims(6, 2, use_unit, act, out_is_yp),
-            (nx, nu) => self.sweep_dims(nx, nu, use_unit, act, out_is_yp),
-        }
+        with_stage_size!((self.nx, self.nu), |nx, nu| self
+            .sweep_dims(nx, nu, use_unit, act, out_is_yp))
     }
 
     #[inline(always)]
@@ -416,7 +371,7 @@ impl TreeQp {
         let n2 = nx * nx;
         let nsh = nr * nu;
         let nv = self.num_inputs();
-        let lin: &[f64] = if use_unit { &self.unit } else { &self.g };
+        let lin: &[f64] = if use_unit { &self.w.unit } else { &self.g };
         self.ev.fill(0.0);
         for i in act.lo..act.hi {
             let ab = i * np * n2;
@@ -471,9 +426,9 @@ impl TreeQp {
         }
         // Shared inputs: s = −Hs⁻¹ (e + lin_s).
         let out: &mut [f64] = if out_is_yp {
-            &mut self.yp
+            &mut self.w.yp
         } else {
-            &mut self.sol
+            &mut self.w.sol
         };
         for k in 0..nsh {
             out[k] = -(self.ev[k] + lin[k]);
@@ -540,33 +495,33 @@ impl TreeQp {
                 top,
             }
         };
-        self.unit[id] = 1.0;
+        self.w.unit[id] = 1.0;
         self.sweep(true, act, true);
-        self.unit[id] = 0.0;
+        self.w.unit[id] = 0.0;
         // The sweep gives −H⁻¹ e; the normal is σ e.
-        for v in self.yp.iter_mut() {
+        for v in self.w.yp.iter_mut() {
             *v *= -sigma;
         }
     }
 
-    /// Objective `½wᵀHw + gᵀw` of the trajectory `w = self.sol`.
+    /// Objective `½wᵀHw + gᵀw` of the trajectory `w = self.w.sol`.
     fn objective(&self) -> f64 {
         let (nx, nu, nr) = (self.nx, self.nu, self.nr);
         let nsh = nr * nu;
         let nv = self.num_inputs();
-        let mut f: f64 = self.sol.iter().zip(&self.g).map(|(w, g)| w * g).sum();
+        let mut f: f64 = self.w.sol.iter().zip(&self.g).map(|(w, g)| w * g).sum();
         for j in 0..nr {
             f += quad(
-                &self.sol[j * nu..(j + 1) * nu],
+                &self.w.sol[j * nu..(j + 1) * nu],
                 &self.r_shared[j * nu * nu..(j + 1) * nu * nu],
                 nu,
             );
         }
         for (k, rk) in self.r.chunks_exact(nu * nu).enumerate() {
-            f += quad(&self.sol[nsh + k * nu..nsh + (k + 1) * nu], rk, nu);
+            f += quad(&self.w.sol[nsh + k * nu..nsh + (k + 1) * nu], rk, nu);
         }
         for (k, qk) in self.q.chunks_exact(nx * nx).enumerate() {
-            f += quad(&self.sol[nv + k * nx..nv + (k + 1) * nx], qk, nx);
+            f += quad(&self.w.sol[nv + k * nx..nv + (k + 1) * nx], qk, nx);
         }
         f
     }
@@ -574,13 +529,6 @@ impl TreeQp {
     /// Solves the QP with the current data. Never panics and allocates nothing; the solution is
     /// [`Self::solution`] and the multipliers [`Self::multipliers`].
     pub fn solve(&mut self) -> QpInfo {
-        let mut info = QpInfo {
-            status: QpStatus::Solved,
-            iterations: 0,
-            objective: f64::NAN,
-        };
-        self.act.clear();
-        self.mult.fill(0.0);
         let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
         let data_finite = finite(&self.a)
             && finite(&self.b)
@@ -588,31 +536,25 @@ impl TreeQp {
             && finite(&self.r)
             && finite(&self.r_shared)
             && finite(&self.g);
-        if !data_finite {
-            info.status = QpStatus::NonFiniteInput;
-            return info;
-        }
-        if let Some(status) = bounds_status(&self.lo, &self.hi) {
-            info.status = status;
-            return info;
-        }
-        if !self.factor() {
-            info.status = QpStatus::NumericalError;
-            return info;
-        }
-        let all = Active {
-            lo: 0,
-            hi: self.ns,
-            top: self.np - 1,
-        };
-        self.sweep(false, all, false);
         let settings = self.settings;
-        if !add_violated_bounds(self, &settings, &mut info) {
-            info.status = QpStatus::NumericalError;
-            return info;
+        let start = |qp: &mut Self| {
+            let all = Active {
+                lo: 0,
+                hi: qp.ns,
+                top: qp.np - 1,
+            };
+            qp.factor() && {
+                qp.sweep(false, all, false);
+                true
+            }
+        };
+        match solve_box(self, &settings, data_finite, start) {
+            Ok(mut info) => {
+                info.objective = self.objective();
+                info
+            }
+            Err(info) => info,
         }
-        info.objective = self.objective();
-        info
     }
 }
 

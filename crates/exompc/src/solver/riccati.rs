@@ -24,7 +24,7 @@
 //! Goldfarb–Idnani method on the condensed QP (same `H`, `g`, constraints), so the solution agrees
 //! with [`super::DenseQp`] to rounding.
 
-use super::active_set::{add_violated_bounds, bounds_status, box_dual_from_fields};
+use super::active_set::{box_dual_from_fields, solve_box, BoxWork};
 use super::cholesky::chol_solve;
 use super::qp::{QpInfo, QpSettings, QpStatus};
 use super::stage::{self, neg_adjugate_solve};
@@ -73,17 +73,8 @@ pub struct RiccatiQp {
     /// factorisations, see [`neg_adjugate_solve`]).
     madj: Vec<f64>,
     xs: Vec<f64>,
-    // Solution, multipliers and active set.
-    sol: Vec<f64>,
-    mult: Vec<f64>,
-    unit: Vec<f64>,
-    act: Vec<(usize, f64)>,
-    mu: Vec<f64>,
-    ycols: Vec<f64>,
-    yp: Vec<f64>,
-    zdir: Vec<f64>,
-    mmat: Vec<f64>,
-    rvec: Vec<f64>,
+    /// Solution, multipliers and active set.
+    w: BoxWork,
     /// The data of the last factorisation has the held-input form
     /// ([`Self::held_input_structure`]); the sweeps then skip its zero and identity blocks.
     held: bool,
@@ -136,16 +127,7 @@ impl RiccatiQp {
             kff: vec![0.0; nc * nu],
             madj: vec![0.0; nc * 4],
             xs: vec![0.0; nx],
-            sol: vec![0.0; len],
-            mult: vec![0.0; len],
-            unit: vec![0.0; len],
-            act: Vec::with_capacity(cap),
-            mu: vec![0.0; cap],
-            ycols: vec![0.0; cap * len],
-            yp: vec![0.0; len],
-            zdir: vec![0.0; len],
-            mmat: vec![0.0; cap * cap],
-            rvec: vec![0.0; cap],
+            w: BoxWork::new(len, cap),
             held: false,
             cross: false,
             held_known: false,
@@ -171,23 +153,6 @@ impl RiccatiQp {
     /// Index of component `i` of state `x_j`, `1 ≤ j ≤ Np`, in trajectory layout.
     pub fn x_index(&self, j: usize, i: usize) -> usize {
         self.nc * self.nu + (j - 1) * self.nx + i
-    }
-
-    /// The solution `(u, x)` of the last solve, in trajectory layout.
-    pub fn solution(&self) -> &[f64] {
-        &self.sol
-    }
-
-    /// Multipliers of the bounds in trajectory layout, with the sign convention of
-    /// [`super::DenseQp`]: negative for an active lower bound, positive for an active upper
-    /// bound, so that `∇(objective) + Σ multᵢ ∇(trajectoryᵢ) = 0` at the solution.
-    pub fn multipliers(&self) -> &[f64] {
-        &self.mult
-    }
-
-    /// Number of active bounds at the last solution.
-    pub fn num_active(&self) -> usize {
-        self.act.len()
     }
 
     /// Declares that every `A_j`, `B_j` this solver will be given has the held-input form of
@@ -470,7 +435,7 @@ impl RiccatiQp {
         let (np, nc) = (self.np, self.nc);
         let n2 = NX * NX;
         let off = nc * NU;
-        let lin: &[f64] = if use_unit { &self.unit } else { &self.g };
+        let lin: &[f64] = if use_unit { &self.w.unit } else { &self.g };
         // Backward pass for the feed-forward terms.
         let xi = off + top * NX;
         let mut pn = SVector::<f64, NX>::from_column_slice(&lin[xi..xi + NX]);
@@ -536,9 +501,9 @@ impl RiccatiQp {
         }
         // Forward pass from x_0 = 0.
         let out: &mut [f64] = if out_is_yp {
-            &mut self.yp
+            &mut self.w.yp
         } else {
-            &mut self.sol
+            &mut self.w.sol
         };
         let mut xs = SVector::<f64, NX>::zeros();
         for j in 0..np {
@@ -590,7 +555,7 @@ impl RiccatiQp {
         let (np, nc) = (self.np, self.nc);
         let n2 = nx * nx;
         let off = nc * nu;
-        let lin: &[f64] = if use_unit { &self.unit } else { &self.g };
+        let lin: &[f64] = if use_unit { &self.w.unit } else { &self.g };
         // Backward pass for the feed-forward terms.
         let xi = off + top * nx;
         self.pv[(top + 1) * nx..(top + 2) * nx].copy_from_slice(&lin[xi..xi + nx]);
@@ -619,9 +584,9 @@ impl RiccatiQp {
         }
         // Forward pass from x_0 = 0.
         let out: &mut [f64] = if out_is_yp {
-            &mut self.yp
+            &mut self.w.yp
         } else {
-            &mut self.sol
+            &mut self.w.sol
         };
         self.xs.fill(0.0);
         for j in 0..np {
@@ -645,21 +610,21 @@ impl RiccatiQp {
     /// into `yp`.
     fn normal_solve(&mut self, id: usize, sigma: f64) {
         let (nx, nu, nc) = (self.nx, self.nu, self.nc);
-        self.unit[id] = 1.0;
+        self.w.unit[id] = 1.0;
         let top = if id < nc * nu {
             id / nu
         } else {
             (id - nc * nu) / nx
         };
         self.sweep(true, top, true);
-        self.unit[id] = 0.0;
+        self.w.unit[id] = 0.0;
         // The sweep gives −H⁻¹ e; the normal is σ e.
-        for v in self.yp.iter_mut() {
+        for v in self.w.yp.iter_mut() {
             *v *= -sigma;
         }
     }
 
-    /// Objective `½wᵀHw + gᵀw` of the trajectory `w = self.sol`.
+    /// Objective `½wᵀHw + gᵀw` of the trajectory `w = self.w.sol`.
     fn objective(&self) -> f64 {
         match (self.nx, self.nu) {
             (3, 1) => self.objective_fixed::<3, 1>(),
@@ -672,11 +637,11 @@ impl RiccatiQp {
     fn objective_fixed<const NX: usize, const NU: usize>(&self) -> f64 {
         let off = self.nc * NU;
         let mut f = 0.0;
-        for (w, g) in self.sol.iter().zip(&self.g) {
+        for (w, g) in self.w.sol.iter().zip(&self.g) {
             f += w * g;
         }
         for j in 0..self.nc {
-            let u = SVector::<f64, NU>::from_column_slice(&self.sol[j * NU..(j + 1) * NU]);
+            let u = SVector::<f64, NU>::from_column_slice(&self.w.sol[j * NU..(j + 1) * NU]);
             let rj =
                 SMatrix::<f64, NU, NU>::from_column_slice(&self.r[j * NU * NU..(j + 1) * NU * NU]);
             f += 0.5 * u.dot(&(rj * u));
@@ -685,14 +650,15 @@ impl RiccatiQp {
                     &self.s[j * NU * NX..(j + 1) * NU * NX],
                 );
                 let x = SVector::<f64, NX>::from_column_slice(
-                    &self.sol[off + (j - 1) * NX..off + j * NX],
+                    &self.w.sol[off + (j - 1) * NX..off + j * NX],
                 );
                 f += u.dot(&(sj * x));
             }
         }
         for j in 0..self.np {
-            let x =
-                SVector::<f64, NX>::from_column_slice(&self.sol[off + j * NX..off + (j + 1) * NX]);
+            let x = SVector::<f64, NX>::from_column_slice(
+                &self.w.sol[off + j * NX..off + (j + 1) * NX],
+            );
             let qj =
                 SMatrix::<f64, NX, NX>::from_column_slice(&self.q[j * NX * NX..(j + 1) * NX * NX]);
             f += 0.5 * x.dot(&(qj * x));
@@ -700,16 +666,16 @@ impl RiccatiQp {
         f
     }
 
-    /// Objective `½wᵀHw + gᵀw` of the trajectory `w = self.sol`, any stage size.
+    /// Objective `½wᵀHw + gᵀw` of the trajectory `w = self.w.sol`, any stage size.
     fn objective_dims(&self) -> f64 {
         let (nx, nu, np, nc) = (self.nx, self.nu, self.np, self.nc);
         let off = nc * nu;
         let mut f = 0.0;
-        for (w, g) in self.sol.iter().zip(&self.g) {
+        for (w, g) in self.w.sol.iter().zip(&self.g) {
             f += w * g;
         }
         for j in 0..nc {
-            let u = &self.sol[j * nu..(j + 1) * nu];
+            let u = &self.w.sol[j * nu..(j + 1) * nu];
             let rj = &self.r[j * nu * nu..(j + 1) * nu * nu];
             for c in 0..nu {
                 for rr in 0..nu {
@@ -717,7 +683,7 @@ impl RiccatiQp {
                 }
             }
             if self.cross && j > 0 {
-                let x = &self.sol[off + (j - 1) * nx..off + j * nx];
+                let x = &self.w.sol[off + (j - 1) * nx..off + j * nx];
                 let sj = &self.s[j * nu * nx..(j + 1) * nu * nx];
                 for c in 0..nx {
                     for rr in 0..nu {
@@ -727,7 +693,7 @@ impl RiccatiQp {
             }
         }
         for j in 0..np {
-            let x = &self.sol[off + j * nx..off + (j + 1) * nx];
+            let x = &self.w.sol[off + j * nx..off + (j + 1) * nx];
             let qj = &self.q[j * nx * nx..(j + 1) * nx * nx];
             for c in 0..nx {
                 for rr in 0..nx {
@@ -741,13 +707,6 @@ impl RiccatiQp {
     /// Solves the QP with the current data. Never panics and allocates nothing; the solution is
     /// [`Self::solution`] and the multipliers [`Self::multipliers`].
     pub fn solve(&mut self) -> QpInfo {
-        let mut info = QpInfo {
-            status: QpStatus::Solved,
-            iterations: 0,
-            objective: f64::NAN,
-        };
-        self.act.clear();
-        self.mult.fill(0.0);
         let finite = all_finite;
         let stages_finite =
             |qp: &Self| finite(&qp.a) && finite(&qp.b) && finite(&qp.q) && finite(&qp.s);
@@ -758,31 +717,25 @@ impl RiccatiQp {
             stages_finite(self)
         };
         let data_finite = stages_finite && finite(&self.r) && finite(&self.g);
-        if !data_finite {
-            info.status = QpStatus::NonFiniteInput;
-            return info;
-        }
-        if let Some(status) = bounds_status(&self.lo, &self.hi) {
-            info.status = status;
-            return info;
-        }
-        if !self.factor() {
-            info.status = QpStatus::NumericalError;
-            return info;
-        }
-        let top = self.np - 1;
-        self.sweep(false, top, false);
         let settings = self.settings;
-        if !add_violated_bounds(self, &settings, &mut info) {
-            info.status = QpStatus::NumericalError;
-            return info;
-        }
-        info.objective = if info.status == QpStatus::Solved {
-            self.objective_at_solution()
-        } else {
-            self.objective()
+        let start = |qp: &mut Self| {
+            let top = qp.np - 1;
+            qp.factor() && {
+                qp.sweep(false, top, false);
+                true
+            }
         };
-        info
+        match solve_box(self, &settings, data_finite, start) {
+            Ok(mut info) => {
+                info.objective = if info.status == QpStatus::Solved {
+                    self.objective_at_solution()
+                } else {
+                    self.objective()
+                };
+                info
+            }
+            Err(info) => info,
+        }
     }
 
     /// Objective at a solution: stationarity `H w + g + Eᵀν + mult = 0` (`E w = 0` the
@@ -791,7 +744,7 @@ impl RiccatiQp {
     /// rounding; unit test).
     fn objective_at_solution(&self) -> f64 {
         let mut f = 0.0;
-        for ((w, g), m) in self.sol.iter().zip(&self.g).zip(&self.mult) {
+        for ((w, g), m) in self.w.sol.iter().zip(&self.g).zip(&self.w.mult) {
             f += w * (g - m);
         }
         0.5 * f
@@ -1140,14 +1093,14 @@ mod tests {
                 assert!(a.held);
                 for top in [np - 1, np / 2, 0] {
                     for use_unit in [false, true] {
-                        a.unit.fill(0.0);
-                        b.unit.fill(0.0);
+                        a.w.unit.fill(0.0);
+                        b.w.unit.fill(0.0);
                         let id = a.len() / 2;
-                        a.unit[id] = 1.0;
-                        b.unit[id] = 1.0;
+                        a.w.unit[id] = 1.0;
+                        b.w.unit[id] = 1.0;
                         a.sweep(use_unit, top, use_unit);
                         b.sweep_dims(nx, nu, use_unit, top, use_unit);
-                        assert!(close(&a.sol, &b.sol) && close(&a.yp, &b.yp));
+                        assert!(close(&a.w.sol, &b.w.sol) && close(&a.w.yp, &b.w.yp));
                         assert!(close(&a.kff, &b.kff));
                     }
                 }
@@ -1178,7 +1131,7 @@ mod tests {
             assert_eq!(ia.status, QpStatus::Solved);
             assert!(a.num_active() > 0);
             assert_eq!((ia.status, ia.iterations), (ib.status, ib.iterations));
-            assert_eq!((&a.sol, &a.mult), (&b.sol, &b.mult));
+            assert_eq!((&a.w.sol, &a.w.mult), (&b.w.sol, &b.w.mult));
             for bad in [f64::NAN, f64::INFINITY] {
                 let mut c = b.clone();
                 c.r[0] = bad;
@@ -1237,18 +1190,18 @@ mod tests {
                 assert_eq!(a.sbar, b.sbar);
                 for top in [np - 1, np / 2, 0] {
                     for use_unit in [false, true] {
-                        a.unit.fill(0.0);
-                        b.unit.fill(0.0);
+                        a.w.unit.fill(0.0);
+                        b.w.unit.fill(0.0);
                         let id = a.len() / 2;
-                        a.unit[id] = 1.0;
-                        b.unit[id] = 1.0;
+                        a.w.unit[id] = 1.0;
+                        b.w.unit[id] = 1.0;
                         match (nx, nu) {
                             (3, 1) => a.sweep_fixed::<3, 1, false>(use_unit, top, use_unit),
                             _ => a.sweep_fixed::<6, 2, false>(use_unit, top, use_unit),
                         }
                         b.sweep_dims(nx, nu, use_unit, top, use_unit);
-                        assert_eq!(a.sol, b.sol);
-                        assert_eq!(a.yp, b.yp);
+                        assert_eq!(a.w.sol, b.w.sol);
+                        assert_eq!(a.w.yp, b.w.yp);
                         assert_eq!(a.kff, b.kff);
                     }
                 }

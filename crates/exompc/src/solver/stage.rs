@@ -293,3 +293,23 @@ pub(super) fn quad(w: &[f64], m: &[f64], n: usize) -> f64 {
     }
     f
 }
+
+/// `$body` with `$nx`, `$nu` bound to the stage size, as constants for the NMPC's stage sizes
+/// (1-DOF `3 × 1`, 2-DOF `6 × 2`: the inlined stage operations are unrolled and their bounds
+/// checks removed), as variables for any other.
+macro_rules! with_stage_size {
+    (($x:expr, $u:expr), |$nx:ident, $nu:ident| $body:expr) => {
+        match ($x, $u) {
+            (3, 1) => {
+                let ($nx, $nu) = (3usize, 1usize);
+                $body
+            }
+            (6, 2) => {
+                let ($nx, $nu) = (6usize, 2usize);
+                $body
+            }
+            ($nx, $nu) => $body,
+        }
+    };
+}
+pub(super) use with_stage_size;
