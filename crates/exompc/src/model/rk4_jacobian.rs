@@ -399,8 +399,23 @@ impl<const N: usize, T: StageTorque<N>> TailoredRk4<'_, N, T> {
                 dg[(r, s)] = wcos[r.max(s)..].iter().sum();
             }
         }
-        let acc = self.accel(tau, x, u, &m, hv.as_slice(), g.as_slice());
-        let (qdd, ti_q) = (acc.qdd, acc.ti_q);
+        // Friction and its (diagonal) derivative.
+        let rb = &self.robot;
+        let mut fr = SVector::<f64, N>::zeros();
+        let mut dfr = [0.0; N];
+        for i in 0..N {
+            let (coul, dcoul) = friction_terms(rb, v[i]);
+            fr[i] = v[i] * rb.viscous + coul;
+            dfr[i] = rb.viscous + dcoul;
+        }
+        // Interaction torque and its derivatives (−ks JᵀJ, −cs JᵀJ when predicted).
+        let (t_int, ti_q, ti_v) = self.torque.terms(tau, q, v);
+        let mut rhs = SVector::<f64, N>::zeros();
+        for i in 0..N {
+            rhs[i] = u[i] + t_int[i] + self.disturbance[i] - hv[i] - g[i] - fr[i];
+        }
+        let minv = spd_inverse(&m);
+        let qdd = minv * rhs;
         // ∂(M qdd)/∂q_r = ∂rhs/∂q_r ⇒ ∂qdd/∂q_r = M⁻¹(∂rhs/∂q_r − ∂M/∂q_r qdd).
         let mut bq = SMatrix::<f64, N, N>::zeros();
         for r in 0..N {
@@ -412,44 +427,18 @@ impl<const N: usize, T: StageTorque<N>> TailoredRk4<'_, N, T> {
                 bq[(i, r)] = -ti_q[(i, r)] - dh_q[(i, r)] - dg[(i, r)] - dmq;
             }
         }
-        accel_jacobian(acc, bq, &dh_v)
-    }
-
-    /// Friction (and its diagonal derivative), the interaction torque (and its derivatives,
-    /// `−ks JᵀJ`, `−cs JᵀJ` when predicted), the right-hand side `u + T_int + d − h − G − fr`
-    /// of eq. 1 from the Coriolis term `hv` and gravity `g`, `M⁻¹` and `qdd = M⁻¹ rhs`: the
-    /// part of [`Self::derivative_jacobian`] the chain and the two-link code share.
-    #[inline(always)]
-    fn accel(
-        &self,
-        tau: f64,
-        x: &JointState<f64, N>,
-        u: &SVector<f64, N>,
-        m: &SMatrix<f64, N, N>,
-        hv: &[f64],
-        g: &[f64],
-    ) -> Accel<N> {
-        let (q, v) = (&x.q, &x.qd);
-        let rb = &self.robot;
-        let mut fr = SVector::<f64, N>::zeros();
-        let mut dfr = [0.0; N];
+        let mut bv = -dh_v;
         for i in 0..N {
-            let (coul, dcoul) = friction_terms(rb, v[i]);
-            fr[i] = v[i] * rb.viscous + coul;
-            dfr[i] = rb.viscous + dcoul;
+            for j in 0..N {
+                bv[(i, j)] -= ti_v[(i, j)];
+            }
+            bv[(i, i)] -= dfr[i];
         }
-        let (t_int, ti_q, ti_v) = self.torque.terms(tau, q, v);
-        let mut rhs = SVector::<f64, N>::zeros();
-        for i in 0..N {
-            rhs[i] = u[i] + t_int[i] + self.disturbance[i] - hv[i] - g[i] - fr[i];
-        }
-        let minv = spd_inverse(m);
-        Accel {
-            qdd: minv * rhs,
+        AccelJacobian {
+            qdd,
+            a_q: minv * bq,
+            a_v: minv * bv,
             minv,
-            dfr,
-            ti_q,
-            ti_v,
         }
     }
 
@@ -514,54 +503,42 @@ impl<const N: usize, T: StageTorque<N>> TailoredRk4<'_, N, T> {
         let g0 = g1 + k.w[0] * s0;
         let (wc0, wc1) = (k.w[0] * c0, k.w[1] * c1);
         let dg00 = 0.0 + wc0 + wc1;
-        let acc = self.accel(tau, x, u, &m, &[hv0, hv1], &[g0, g1]);
-        let (qdd, ti_q) = (acc.qdd, acc.ti_q);
+        // Friction and its (diagonal) derivative.
+        let rb = &self.robot;
+        let mut fr = SVector::<f64, N>::zeros();
+        let mut dfr = [0.0; N];
+        for i in 0..N {
+            let (coul, dcoul) = friction_terms(rb, v[i]);
+            fr[i] = v[i] * rb.viscous + coul;
+            dfr[i] = rb.viscous + dcoul;
+        }
+        let (t_int, ti_q, ti_v) = self.torque.terms(tau, q, v);
+        let hv = [hv0, hv1];
+        let g = [g0, g1];
+        let mut rhs = SVector::<f64, N>::zeros();
+        for i in 0..N {
+            rhs[i] = u[i] + t_int[i] + self.disturbance[i] - hv[i] - g[i] - fr[i];
+        }
+        let minv = spd_inverse(&m);
+        let qdd = minv * rhs;
         let mut bq = SMatrix::<f64, N, N>::zeros();
         bq[(0, 0)] = -ti_q[(0, 0)] - dg00;
         bq[(1, 0)] = -ti_q[(1, 0)] - wc1;
         bq[(0, 1)] = -ti_q[(0, 1)] - dh_q01 - wc1 - (a * qdd[0] + b * qdd[1]);
         bq[(1, 1)] = -ti_q[(1, 1)] - dh_q11 - wc1 - c * qdd[0];
-        accel_jacobian(acc, bq, &dh_v)
-    }
-}
-
-/// What [`TailoredRk4::accel`] hands back: `qdd`, `M⁻¹`, the friction's diagonal derivative
-/// and the interaction torque's derivatives.
-struct Accel<const N: usize> {
-    qdd: SVector<f64, N>,
-    minv: SMatrix<f64, N, N>,
-    dfr: [f64; N],
-    ti_q: SMatrix<f64, N, N>,
-    ti_v: SMatrix<f64, N, N>,
-}
-
-/// `∂qdd/∂q = M⁻¹ bq` and `∂qdd/∂qd = M⁻¹ (−∂h/∂qd − ∂T_int/∂qd − diag ∂fr/∂qd)` with `qdd`
-/// and `M⁻¹` of `acc`.
-#[inline(always)]
-fn accel_jacobian<const N: usize>(
-    acc: Accel<N>,
-    bq: SMatrix<f64, N, N>,
-    dh_v: &SMatrix<f64, N, N>,
-) -> AccelJacobian<N> {
-    let Accel {
-        qdd,
-        minv,
-        dfr,
-        ti_v,
-        ..
-    } = acc;
-    let mut bv = -dh_v;
-    for i in 0..N {
-        for j in 0..N {
-            bv[(i, j)] -= ti_v[(i, j)];
+        let mut bv = -dh_v;
+        for i in 0..N {
+            for j in 0..N {
+                bv[(i, j)] -= ti_v[(i, j)];
+            }
+            bv[(i, i)] -= dfr[i];
         }
-        bv[(i, i)] -= dfr[i];
-    }
-    AccelJacobian {
-        qdd,
-        a_q: minv * bq,
-        a_v: minv * bv,
-        minv,
+        AccelJacobian {
+            qdd,
+            a_q: minv * bq,
+            a_v: minv * bv,
+            minv,
+        }
     }
 }
 
