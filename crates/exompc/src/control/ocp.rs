@@ -773,8 +773,7 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
         w.qp.g.fill(0.0);
         w.shift_bounds(z);
         let qi = w.qp.solve();
-        let n = w.nc * N;
-        w.dz.as_mut_slice().copy_from_slice(&w.qp.solution()[..n]);
+        copy_step(&mut w.dz, w.qp.solution());
         qi
     }
 
@@ -785,8 +784,7 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
     fn accept(&mut self, _z_old: Option<&DVector<f64>>, _z_new: &DVector<f64>) -> bool {
         // `evaluate` returns a non-finite cost when any linearisation entry is non-finite.
         let w = &mut *self.w;
-        w.torques.copy_from_slice(&w.torques_trial);
-        w.grad.copy_from_slice(&w.qp.g);
+        accept_trial(&mut w.torques, &w.torques_trial, &mut w.grad, &w.qp.g);
         if w.exact {
             core::mem::swap(&mut w.states, &mut w.states_trial);
             core::mem::swap(&mut w.held, &mut w.held_trial);
@@ -836,8 +834,7 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
             w.set_input_weight(r);
             w.qp.solve()
         };
-        let n = w.nc * N;
-        w.dz.as_mut_slice().copy_from_slice(&w.qp.solution()[..n]);
+        copy_step(&mut w.dz, w.qp.solution());
         qi
     }
 
@@ -894,6 +891,21 @@ macro_rules! step_slope_kkt {
     };
 }
 pub(super) use step_slope_kkt;
+
+/// The step `dz` (the increments) from the QP's solution in trajectory layout (inputs first).
+#[inline]
+pub(super) fn copy_step(dz: &mut DVector<f64>, sol: &[f64]) {
+    let n = dz.len();
+    dz.as_mut_slice().copy_from_slice(&sol[..n]);
+}
+
+/// The trial point becomes the current one: its cumulative torques and its gradient (in
+/// trajectory layout, the QP's linear term of the last evaluation).
+#[inline]
+pub(super) fn accept_trial(torques: &mut [f64], trial: &[f64], grad: &mut [f64], g: &[f64]) {
+    torques.copy_from_slice(trial);
+    grad.copy_from_slice(g);
+}
 
 /// Writes the non-constant entries of the held-input stage `A_j = [[F_j, G_j], [0, I]]`,
 /// `B_j = [G_j; I]` (state `[q, qd, T]`, column-major `3N × 3N` and `3N × N`) from the step

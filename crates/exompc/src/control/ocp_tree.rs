@@ -15,7 +15,7 @@
 
 use super::nmpc_problem::QpBackend;
 use super::nmpc_problem::{NmpcProblem, NmpcSettings};
-use super::ocp::{stage_residual, step_slope_kkt, write_stage_jacobian};
+use super::ocp::{accept_trial, copy_step, stage_residual, step_slope_kkt, write_stage_jacobian};
 use super::prediction::StepJacobian;
 use super::TorqueLimits;
 #[cfg(not(feature = "std"))]
@@ -462,8 +462,7 @@ impl<const N: usize> SqpSteps for TreeSteps<'_, N> {
         w.qp.g.fill(0.0);
         w.shift_bounds(z);
         let qi = w.qp.solve();
-        let n = w.qp.num_inputs();
-        w.dz.as_mut_slice().copy_from_slice(&w.qp.solution()[..n]);
+        copy_step(&mut w.dz, w.qp.solution());
         qi
     }
 
@@ -474,8 +473,7 @@ impl<const N: usize> SqpSteps for TreeSteps<'_, N> {
     fn accept(&mut self, _z_old: Option<&DVector<f64>>, _z_new: &DVector<f64>) -> bool {
         // `evaluate` returns a non-finite cost when any linearisation entry is non-finite.
         let w = &mut *self.w;
-        w.torques.copy_from_slice(&w.torques_trial);
-        w.grad.copy_from_slice(&w.qp.g);
+        accept_trial(&mut w.torques, &w.torques_trial, &mut w.grad, &w.qp.g);
         true
     }
 
@@ -489,8 +487,7 @@ impl<const N: usize> SqpSteps for TreeSteps<'_, N> {
         w.qp.g.copy_from_slice(&w.grad);
         w.shift_bounds(z);
         let qi = w.qp.solve();
-        let n = w.qp.num_inputs();
-        w.dz.as_mut_slice().copy_from_slice(&w.qp.solution()[..n]);
+        copy_step(&mut w.dz, w.qp.solution());
         qi
     }
 
