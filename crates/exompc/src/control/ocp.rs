@@ -414,25 +414,8 @@ impl<const N: usize> StageWork<N> {
                 finite &= nan.sum() == 0.0;
                 // The zero and identity entries are in place (`write_held_layout`).
                 let aj = &mut self.qp.a[j * nx * nx..(j + 1) * nx * nx];
-                for c in 0..N {
-                    for r in 0..N {
-                        aj[c * nx + r] = g.qq[(r, c)];
-                        aj[c * nx + N + r] = g.vq[(r, c)];
-                        aj[(N + c) * nx + r] = g.qv[(r, c)];
-                        aj[(N + c) * nx + N + r] = g.vv[(r, c)];
-                        aj[(2 * N + c) * nx + r] = g.qu[(r, c)];
-                        aj[(2 * N + c) * nx + N + r] = g.vu[(r, c)];
-                    }
-                }
-                if j < nc {
-                    let bj = &mut self.qp.b[j * nx * N..(j + 1) * nx * N];
-                    for c in 0..N {
-                        for r in 0..N {
-                            bj[c * nx + r] = g.qu[(r, c)];
-                            bj[c * nx + N + r] = g.vu[(r, c)];
-                        }
-                    }
-                }
+                let bj = (j < nc).then(|| &mut self.qp.b[j * nx * N..(j + 1) * nx * N]);
+                write_stage_jacobian(&g, aj, bj);
                 xn
             } else {
                 problem.model.step_value_using(&consts, &x, &u, tau, &inp)
@@ -440,17 +423,8 @@ impl<const N: usize> StageWork<N> {
             x = xn;
             let tj = (j + 1) as f64 * dt;
             let xo = off + j * nx;
-            let (rv, ltrv) = problem.velocity_residual(&x.qd, sqrt_rd);
-            for a in 0..N {
-                let rq = x.q[a] - (inp.q_h[a] + tj * inp.qd_h[a]);
-                sum += rq * rq + rv[a] * rv[a];
-                finite &= rq.is_finite() && rv[a].is_finite();
-                if jac {
-                    self.qp.g[xo + a] = rq;
-                    self.qp.g[xo + N + a] = sqrt_rd * ltrv[a];
-                    self.qp.g[xo + 2 * N + a] = 0.0;
-                }
-            }
+            let grad = jac.then(|| (1.0, &mut self.qp.g[xo..xo + nx]));
+            finite &= stage_residual(problem, &x, tj, sqrt_rd, &mut sum, grad);
         }
         for (k, zk) in z.iter().enumerate() {
             let rz = sqrt_rt * zk;
@@ -799,8 +773,7 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
         w.qp.g.fill(0.0);
         w.shift_bounds(z);
         let qi = w.qp.solve();
-        let n = w.nc * N;
-        w.dz.as_mut_slice().copy_from_slice(&w.qp.solution()[..n]);
+        copy_step(&mut w.dz, w.qp.solution());
         qi
     }
 
@@ -811,8 +784,7 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
     fn accept(&mut self, _z_old: Option<&DVector<f64>>, _z_new: &DVector<f64>) -> bool {
         // `evaluate` returns a non-finite cost when any linearisation entry is non-finite.
         let w = &mut *self.w;
-        w.torques.copy_from_slice(&w.torques_trial);
-        w.grad.copy_from_slice(&w.qp.g);
+        accept_trial(&mut w.torques, &w.torques_trial, &mut w.grad, &w.qp.g);
         if w.exact {
             core::mem::swap(&mut w.states, &mut w.states_trial);
             core::mem::swap(&mut w.held, &mut w.held_trial);
@@ -862,28 +834,11 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
             w.set_input_weight(r);
             w.qp.solve()
         };
-        let n = w.nc * N;
-        w.dz.as_mut_slice().copy_from_slice(&w.qp.solution()[..n]);
+        copy_step(&mut w.dz, w.qp.solution());
         qi
     }
 
-    fn step(&self) -> &DVector<f64> {
-        &self.w.dz
-    }
-
-    fn slope(&self) -> f64 {
-        // gᵀd over the whole trajectory (states are linear in the increments along the step).
-        self.w
-            .grad
-            .iter()
-            .zip(self.w.qp.solution())
-            .map(|(g, d)| g * d)
-            .sum()
-    }
-
-    fn kkt(&mut self, z: &DVector<f64>) -> (f64, f64) {
-        self.w.kkt(z)
-    }
+    step_slope_kkt!();
 
     fn kkt_test(&mut self, z: &DVector<f64>, kkt_tol: f64, feas_tol: f64) -> KktTest {
         self.w.kkt_test(z, kkt_tol, feas_tol)
@@ -909,6 +864,108 @@ pub(crate) fn held_layout(a: &mut [f64], b: &mut [f64], n: usize) {
             bj[c * nx + 2 * n + c] = 1.0;
         }
     }
+}
+
+/// The `step`, `slope` and `kkt` of [`SqpSteps`] for a stage back-end whose workspace `w` holds
+/// the step `dz`, the gradient `grad` and the QP `qp` in trajectory layout, and a `kkt` method:
+/// the slope is `gᵀd` over the whole trajectory (states are linear in the increments along the
+/// step).
+macro_rules! step_slope_kkt {
+    () => {
+        fn step(&self) -> &DVector<f64> {
+            &self.w.dz
+        }
+
+        fn slope(&self) -> f64 {
+            self.w
+                .grad
+                .iter()
+                .zip(self.w.qp.solution())
+                .map(|(g, d)| g * d)
+                .sum()
+        }
+
+        fn kkt(&mut self, z: &DVector<f64>) -> (f64, f64) {
+            self.w.kkt(z)
+        }
+    };
+}
+pub(super) use step_slope_kkt;
+
+/// The step `dz` (the increments) from the QP's solution in trajectory layout (inputs first).
+#[inline]
+pub(super) fn copy_step(dz: &mut DVector<f64>, sol: &[f64]) {
+    let n = dz.len();
+    dz.as_mut_slice().copy_from_slice(&sol[..n]);
+}
+
+/// The trial point becomes the current one: its cumulative torques and its gradient (in
+/// trajectory layout, the QP's linear term of the last evaluation).
+#[inline]
+pub(super) fn accept_trial(torques: &mut [f64], trial: &[f64], grad: &mut [f64], g: &[f64]) {
+    torques.copy_from_slice(trial);
+    grad.copy_from_slice(g);
+}
+
+/// Writes the non-constant entries of the held-input stage `A_j = [[F_j, G_j], [0, I]]`,
+/// `B_j = [G_j; I]` (state `[q, qd, T]`, column-major `3N × 3N` and `3N × N`) from the step
+/// Jacobian `g`; the zero and identity entries are the caller's.
+#[inline]
+pub(super) fn write_stage_jacobian<const N: usize>(
+    g: &StepJacobian<N>,
+    aj: &mut [f64],
+    bj: Option<&mut [f64]>,
+) {
+    let nx = 3 * N;
+    for c in 0..N {
+        for r in 0..N {
+            aj[c * nx + r] = g.qq[(r, c)];
+            aj[c * nx + N + r] = g.vq[(r, c)];
+            aj[(N + c) * nx + r] = g.qv[(r, c)];
+            aj[(N + c) * nx + N + r] = g.vv[(r, c)];
+            aj[(2 * N + c) * nx + r] = g.qu[(r, c)];
+            aj[(2 * N + c) * nx + N + r] = g.vu[(r, c)];
+        }
+    }
+    if let Some(bj) = bj {
+        for c in 0..N {
+            for r in 0..N {
+                bj[c * nx + r] = g.qu[(r, c)];
+                bj[c * nx + N + r] = g.vu[(r, c)];
+            }
+        }
+    }
+}
+
+/// The tracking residuals of eq. 7 at the state `x` reached at time `tj` (position against the
+/// human's extrapolated angle, velocity through [`NmpcProblem::velocity_residual`]): adds
+/// `‖r‖²` to `sum` and, with `grad = (μ, g_x)`, writes the state gradient of `μ ½‖r‖²` into
+/// `g_x` (`μ r_q`, `μ √r_d Lᵀ r_v`, zero for the torques). Returns whether every residual is
+/// finite.
+#[inline]
+pub(super) fn stage_residual<const N: usize>(
+    problem: &NmpcProblem<N>,
+    x: &JointState<f64, N>,
+    tj: f64,
+    sqrt_rd: f64,
+    sum: &mut f64,
+    grad: Option<(f64, &mut [f64])>,
+) -> bool {
+    let inp = &problem.inputs;
+    let (rv, ltrv) = problem.velocity_residual(&x.qd, sqrt_rd);
+    let mut finite = true;
+    let mut grad = grad;
+    for a in 0..N {
+        let rq = x.q[a] - (inp.q_h[a] + tj * inp.qd_h[a]);
+        *sum += rq * rq + rv[a] * rv[a];
+        finite &= rq.is_finite() && rv[a].is_finite();
+        if let Some((mu, g)) = grad.as_mut() {
+            g[a] = *mu * rq;
+            g[N + a] = *mu * sqrt_rd * ltrv[a];
+            g[2 * N + a] = 0.0;
+        }
+    }
+    finite
 }
 
 #[cfg(test)]

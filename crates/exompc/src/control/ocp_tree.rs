@@ -15,6 +15,7 @@
 
 use super::nmpc_problem::QpBackend;
 use super::nmpc_problem::{NmpcProblem, NmpcSettings};
+use super::ocp::{accept_trial, copy_step, stage_residual, step_slope_kkt, write_stage_jacobian};
 use super::prediction::StepJacobian;
 use super::TorqueLimits;
 #[cfg(not(feature = "std"))]
@@ -234,45 +235,26 @@ impl<const N: usize> TreeWork<N> {
                     let aj = &mut self.qp.a[ao..ao + nx * nx];
                     aj.fill(0.0);
                     for c in 0..N {
-                        for r in 0..N {
-                            aj[c * nx + r] = g.qq[(r, c)];
-                            aj[c * nx + N + r] = g.vq[(r, c)];
-                            aj[(N + c) * nx + r] = g.qv[(r, c)];
-                            aj[(N + c) * nx + N + r] = g.vv[(r, c)];
-                            aj[(2 * N + c) * nx + r] = g.qu[(r, c)];
-                            aj[(2 * N + c) * nx + N + r] = g.vu[(r, c)];
-                        }
                         aj[(2 * N + c) * nx + 2 * N + c] = 1.0;
                     }
-                    if j < nc {
+                    let bj = (j < nc).then(|| {
                         let bo = (i * nc + j) * nx * N;
                         let bj = &mut self.qp.b[bo..bo + nx * N];
                         bj.fill(0.0);
                         for c in 0..N {
-                            for r in 0..N {
-                                bj[c * nx + r] = g.qu[(r, c)];
-                                bj[c * nx + N + r] = g.vu[(r, c)];
-                            }
                             bj[c * nx + 2 * N + c] = 1.0;
                         }
-                    }
+                        bj
+                    });
+                    write_stage_jacobian(&g, aj, bj);
                     xn
                 } else {
                     problem.model.step_value_using(&consts, &x, &u, tau, &inp)
                 };
                 let tj = (j + 1) as f64 * dt;
                 let xo = nv + (i * np + j) * nx;
-                let (rv, ltrv) = problem.velocity_residual(&x.qd, sqrt_rd);
-                for a in 0..N {
-                    let rq = x.q[a] - (inp.q_h[a] + tj * inp.qd_h[a]);
-                    sum += rq * rq + rv[a] * rv[a];
-                    finite &= rq.is_finite() && rv[a].is_finite();
-                    if jac {
-                        self.qp.g[xo + a] = mu * rq;
-                        self.qp.g[xo + N + a] = mu * sqrt_rd * ltrv[a];
-                        self.qp.g[xo + 2 * N + a] = 0.0;
-                    }
-                }
+                let grad = jac.then(|| (mu, &mut self.qp.g[xo..xo + nx]));
+                finite &= stage_residual(problem, &x, tj, sqrt_rd, &mut sum, grad);
             }
             for zk in &self.zi {
                 let rz = sqrt_rt * zk;
@@ -480,8 +462,7 @@ impl<const N: usize> SqpSteps for TreeSteps<'_, N> {
         w.qp.g.fill(0.0);
         w.shift_bounds(z);
         let qi = w.qp.solve();
-        let n = w.qp.num_inputs();
-        w.dz.as_mut_slice().copy_from_slice(&w.qp.solution()[..n]);
+        copy_step(&mut w.dz, w.qp.solution());
         qi
     }
 
@@ -492,8 +473,7 @@ impl<const N: usize> SqpSteps for TreeSteps<'_, N> {
     fn accept(&mut self, _z_old: Option<&DVector<f64>>, _z_new: &DVector<f64>) -> bool {
         // `evaluate` returns a non-finite cost when any linearisation entry is non-finite.
         let w = &mut *self.w;
-        w.torques.copy_from_slice(&w.torques_trial);
-        w.grad.copy_from_slice(&w.qp.g);
+        accept_trial(&mut w.torques, &w.torques_trial, &mut w.grad, &w.qp.g);
         true
     }
 
@@ -507,26 +487,9 @@ impl<const N: usize> SqpSteps for TreeSteps<'_, N> {
         w.qp.g.copy_from_slice(&w.grad);
         w.shift_bounds(z);
         let qi = w.qp.solve();
-        let n = w.qp.num_inputs();
-        w.dz.as_mut_slice().copy_from_slice(&w.qp.solution()[..n]);
+        copy_step(&mut w.dz, w.qp.solution());
         qi
     }
 
-    fn step(&self) -> &DVector<f64> {
-        &self.w.dz
-    }
-
-    fn slope(&self) -> f64 {
-        // gᵀd over the whole tree (states are linear in the increments along the step).
-        self.w
-            .grad
-            .iter()
-            .zip(self.w.qp.solution())
-            .map(|(g, d)| g * d)
-            .sum()
-    }
-
-    fn kkt(&mut self, z: &DVector<f64>) -> (f64, f64) {
-        self.w.kkt(z)
-    }
+    step_slope_kkt!();
 }

@@ -131,46 +131,26 @@ impl<const N: usize> PredictionModel<N> {
             let mut a = SMatrix::<f64, N, N>::zeros();
             let mut b = SMatrix::<f64, N, N>::zeros();
             for r in 0..N {
-                if let Some(e) = &s.q[r].eps.0 {
-                    for col in 0..N {
-                        a[(r, col)] = e[col];
-                    }
-                }
-                if let Some(e) = &s.qd[r].eps.0 {
-                    for col in 0..N {
-                        b[(r, col)] = e[col];
+                for (m, v) in [(&mut a, &s.q[r]), (&mut b, &s.qd[r])] {
+                    if let Some(e) = &v.eps.0 {
+                        for col in 0..N {
+                            m[(r, col)] = e[col];
+                        }
                     }
                 }
             }
             (a, b)
         };
-        let sq = self.step(
-            &JointState {
-                q: seed(&x.q),
-                qd: lift(&x.qd),
-            },
-            &lift(u),
-            tau0,
-            inp,
-        );
-        let sv = self.step(
-            &JointState {
-                q: lift(&x.q),
-                qd: seed(&x.qd),
-            },
-            &lift(u),
-            tau0,
-            inp,
-        );
-        let su = self.step(
-            &JointState {
-                q: lift(&x.q),
-                qd: lift(&x.qd),
-            },
-            &seed(u),
-            tau0,
-            inp,
-        );
+        // One pass seeded on `q`, `qd` or `u`.
+        let pass = |on: usize| {
+            let pick = |k: usize, v: &SVector<f64, N>| if on == k { seed(v) } else { lift(v) };
+            let x0 = JointState {
+                q: pick(0, &x.q),
+                qd: pick(1, &x.qd),
+            };
+            self.step(&x0, &pick(2, u), tau0, inp)
+        };
+        let (sq, sv, su) = (pass(0), pass(1), pass(2));
         let (qq, vq) = unpack(&sq);
         let (qv, vv) = unpack(&sv);
         let (qu, vu) = unpack(&su);
@@ -567,16 +547,8 @@ mod tests {
             let consts = StageConstants::new(m);
             let n = m.substeps.max(1);
             let h = m.dt / n as f64;
-            let (eye, zero) = (SMatrix::identity(), SMatrix::zeros());
             let mut s = *x;
-            let mut sens = StepJacobian {
-                qq: eye,
-                qv: zero,
-                vq: zero,
-                vv: eye,
-                qu: zero,
-                vu: zero,
-            };
+            let mut sens = StepJacobian::identity();
             for i in 0..n {
                 let t = tau0 + i as f64 * h;
                 let mut tr = None;

@@ -89,17 +89,8 @@ impl<const N: usize, T: StageTorque<N>> TailoredRk4<'_, N, T> {
     ) -> (JointState<f64, N>, StepJacobian<N>) {
         let n = self.substeps.max(1);
         let h = self.dt / n as f64;
-        let eye = SMatrix::<f64, N, N>::identity();
-        let zero = SMatrix::<f64, N, N>::zeros();
         let mut s = *x;
-        let mut sens = StepJacobian {
-            qq: eye,
-            qv: zero,
-            vq: zero,
-            vv: eye,
-            qu: zero,
-            vu: zero,
-        };
+        let mut sens = StepJacobian::identity();
         for i in 0..n {
             let t = tau0 + i as f64 * h;
             // The substep's first stage evaluates `sin`/`cos` of the link angles; the later
@@ -696,6 +687,20 @@ fn eye_plus<const N: usize>(h: f64, m: &SMatrix<f64, N, N>) -> SMatrix<f64, N, N
 }
 
 impl<const N: usize> StepJacobian<N> {
+    /// `[[I, 0, 0], [0, I, 0]]`: the sensitivity of the state to itself, where a step starts.
+    #[inline(always)]
+    pub(crate) fn identity() -> Self {
+        let (eye, zero) = (SMatrix::identity(), SMatrix::zeros());
+        StepJacobian {
+            qq: eye,
+            qv: zero,
+            vq: zero,
+            vv: eye,
+            qu: zero,
+            vu: zero,
+        }
+    }
+
     /// `[[I, 0, 0], [0, I, 0]] + h · d` (the identity sensitivity plus a stage's), formed
     /// without the exact additions of zero: the values of `identity.add_scaled(h, d)`.
     #[inline(always)]

@@ -10,7 +10,112 @@
 
 use super::cholesky::{chol_solve, cholesky};
 use super::qp::{QpInfo, QpSettings, QpStatus};
-use alloc::vec::Vec;
+use alloc::{vec, vec::Vec};
+
+/// The loop's workspace for a trajectory of `len` entries, owned by the solver: the point, the
+/// multipliers, the unit right-hand side of the normal solves and the active set.
+#[derive(Debug, Clone)]
+pub(crate) struct BoxWork {
+    /// Current primal point (the solution after a solve).
+    pub sol: Vec<f64>,
+    /// Multipliers in trajectory layout.
+    pub mult: Vec<f64>,
+    /// Zero but for the one entry of a normal solve's right-hand side.
+    pub unit: Vec<f64>,
+    /// Active bounds `(index, σ)`.
+    pub act: Vec<(usize, f64)>,
+    /// Multipliers of the active bounds.
+    pub mu: Vec<f64>,
+    /// Columns `H⁻¹ nᵢ` of the active bounds.
+    pub ycols: Vec<f64>,
+    /// `H⁻¹ n_p` of the entering bound.
+    pub yp: Vec<f64>,
+    /// Primal direction of the current dual step.
+    pub zdir: Vec<f64>,
+    /// `M = N_Wᵀ H⁻¹ N_W`.
+    pub mmat: Vec<f64>,
+    /// `r = M⁻¹ N_Wᵀ H⁻¹ n_p`.
+    pub rvec: Vec<f64>,
+}
+
+impl BoxWork {
+    /// Workspace for `len` trajectory entries and at most `cap` active bounds.
+    pub(crate) fn new(len: usize, cap: usize) -> Self {
+        Self {
+            sol: vec![0.0; len],
+            mult: vec![0.0; len],
+            unit: vec![0.0; len],
+            act: Vec::with_capacity(cap),
+            mu: vec![0.0; cap],
+            ycols: vec![0.0; cap * len],
+            yp: vec![0.0; len],
+            zdir: vec![0.0; len],
+            mmat: vec![0.0; cap * cap],
+            rvec: vec![0.0; cap],
+        }
+    }
+
+    /// The loop's view, with the solver's bounds.
+    pub(crate) fn parts<'a>(&'a mut self, lo: &'a [f64], hi: &'a [f64]) -> BoxParts<'a> {
+        BoxParts {
+            lo,
+            hi,
+            sol: &mut self.sol,
+            mult: &mut self.mult,
+            act: &mut self.act,
+            mu: &mut self.mu,
+            ycols: &mut self.ycols,
+            yp: &self.yp,
+            zdir: &mut self.zdir,
+            mmat: &mut self.mmat,
+            rvec: &mut self.rvec,
+        }
+    }
+}
+
+/// One solve of a box-constrained QP: clears the active set and the multipliers, reports
+/// non-finite data (`data_finite` false) and unusable bounds, runs `start` (the factorisation
+/// and the unconstrained minimiser into `sol`; `false` when not positive definite), then adds
+/// the violated bounds. `Ok` when the loop ran to its end (the caller adds the objective), `Err`
+/// with the status of an earlier stop.
+pub(crate) fn solve_box<Q: BoxDual>(
+    q: &mut Q,
+    settings: &QpSettings,
+    data_finite: bool,
+    start: impl FnOnce(&mut Q) -> bool,
+) -> Result<QpInfo, QpInfo> {
+    let mut info = QpInfo {
+        status: QpStatus::Solved,
+        iterations: 0,
+        objective: f64::NAN,
+    };
+    let stop = |status| {
+        Err(QpInfo {
+            status,
+            iterations: 0,
+            objective: f64::NAN,
+        })
+    };
+    {
+        let w = q.parts();
+        w.act.clear();
+        w.mult.fill(0.0);
+        if !data_finite {
+            return stop(QpStatus::NonFiniteInput);
+        }
+        if let Some(status) = bounds_status(w.lo, w.hi) {
+            return stop(status);
+        }
+    }
+    if !start(q) {
+        return stop(QpStatus::NumericalError);
+    }
+    if !add_violated_bounds(q, settings, &mut info) {
+        info.status = QpStatus::NumericalError;
+        return Err(info);
+    }
+    Ok(info)
+}
 
 /// The workspace the loop reads and writes, borrowed from the solver.
 pub(crate) struct BoxParts<'a> {
@@ -58,29 +163,36 @@ pub(crate) fn bounds_ordered(lo: &[f64], hi: &[f64]) -> bool {
     ok
 }
 
-/// Implements [`BoxDual`] for a solver whose workspace fields carry the names of
-/// [`BoxParts`] and which has an inherent `normal_solve(&mut self, id, sigma)`.
+/// Implements [`BoxDual`] for a solver with a [`BoxWork`] field `w`, bounds `lo`, `hi` and an
+/// inherent `normal_solve(&mut self, id, sigma)`, and the accessors of the solution.
 macro_rules! box_dual_from_fields {
     ($qp:ty) => {
         impl $crate::solver::active_set::BoxDual for $qp {
             fn parts(&mut self) -> $crate::solver::active_set::BoxParts<'_> {
-                $crate::solver::active_set::BoxParts {
-                    lo: &self.lo,
-                    hi: &self.hi,
-                    sol: &mut self.sol,
-                    mult: &mut self.mult,
-                    act: &mut self.act,
-                    mu: &mut self.mu,
-                    ycols: &mut self.ycols,
-                    yp: &self.yp,
-                    zdir: &mut self.zdir,
-                    mmat: &mut self.mmat,
-                    rvec: &mut self.rvec,
-                }
+                self.w.parts(&self.lo, &self.hi)
             }
 
             fn normal_solve(&mut self, id: usize, sigma: f64) {
                 <$qp>::normal_solve(self, id, sigma);
+            }
+        }
+
+        impl $qp {
+            /// The solution of the last solve, in trajectory layout.
+            pub fn solution(&self) -> &[f64] {
+                &self.w.sol
+            }
+
+            /// Multipliers of the bounds in trajectory layout, with the sign convention of
+            /// [`super::DenseQp`]: negative for an active lower bound, positive for an active
+            /// upper bound, so that `∇(objective) + Σ multᵢ ∇(trajectoryᵢ) = 0` at the solution.
+            pub fn multipliers(&self) -> &[f64] {
+                &self.w.mult
+            }
+
+            /// Number of active bounds at the last solution.
+            pub fn num_active(&self) -> usize {
+                self.w.act.len()
             }
         }
     };

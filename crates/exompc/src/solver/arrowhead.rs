@@ -26,9 +26,10 @@
 //! iterates are those of the dense method on the condensed QP and the solution agrees with
 //! [`super::DenseQp`] to rounding.
 
-use super::active_set::{add_violated_bounds, bounds_status, box_dual_from_fields};
+use super::active_set::{box_dual_from_fields, solve_box, BoxWork};
 use super::cholesky::{chol_solve, cholesky};
-use super::qp::{QpInfo, QpSettings, QpStatus};
+use super::qp::{QpInfo, QpSettings};
+use super::stage::{self, dim, quad, with_stage_size};
 use super::SolverError;
 use alloc::{vec, vec::Vec};
 
@@ -67,6 +68,7 @@ pub struct TreeQp {
     pm: Vec<f64>,
     pa: Vec<f64>,
     pb: Vec<f64>,
+    bpb: Vec<f64>,
     cm: Vec<f64>,
     cn: Vec<f64>,
     sbar: Vec<f64>,
@@ -78,17 +80,8 @@ pub struct TreeQp {
     kff: Vec<f64>,
     ev: Vec<f64>,
     xs: Vec<f64>,
-    // Solution, multipliers and active set.
-    sol: Vec<f64>,
-    mult: Vec<f64>,
-    unit: Vec<f64>,
-    act: Vec<(usize, f64)>,
-    mu: Vec<f64>,
-    ycols: Vec<f64>,
-    yp: Vec<f64>,
-    zdir: Vec<f64>,
-    mmat: Vec<f64>,
-    rvec: Vec<f64>,
+    /// Solution, multipliers and active set.
+    w: BoxWork,
 }
 
 /// Which scenarios' right-hand sides a sweep reads: `lo..hi`, backward from stage `top`.
@@ -113,21 +106,7 @@ impl TreeQp {
         settings: QpSettings,
     ) -> Result<Self, SolverError> {
         settings.validate()?;
-        let dim = |what, value: usize, ok: bool, allowed| {
-            if ok {
-                Ok(())
-            } else {
-                Err(SolverError::InvalidDimension {
-                    what,
-                    value,
-                    allowed,
-                })
-            }
-        };
-        dim("nx", nx, nx >= 1, "at least 1")?;
-        dim("nu", nu, nu >= 1, "at least 1")?;
-        dim("np", np, np >= 1, "at least 1")?;
-        dim("nc", nc, nc >= 1 && nc <= np, "1 ≤ nc ≤ np")?;
+        stage::check_dims(nx, nu, np, nc)?;
         dim("nr", nr, nr >= 1 && nr <= nc, "1 ≤ nr ≤ nc")?;
         dim("scenarios", ns, ns >= 1, "at least 1")?;
         let nsh = nr * nu;
@@ -154,6 +133,7 @@ impl TreeQp {
             pm: vec![0.0; (np + 1) * nx * nx],
             pa: vec![0.0; nx * nx],
             pb: vec![0.0; nx * nu],
+            bpb: vec![0.0; nu * nu],
             cm: vec![0.0; nx * nsh],
             cn: vec![0.0; nx * nsh],
             sbar: vec![0.0; ns * nc * nu * nx],
@@ -164,16 +144,7 @@ impl TreeQp {
             kff: vec![0.0; ns * nc * nu],
             ev: vec![0.0; nsh],
             xs: vec![0.0; nx],
-            sol: vec![0.0; len],
-            mult: vec![0.0; len],
-            unit: vec![0.0; len],
-            act: Vec::with_capacity(cap),
-            mu: vec![0.0; cap],
-            ycols: vec![0.0; cap * len],
-            yp: vec![0.0; len],
-            zdir: vec![0.0; len],
-            mmat: vec![0.0; cap * cap],
-            rvec: vec![0.0; cap],
+            w: BoxWork::new(len, cap),
         })
     }
 
@@ -213,34 +184,14 @@ impl TreeQp {
         self.num_inputs() + (i * self.np + j - 1) * self.nx + k
     }
 
-    /// The solution of the last solve, in trajectory layout.
-    pub fn solution(&self) -> &[f64] {
-        &self.sol
-    }
-
-    /// Multipliers of the bounds in trajectory layout, with the sign convention of
-    /// [`super::DenseQp`]: negative for an active lower bound, positive for an active upper
-    /// bound, so that `∇(objective) + Σ multᵢ ∇(trajectoryᵢ) = 0` at the solution.
-    pub fn multipliers(&self) -> &[f64] {
-        &self.mult
-    }
-
-    /// Number of active bounds at the last solution.
-    pub fn num_active(&self) -> usize {
-        self.act.len()
-    }
-
     /// Largest diagonal entry of the condensed Hessian (in the inputs) of the current data:
     /// for scenario `i`'s input `(j, k)`, `(R_{i,j} + B_{i,j}ᵀ V_{i,j} B_{i,j})_kk` with
     /// `V_{i,Np−1} = Q_{i,Np}`, `V_{i,j} = Q_{i,j+1} + A_{i,j+1}ᵀ V_{i,j+1} A_{i,j+1}`; for a
     /// shared input the sum over the scenarios plus `R̄_j`. Uses the factor workspace (call
     /// before [`Self::solve`]); `O(S·Np·nx³)`.
     pub fn max_condensed_diagonal(&mut self) -> f64 {
-        match (self.nx, self.nu) {
-            (3, 1) => self.max_condensed_diagonal_dims(3, 1),
-            (6, 2) => self.max_condensed_diagonal_dims(6, 2),
-            (nx, nu) => self.max_condensed_diagonal_dims(nx, nu),
-        }
+        with_stage_size!((self.nx, self.nu), |nx, nu| self
+            .max_condensed_diagonal_dims(nx, nu))
     }
 
     #[inline(always)]
@@ -262,39 +213,19 @@ impl TreeQp {
             for j in (0..np).rev() {
                 if j + 1 < np {
                     let a = &self.a[ab + (j + 1) * n2..ab + (j + 2) * n2];
-                    // pa = V A.
-                    for c in 0..nx {
-                        for r in 0..nx {
-                            let mut s = 0.0;
-                            for t in 0..nx {
-                                s += v[t * nx + r] * a[c * nx + t];
-                            }
-                            self.pa[c * nx + r] = s;
-                        }
-                    }
+                    stage::p_times(nx, nx, v, a, &mut self.pa);
                     let qj = &self.q[ab + j * n2..ab + (j + 1) * n2];
-                    for c in 0..nx {
-                        for r in 0..=c {
-                            let mut s = qj[c * nx + r];
-                            for t in 0..nx {
-                                s += a[r * nx + t] * self.pa[c * nx + t];
-                            }
-                            v[c * nx + r] = s;
-                            v[r * nx + c] = s;
-                        }
-                    }
+                    stage::cost_to_go(nx, nu, qj, a, &self.pa, None, v);
                 }
                 if j < nc {
                     let b = &self.b[(i * nc + j) * nx * nu..(i * nc + j + 1) * nx * nu];
+                    // diag(Bᵀ V B) from P B.
+                    stage::p_times(nx, nu, v, b, &mut self.pb);
                     for k in 0..nu {
                         let col = &b[k * nx..(k + 1) * nx];
                         let mut d = 0.0;
-                        for c in 0..nx {
-                            let mut vb = 0.0;
-                            for r in 0..nx {
-                                vb += v[c * nx + r] * col[r];
-                            }
-                            d += col[c] * vb;
+                        for (c, bc) in col.iter().enumerate() {
+                            d += bc * self.pb[k * nx + c];
                         }
                         if j < nr {
                             self.ev[j * nu + k] += d;
@@ -316,11 +247,7 @@ impl TreeQp {
     /// `false` when a reduced Hessian is not numerically positive definite.
     fn factor(&mut self) -> bool {
         // The NMPC's stage sizes (1-DOF, 2-DOF) as constants: unrolled, bounds checks removed.
-        match (self.nx, self.nu) {
-            (3, 1) => self.factor_dims(3, 1),
-            (6, 2) => self.factor_dims(6, 2),
-            (nx, nu) => self.factor_dims(nx, nu),
-        }
+        with_stage_size!((self.nx, self.nu), |nx, nu| self.factor_dims(nx, nu))
     }
 
     #[inline(always)]
@@ -338,81 +265,33 @@ impl TreeQp {
                 let (head, tail) = self.pm.split_at_mut((j + 1) * n2);
                 let p = &tail[..n2];
                 let a = &self.a[ab + j * n2..ab + (j + 1) * n2];
-                for c in 0..nx {
-                    for rr in 0..nx {
-                        let mut s = 0.0;
-                        for k in 0..nx {
-                            s += p[k * nx + rr] * a[c * nx + k];
-                        }
-                        self.pa[c * nx + rr] = s;
-                    }
-                }
+                stage::p_times(nx, nx, p, a, &mut self.pa);
                 let st = i * nc + j;
+                let sx = st * nu * nx..(st + 1) * nu * nx;
                 if j < nc {
                     let b = &self.b[st * nx * nu..(st + 1) * nx * nu];
-                    for c in 0..nu {
-                        for rr in 0..nx {
-                            let mut s = 0.0;
-                            for k in 0..nx {
-                                s += p[k * nx + rr] * b[c * nx + k];
-                            }
-                            self.pb[c * nx + rr] = s;
-                        }
-                    }
+                    stage::p_times(nx, nu, p, b, &mut self.pb);
                     let l = &mut self.lchol[st * nu * nu..(st + 1) * nu * nu];
                     let rij = (i * (nc - nr) + j - nr) * nu * nu;
-                    let rj = &self.r[rij..rij + nu * nu];
-                    for c in 0..nu {
-                        for rr in 0..nu {
-                            let mut s = rj[c * nu + rr];
-                            for k in 0..nx {
-                                s += b[rr * nx + k] * self.pb[c * nx + k];
-                            }
-                            l[c * nu + rr] = s;
-                        }
-                    }
-                    let sb = &mut self.sbar[st * nu * nx..(st + 1) * nu * nx];
-                    for c in 0..nx {
-                        for rr in 0..nu {
-                            let mut s = 0.0;
-                            for k in 0..nx {
-                                s += b[rr * nx + k] * self.pa[c * nx + k];
-                            }
-                            sb[c * nu + rr] = s;
-                        }
-                    }
-                    if !cholesky(l, nu) {
+                    stage::bt_times(nx, nu, nu, Some(&self.r[rij..]), b, &self.pb, l);
+                    let sb = &mut self.sbar[sx.clone()];
+                    stage::bt_times(nx, nu, nx, None, b, &self.pa, sb);
+                    if !stage::stage_gain(nx, nu, l, sb, &mut self.kgain[sx.clone()], None) {
                         return false;
-                    }
-                    let kg = &mut self.kgain[st * nu * nx..(st + 1) * nu * nx];
-                    for c in 0..nx {
-                        let col = &mut kg[c * nu..(c + 1) * nu];
-                        for rr in 0..nu {
-                            col[rr] = -sb[c * nu + rr];
-                        }
-                        chol_solve(l, nu, col);
                     }
                 }
                 // P_j = Q_j + AᵀPA (+ sbarᵀK); j ≥ Nr ≥ 1.
-                let pj = &mut head[j * n2..(j + 1) * n2];
+                let gain = (j < nc).then(|| (&self.sbar[sx.clone()], &self.kgain[sx]));
                 let qj = &self.q[ab + (j - 1) * n2..ab + j * n2];
-                for c in 0..nx {
-                    for rr in 0..=c {
-                        let mut s = qj[c * nx + rr];
-                        for k in 0..nx {
-                            s += a[rr * nx + k] * self.pa[c * nx + k];
-                        }
-                        if j < nc {
-                            let sb = &self.sbar[st * nu * nx..(st + 1) * nu * nx];
-                            let kg = &self.kgain[st * nu * nx..(st + 1) * nu * nx];
-                            for t in 0..nu {
-                                s += sb[rr * nu + t] * kg[c * nu + t];
-                            }
-                        }
-                        pj[c * nx + rr] = s;
-                        pj[rr * nx + c] = s;
-                    }
-                }
+                stage::cost_to_go(
+                    nx,
+                    nu,
+                    qj,
+                    a,
+                    &self.pa,
+                    gain,
+                    &mut head[j * n2..(j + 1) * n2],
+                );
             }
             // Shared stages j = Nr−1 .. 0, shared inputs as parameters: C_{j+1} in `cm`
             // (columns (j+1)·nu .. Nr·nu), contributions to the lower part of `hs`.
@@ -420,23 +299,12 @@ impl TreeQp {
                 let p = &self.pm[(j + 1) * n2..(j + 2) * n2];
                 let st = i * nc + j;
                 let b = &self.b[st * nx * nu..(st + 1) * nx * nu];
-                for c in 0..nu {
-                    for rr in 0..nx {
-                        let mut s = 0.0;
-                        for k in 0..nx {
-                            s += p[k * nx + rr] * b[c * nx + k];
-                        }
-                        self.pb[c * nx + rr] = s;
-                    }
-                }
+                stage::p_times(nx, nu, p, b, &mut self.pb);
+                stage::bt_times(nx, nu, nu, None, b, &self.pb, &mut self.bpb);
                 let jo = j * nu;
                 for c in 0..nu {
                     for rr in c..nu {
-                        let mut s = 0.0;
-                        for k in 0..nx {
-                            s += b[rr * nx + k] * self.pb[c * nx + k];
-                        }
-                        self.hs[(jo + c) * nsh + jo + rr] += s;
+                        self.hs[(jo + c) * nsh + jo + rr] += self.bpb[c * nu + rr];
                     }
                 }
                 // Block (k, j), k > j: (B_jᵀ C_{j+1})ᵀ.
@@ -455,48 +323,21 @@ impl TreeQp {
                 }
                 let a = &self.a[ab + j * n2..ab + (j + 1) * n2];
                 // C_j = [Aᵀ P B, Aᵀ C_{j+1}].
-                for c in 0..nu {
-                    for rr in 0..nx {
-                        let mut s = 0.0;
-                        for k in 0..nx {
-                            s += a[rr * nx + k] * self.pb[c * nx + k];
-                        }
-                        self.cn[(jo + c) * nx + rr] = s;
-                    }
-                }
-                for col in (j + 1) * nu..nsh {
-                    for rr in 0..nx {
-                        let mut s = 0.0;
-                        for k in 0..nx {
-                            s += a[rr * nx + k] * self.cm[col * nx + k];
-                        }
-                        self.cn[col * nx + rr] = s;
-                    }
-                }
+                let (cj, cn) = (jo * nx, (j + 1) * nu * nx);
+                stage::at_times(nx, nu, a, &self.pb, &mut self.cn[cj..cn]);
+                stage::at_times(
+                    nx,
+                    nsh - (j + 1) * nu,
+                    a,
+                    &self.cm[cn..],
+                    &mut self.cn[cn..],
+                );
                 core::mem::swap(&mut self.cm, &mut self.cn);
                 // P_j = Q_j + AᵀPA.
-                for c in 0..nx {
-                    for rr in 0..nx {
-                        let mut s = 0.0;
-                        for k in 0..nx {
-                            s += p[k * nx + rr] * a[c * nx + k];
-                        }
-                        self.pa[c * nx + rr] = s;
-                    }
-                }
+                stage::p_times(nx, nx, p, a, &mut self.pa);
                 let qj = &self.q[ab + (j - 1) * n2..ab + j * n2];
                 let (head, _) = self.pm.split_at_mut((j + 1) * n2);
-                let pj = &mut head[j * n2..];
-                for c in 0..nx {
-                    for rr in 0..=c {
-                        let mut s = qj[c * nx + rr];
-                        for k in 0..nx {
-                            s += a[rr * nx + k] * self.pa[c * nx + k];
-                        }
-                        pj[c * nx + rr] = s;
-                        pj[rr * nx + c] = s;
-                    }
-                }
+                stage::cost_to_go(nx, nu, qj, a, &self.pa, None, &mut head[j * n2..]);
             }
         }
         for j in 0..nr {
@@ -520,11 +361,8 @@ impl TreeQp {
     /// where `lin` (`g` or `unit`) is zero outside the shared inputs and the scenarios of `act`,
     /// and in those zero on every stage after `act.top`.
     fn sweep(&mut self, use_unit: bool, act: Active, out_is_yp: bool) {
-        match (self.nx, self.nu) {
-            (3, 1) => self.sweep_dims(3, 1, use_unit, act, out_is_yp),
-            (6, 2) => self.sweep_dims(6, 2, use_unit, act, out_is_yp),
-            (nx, nu) => self.sweep_dims(nx, nu, use_unit, act, out_is_yp),
-        }
+        with_stage_size!((self.nx, self.nu), |nx, nu| self
+            .sweep_dims(nx, nu, use_unit, act, out_is_yp))
     }
 
     #[inline(always)]
@@ -533,7 +371,7 @@ impl TreeQp {
         let n2 = nx * nx;
         let nsh = nr * nu;
         let nv = self.num_inputs();
-        let lin: &[f64] = if use_unit { &self.unit } else { &self.g };
+        let lin: &[f64] = if use_unit { &self.w.unit } else { &self.g };
         self.ev.fill(0.0);
         for i in act.lo..act.hi {
             let ab = i * np * n2;
@@ -551,35 +389,19 @@ impl TreeQp {
                 let (head, tail) = self.pv.split_at_mut((j + 1) * nx);
                 let pn = &tail[..nx];
                 let st = i * nc + j;
+                let su = st * nu..(st + 1) * nu;
                 if j < nc {
                     let b = &self.b[st * nx * nu..(st + 1) * nx * nu];
-                    let k = &mut self.kff[st * nu..(st + 1) * nu];
+                    let l = &self.lchol[st * nu * nu..(st + 1) * nu * nu];
                     let uo = ub + (j - nr) * nu;
-                    for t in 0..nu {
-                        let mut s = lin[uo + t];
-                        for c in 0..nx {
-                            s += b[t * nx + c] * pn[c];
-                        }
-                        k[t] = -s;
-                    }
-                    chol_solve(&self.lchol[st * nu * nu..(st + 1) * nu * nu], nu, k);
+                    let k = &mut self.kff[su.clone()];
+                    stage::feed_forward(nx, nu, b, &lin[uo..uo + nu], pn, (l, None), k);
                 }
                 let a = &self.a[ab + j * n2..ab + (j + 1) * n2];
-                let pj = &mut head[j * nx..(j + 1) * nx];
                 let xo = xb + (j - 1) * nx;
-                for c in 0..nx {
-                    let mut s = lin[xo + c];
-                    for t in 0..nx {
-                        s += a[c * nx + t] * pn[t];
-                    }
-                    if j < nc {
-                        let sb = &self.sbar[st * nu * nx..(st + 1) * nu * nx];
-                        for t in 0..nu {
-                            s += sb[c * nu + t] * self.kff[st * nu + t];
-                        }
-                    }
-                    pj[c] = s;
-                }
+                let gain =
+                    (j < nc).then(|| (&self.sbar[st * nu * nx..(st + 1) * nu * nx], &self.kff[su]));
+                stage::costate(nx, nu, a, &lin[xo..xo + nx], pn, gain, &mut head[j * nx..]);
             }
             // Shared stages: e_j += B_jᵀ p_{j+1}, p_j = lin_x_j + A_jᵀ p_{j+1}.
             for j in (0..nr.min(top + 1)).rev() {
@@ -598,22 +420,15 @@ impl TreeQp {
                     break;
                 }
                 let a = &self.a[ab + j * n2..ab + (j + 1) * n2];
-                let pj = &mut head[j * nx..(j + 1) * nx];
                 let xo = xb + (j - 1) * nx;
-                for c in 0..nx {
-                    let mut s = lin[xo + c];
-                    for t in 0..nx {
-                        s += a[c * nx + t] * pn[t];
-                    }
-                    pj[c] = s;
-                }
+                stage::costate(nx, nu, a, &lin[xo..xo + nx], pn, None, &mut head[j * nx..]);
             }
         }
         // Shared inputs: s = −Hs⁻¹ (e + lin_s).
         let out: &mut [f64] = if out_is_yp {
-            &mut self.yp
+            &mut self.w.yp
         } else {
-            &mut self.sol
+            &mut self.w.sol
         };
         for k in 0..nsh {
             out[k] = -(self.ev[k] + lin[k]);
@@ -629,31 +444,21 @@ impl TreeQp {
             for j in 0..np {
                 let a = &self.a[ab + j * n2..ab + (j + 1) * n2];
                 let xo = xb + j * nx;
-                for rr in 0..nx {
-                    let mut s = 0.0;
-                    for c in 0..nx {
-                        s += a[c * nx + rr] * self.xs[c];
-                    }
-                    out[xo + rr] = s;
-                }
+                stage::a_times(nx, a, &self.xs, &mut out[xo..xo + nx]);
                 if j < nc {
                     let st = i * nc + j;
                     let b = &self.b[st * nx * nu..(st + 1) * nx * nu];
+                    let kg = &self.kgain[st * nu * nx..(st + 1) * nu * nx];
                     for t in 0..nu {
                         let v = if j < nr {
                             out[j * nu + t]
                         } else {
-                            let kg = &self.kgain[st * nu * nx..(st + 1) * nu * nx];
-                            let mut s = if own { self.kff[st * nu + t] } else { 0.0 };
-                            for c in 0..nx {
-                                s += kg[c * nu + t] * self.xs[c];
-                            }
+                            let kf = if own { self.kff[st * nu + t] } else { 0.0 };
+                            let s = stage::feedback(nx, nu, t, kf, kg, &self.xs);
                             out[ub + (j - nr) * nu + t] = s;
                             s
                         };
-                        for rr in 0..nx {
-                            out[xo + rr] += b[t * nx + rr] * v;
-                        }
+                        stage::add_input(nx, b, t, v, &mut out[xo..xo + nx]);
                     }
                 }
                 self.xs.copy_from_slice(&out[xo..xo + nx]);
@@ -690,42 +495,33 @@ impl TreeQp {
                 top,
             }
         };
-        self.unit[id] = 1.0;
+        self.w.unit[id] = 1.0;
         self.sweep(true, act, true);
-        self.unit[id] = 0.0;
+        self.w.unit[id] = 0.0;
         // The sweep gives −H⁻¹ e; the normal is σ e.
-        for v in self.yp.iter_mut() {
+        for v in self.w.yp.iter_mut() {
             *v *= -sigma;
         }
     }
 
-    /// Objective `½wᵀHw + gᵀw` of the trajectory `w = self.sol`.
+    /// Objective `½wᵀHw + gᵀw` of the trajectory `w = self.w.sol`.
     fn objective(&self) -> f64 {
         let (nx, nu, nr) = (self.nx, self.nu, self.nr);
         let nsh = nr * nu;
         let nv = self.num_inputs();
-        let quad = |w: &[f64], m: &[f64], n: usize| {
-            let mut f = 0.0;
-            for c in 0..n {
-                for rr in 0..n {
-                    f += 0.5 * w[rr] * m[c * n + rr] * w[c];
-                }
-            }
-            f
-        };
-        let mut f: f64 = self.sol.iter().zip(&self.g).map(|(w, g)| w * g).sum();
+        let mut f: f64 = self.w.sol.iter().zip(&self.g).map(|(w, g)| w * g).sum();
         for j in 0..nr {
             f += quad(
-                &self.sol[j * nu..(j + 1) * nu],
+                &self.w.sol[j * nu..(j + 1) * nu],
                 &self.r_shared[j * nu * nu..(j + 1) * nu * nu],
                 nu,
             );
         }
         for (k, rk) in self.r.chunks_exact(nu * nu).enumerate() {
-            f += quad(&self.sol[nsh + k * nu..nsh + (k + 1) * nu], rk, nu);
+            f += quad(&self.w.sol[nsh + k * nu..nsh + (k + 1) * nu], rk, nu);
         }
         for (k, qk) in self.q.chunks_exact(nx * nx).enumerate() {
-            f += quad(&self.sol[nv + k * nx..nv + (k + 1) * nx], qk, nx);
+            f += quad(&self.w.sol[nv + k * nx..nv + (k + 1) * nx], qk, nx);
         }
         f
     }
@@ -733,13 +529,6 @@ impl TreeQp {
     /// Solves the QP with the current data. Never panics and allocates nothing; the solution is
     /// [`Self::solution`] and the multipliers [`Self::multipliers`].
     pub fn solve(&mut self) -> QpInfo {
-        let mut info = QpInfo {
-            status: QpStatus::Solved,
-            iterations: 0,
-            objective: f64::NAN,
-        };
-        self.act.clear();
-        self.mult.fill(0.0);
         let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
         let data_finite = finite(&self.a)
             && finite(&self.b)
@@ -747,31 +536,25 @@ impl TreeQp {
             && finite(&self.r)
             && finite(&self.r_shared)
             && finite(&self.g);
-        if !data_finite {
-            info.status = QpStatus::NonFiniteInput;
-            return info;
-        }
-        if let Some(status) = bounds_status(&self.lo, &self.hi) {
-            info.status = status;
-            return info;
-        }
-        if !self.factor() {
-            info.status = QpStatus::NumericalError;
-            return info;
-        }
-        let all = Active {
-            lo: 0,
-            hi: self.ns,
-            top: self.np - 1,
-        };
-        self.sweep(false, all, false);
         let settings = self.settings;
-        if !add_violated_bounds(self, &settings, &mut info) {
-            info.status = QpStatus::NumericalError;
-            return info;
+        let start = |qp: &mut Self| {
+            let all = Active {
+                lo: 0,
+                hi: qp.ns,
+                top: qp.np - 1,
+            };
+            qp.factor() && {
+                qp.sweep(false, all, false);
+                true
+            }
+        };
+        match solve_box(self, &settings, data_finite, start) {
+            Ok(mut info) => {
+                info.objective = self.objective();
+                info
+            }
+            Err(info) => info,
         }
-        info.objective = self.objective();
-        info
     }
 }
 

@@ -25,6 +25,7 @@ pub mod qp;
 pub mod riccati;
 mod settings;
 pub mod sqp;
+mod stage;
 
 pub use arrowhead::TreeQp;
 pub use qp::{DenseQp, QpInfo, QpSettings, QpStatus};

@@ -24,9 +24,10 @@
 //! Goldfarb–Idnani method on the condensed QP (same `H`, `g`, constraints), so the solution agrees
 //! with [`super::DenseQp`] to rounding.
 
-use super::active_set::{add_violated_bounds, bounds_status, box_dual_from_fields};
-use super::cholesky::{chol_solve, cholesky};
+use super::active_set::{box_dual_from_fields, solve_box, BoxWork};
+use super::cholesky::chol_solve;
 use super::qp::{QpInfo, QpSettings, QpStatus};
+use super::stage::{self, neg_adjugate_solve};
 use super::SolverError;
 use alloc::{vec, vec::Vec};
 use nalgebra::{SMatrix, SVector};
@@ -72,17 +73,8 @@ pub struct RiccatiQp {
     /// factorisations, see [`neg_adjugate_solve`]).
     madj: Vec<f64>,
     xs: Vec<f64>,
-    // Solution, multipliers and active set.
-    sol: Vec<f64>,
-    mult: Vec<f64>,
-    unit: Vec<f64>,
-    act: Vec<(usize, f64)>,
-    mu: Vec<f64>,
-    ycols: Vec<f64>,
-    yp: Vec<f64>,
-    zdir: Vec<f64>,
-    mmat: Vec<f64>,
-    rvec: Vec<f64>,
+    /// Solution, multipliers and active set.
+    w: BoxWork,
     /// The data of the last factorisation has the held-input form
     /// ([`Self::held_input_structure`]); the sweeps then skip its zero and identity blocks.
     held: bool,
@@ -107,21 +99,7 @@ impl RiccatiQp {
         settings: QpSettings,
     ) -> Result<Self, SolverError> {
         settings.validate()?;
-        let dim = |what, value: usize, ok: bool, allowed| {
-            if ok {
-                Ok(())
-            } else {
-                Err(SolverError::InvalidDimension {
-                    what,
-                    value,
-                    allowed,
-                })
-            }
-        };
-        dim("nx", nx, nx >= 1, "at least 1")?;
-        dim("nu", nu, nu >= 1, "at least 1")?;
-        dim("np", np, np >= 1, "at least 1")?;
-        dim("nc", nc, nc >= 1 && nc <= np, "1 ≤ nc ≤ np")?;
+        stage::check_dims(nx, nu, np, nc)?;
         let len = nc * nu + np * nx;
         // At most nc·nu linearly independent active constraints; one spare for the entering one.
         let cap = nc * nu + 1;
@@ -149,16 +127,7 @@ impl RiccatiQp {
             kff: vec![0.0; nc * nu],
             madj: vec![0.0; nc * 4],
             xs: vec![0.0; nx],
-            sol: vec![0.0; len],
-            mult: vec![0.0; len],
-            unit: vec![0.0; len],
-            act: Vec::with_capacity(cap),
-            mu: vec![0.0; cap],
-            ycols: vec![0.0; cap * len],
-            yp: vec![0.0; len],
-            zdir: vec![0.0; len],
-            mmat: vec![0.0; cap * cap],
-            rvec: vec![0.0; cap],
+            w: BoxWork::new(len, cap),
             held: false,
             cross: false,
             held_known: false,
@@ -184,23 +153,6 @@ impl RiccatiQp {
     /// Index of component `i` of state `x_j`, `1 ≤ j ≤ Np`, in trajectory layout.
     pub fn x_index(&self, j: usize, i: usize) -> usize {
         self.nc * self.nu + (j - 1) * self.nx + i
-    }
-
-    /// The solution `(u, x)` of the last solve, in trajectory layout.
-    pub fn solution(&self) -> &[f64] {
-        &self.sol
-    }
-
-    /// Multipliers of the bounds in trajectory layout, with the sign convention of
-    /// [`super::DenseQp`]: negative for an active lower bound, positive for an active upper
-    /// bound, so that `∇(objective) + Σ multᵢ ∇(trajectoryᵢ) = 0` at the solution.
-    pub fn multipliers(&self) -> &[f64] {
-        &self.mult
-    }
-
-    /// Number of active bounds at the last solution.
-    pub fn num_active(&self) -> usize {
-        self.act.len()
     }
 
     /// Declares that every `A_j`, `B_j` this solver will be given has the held-input form of
@@ -397,20 +349,11 @@ impl RiccatiQp {
         j: usize,
         sb: &SMatrix<f64, NU, NX>,
     ) -> Option<SMatrix<f64, NU, NX>> {
+        let mut kg = SMatrix::<f64, NU, NX>::zeros();
+        let adj = (NU == 2 && !self.cross).then_some(&mut self.madj[j * 4..(j + 1) * 4]);
         let ls = &mut self.lchol[j * NU * NU..(j + 1) * NU * NU];
-        let m = [ls[0], ls[NU * NU / 2], ls[NU * NU - 1]];
-        if !cholesky(ls, NU) {
+        if !stage::stage_gain(NX, NU, ls, sb.as_slice(), kg.as_mut_slice(), adj) {
             return None;
-        }
-        let mut kg = -sb;
-        if NU == 2 && !self.cross {
-            let adj = adjugate_2x2(m);
-            self.madj[j * 4..(j + 1) * 4].copy_from_slice(&adj);
-            gain_2x2(&adj, sb.as_slice(), kg.as_mut_slice());
-        } else {
-            for c in 0..NX {
-                chol_solve(ls, NU, &mut kg.as_mut_slice()[c * NU..(c + 1) * NU]);
-            }
         }
         self.sbar[j * NU * NX..(j + 1) * NU * NX].copy_from_slice(sb.as_slice());
         self.kgain[j * NU * NX..(j + 1) * NU * NX].copy_from_slice(kg.as_slice());
@@ -426,94 +369,42 @@ impl RiccatiQp {
             let (head, tail) = self.pm.split_at_mut((j + 1) * n2);
             let p = &tail[..n2];
             let a = &self.a[j * n2..(j + 1) * n2];
-            // PA = P A.
-            for c in 0..nx {
-                for rr in 0..nx {
-                    let mut s = 0.0;
-                    for k in 0..nx {
-                        s += p[k * nx + rr] * a[c * nx + k];
-                    }
-                    self.pa[c * nx + rr] = s;
-                }
-            }
+            stage::p_times(nx, nx, p, a, &mut self.pa);
+            let (su, sx) = (
+                j * nu * nu..(j + 1) * nu * nu,
+                j * nu * nx..(j + 1) * nu * nx,
+            );
             if j < nc {
                 let b = &self.b[j * nx * nu..(j + 1) * nx * nu];
-                for c in 0..nu {
-                    for rr in 0..nx {
-                        let mut s = 0.0;
-                        for k in 0..nx {
-                            s += p[k * nx + rr] * b[c * nx + k];
-                        }
-                        self.pb[c * nx + rr] = s;
-                    }
-                }
-                let l = &mut self.lchol[j * nu * nu..(j + 1) * nu * nu];
-                let rj = &self.r[j * nu * nu..(j + 1) * nu * nu];
-                for c in 0..nu {
-                    for rr in 0..nu {
-                        let mut s = rj[c * nu + rr];
-                        for k in 0..nx {
-                            s += b[rr * nx + k] * self.pb[c * nx + k];
-                        }
-                        l[c * nu + rr] = s;
-                    }
-                }
-                let sb = &mut self.sbar[j * nu * nx..(j + 1) * nu * nx];
-                for c in 0..nx {
-                    for rr in 0..nu {
-                        let mut s = 0.0;
-                        for k in 0..nx {
-                            s += b[rr * nx + k] * self.pa[c * nx + k];
-                        }
-                        sb[c * nu + rr] = s;
-                    }
-                }
+                stage::p_times(nx, nu, p, b, &mut self.pb);
+                let l = &mut self.lchol[su.clone()];
+                stage::bt_times(nx, nu, nu, Some(&self.r[su]), b, &self.pb, l);
+                let sb = &mut self.sbar[sx.clone()];
+                stage::bt_times(nx, nu, nx, None, b, &self.pa, sb);
                 if self.cross {
-                    for (v, sj) in sb.iter_mut().zip(&self.s[j * nu * nx..(j + 1) * nu * nx]) {
+                    for (v, sj) in sb.iter_mut().zip(&self.s[sx.clone()]) {
                         *v += sj;
                     }
                 }
-                let m = [l[0], l[nu * nu / 2], l[nu * nu - 1]];
-                if !cholesky(l, nu) {
+                let adj = (nu == 2 && !self.cross).then_some(&mut self.madj[j * 4..(j + 1) * 4]);
+                if !stage::stage_gain(nx, nu, l, sb, &mut self.kgain[sx.clone()], adj) {
                     return false;
-                }
-                let kg = &mut self.kgain[j * nu * nx..(j + 1) * nu * nx];
-                if nu == 2 && !self.cross {
-                    let adj = adjugate_2x2(m);
-                    self.madj[j * 4..(j + 1) * 4].copy_from_slice(&adj);
-                    gain_2x2(&adj, sb, kg);
-                } else {
-                    for c in 0..nx {
-                        let col = &mut kg[c * nu..(c + 1) * nu];
-                        for rr in 0..nu {
-                            col[rr] = -sb[c * nu + rr];
-                        }
-                        chol_solve(l, nu, col);
-                    }
                 }
             }
             if j == 0 {
                 break;
             }
-            let pj = &mut head[j * n2..(j + 1) * n2];
+            let gain = (j < nc).then(|| (&self.sbar[sx.clone()], &self.kgain[sx]));
             let qj = &self.q[(j - 1) * n2..j * n2];
-            for c in 0..nx {
-                for rr in 0..=c {
-                    let mut s = qj[c * nx + rr];
-                    for k in 0..nx {
-                        s += a[rr * nx + k] * self.pa[c * nx + k];
-                    }
-                    if j < nc {
-                        let sb = &self.sbar[j * nu * nx..(j + 1) * nu * nx];
-                        let kg = &self.kgain[j * nu * nx..(j + 1) * nu * nx];
-                        for i in 0..nu {
-                            s += sb[rr * nu + i] * kg[c * nu + i];
-                        }
-                    }
-                    pj[c * nx + rr] = s;
-                    pj[rr * nx + c] = s;
-                }
-            }
+            stage::cost_to_go(
+                nx,
+                nu,
+                qj,
+                a,
+                &self.pa,
+                gain,
+                &mut head[j * n2..(j + 1) * n2],
+            );
         }
         all_finite(&self.lchol) && all_finite(&self.kgain)
     }
@@ -544,7 +435,7 @@ impl RiccatiQp {
         let (np, nc) = (self.np, self.nc);
         let n2 = NX * NX;
         let off = nc * NU;
-        let lin: &[f64] = if use_unit { &self.unit } else { &self.g };
+        let lin: &[f64] = if use_unit { &self.w.unit } else { &self.g };
         // Backward pass for the feed-forward terms.
         let xi = off + top * NX;
         let mut pn = SVector::<f64, NX>::from_column_slice(&lin[xi..xi + NX]);
@@ -610,9 +501,9 @@ impl RiccatiQp {
         }
         // Forward pass from x_0 = 0.
         let out: &mut [f64] = if out_is_yp {
-            &mut self.yp
+            &mut self.w.yp
         } else {
-            &mut self.sol
+            &mut self.w.sol
         };
         let mut xs = SVector::<f64, NX>::zeros();
         for j in 0..np {
@@ -664,83 +555,51 @@ impl RiccatiQp {
         let (np, nc) = (self.np, self.nc);
         let n2 = nx * nx;
         let off = nc * nu;
-        let lin: &[f64] = if use_unit { &self.unit } else { &self.g };
+        let lin: &[f64] = if use_unit { &self.w.unit } else { &self.g };
         // Backward pass for the feed-forward terms.
         let xi = off + top * nx;
         self.pv[(top + 1) * nx..(top + 2) * nx].copy_from_slice(&lin[xi..xi + nx]);
         for j in top + 1..nc {
             self.kff[j * nu..(j + 1) * nu].fill(0.0);
         }
+        let adj2 = nu == 2 && !self.cross;
         for j in (0..=top).rev() {
             let (head, tail) = self.pv.split_at_mut((j + 1) * nx);
             let pn = &tail[..nx];
+            let (su, sx) = (j * nu..(j + 1) * nu, j * nu * nx..(j + 1) * nu * nx);
             if j < nc {
                 let b = &self.b[j * nx * nu..(j + 1) * nx * nu];
-                let k = &mut self.kff[j * nu..(j + 1) * nu];
-                for i in 0..nu {
-                    let mut s = lin[j * nu + i];
-                    for t in 0..nx {
-                        s += b[i * nx + t] * pn[t];
-                    }
-                    k[i] = -s;
-                }
-                if nu == 2 && !self.cross {
-                    let (k0, k1) = neg_adjugate_solve(&self.madj[j * 4..(j + 1) * 4], -k[0], -k[1]);
-                    k[0] = k0;
-                    k[1] = k1;
-                } else {
-                    chol_solve(&self.lchol[j * nu * nu..(j + 1) * nu * nu], nu, k);
-                }
+                let l = &self.lchol[j * nu * nu..(j + 1) * nu * nu];
+                let adj = adj2.then_some(&self.madj[j * 4..(j + 1) * 4]);
+                let k = &mut self.kff[su.clone()];
+                stage::feed_forward(nx, nu, b, &lin[su.clone()], pn, (l, adj), k);
             }
             if j == 0 {
                 break;
             }
             let a = &self.a[j * n2..(j + 1) * n2];
-            let pj = &mut head[j * nx..(j + 1) * nx];
             let xo = off + (j - 1) * nx;
-            for c in 0..nx {
-                let mut s = lin[xo + c];
-                for t in 0..nx {
-                    s += a[c * nx + t] * pn[t];
-                }
-                if j < nc {
-                    let sb = &self.sbar[j * nu * nx..(j + 1) * nu * nx];
-                    for i in 0..nu {
-                        s += sb[c * nu + i] * self.kff[j * nu + i];
-                    }
-                }
-                pj[c] = s;
-            }
+            let gain = (j < nc).then(|| (&self.sbar[sx], &self.kff[su]));
+            stage::costate(nx, nu, a, &lin[xo..xo + nx], pn, gain, &mut head[j * nx..]);
         }
         // Forward pass from x_0 = 0.
         let out: &mut [f64] = if out_is_yp {
-            &mut self.yp
+            &mut self.w.yp
         } else {
-            &mut self.sol
+            &mut self.w.sol
         };
         self.xs.fill(0.0);
         for j in 0..np {
             let a = &self.a[j * n2..(j + 1) * n2];
             let xo = off + j * nx;
-            for rr in 0..nx {
-                let mut s = 0.0;
-                for c in 0..nx {
-                    s += a[c * nx + rr] * self.xs[c];
-                }
-                out[xo + rr] = s;
-            }
+            stage::a_times(nx, a, &self.xs, &mut out[xo..xo + nx]);
             if j < nc {
                 let kg = &self.kgain[j * nu * nx..(j + 1) * nu * nx];
                 let b = &self.b[j * nx * nu..(j + 1) * nx * nu];
                 for i in 0..nu {
-                    let mut s = self.kff[j * nu + i];
-                    for c in 0..nx {
-                        s += kg[c * nu + i] * self.xs[c];
-                    }
+                    let s = stage::feedback(nx, nu, i, self.kff[j * nu + i], kg, &self.xs);
                     out[j * nu + i] = s;
-                    for rr in 0..nx {
-                        out[xo + rr] += b[i * nx + rr] * s;
-                    }
+                    stage::add_input(nx, b, i, s, &mut out[xo..xo + nx]);
                 }
             }
             self.xs.copy_from_slice(&out[xo..xo + nx]);
@@ -751,21 +610,21 @@ impl RiccatiQp {
     /// into `yp`.
     fn normal_solve(&mut self, id: usize, sigma: f64) {
         let (nx, nu, nc) = (self.nx, self.nu, self.nc);
-        self.unit[id] = 1.0;
+        self.w.unit[id] = 1.0;
         let top = if id < nc * nu {
             id / nu
         } else {
             (id - nc * nu) / nx
         };
         self.sweep(true, top, true);
-        self.unit[id] = 0.0;
+        self.w.unit[id] = 0.0;
         // The sweep gives −H⁻¹ e; the normal is σ e.
-        for v in self.yp.iter_mut() {
+        for v in self.w.yp.iter_mut() {
             *v *= -sigma;
         }
     }
 
-    /// Objective `½wᵀHw + gᵀw` of the trajectory `w = self.sol`.
+    /// Objective `½wᵀHw + gᵀw` of the trajectory `w = self.w.sol`.
     fn objective(&self) -> f64 {
         match (self.nx, self.nu) {
             (3, 1) => self.objective_fixed::<3, 1>(),
@@ -778,11 +637,11 @@ impl RiccatiQp {
     fn objective_fixed<const NX: usize, const NU: usize>(&self) -> f64 {
         let off = self.nc * NU;
         let mut f = 0.0;
-        for (w, g) in self.sol.iter().zip(&self.g) {
+        for (w, g) in self.w.sol.iter().zip(&self.g) {
             f += w * g;
         }
         for j in 0..self.nc {
-            let u = SVector::<f64, NU>::from_column_slice(&self.sol[j * NU..(j + 1) * NU]);
+            let u = SVector::<f64, NU>::from_column_slice(&self.w.sol[j * NU..(j + 1) * NU]);
             let rj =
                 SMatrix::<f64, NU, NU>::from_column_slice(&self.r[j * NU * NU..(j + 1) * NU * NU]);
             f += 0.5 * u.dot(&(rj * u));
@@ -791,14 +650,15 @@ impl RiccatiQp {
                     &self.s[j * NU * NX..(j + 1) * NU * NX],
                 );
                 let x = SVector::<f64, NX>::from_column_slice(
-                    &self.sol[off + (j - 1) * NX..off + j * NX],
+                    &self.w.sol[off + (j - 1) * NX..off + j * NX],
                 );
                 f += u.dot(&(sj * x));
             }
         }
         for j in 0..self.np {
-            let x =
-                SVector::<f64, NX>::from_column_slice(&self.sol[off + j * NX..off + (j + 1) * NX]);
+            let x = SVector::<f64, NX>::from_column_slice(
+                &self.w.sol[off + j * NX..off + (j + 1) * NX],
+            );
             let qj =
                 SMatrix::<f64, NX, NX>::from_column_slice(&self.q[j * NX * NX..(j + 1) * NX * NX]);
             f += 0.5 * x.dot(&(qj * x));
@@ -806,16 +666,16 @@ impl RiccatiQp {
         f
     }
 
-    /// Objective `½wᵀHw + gᵀw` of the trajectory `w = self.sol`, any stage size.
+    /// Objective `½wᵀHw + gᵀw` of the trajectory `w = self.w.sol`, any stage size.
     fn objective_dims(&self) -> f64 {
         let (nx, nu, np, nc) = (self.nx, self.nu, self.np, self.nc);
         let off = nc * nu;
         let mut f = 0.0;
-        for (w, g) in self.sol.iter().zip(&self.g) {
+        for (w, g) in self.w.sol.iter().zip(&self.g) {
             f += w * g;
         }
         for j in 0..nc {
-            let u = &self.sol[j * nu..(j + 1) * nu];
+            let u = &self.w.sol[j * nu..(j + 1) * nu];
             let rj = &self.r[j * nu * nu..(j + 1) * nu * nu];
             for c in 0..nu {
                 for rr in 0..nu {
@@ -823,7 +683,7 @@ impl RiccatiQp {
                 }
             }
             if self.cross && j > 0 {
-                let x = &self.sol[off + (j - 1) * nx..off + j * nx];
+                let x = &self.w.sol[off + (j - 1) * nx..off + j * nx];
                 let sj = &self.s[j * nu * nx..(j + 1) * nu * nx];
                 for c in 0..nx {
                     for rr in 0..nu {
@@ -833,7 +693,7 @@ impl RiccatiQp {
             }
         }
         for j in 0..np {
-            let x = &self.sol[off + j * nx..off + (j + 1) * nx];
+            let x = &self.w.sol[off + j * nx..off + (j + 1) * nx];
             let qj = &self.q[j * nx * nx..(j + 1) * nx * nx];
             for c in 0..nx {
                 for rr in 0..nx {
@@ -847,13 +707,6 @@ impl RiccatiQp {
     /// Solves the QP with the current data. Never panics and allocates nothing; the solution is
     /// [`Self::solution`] and the multipliers [`Self::multipliers`].
     pub fn solve(&mut self) -> QpInfo {
-        let mut info = QpInfo {
-            status: QpStatus::Solved,
-            iterations: 0,
-            objective: f64::NAN,
-        };
-        self.act.clear();
-        self.mult.fill(0.0);
         let finite = all_finite;
         let stages_finite =
             |qp: &Self| finite(&qp.a) && finite(&qp.b) && finite(&qp.q) && finite(&qp.s);
@@ -864,31 +717,25 @@ impl RiccatiQp {
             stages_finite(self)
         };
         let data_finite = stages_finite && finite(&self.r) && finite(&self.g);
-        if !data_finite {
-            info.status = QpStatus::NonFiniteInput;
-            return info;
-        }
-        if let Some(status) = bounds_status(&self.lo, &self.hi) {
-            info.status = status;
-            return info;
-        }
-        if !self.factor() {
-            info.status = QpStatus::NumericalError;
-            return info;
-        }
-        let top = self.np - 1;
-        self.sweep(false, top, false);
         let settings = self.settings;
-        if !add_violated_bounds(self, &settings, &mut info) {
-            info.status = QpStatus::NumericalError;
-            return info;
-        }
-        info.objective = if info.status == QpStatus::Solved {
-            self.objective_at_solution()
-        } else {
-            self.objective()
+        let start = |qp: &mut Self| {
+            let top = qp.np - 1;
+            qp.factor() && {
+                qp.sweep(false, top, false);
+                true
+            }
         };
-        info
+        match solve_box(self, &settings, data_finite, start) {
+            Ok(mut info) => {
+                info.objective = if info.status == QpStatus::Solved {
+                    self.objective_at_solution()
+                } else {
+                    self.objective()
+                };
+                info
+            }
+            Err(info) => info,
+        }
     }
 
     /// Objective at a solution: stationarity `H w + g + Eᵀν + mult = 0` (`E w = 0` the
@@ -897,7 +744,7 @@ impl RiccatiQp {
     /// rounding; unit test).
     fn objective_at_solution(&self) -> f64 {
         let mut f = 0.0;
-        for ((w, g), m) in self.sol.iter().zip(&self.g).zip(&self.mult) {
+        for ((w, g), m) in self.w.sol.iter().zip(&self.g).zip(&self.w.mult) {
             f += w * (g - m);
         }
         0.5 * f
@@ -973,40 +820,6 @@ pub(crate) fn held_congruence<const NX: usize, const NU: usize>(
         }
     }
     w
-}
-
-/// The gain `K = −M⁻¹ S̄` of a two-input stage (`M = [[a, b], [b, c]]` given as `[a, b, c]`,
-/// positive definite: checked by the caller's [`cholesky`]; `S̄`, `K` column-major `2 × nx`) by
-/// the adjugate, `M⁻¹ = [[c, −b], [−b, a]] / (ac − b²)`: one division and two multiply-adds deep
-/// from `M`, where the Cholesky factor and its substitutions are a chain of two square roots,
-/// three divisions and six multiply-adds (the Riccati recursion runs through it at every stage).
-/// Equal to the factor's solve to rounding; the factor is still kept for the sweeps. Used for
-/// the Gauss–Newton QPs (no cross terms); the exact Hessian's stages (whose `M` may be close to
-/// singular before the inertia correction) keep the factor's substitutions: with the adjugate
-/// one exact-Hessian test instance (tests/exact_hessian.rs, 2-DOF n = 3, case 6) took 5
-/// iterations against the dense back-end's 4 at KKT tolerance 1e-10.
-#[inline(always)]
-fn gain_2x2(adj: &[f64; 4], sb: &[f64], kg: &mut [f64]) {
-    for (k, s) in kg.chunks_exact_mut(2).zip(sb.chunks_exact(2)) {
-        let (k0, k1) = neg_adjugate_solve(adj, s[0], s[1]);
-        k[0] = k0;
-        k[1] = k1;
-    }
-}
-
-/// `[a, b, c, 1/(ac − b²)]` of `M = [[a, b], [b, c]]` given as `[a, b, c]`.
-#[inline(always)]
-fn adjugate_2x2(m: [f64; 3]) -> [f64; 4] {
-    let [a, b, c] = m;
-    [a, b, c, 1.0 / (a * c - b * b)]
-}
-
-/// `−M⁻¹ s` by the adjugate of [`adjugate_2x2`] (three operations deep from `s`; used by the
-/// gain and, with the same `M`, by the sweeps' feed-forward terms).
-#[inline(always)]
-fn neg_adjugate_solve(adj: &[f64], s0: f64, s1: f64) -> (f64, f64) {
-    let (a, b, c, idet) = (adj[0], adj[1], adj[2], adj[3]);
-    ((b * s1 - c * s0) * idet, (b * s0 - a * s1) * idet)
 }
 
 /// Whether every entry is finite, without a branch per entry: `x − x` is 0 for a finite `x`
@@ -1280,14 +1093,14 @@ mod tests {
                 assert!(a.held);
                 for top in [np - 1, np / 2, 0] {
                     for use_unit in [false, true] {
-                        a.unit.fill(0.0);
-                        b.unit.fill(0.0);
+                        a.w.unit.fill(0.0);
+                        b.w.unit.fill(0.0);
                         let id = a.len() / 2;
-                        a.unit[id] = 1.0;
-                        b.unit[id] = 1.0;
+                        a.w.unit[id] = 1.0;
+                        b.w.unit[id] = 1.0;
                         a.sweep(use_unit, top, use_unit);
                         b.sweep_dims(nx, nu, use_unit, top, use_unit);
-                        assert!(close(&a.sol, &b.sol) && close(&a.yp, &b.yp));
+                        assert!(close(&a.w.sol, &b.w.sol) && close(&a.w.yp, &b.w.yp));
                         assert!(close(&a.kff, &b.kff));
                     }
                 }
@@ -1318,7 +1131,7 @@ mod tests {
             assert_eq!(ia.status, QpStatus::Solved);
             assert!(a.num_active() > 0);
             assert_eq!((ia.status, ia.iterations), (ib.status, ib.iterations));
-            assert_eq!((&a.sol, &a.mult), (&b.sol, &b.mult));
+            assert_eq!((&a.w.sol, &a.w.mult), (&b.w.sol, &b.w.mult));
             for bad in [f64::NAN, f64::INFINITY] {
                 let mut c = b.clone();
                 c.r[0] = bad;
@@ -1377,18 +1190,18 @@ mod tests {
                 assert_eq!(a.sbar, b.sbar);
                 for top in [np - 1, np / 2, 0] {
                     for use_unit in [false, true] {
-                        a.unit.fill(0.0);
-                        b.unit.fill(0.0);
+                        a.w.unit.fill(0.0);
+                        b.w.unit.fill(0.0);
                         let id = a.len() / 2;
-                        a.unit[id] = 1.0;
-                        b.unit[id] = 1.0;
+                        a.w.unit[id] = 1.0;
+                        b.w.unit[id] = 1.0;
                         match (nx, nu) {
                             (3, 1) => a.sweep_fixed::<3, 1, false>(use_unit, top, use_unit),
                             _ => a.sweep_fixed::<6, 2, false>(use_unit, top, use_unit),
                         }
                         b.sweep_dims(nx, nu, use_unit, top, use_unit);
-                        assert_eq!(a.sol, b.sol);
-                        assert_eq!(a.yp, b.yp);
+                        assert_eq!(a.w.sol, b.w.sol);
+                        assert_eq!(a.w.yp, b.w.yp);
                         assert_eq!(a.kff, b.kff);
                     }
                 }
