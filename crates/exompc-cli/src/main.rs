@@ -12,8 +12,6 @@ mod model_cmd;
 mod plot;
 mod plot_cmd;
 mod realtime;
-#[cfg(unix)]
-mod serial_robot;
 mod simulate;
 mod soak;
 mod solve;

@@ -1053,7 +1053,7 @@ pub(crate) fn virtual_robot(a: VirtualRobotArgs) -> Result<(), CliError> {
         if let Some(v) = a.inject_forged_at {
             secs("inject-forged-at", v, 0.0, 1e6)?;
         }
-        let o = crate::serial_robot::SerialOpts {
+        let o = serial_robot::SerialOpts {
             path,
             timeout: Duration::from_secs_f64(a.connect_timeout),
             watchdog_periods: a.watchdog_periods,
@@ -1063,8 +1063,8 @@ pub(crate) fn virtual_robot(a: VirtualRobotArgs) -> Result<(), CliError> {
             quiet: a.rt.quiet,
         };
         return match a.dof {
-            1 => crate::serial_robot::serve::<OneDof, 1>(&s, &o, psk),
-            _ => crate::serial_robot::serve::<TwoDof, 2>(&s, &o, psk),
+            1 => serial_robot::serve::<OneDof, 1>(&s, &o, psk),
+            _ => serial_robot::serve::<TwoDof, 2>(&s, &o, psk),
         };
     }
     match a.dof {
@@ -1572,3 +1572,8 @@ fn bus_counters_json(c: &exompc_can::BusCounters) -> serde_json::Value {
         "dropped": c.dropped,
     })
 }
+
+/// `virtual-robot --serial` (a child of this command's module: commands stay leaves).
+#[cfg(unix)]
+#[path = "serial_robot.rs"]
+mod serial_robot;

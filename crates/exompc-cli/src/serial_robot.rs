@@ -7,7 +7,7 @@
 //! firmware runs the same code); the stream is split into frames by [`Deframer`]
 //! (docs/EMBEDDED.md, "The serial link").
 
-use crate::realtime::{max_ahead, open_out, write_json, LiveTrace};
+use super::{max_ahead, open_out, write_json, LiveTrace};
 use exompc::config::Scenario;
 use exompc::control::StepStatus;
 use exompc::runtime::frame::{max_frame_len, status_from_code};
