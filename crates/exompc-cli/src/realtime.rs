@@ -1277,24 +1277,10 @@ fn robot_dof<D: Dof<N>, const N: usize>(
         if let Some(c) = st.command {
             last_status = status_from_code(c.status).unwrap_or(StepStatus::Ok);
         }
-        let rec = StepRecord {
-            k: st.k as usize,
-            t: st.t,
-            robot: st.robot,
-            human: st.human,
-            desired: st.desired,
-            torque_robot: st.torque,
-            torque_prev: st.torque_prev,
-            torque_human: st.torque_human,
-            force_true: st.force_true,
-            force_measured: st.force_raw,
-            probabilities: None,
-            disturbances: if dist.is_empty() { None } else { Some(&dist) },
-            status: last_status,
-            iterations: st.command.map_or(0, |c| c.iterations),
-            step_time_us: st.command.map_or(0.0, |c| f64::from(c.compute_ns) * 1e-3),
-            within_limits: st.within_limits,
-        };
+        let rec = st.record(
+            last_status,
+            if dist.is_empty() { None } else { Some(&dist) },
+        );
         metrics.record(&rec).map_err(io_err)?;
         if !trace.record(&rec) {
             // A full disk or another write error: stop safely, keep what was written.

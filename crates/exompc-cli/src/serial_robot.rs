@@ -16,7 +16,7 @@ use exompc::runtime::{Deframer, Lifecycle, LinkStats, Psk, RobotLink, RobotRx};
 use exompc::scenario::{
     limits, plant_params, uncertainty, Dof, RobotStats, StopCause, VirtualRobot,
 };
-use exompc::sim::{Metrics, Plant, Recorder, Sensors, StepRecord};
+use exompc::sim::{Metrics, Plant, Recorder, Sensors};
 use exompc_cli::error::CliError;
 use exompc_cli::run::scenario_keys;
 use serde::Serialize;
@@ -258,24 +258,7 @@ pub(crate) fn serve<D: Dof<N>, const N: usize>(
         if let Some(c) = st.command {
             last_status = status_from_code(c.status).unwrap_or(StepStatus::Ok);
         }
-        let rec = StepRecord {
-            k: st.k as usize,
-            t: st.t,
-            robot: st.robot,
-            human: st.human,
-            desired: st.desired,
-            torque_robot: st.torque,
-            torque_prev: st.torque_prev,
-            torque_human: st.torque_human,
-            force_true: st.force_true,
-            force_measured: st.force_raw,
-            probabilities: None,
-            disturbances: None,
-            status: last_status,
-            iterations: st.command.map_or(0, |c| c.iterations),
-            step_time_us: st.command.map_or(0.0, |c| f64::from(c.compute_ns) * 1e-3),
-            within_limits: st.within_limits,
-        };
+        let rec = st.record(last_status, None);
         metrics
             .record(&rec)
             .map_err(|e| CliError::io("metrics", e))?;

@@ -133,27 +133,26 @@ fn summary(out: &Path) -> Value {
     serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
 }
 
+/// `exompc run --config CONFIG ARGS --duration 1 --out OUT --quiet` over the virtual bus: it
+/// succeeds with no limit violation, no protective stop and a sample every period; the summary.
+fn run_one_second(config: &str, args: &[&str], out: &Path) -> Value {
+    let mut a = vec!["run", "--config", config];
+    a.extend_from_slice(args);
+    a.extend(["--duration", "1", "--out", out.to_str().unwrap(), "--quiet"]);
+    let o = exompc(&a);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let s = summary(out);
+    assert_eq!(s["counters"]["limit_violations"], 0);
+    assert_eq!(s["can"]["stats"]["protective_stops"], 0);
+    assert!(s["can"]["stats"]["samples"].as_u64().unwrap() >= 95);
+    s
+}
+
 #[test]
 fn run_closes_the_loop_over_the_virtual_bus() {
     let dir = empty_dir("virtual");
     let out = dir.join("out");
-    let o = exompc(&[
-        "run",
-        "--config",
-        EXAMPLE,
-        "--payload",
-        "2",
-        "--duration",
-        "1",
-        "--out",
-        out.to_str().unwrap(),
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let s = summary(&out);
-    assert_eq!(s["counters"]["limit_violations"], 0);
-    assert_eq!(s["can"]["stats"]["protective_stops"], 0);
-    assert!(s["can"]["stats"]["samples"].as_u64().unwrap() >= 95);
+    let s = run_one_second(EXAMPLE, &["--payload", "2"], &out);
     assert!(s["can"]["bus_load"]["fraction"].as_f64().unwrap() > 0.1);
     assert_eq!(s["can"]["rms_force_true_n"].as_array().unwrap().len(), 2);
     let trace = std::fs::read_to_string(out.join("trace.csv")).unwrap();
@@ -186,23 +185,7 @@ channels = [{ strap = "shank", byte = 0, bytes = 4, scale = 0.001 }]"#,
     );
     let f = write(&dir, "two.toml", &two_nodes);
     let out = dir.join("out");
-    let o = exompc(&[
-        "run",
-        "--config",
-        f.to_str().unwrap(),
-        "--dof",
-        "1",
-        "--duration",
-        "1",
-        "--out",
-        out.to_str().unwrap(),
-        "--quiet",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let s = summary(&out);
-    assert_eq!(s["counters"]["limit_violations"], 0);
-    assert_eq!(s["can"]["stats"]["protective_stops"], 0);
-    assert!(s["can"]["stats"]["samples"].as_u64().unwrap() >= 95);
+    let s = run_one_second(f.to_str().unwrap(), &["--dof", "1"], &out);
     assert_eq!(s["can"]["rms_force_true_n"].as_array().unwrap().len(), 1);
 }
 

@@ -113,19 +113,26 @@ fn rows_put_each_value_under_its_column() {
     );
 }
 
-/// docs/REPRODUCING.md's column table is the generated one.
-#[test]
-fn the_docs_column_table_is_generated_from_the_table() {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../docs/REPRODUCING.md");
-    let doc = std::fs::read_to_string(path).unwrap();
+const DOC: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../docs/REPRODUCING.md");
+
+/// docs/REPRODUCING.md and the byte range of its column table (between the markers).
+fn docs_table() -> (String, std::ops::Range<usize>) {
+    let doc = std::fs::read_to_string(DOC).unwrap();
     let (begin, end) = (
         "<!-- trace-columns:begin -->\n",
         "<!-- trace-columns:end -->",
     );
     let a = doc.find(begin).expect("begin marker") + begin.len();
     let b = doc.find(end).expect("end marker");
+    (doc, a..b)
+}
+
+/// docs/REPRODUCING.md's column table is the generated one.
+#[test]
+fn the_docs_column_table_is_generated_from_the_table() {
+    let (doc, table) = docs_table();
     assert_eq!(
-        &doc[a..b],
+        &doc[table],
         columns_markdown(),
         "regenerate the table: cargo test -p exompc --test trace_columns -- --ignored"
     );
@@ -135,14 +142,7 @@ fn the_docs_column_table_is_generated_from_the_table() {
 #[test]
 #[ignore]
 fn write_the_docs_column_table() {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../docs/REPRODUCING.md");
-    let doc = std::fs::read_to_string(path).unwrap();
-    let (begin, end) = (
-        "<!-- trace-columns:begin -->\n",
-        "<!-- trace-columns:end -->",
-    );
-    let a = doc.find(begin).expect("begin marker") + begin.len();
-    let b = doc.find(end).expect("end marker");
-    let new = format!("{}{}{}", &doc[..a], columns_markdown(), &doc[b..]);
-    std::fs::write(path, new).unwrap();
+    let (doc, t) = docs_table();
+    let new = format!("{}{}{}", &doc[..t.start], columns_markdown(), &doc[t.end..]);
+    std::fs::write(DOC, new).unwrap();
 }

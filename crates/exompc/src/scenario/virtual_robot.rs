@@ -5,13 +5,13 @@
 //! the simulator and the runtime meet, so that the runtime's robot boundary does not import the
 //! simulator.
 
-use crate::control::TorqueLimits;
+use crate::control::{StepStatus, TorqueLimits};
 use crate::model::JointState;
 use crate::runtime::frame::{
     command_flags, robot_flags, FrameError, RobotCommand, RobotSample, PLAN_LEN,
 };
 use crate::runtime::Lifecycle;
-use crate::sim::{Plant, Sensors, Trajectory};
+use crate::sim::{Plant, Sensors, StepRecord, Trajectory};
 use nalgebra::SVector;
 use serde::Serialize;
 
@@ -120,6 +120,38 @@ pub struct RobotStep<const N: usize> {
     /// The applied torque met both limits relative to the previous one (always, since the
     /// robot clamps its targets).
     pub within_limits: bool,
+}
+
+impl<const N: usize> RobotStep<N> {
+    /// The period as the one per-step record of simulation and runtime (trace, metrics): the
+    /// true states and forces, `force_measured` = the raw forces sent, the command's
+    /// iterations and compute time; `status` is the last command's outcome (the caller keeps
+    /// it across periods without a command), `disturbances` the controller's estimates if
+    /// known (none travel on the link).
+    pub fn record<'a>(
+        &self,
+        status: StepStatus,
+        disturbances: Option<&'a [SVector<f64, N>]>,
+    ) -> StepRecord<'a, N> {
+        StepRecord {
+            k: self.k as usize,
+            t: self.t,
+            robot: self.robot,
+            human: self.human,
+            desired: self.desired,
+            torque_robot: self.torque,
+            torque_prev: self.torque_prev,
+            torque_human: self.torque_human,
+            force_true: self.force_true,
+            force_measured: self.force_raw,
+            probabilities: None,
+            disturbances,
+            status,
+            iterations: self.command.map_or(0, |c| c.iterations),
+            step_time_us: self.command.map_or(0.0, |c| f64::from(c.compute_ns) * 1e-3),
+            within_limits: self.within_limits,
+        }
+    }
 }
 
 /// The virtual robot: the simulated human + exoskeleton of `exompc simulate` (the same
