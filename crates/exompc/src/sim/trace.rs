@@ -146,13 +146,22 @@ pub fn strap_names(n: usize) -> &'static [&'static str] {
 }
 
 /// The CSV columns in order, each with the index it repeats over (`(column, i)`, `i` the joint,
-/// strap or scenario index; for [`Per::ScenarioJoint`] `scenario · n + joint`).
+/// strap or scenario index; for [`Per::ScenarioJoint`] `scenario · n + joint`). Allocates
+/// nothing (it runs once per trace row).
 fn csv_cells(n: usize, scenarios: usize, mut f: impl FnMut(&TraceColumn, usize)) {
-    let cols: Vec<&TraceColumn> = TRACE_COLUMNS.iter().filter(|c| c.csv.is_some()).collect();
+    let cols = &TRACE_COLUMNS;
     let mut a = 0;
     while a < cols.len() {
+        if cols[a].csv.is_none() {
+            a += 1;
+            continue;
+        }
+        // A run of CSV columns with the same `per` (columns not in the CSV are passed over).
         let per = cols[a].per;
-        let b = a + cols[a..].iter().take_while(|c| c.per == per).count();
+        let mut b = a;
+        while b < cols.len() && (cols[b].per == per || cols[b].csv.is_none()) {
+            b += 1;
+        }
         let count = match per {
             Per::Step => 1,
             Per::Joint | Per::Strap => n,
@@ -160,7 +169,7 @@ fn csv_cells(n: usize, scenarios: usize, mut f: impl FnMut(&TraceColumn, usize))
             Per::ScenarioJoint => scenarios * n,
         };
         for i in 0..count {
-            for c in &cols[a..b] {
+            for c in cols[a..b].iter().filter(|c| c.csv.is_some()) {
                 f(c, i);
             }
         }
