@@ -1120,9 +1120,11 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         let all_lost =
             valid && rep.estimated.q.iter().all(|&e| e) && rep.estimated.qd.iter().all(|&e| e);
         let coast = all_lost || (self.coasting && valid && rep.any_rejected);
+        // (a period longer than the history, or not finite, is not replayed; no overflow)
         let replay_period = period
-            .map(|p| (p / self.dt()).round() as usize)
-            .filter(|&p| p >= 2 && p + 2 < self.torque_filled);
+            .map(|p| (p / self.dt()).round())
+            .filter(|&p| p >= 2.0 && p + 2.0 < self.torque_filled as f64)
+            .map(|p| p as usize);
         let len = self.torque_hist.len();
         // Before the gait period is known (the first gait period), the replay holds the torque.
         let replay = match replay_period {
