@@ -576,10 +576,7 @@ fn run_can<D: Dof<N>, const N: usize>(
 where
     D::Traj: Send + 'static,
 {
-    let periods = a
-        .duration
-        .map_or(s.control_steps(D::DOF), |d| (d / s.timing.dt) as usize + 16)
-        .min(1 << 22);
+    let periods = can_periods::<D, N>(s, a);
     let mut rig =
         exompc_cli::can::rig::<D, N>(s, hw, Duration::from_micros(a.rt.spin_us), periods + 64)?;
     if !a.rt.quiet {
@@ -594,15 +591,15 @@ where
         let rms_true =
             leg.map(|l| rms_force_true(l.lock().unwrap_or_else(|e| e.into_inner()).history()));
         let load = bus.map(|b| bus_load_json(&b.load()));
-        let c = robot.bus().counters();
-        Some(serde_json::json!({
-            "stats": robot.stats(),
-            "stops": robot.stop_events(),
-            "bus": bus_counters_json(&c),
-            "bus_load": load,
-            "rms_force_true_n": rms_true,
-            "period_s": dt,
-        }))
+        Some(can_summary(
+            None,
+            robot.stats(),
+            robot.stop_events(),
+            &robot.bus().counters(),
+            load,
+            rms_true,
+            dt,
+        ))
     })
 }
 
@@ -1490,10 +1487,7 @@ fn run_cia402<D: Dof<N>, const N: usize>(
 where
     D::Traj: Send + 'static,
 {
-    let periods = a
-        .duration
-        .map_or(s.control_steps(D::DOF), |d| (d / s.timing.dt) as usize + 16)
-        .min(1 << 22);
+    let periods = can_periods::<D, N>(s, a);
     let mut rig = exompc_cli::can_cia402::rig::<D, N>(
         s,
         hw,
@@ -1513,17 +1507,48 @@ where
         let load = bus.map(|b| bus_load_json(&b.load()));
         let rms_true =
             leg.map(|l| rms_force_true(l.lock().unwrap_or_else(|e| e.into_inner()).history()));
-        let c = robot.bus().counters();
-        Some(serde_json::json!({
-            "driver": "cia402",
-            "stats": robot.stats(),
-            "stops": robot.stop_events(),
-            "bus": bus_counters_json(&c),
-            "bus_load": load,
-            "rms_force_true_n": rms_true,
-            "period_s": dt,
-        }))
+        Some(can_summary(
+            Some("cia402"),
+            robot.stats(),
+            robot.stop_events(),
+            &robot.bus().counters(),
+            load,
+            rms_true,
+            dt,
+        ))
     })
+}
+
+/// Periods `run --config` plans for a CAN robot: `--duration` (plus a margin) or the
+/// scenario's length, at most 2^22.
+fn can_periods<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs) -> usize {
+    a.duration
+        .map_or(s.control_steps(D::DOF), |d| (d / s.timing.dt) as usize + 16)
+        .min(1 << 22)
+}
+
+/// The summary's `can` section of a CAN robot (`driver` only where it is not the AK default).
+fn can_summary<S: serde::Serialize + ?Sized, E: serde::Serialize + ?Sized>(
+    driver: Option<&str>,
+    stats: &S,
+    stops: &E,
+    c: &exompc_can::BusCounters,
+    load: Option<serde_json::Value>,
+    rms_true: Option<Vec<f64>>,
+    dt: f64,
+) -> serde_json::Value {
+    let mut v = serde_json::json!({
+        "stats": stats,
+        "stops": stops,
+        "bus": bus_counters_json(c),
+        "bus_load": load,
+        "rms_force_true_n": rms_true,
+        "period_s": dt,
+    });
+    if let Some(d) = driver {
+        v["driver"] = serde_json::json!(d);
+    }
+    v
 }
 
 /// RMS of the true strap forces (N) over a virtual leg's history, per strap.
