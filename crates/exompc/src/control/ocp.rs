@@ -70,9 +70,8 @@ struct StageWork<const N: usize> {
     /// Backward recursion `V_j = Q_j + A_{j+1}ᵀ V_{j+1} A_{j+1}` (`nx × nx`, with `2N × 2N`
     /// and `2N × N` products) for the diagonal of the condensed Gauss–Newton Hessian.
     gram: Vec<f64>,
-    rl: f64,
-    ru: f64,
-    tmax: f64,
+    /// The box of the step (from the solve's limits).
+    bounds: StepBounds,
     /// `HessianModel::Exact`: the QP gets the stage blocks `W_j` of `control::hessian`.
     exact: bool,
     /// `qp.q`, `qp.s` hold curvature (must be reset before a Gauss–Newton or projection QP).
@@ -134,9 +133,7 @@ impl<const N: usize> StructuredSqp<N> {
                 grad: vec![0.0; len],
                 costate: vec![0.0; 2 * nx],
                 gram: vec![0.0; nx * nx + 6 * N * N],
-                rl: 0.0,
-                ru: 0.0,
-                tmax: 0.0,
+                bounds: StepBounds::default(),
                 exact: s.sqp.hessian == HessianModel::Exact,
                 curved: false,
                 states: vec![zero_state; np],
@@ -548,19 +545,37 @@ impl<const N: usize> StageWork<N> {
         finite
     }
 
+    /// The trial point becomes the current one (its torques and gradient; with the exact
+    /// Hessian its states and held torques).
+    fn accept(&mut self) {
+        self.torques.copy_from_slice(&self.torques_trial);
+        self.grad.copy_from_slice(&self.qp.g);
+        if self.exact {
+            core::mem::swap(&mut self.states, &mut self.states_trial);
+            core::mem::swap(&mut self.held, &mut self.held_trial);
+        }
+    }
+
+    /// The QP (linear term written by the caller) with the step-space bounds at `z`, its step
+    /// copied into `dz`.
+    fn solve_step(&mut self, z: &DVector<f64>) -> QpInfo {
+        self.shift_bounds(z);
+        let qi = self.qp.solve();
+        copy_step(&mut self.dz, self.qp.solution());
+        qi
+    }
+
     /// Step-space bounds of the QP at `z` (with `torques` the cumulative torques at `z`).
     fn shift_bounds(&mut self, z: &DVector<f64>) {
         let nx = 3 * N;
         let off = self.nc * N;
-        for k in 0..off {
-            self.qp.lo[k] = self.rl - z[k];
-            self.qp.hi[k] = self.ru - z[k];
-        }
+        self.bounds
+            .shift_inputs(z, &mut self.qp.lo, &mut self.qp.hi);
         for j in 0..self.nc {
             for a in 0..N {
                 let i = off + j * nx + 2 * N + a;
-                self.qp.lo[i] = -self.tmax - self.torques[j * N + a];
-                self.qp.hi[i] = self.tmax - self.torques[j * N + a];
+                self.qp.lo[i] = -self.bounds.tmax - self.torques[j * N + a];
+                self.qp.hi[i] = self.bounds.tmax - self.torques[j * N + a];
             }
         }
     }
@@ -623,14 +638,14 @@ impl<const N: usize> StageWork<N> {
         let mut check = BoundCheck::default();
         let mut check_t = BoundCheck::default();
         for k in 0..off {
-            check.add(self.rl - z[k], z[k] - self.ru, mult[k]);
+            check.add(self.bounds.rl - z[k], z[k] - self.bounds.ru, mult[k]);
         }
         for j in 0..nc {
             for a in 0..N {
                 let t = self.torques[j * N + a];
                 check_t.add(
-                    -self.tmax - t,
-                    t - self.tmax,
+                    -self.bounds.tmax - t,
+                    t - self.bounds.tmax,
                     mult[off + j * nx + 2 * N + a],
                 );
             }
@@ -728,25 +743,10 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
         if !z.iter().all(|v| v.is_finite()) {
             return Err(SqpStatus::NonFiniteInput);
         }
-        let (rate, tmax) = (self.limits.rate, self.limits.max);
-        if rate.is_nan() || tmax.is_nan() || p.t_prev.iter().any(|v| v.is_nan()) {
-            return Err(SqpStatus::NonFiniteInput);
-        }
-        if !(rate >= 0.0 && rate.is_finite() && tmax >= 0.0 && tmax.is_finite()) {
-            return Err(SqpStatus::Infeasible);
-        }
-        w.rl = -rate;
-        w.ru = rate;
-        w.tmax = tmax;
+        w.bounds = StepBounds::of(self.limits, p.t_prev.iter().any(|v| v.is_nan()))?;
         w.shift.reset();
         w.maxdiag_known = false;
         Ok(())
-    }
-
-    fn clamp(&self, z: &mut DVector<f64>) {
-        for v in z.iter_mut() {
-            *v = v.max(self.w.rl).min(self.w.ru);
-        }
     }
 
     fn general_violation(&mut self, z: &DVector<f64>) -> f64 {
@@ -757,7 +757,7 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
             for a in 0..N {
                 acc[a] += z[j * N + a];
                 w.torques[j * N + a] = acc[a];
-                viol = viol.max(acc[a].abs() - w.tmax);
+                viol = viol.max(acc[a].abs() - w.bounds.tmax);
             }
         }
         viol
@@ -771,25 +771,7 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
         w.write_held_layout();
         w.set_input_weight(1.0);
         w.qp.g.fill(0.0);
-        w.shift_bounds(z);
-        let qi = w.qp.solve();
-        copy_step(&mut w.dz, w.qp.solution());
-        qi
-    }
-
-    fn evaluate(&mut self, z: &DVector<f64>, jacobian: bool) -> f64 {
-        self.w.evaluate(self.problem, z.as_slice(), jacobian)
-    }
-
-    fn accept(&mut self, _z_old: Option<&DVector<f64>>, _z_new: &DVector<f64>) -> bool {
-        // `evaluate` returns a non-finite cost when any linearisation entry is non-finite.
-        let w = &mut *self.w;
-        accept_trial(&mut w.torques, &w.torques_trial, &mut w.grad, &w.qp.g);
-        if w.exact {
-            core::mem::swap(&mut w.states, &mut w.states_trial);
-            core::mem::swap(&mut w.held, &mut w.held_trial);
-        }
-        true
+        w.solve_step(z)
     }
 
     fn solve_qp(&mut self, z: &DVector<f64>) -> QpInfo {
@@ -838,7 +820,7 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
         qi
     }
 
-    step_slope_kkt!();
+    stage_steps!(problem);
 
     fn kkt_test(&mut self, z: &DVector<f64>, kkt_tol: f64, feas_tol: f64) -> KktTest {
         self.w.kkt_test(z, kkt_tol, feas_tol)
@@ -866,12 +848,27 @@ pub(crate) fn held_layout(a: &mut [f64], b: &mut [f64], n: usize) {
     }
 }
 
-/// The `step`, `slope` and `kkt` of [`SqpSteps`] for a stage back-end whose workspace `w` holds
-/// the step `dz`, the gradient `grad` and the QP `qp` in trajectory layout, and a `kkt` method:
-/// the slope is `gᵀd` over the whole trajectory (states are linear in the increments along the
+/// The methods of [`SqpSteps`] that every stage back-end shares, for a workspace `w` that holds
+/// the step box `bounds`, the step `dz`, the gradient `grad` and the QP `qp` in trajectory
+/// layout, and methods `evaluate` (of the steps' field `$problem`), `accept` and `kkt`: the
+/// slope is `gᵀd` over the whole trajectory (states are linear in the increments along the
 /// step).
-macro_rules! step_slope_kkt {
-    () => {
+macro_rules! stage_steps {
+    ($problem:ident) => {
+        fn clamp(&self, z: &mut DVector<f64>) {
+            self.w.bounds.clamp(z);
+        }
+
+        fn evaluate(&mut self, z: &DVector<f64>, jacobian: bool) -> f64 {
+            self.w.evaluate(self.$problem, z.as_slice(), jacobian)
+        }
+
+        fn accept(&mut self, _z_old: Option<&DVector<f64>>, _z_new: &DVector<f64>) -> bool {
+            // `evaluate` returns a non-finite cost when any linearisation entry is non-finite.
+            self.w.accept();
+            true
+        }
+
         fn step(&self) -> &DVector<f64> {
             &self.w.dz
         }
@@ -890,21 +887,60 @@ macro_rules! step_slope_kkt {
         }
     };
 }
-pub(super) use step_slope_kkt;
+pub(super) use stage_steps;
+
+/// The box of an SQP step in the increments `z` of the torque (paper eq. 7's constraints): each
+/// increment within `[rl, ru] = [−Δmax, Δmax]`, each cumulative torque within `±tmax`.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub(super) struct StepBounds {
+    /// Lower bound of an increment (N·m per period).
+    pub rl: f64,
+    /// Upper bound of an increment (N·m per period).
+    pub ru: f64,
+    /// Bound on the magnitude of a cumulative torque (N·m).
+    pub tmax: f64,
+}
+
+impl StepBounds {
+    /// The box of `limits` (`t_prev_nan`: some previous torque is NaN): `NonFiniteInput` when a
+    /// limit or a previous torque is NaN, `Infeasible` when a limit is negative or infinite.
+    pub(super) fn of(limits: &TorqueLimits, t_prev_nan: bool) -> Result<Self, SqpStatus> {
+        let (rate, tmax) = (limits.rate, limits.max);
+        if rate.is_nan() || tmax.is_nan() || t_prev_nan {
+            return Err(SqpStatus::NonFiniteInput);
+        }
+        if !(rate >= 0.0 && rate.is_finite() && tmax >= 0.0 && tmax.is_finite()) {
+            return Err(SqpStatus::Infeasible);
+        }
+        Ok(Self {
+            rl: -rate,
+            ru: rate,
+            tmax,
+        })
+    }
+
+    /// Each increment of `z` clamped into `[rl, ru]`.
+    pub(super) fn clamp(&self, z: &mut DVector<f64>) {
+        for v in z.iter_mut() {
+            *v = v.max(self.rl).min(self.ru);
+        }
+    }
+
+    /// The step-space bounds `rl − z_k`, `ru − z_k` of the increments at `z` into the first
+    /// `z.len()` entries of `lo`, `hi`.
+    pub(super) fn shift_inputs(&self, z: &DVector<f64>, lo: &mut [f64], hi: &mut [f64]) {
+        for k in 0..z.len() {
+            lo[k] = self.rl - z[k];
+            hi[k] = self.ru - z[k];
+        }
+    }
+}
 
 /// The step `dz` (the increments) from the QP's solution in trajectory layout (inputs first).
 #[inline]
 pub(super) fn copy_step(dz: &mut DVector<f64>, sol: &[f64]) {
     let n = dz.len();
     dz.as_mut_slice().copy_from_slice(&sol[..n]);
-}
-
-/// The trial point becomes the current one: its cumulative torques and its gradient (in
-/// trajectory layout, the QP's linear term of the last evaluation).
-#[inline]
-pub(super) fn accept_trial(torques: &mut [f64], trial: &[f64], grad: &mut [f64], g: &[f64]) {
-    torques.copy_from_slice(trial);
-    grad.copy_from_slice(g);
 }
 
 /// Writes the non-constant entries of the held-input stage `A_j = [[F_j, G_j], [0, I]]`,
@@ -1032,9 +1068,11 @@ mod tests {
             let mut next = crate::test_rng::lcg(seed + 7);
             // Small gradients so that some tolerances pass.
             w.grad.iter_mut().for_each(|g| *g = 1e-6 * next());
-            w.rl = -1.0;
-            w.ru = 1.0;
-            w.tmax = 10.0;
+            w.bounds = StepBounds {
+                rl: -1.0,
+                ru: 1.0,
+                tmax: 10.0,
+            };
             let z = DVector::from_fn(nc * N, |_, _| 0.5 * next());
             for (k, t) in w.torques.iter_mut().enumerate() {
                 *t = if k == 1 { 10.0 + 1e-7 } else { 9.0 * next() };

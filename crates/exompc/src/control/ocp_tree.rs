@@ -15,7 +15,7 @@
 
 use super::nmpc_problem::QpBackend;
 use super::nmpc_problem::{NmpcProblem, NmpcSettings};
-use super::ocp::{accept_trial, copy_step, stage_residual, step_slope_kkt, write_stage_jacobian};
+use super::ocp::{copy_step, stage_residual, stage_steps, write_stage_jacobian, StepBounds};
 use super::prediction::StepJacobian;
 use super::TorqueLimits;
 #[cfg(not(feature = "std"))]
@@ -76,9 +76,8 @@ struct TreeWork<const N: usize> {
     costate: Vec<f64>,
     shared_stat: Vec<f64>,
     zi: Vec<f64>,
-    rl: f64,
-    ru: f64,
-    tmax: f64,
+    /// The box of the step (from the solve's limits).
+    bounds: StepBounds,
 }
 
 impl<const N: usize> TreeSqp<N> {
@@ -114,9 +113,7 @@ impl<const N: usize> TreeSqp<N> {
                 costate: vec![0.0; 6 * N],
                 shared_stat: vec![0.0; nr * N],
                 zi: vec![0.0; nc * N],
-                rl: 0.0,
-                ru: 0.0,
-                tmax: 0.0,
+                bounds: StepBounds::default(),
             },
         })
     }
@@ -284,14 +281,26 @@ impl<const N: usize> TreeWork<N> {
         }
     }
 
+    /// The trial point becomes the current one (its torques and gradient).
+    fn accept(&mut self) {
+        self.torques.copy_from_slice(&self.torques_trial);
+        self.grad.copy_from_slice(&self.qp.g);
+    }
+
+    /// The QP (linear term written by the caller) with the step-space bounds at `z`, its step
+    /// copied into `dz`.
+    fn solve_step(&mut self, z: &DVector<f64>) -> QpInfo {
+        self.shift_bounds(z);
+        let qi = self.qp.solve();
+        copy_step(&mut self.dz, self.qp.solution());
+        qi
+    }
+
     /// Step-space bounds of the QP at `z` (with `torques` the cumulative torques at `z`); a
     /// shared stage's torque bound only on scenario 1.
     fn shift_bounds(&mut self, z: &DVector<f64>) {
-        let nv = self.qp.num_inputs();
-        for k in 0..nv {
-            self.qp.lo[k] = self.rl - z[k];
-            self.qp.hi[k] = self.ru - z[k];
-        }
+        self.bounds
+            .shift_inputs(z, &mut self.qp.lo, &mut self.qp.hi);
         for i in 0..self.ns {
             for j in 0..self.nc {
                 for a in 0..N {
@@ -301,8 +310,8 @@ impl<const N: usize> TreeWork<N> {
                         self.qp.hi[x] = f64::INFINITY;
                     } else {
                         let t = self.torques[(i * self.nc + j) * N + a];
-                        self.qp.lo[x] = -self.tmax - t;
-                        self.qp.hi[x] = self.tmax - t;
+                        self.qp.lo[x] = -self.bounds.tmax - t;
+                        self.qp.hi[x] = self.bounds.tmax - t;
                     }
                 }
             }
@@ -363,14 +372,14 @@ impl<const N: usize> TreeWork<N> {
         }
         let mut check = BoundCheck::default();
         for k in 0..nv {
-            check.add(self.rl - z[k], z[k] - self.ru, mult[k]);
+            check.add(self.bounds.rl - z[k], z[k] - self.bounds.ru, mult[k]);
         }
         for i in 0..self.ns {
             for j in 0..nc {
                 for a in 0..N {
                     let t = self.torques[(i * nc + j) * N + a];
                     let x = self.qp.x_index(i, j + 1, 2 * N + a);
-                    check.add(-self.tmax - t, t - self.tmax, mult[x]);
+                    check.add(-self.bounds.tmax - t, t - self.bounds.tmax, mult[x]);
                 }
             }
         }
@@ -395,17 +404,8 @@ impl<const N: usize> SqpSteps for TreeSteps<'_, N> {
         {
             return Err(SqpStatus::NonFiniteInput);
         }
-        let (rate, tmax) = (self.limits.rate, self.limits.max);
-        if rate.is_nan() || tmax.is_nan() || ps.iter().any(|p| p.t_prev.iter().any(|v| v.is_nan()))
-        {
-            return Err(SqpStatus::NonFiniteInput);
-        }
-        if !(rate >= 0.0 && rate.is_finite() && tmax >= 0.0 && tmax.is_finite()) {
-            return Err(SqpStatus::Infeasible);
-        }
-        w.rl = -rate;
-        w.ru = rate;
-        w.tmax = tmax;
+        let nan = ps.iter().any(|p| p.t_prev.iter().any(|v| v.is_nan()));
+        w.bounds = StepBounds::of(self.limits, nan)?;
         w.weights.copy_from_slice(self.weights);
         // Q_i = μ_i diag(I, r_d LᵢᵀLᵢ, 0) on every state (Lᵢ the velocity metric of
         // scenario i's problem, the identity in the paper's eq. 7).
@@ -431,12 +431,6 @@ impl<const N: usize> SqpSteps for TreeSteps<'_, N> {
         Ok(())
     }
 
-    fn clamp(&self, z: &mut DVector<f64>) {
-        for v in z.iter_mut() {
-            *v = v.max(self.w.rl).min(self.w.ru);
-        }
-    }
-
     fn general_violation(&mut self, z: &DVector<f64>) -> f64 {
         let w = &mut *self.w;
         let mut viol: f64 = 0.0;
@@ -447,7 +441,7 @@ impl<const N: usize> SqpSteps for TreeSteps<'_, N> {
                 for a in 0..N {
                     acc[a] += w.zi[j * N + a];
                     w.torques[(i * w.nc + j) * N + a] = acc[a];
-                    viol = viol.max(acc[a].abs() - w.tmax);
+                    viol = viol.max(acc[a].abs() - w.bounds.tmax);
                 }
             }
         }
@@ -460,21 +454,7 @@ impl<const N: usize> SqpSteps for TreeSteps<'_, N> {
         super::ocp::held_layout(&mut w.qp.a, &mut w.qp.b, N);
         w.set_input_weights(1.0, false, 0.0);
         w.qp.g.fill(0.0);
-        w.shift_bounds(z);
-        let qi = w.qp.solve();
-        copy_step(&mut w.dz, w.qp.solution());
-        qi
-    }
-
-    fn evaluate(&mut self, z: &DVector<f64>, jacobian: bool) -> f64 {
-        self.w.evaluate(self.problems, z.as_slice(), jacobian)
-    }
-
-    fn accept(&mut self, _z_old: Option<&DVector<f64>>, _z_new: &DVector<f64>) -> bool {
-        // `evaluate` returns a non-finite cost when any linearisation entry is non-finite.
-        let w = &mut *self.w;
-        accept_trial(&mut w.torques, &w.torques_trial, &mut w.grad, &w.qp.g);
-        true
+        w.solve_step(z)
     }
 
     fn solve_qp(&mut self, z: &DVector<f64>) -> QpInfo {
@@ -485,11 +465,8 @@ impl<const N: usize> SqpSteps for TreeSteps<'_, N> {
         let delta = w.hessian_regularization * (1.0 + w.qp.max_condensed_diagonal());
         w.set_input_weights(r_t, true, delta);
         w.qp.g.copy_from_slice(&w.grad);
-        w.shift_bounds(z);
-        let qi = w.qp.solve();
-        copy_step(&mut w.dz, w.qp.solution());
-        qi
+        w.solve_step(z)
     }
 
-    step_slope_kkt!();
+    stage_steps!(problems);
 }
