@@ -3,6 +3,7 @@
 
 use crate::model::{
     c, rk4_step, ChainConstants, JointState, Real, RobotModel, StageTorque, Straps, TailoredRk4,
+    TorqueTerms,
 };
 use nalgebra::{SMatrix, SVector};
 #[cfg(feature = "std")]
@@ -203,7 +204,7 @@ impl<const N: usize> PredictionModel<N> {
         tau0: f64,
         inp: &HorizonInputs<N>,
     ) -> (JointState<f64, N>, StepJacobian<N>) {
-        self.tailored(consts, inp).step_with_jacobian(x, u, tau0)
+        self.tailored(consts, inp, u).step_with_jacobian(x, tau0)
     }
 
     /// The state of [`Self::step_with_jacobian_using`] without the sensitivities, for the
@@ -225,20 +226,23 @@ impl<const N: usize> PredictionModel<N> {
         if N != 2 {
             return self.step(x, u, tau0, inp);
         }
-        self.tailored(consts, inp).step_value_two_links(x, u, tau0)
+        self.tailored(consts, inp, u).step_value_two_links(x, tau0)
     }
 
-    /// The model-level tailored RK4 of this model with the constants `consts` and the horizon
-    /// inputs `inp`: the strap torque of [`Self::interaction_terms`] as the external torque.
+    /// The model-level tailored RK4 of this model with the constants `consts`, the horizon
+    /// inputs `inp` and the input `u`: the strap torque of [`Self::interaction_terms`] as the
+    /// external torque.
     #[inline(always)]
     fn tailored<'a>(
         &'a self,
         consts: &'a StageConstants<N>,
         inp: &'a HorizonInputs<N>,
+        u: &'a SVector<f64, N>,
     ) -> TailoredRk4<'a, N, StrapTorque<'a, N>> {
         TailoredRk4 {
             robot: &self.robot,
             consts: &consts.chain,
+            input: u,
             disturbance: &inp.disturbance,
             torque: StrapTorque {
                 model: self,
@@ -346,21 +350,16 @@ struct StrapTorque<'a, const N: usize> {
 
 impl<const N: usize> StageTorque<N> for StrapTorque<'_, N> {
     #[inline(always)]
-    fn terms(
-        &self,
-        tau: f64,
-        q: &SVector<f64, N>,
-        qd: &SVector<f64, N>,
-    ) -> (SVector<f64, N>, SMatrix<f64, N, N>, SMatrix<f64, N, N>) {
-        self.model
-            .interaction_terms(self.consts, tau, q, qd, self.inp)
+    fn terms(&self, tau: f64, x: &JointState<f64, N>) -> TorqueTerms<N> {
+        let (model, inp) = (self.model, self.inp);
+        model.interaction_terms(self.consts, tau, &x.q, &x.qd, inp)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::{Chain, Friction, Link, RkState};
+    use crate::model::{chained, rk4_step, Chain, Friction, Link};
 
     /// Deterministic pseudo-random numbers in `[-1, 1)`.
     struct Lcg(u64);
@@ -445,21 +444,49 @@ mod tests {
         }
     }
 
+    /// One case of a scan: a model, a point and a start time into the horizon.
+    struct Case<const N: usize> {
+        m: PredictionModel<N>,
+        x: JointState<f64, N>,
+        u: SVector<f64, N>,
+        inp: HorizonInputs<N>,
+        tau0: f64,
+    }
+
+    /// Case `case` of a scan: a pseudo-random model (every third case holds the interaction
+    /// torque, every fifth has sign friction, the others `Tanh { width }`) with `substeps`, a
+    /// point within `±q`, `±qd` ([`Lcg::point`]) and `tau0 = 0.01·(case mod 4)`.
+    fn scan_case<const N: usize>(
+        rng: &mut Lcg,
+        case: usize,
+        width: f64,
+        substeps: usize,
+        (q, qd): (f64, f64),
+    ) -> Case<N> {
+        let friction = if case % 5 == 4 {
+            Friction::Sign
+        } else {
+            Friction::Tanh { width }
+        };
+        let m = model::<N>(rng, interaction_of(case), friction, substeps);
+        let (x, u, inp) = rng.point(q, qd);
+        let tau0 = 0.01 * (case % 4) as f64;
+        Case { m, x, u, inp, tau0 }
+    }
+
+    /// `runs` (one per link count 1, 2, 3) with the seeds `seed`, `seed + 1`, `seed + 2`.
+    fn each_link_count(runs: [fn(u64); 3], seed: u64) {
+        for (k, run) in runs.into_iter().enumerate() {
+            run(seed + k as u64);
+        }
+    }
+
     fn check<const N: usize>(seed: u64) {
         let mut rng = Lcg(seed);
         for case in 0..200 {
-            let interaction = interaction_of(case);
-            let friction = if case % 5 == 4 {
-                Friction::Sign
-            } else {
-                Friction::Tanh {
-                    width: [0.01, 0.1, 1.0][case % 3],
-                }
-            };
-            let substeps = 1 + case % 3;
-            let m = model::<N>(&mut rng, interaction, friction, substeps);
-            let (x, u, inp) = rng.point(1.5, 3.0);
-            let tau0 = 0.01 * (case % 4) as f64;
+            let width = [0.01, 0.1, 1.0][case % 3];
+            let Case { m, x, u, inp, tau0 } =
+                scan_case::<N>(&mut rng, case, width, 1 + case % 3, (1.5, 3.0));
             let (xa, ja) = m.step_with_jacobian(&x, &u, tau0, &inp);
             let (xb, jb) = m.step_with_jacobian_dual(&x, &u, tau0, &inp);
             let close = |a: &SMatrix<f64, N, N>, b: &SMatrix<f64, N, N>, what: &str| {
@@ -487,20 +514,17 @@ mod tests {
     fn two_link_jacobian_equals_the_chain_code() {
         let mut rng = Lcg(11);
         for case in 0..2000 {
-            let interaction = interaction_of(case);
-            let friction = if case % 5 == 4 {
-                Friction::Sign
-            } else {
-                Friction::Tanh { width: 0.1 }
-            };
-            let m = model::<2>(&mut rng, interaction, friction, 1);
+            let Case {
+                m,
+                x,
+                u,
+                inp,
+                tau0: tau,
+            } = scan_case::<2>(&mut rng, case, 0.1, 1, (4.0, 6.0));
             let k = StageConstants::new(&m);
-            let (x, u, inp) = rng.point(4.0, 6.0);
-            let tau = 0.01 * (case % 4) as f64;
-            let a = m
-                .tailored(&k, &inp)
-                .derivative_jacobian_two_links(tau, &x, &u, &mut None);
-            let b = m.tailored(&k, &inp).derivative_jacobian_chain(tau, &x, &u);
+            let tailored = m.tailored(&k, &inp, &u);
+            let a = tailored.derivative_jacobian_two_links(tau, &x, &mut None);
+            let b = tailored.derivative_jacobian_chain(tau, &x);
             assert_eq!(a.qdd, b.qdd, "case {case}");
             assert_eq!(a.a_q, b.a_q, "case {case}");
             assert_eq!(a.a_v, b.a_v, "case {case}");
@@ -528,13 +552,11 @@ mod tests {
                 );
             }
         }
-        run::<1>(31);
-        run::<2>(32);
-        run::<3>(33);
+        each_link_count([run::<1>, run::<2>, run::<3>], 31);
     }
 
     /// `step_with_jacobian` (with the shortened first substep) gives the numbers of the plain
-    /// RK4 chaining through `stage_sens`.
+    /// RK4 chaining of the stages' sensitivities (`chained`) by the model's `rk4_step`.
     #[test]
     fn first_substep_shortcut_equals_plain_chaining() {
         fn plain<const N: usize>(
@@ -545,59 +567,30 @@ mod tests {
             inp: &HorizonInputs<N>,
         ) -> (JointState<f64, N>, StepJacobian<N>) {
             let consts = StageConstants::new(m);
+            let tailored = m.tailored(&consts, inp, u);
             let n = m.substeps.max(1);
             let h = m.dt / n as f64;
-            let mut s = *x;
-            let mut sens = StepJacobian::identity();
+            let mut s = (*x, StepJacobian::identity());
             for i in 0..n {
-                let t = tau0 + i as f64 * h;
-                let mut tr = None;
-                let (k1, d1) = m
-                    .tailored(&consts, inp)
-                    .stage_sens(t, &s, u, &sens, &mut tr);
-                let (x2, s2) = (s.add_scaled(0.5 * h, &k1), sens.add_scaled(0.5 * h, &d1));
-                let (k2, d2) =
-                    m.tailored(&consts, inp)
-                        .stage_sens(t + 0.5 * h, &x2, u, &s2, &mut tr);
-                let (x3, s3) = (s.add_scaled(0.5 * h, &k2), sens.add_scaled(0.5 * h, &d2));
-                let (k3, d3) =
-                    m.tailored(&consts, inp)
-                        .stage_sens(t + 0.5 * h, &x3, u, &s3, &mut tr);
-                let (x4, s4) = (s.add_scaled(h, &k3), sens.add_scaled(h, &d3));
-                let (k4, d4) = m
-                    .tailored(&consts, inp)
-                    .stage_sens(t + h, &x4, u, &s4, &mut tr);
-                s = s
-                    .add_scaled(h / 6.0, &k1)
-                    .add_scaled(h / 3.0, &k2)
-                    .add_scaled(h / 3.0, &k3)
-                    .add_scaled(h / 6.0, &k4);
-                sens = sens
-                    .add_scaled(h / 6.0, &d1)
-                    .add_scaled(h / 3.0, &d2)
-                    .add_scaled(h / 3.0, &d3)
-                    .add_scaled(h / 6.0, &d4);
+                // The model's generic RK4 step of the state and its sensitivity together.
+                let mut trig = None;
+                let f = |t: f64, (y, sy): &(JointState<f64, N>, StepJacobian<N>)| {
+                    tailored.stage(t, y, sy, &mut trig, chained)
+                };
+                s = rk4_step(f, tau0 + i as f64 * h, &s, h);
             }
-            (s, sens)
+            s
         }
         fn run<const N: usize>(seed: u64) {
             let mut rng = Lcg(seed);
             for case in 0..300 {
-                let interaction = interaction_of(case);
-                let m = model::<N>(
-                    &mut rng,
-                    interaction,
-                    Friction::Tanh { width: 0.1 },
-                    1 + case % 3,
-                );
-                let (x, u, inp) = rng.point(1.5, 3.0);
-                let a = m.step_with_jacobian(&x, &u, 0.01, &inp);
-                assert_eq!(a, plain(&m, &x, &u, 0.01, &inp), "N = {N} case {case}");
+                let Case { m, x, u, inp, tau0 } =
+                    scan_case::<N>(&mut rng, case, 0.1, 1 + case % 3, (1.5, 3.0));
+                let a = m.step_with_jacobian(&x, &u, tau0, &inp);
+                assert_eq!(a, plain(&m, &x, &u, tau0, &inp), "N = {N} case {case}");
             }
         }
-        run::<1>(21);
-        run::<2>(22);
-        run::<3>(23);
+        each_link_count([run::<1>, run::<2>, run::<3>], 21);
     }
 
     /// The value-only step equals the state of `step_with_jacobian` to the bit (two links; the
@@ -607,16 +600,9 @@ mod tests {
         fn run<const N: usize>(seed: u64) {
             let mut rng = Lcg(seed);
             for case in 0..300 {
-                let interaction = interaction_of(case);
-                let friction = if case % 5 == 4 {
-                    Friction::Sign
-                } else {
-                    Friction::Tanh { width: 0.1 }
-                };
-                let m = model::<N>(&mut rng, interaction, friction, 1 + case % 3);
+                let Case { m, x, u, inp, tau0 } =
+                    scan_case::<N>(&mut rng, case, 0.1, 1 + case % 3, (1.5, 3.0));
                 let consts = m.jacobian_constants();
-                let (x, u, inp) = rng.point(1.5, 3.0);
-                let tau0 = 0.01 * (case % 4) as f64;
                 let v = m.step_value_using(&consts, &x, &u, tau0, &inp);
                 let p = m.step(&x, &u, tau0, &inp);
                 if N == 2 {
@@ -635,23 +621,13 @@ mod tests {
                 );
             }
         }
-        run::<1>(41);
-        run::<2>(42);
-        run::<3>(43);
+        each_link_count([run::<1>, run::<2>, run::<3>], 41);
     }
 
+    /// The tailored Jacobian equals forward-mode dual numbers through the generic step (an
+    /// independent derivation) to rounding, for one, two and three links.
     #[test]
-    fn tailored_jacobian_matches_dual_n1() {
-        check::<1>(1);
-    }
-
-    #[test]
-    fn tailored_jacobian_matches_dual_n2() {
-        check::<2>(2);
-    }
-
-    #[test]
-    fn tailored_jacobian_matches_dual_n3() {
-        check::<3>(3);
+    fn tailored_jacobian_matches_dual() {
+        each_link_count([check::<1>, check::<2>, check::<3>], 1);
     }
 }

@@ -249,12 +249,13 @@ impl<const N: usize, const NA: usize, const NY: usize> ScenarioEkf<N, NA, NY> {
         let (out, j) = TailoredRk4 {
             robot: &self.model,
             consts: &self.consts,
+            input: u,
             disturbance: &d,
             torque: HeldTorque(*t_int),
             dt: self.dt,
             substeps: self.substeps,
         }
-        .step_with_jacobian(&s, u, 0.0);
+        .step_with_jacobian(&s, 0.0);
         let mut xn = *x;
         let mut f = SMatrix::<f64, NA, NA>::zeros();
         for i in 0..N {

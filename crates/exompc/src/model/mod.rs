@@ -15,8 +15,10 @@ mod trig;
 pub use chain::{Chain, Link};
 pub use human::HumanSegment;
 pub use rk4::{rk4_step, JointState, RkState};
+#[cfg(test)]
+pub(crate) use rk4_jacobian::chained;
 pub use rk4_jacobian::StepJacobian;
-pub(crate) use rk4_jacobian::{ChainConstants, HeldTorque, StageTorque, TailoredRk4};
+pub(crate) use rk4_jacobian::{ChainConstants, HeldTorque, StageTorque, TailoredRk4, TorqueTerms};
 pub use robot::{tanh, Friction, RobotModel};
 pub use straps::Straps;
 pub use trig::{sin_cos, sin_cos_near};

@@ -10,6 +10,14 @@ pub trait RkState: Sized {
     fn add_scaled(&self, h: f64, d: &Self) -> Self;
 }
 
+/// Two states integrated together (e.g. a state and its sensitivity), combined component-wise.
+impl<A: RkState, B: RkState> RkState for (A, B) {
+    #[inline(always)]
+    fn add_scaled(&self, h: f64, d: &Self) -> Self {
+        (self.0.add_scaled(h, &d.0), self.1.add_scaled(h, &d.1))
+    }
+}
+
 /// Joint positions and velocities of one chain.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct JointState<T: Real, const N: usize> {

@@ -33,14 +33,13 @@ pub struct StepJacobian<const N: usize> {
 /// `u` and the disturbance `d`, with its partial derivatives: [`StageTorque::terms`] at time `τ`
 /// into the period and the stage state `(q, qd)`.
 pub(crate) trait StageTorque<const N: usize> {
-    /// `(T_ext, ∂T_ext/∂q, ∂T_ext/∂qd)`.
-    fn terms(
-        &self,
-        tau: f64,
-        q: &SVector<f64, N>,
-        qd: &SVector<f64, N>,
-    ) -> (SVector<f64, N>, SMatrix<f64, N, N>, SMatrix<f64, N, N>);
+    /// `(T_ext, ∂T_ext/∂q, ∂T_ext/∂qd)` at the stage state `x`.
+    fn terms(&self, tau: f64, x: &JointState<f64, N>) -> TorqueTerms<N>;
 }
+
+/// `(T_ext, ∂T_ext/∂q, ∂T_ext/∂qd)`: an external joint torque and its partial derivatives.
+pub(crate) type TorqueTerms<const N: usize> =
+    (SVector<f64, N>, SMatrix<f64, N, N>, SMatrix<f64, N, N>);
 
 /// A torque held over the period (MODEL.md §8, the EKF's `T_int(k−1)`): zero derivatives.
 #[derive(Clone, Copy, Debug)]
@@ -48,12 +47,7 @@ pub(crate) struct HeldTorque<const N: usize>(pub SVector<f64, N>);
 
 impl<const N: usize> StageTorque<N> for HeldTorque<N> {
     #[inline(always)]
-    fn terms(
-        &self,
-        _tau: f64,
-        _q: &SVector<f64, N>,
-        _qd: &SVector<f64, N>,
-    ) -> (SVector<f64, N>, SMatrix<f64, N, N>, SMatrix<f64, N, N>) {
+    fn terms(&self, _tau: f64, _x: &JointState<f64, N>) -> TorqueTerms<N> {
         (self.0, SMatrix::zeros(), SMatrix::zeros())
     }
 }
@@ -66,6 +60,8 @@ pub(crate) struct TailoredRk4<'a, const N: usize, T> {
     pub robot: &'a RobotModel<N>,
     /// Its constants ([`ChainConstants::new`] of `robot`).
     pub consts: &'a ChainConstants<N>,
+    /// Input `u` (N·m), held.
+    pub input: &'a SVector<f64, N>,
     /// Disturbance `d` (N·m), held.
     pub disturbance: &'a SVector<f64, N>,
     /// External torque.
@@ -77,14 +73,13 @@ pub(crate) struct TailoredRk4<'a, const N: usize, T> {
 }
 
 impl<const N: usize, T: StageTorque<N>> TailoredRk4<'_, N, T> {
-    /// The state one period after `x` under `u` (starting `tau0` into the horizon) and its exact
+    /// The state one period after `x` under the input (starting `tau0` into the horizon) and its exact
     /// Jacobian: the RK4 sensitivity chained stage by stage (equal to forward-mode dual numbers
-    /// to rounding; tests `tailored_jacobian_matches_dual_n*`).
+    /// to rounding; test `tailored_jacobian_matches_dual`).
     #[inline(always)]
     pub(crate) fn step_with_jacobian(
         &self,
         x: &JointState<f64, N>,
-        u: &SVector<f64, N>,
         tau0: f64,
     ) -> (JointState<f64, N>, StepJacobian<N>) {
         let n = self.substeps.max(1);
@@ -96,23 +91,36 @@ impl<const N: usize, T: StageTorque<N>> TailoredRk4<'_, N, T> {
             // The substep's first stage evaluates `sin`/`cos` of the link angles; the later
             // stages rotate them by the small angle increments (`LinkTrig`).
             let mut trig = None;
-            // The first substep starts from the identity sensitivity: its first stage has no
-            // products and its second stage two fewer (`stage_sens_first`, `stage_sens_second`).
+            // The first substep starts from the identity sensitivity `[[I, 0, 0], [0, I, 0]]`:
+            // its first stage has no products (`∂k/∂(x₀, u) = [[0, I, 0], [a_q, a_v, M⁻¹]]`, the
+            // values `chained` forms from products with the identity and zero blocks, `x·1 +
+            // y·0 = x`) and its second stage two fewer (below).
             let (k1, d1) = if i == 0 {
-                self.stage_sens_first(t, &s, u, &mut trig)
+                let eye = StepJacobian::identity();
+                self.stage(t, &s, &eye, &mut trig, |d, _| [d.a_q, d.a_v, d.minv])
             } else {
-                self.stage_sens(t, &s, u, &sens, &mut trig)
+                self.stage(t, &s, &sens, &mut trig, chained)
             };
             let x2 = s.add_scaled(0.5 * h, &k1);
             // From the identity sensitivity, `sens + c·d` adds nothing to the zero entries of
             // `sens` and of `d1` and one to the diagonal: the sums are formed only where they
             // are not exact (`0 + y = y`, `1·c = c`; same values).
             let (k2, d2) = if i == 0 {
-                let s2 = StepJacobian::identity_plus_first(0.5 * h, &d1);
-                self.stage_sens_second(t + 0.5 * h, &x2, u, 0.5 * h, &s2, &mut trig)
+                // `sx.qq = I`, `sx.qu = 0` and `sx.qv = h2·I` exactly (identity plus `h2 = h/2`
+                // times the first stage's blocks `0`, `I`, `0`): the products with them are left
+                // out or scalar (same values).
+                let h2 = 0.5 * h;
+                let s2 = StepJacobian::identity_plus_first(h2, &d1);
+                self.stage(t + h2, &x2, &s2, &mut trig, |d, sx| {
+                    [
+                        d.a_q + d.a_v * sx.vq,
+                        d.a_q * h2 + d.a_v * sx.vv,
+                        d.a_v * sx.vu + d.minv,
+                    ]
+                })
             } else {
                 let s2 = sens.add_scaled(0.5 * h, &d1);
-                self.stage_sens(t + 0.5 * h, &x2, u, &s2, &mut trig)
+                self.stage(t + 0.5 * h, &x2, &s2, &mut trig, chained)
             };
             let x3 = s.add_scaled(0.5 * h, &k2);
             let s3 = if i == 0 {
@@ -120,14 +128,14 @@ impl<const N: usize, T: StageTorque<N>> TailoredRk4<'_, N, T> {
             } else {
                 sens.add_scaled(0.5 * h, &d2)
             };
-            let (k3, d3) = self.stage_sens(t + 0.5 * h, &x3, u, &s3, &mut trig);
+            let (k3, d3) = self.stage(t + 0.5 * h, &x3, &s3, &mut trig, chained);
             let x4 = s.add_scaled(h, &k3);
             let s4 = if i == 0 {
                 StepJacobian::identity_plus(h, &d3)
             } else {
                 sens.add_scaled(h, &d3)
             };
-            let (k4, d4) = self.stage_sens(t + h, &x4, u, &s4, &mut trig);
+            let (k4, d4) = self.stage(t + h, &x4, &s4, &mut trig, chained);
             s = s
                 .add_scaled(h / 6.0, &k1)
                 .add_scaled(h / 3.0, &k2)
@@ -154,7 +162,6 @@ impl<const N: usize, T: StageTorque<N>> TailoredRk4<'_, N, T> {
     pub(crate) fn step_value_two_links(
         &self,
         x: &JointState<f64, N>,
-        u: &SVector<f64, N>,
         tau0: f64,
     ) -> JointState<f64, N> {
         debug_assert_eq!(N, 2);
@@ -162,7 +169,7 @@ impl<const N: usize, T: StageTorque<N>> TailoredRk4<'_, N, T> {
         let h = self.dt / n as f64;
         let f = |t: f64, y: &JointState<f64, N>, trig: &mut Option<LinkTrig>| JointState {
             q: y.qd,
-            qd: self.derivative_jacobian_two_links(t, y, u, trig).qdd,
+            qd: self.derivative_jacobian_two_links(t, y, trig).qdd,
         };
         let mut s = *x;
         for i in 0..n {
@@ -182,75 +189,29 @@ impl<const N: usize, T: StageTorque<N>> TailoredRk4<'_, N, T> {
     }
 
     /// One RK4 stage `k = f(τ, X, u)` and its sensitivity `∂k/∂(x₀, u)` given the stage state's
-    /// sensitivity `sx = ∂X/∂(x₀, u)`.
+    /// sensitivity `sx = ∂X/∂(x₀, u)`: the position rows are the velocity rows of `sx`, the
+    /// velocity rows `[∂/∂q₀, ∂/∂qd₀, ∂/∂u]` are `rows(d, sx)` of the partial derivatives `d` of
+    /// `qdd` ([`chained`] in general, fewer products where `sx` has known identity and zero
+    /// blocks).
     #[inline(always)]
-    pub(crate) fn stage_sens(
+    pub(crate) fn stage(
         &self,
         tau: f64,
         x: &JointState<f64, N>,
-        u: &SVector<f64, N>,
         sx: &StepJacobian<N>,
         trig: &mut Option<LinkTrig>,
+        rows: impl FnOnce(&AccelJacobian<N>, &StepJacobian<N>) -> [SMatrix<f64, N, N>; 3],
     ) -> (JointState<f64, N>, StepJacobian<N>) {
-        let d = self.derivative_jacobian(tau, x, u, trig);
+        let d = self.derivative_jacobian(tau, x, trig);
         let k = JointState { q: x.qd, qd: d.qdd };
+        let [vq, vv, vu] = rows(&d, sx);
         let dk = StepJacobian {
             qq: sx.vq,
             qv: sx.vv,
             qu: sx.vu,
-            vq: d.a_q * sx.qq + d.a_v * sx.vq,
-            vv: d.a_q * sx.qv + d.a_v * sx.vv,
-            vu: d.a_q * sx.qu + d.a_v * sx.vu + d.minv,
-        };
-        (k, dk)
-    }
-
-    /// [`Self::stage_sens`] from the identity sensitivity (`sx = [[I, 0, 0], [0, I, 0]]`):
-    /// `∂k/∂(x₀, u) = [[0, I, 0], [a_q, a_v, M⁻¹]]`, the values `stage_sens` forms from products
-    /// with the identity and zero blocks (`x·1 + y·0 = x`).
-    #[inline(always)]
-    fn stage_sens_first(
-        &self,
-        tau: f64,
-        x: &JointState<f64, N>,
-        u: &SVector<f64, N>,
-        trig: &mut Option<LinkTrig>,
-    ) -> (JointState<f64, N>, StepJacobian<N>) {
-        let d = self.derivative_jacobian(tau, x, u, trig);
-        let k = JointState { q: x.qd, qd: d.qdd };
-        let dk = StepJacobian {
-            qq: SMatrix::zeros(),
-            qv: SMatrix::identity(),
-            qu: SMatrix::zeros(),
-            vq: d.a_q,
-            vv: d.a_v,
-            vu: d.minv,
-        };
-        (k, dk)
-    }
-
-    /// [`Self::stage_sens`] for the second RK4 stage of the first substep, where `sx.qq = I`,
-    /// `sx.qu = 0` and `sx.qv = h2·I` exactly (identity plus `h2 = h/2` times the first stage's
-    /// blocks `0`, `I`, `0`): the products with them are left out or scalar (same values).
-    #[inline(always)]
-    fn stage_sens_second(
-        &self,
-        tau: f64,
-        x: &JointState<f64, N>,
-        u: &SVector<f64, N>,
-        h2: f64,
-        sx: &StepJacobian<N>,
-        trig: &mut Option<LinkTrig>,
-    ) -> (JointState<f64, N>, StepJacobian<N>) {
-        let d = self.derivative_jacobian(tau, x, u, trig);
-        let k = JointState { q: x.qd, qd: d.qdd };
-        let dk = StepJacobian {
-            qq: sx.vq,
-            qv: sx.vv,
-            qu: sx.vu,
-            vq: d.a_q + d.a_v * sx.vq,
-            vv: d.a_q * h2 + d.a_v * sx.vv,
-            vu: d.a_v * sx.vu + d.minv,
+            vq,
+            vv,
+            vu,
         };
         (k, dk)
     }
@@ -262,13 +223,12 @@ impl<const N: usize, T: StageTorque<N>> TailoredRk4<'_, N, T> {
         &self,
         tau: f64,
         x: &JointState<f64, N>,
-        u: &SVector<f64, N>,
         trig: &mut Option<LinkTrig>,
     ) -> AccelJacobian<N> {
         if N == 2 {
-            self.derivative_jacobian_two_links(tau, x, u, trig)
+            self.derivative_jacobian_two_links(tau, x, trig)
         } else {
-            self.derivative_jacobian_chain(tau, x, u)
+            self.derivative_jacobian_chain(tau, x)
         }
     }
 
@@ -278,7 +238,6 @@ impl<const N: usize, T: StageTorque<N>> TailoredRk4<'_, N, T> {
         &self,
         tau: f64,
         x: &JointState<f64, N>,
-        u: &SVector<f64, N>,
     ) -> AccelJacobian<N> {
         let k = self.consts;
         let (q, v) = (&x.q, &x.qd);
@@ -390,41 +349,55 @@ impl<const N: usize, T: StageTorque<N>> TailoredRk4<'_, N, T> {
                 dg[(r, s)] = wcos[r.max(s)..].iter().sum();
             }
         }
+        let terms = ChainTerms { m, hv, g, dh_v };
+        // ∂(M qdd)/∂q_r = ∂rhs/∂q_r ⇒ ∂qdd/∂q_r = M⁻¹(∂rhs/∂q_r − ∂M/∂q_r qdd).
+        self.accel(tau, x, &terms, &ChainBq { d1, dh_q, dg })
+    }
+
+    /// `qdd = M⁻¹ rhs` of eq. 1 with its partial derivatives from the chain's `terms`: friction,
+    /// the external torque, `M⁻¹`; `∂qdd/∂q = M⁻¹ bq(∂T_ext/∂q, qdd)` (the caller's `−∂T_ext/∂q −
+    /// ∂h/∂q − ∂G/∂q − ∂M/∂q qdd`), `∂qdd/∂qd = M⁻¹(−∂h/∂qd − ∂T_ext/∂qd − diag ∂fr/∂qd)`.
+    #[inline(always)]
+    fn accel(
+        &self,
+        tau: f64,
+        x: &JointState<f64, N>,
+        terms: &ChainTerms<N>,
+        bq: &impl PositionBlock<N>,
+    ) -> AccelJacobian<N> {
+        let v = &x.qd;
+        let (hv, g) = (&terms.hv, &terms.g);
         // Friction and its (diagonal) derivative.
         let rb = &self.robot;
         let mut fr = SVector::<f64, N>::zeros();
         let mut dfr = [0.0; N];
-        for i in 0..N {
-            let (coul, dcoul) = friction_terms(rb, v[i]);
+        let mut joint = |i: usize, (coul, dcoul): (f64, f64)| {
             fr[i] = v[i] * rb.viscous + coul;
             dfr[i] = rb.viscous + dcoul;
-        }
-        // Interaction torque and its derivatives (−ks JᵀJ, −cs JᵀJ when predicted).
-        let (t_int, ti_q, ti_v) = self.torque.terms(tau, q, v);
-        let mut rhs = SVector::<f64, N>::zeros();
-        for i in 0..N {
-            rhs[i] = u[i] + t_int[i] + self.disturbance[i] - hv[i] - g[i] - fr[i];
-        }
-        let minv = spd_inverse(&m);
-        let qdd = minv * rhs;
-        // ∂(M qdd)/∂q_r = ∂rhs/∂q_r ⇒ ∂qdd/∂q_r = M⁻¹(∂rhs/∂q_r − ∂M/∂q_r qdd).
-        let mut bq = SMatrix::<f64, N, N>::zeros();
-        for r in 0..N {
-            for i in 0..N {
-                let mut dmq = 0.0;
-                for j in 0..N {
-                    dmq += d1[r][i][j] * qdd[j];
-                }
-                bq[(i, r)] = -ti_q[(i, r)] - dh_q[(i, r)] - dg[(i, r)] - dmq;
+        };
+        // The friction law is matched once per stage, not per joint.
+        match rb.friction {
+            Friction::Sign => (0..N).for_each(|i| joint(i, sign_friction(rb, v[i]))),
+            Friction::Tanh { width } => {
+                (0..N).for_each(|i| joint(i, tanh_friction(rb, width, v[i])))
             }
         }
-        let mut bv = -dh_v;
+        // Interaction torque and its derivatives (−ks JᵀJ, −cs JᵀJ when predicted).
+        let (t_int, ti_q, ti_v) = self.torque.terms(tau, x);
+        let mut rhs = SVector::<f64, N>::zeros();
+        for i in 0..N {
+            rhs[i] = self.input[i] + t_int[i] + self.disturbance[i] - hv[i] - g[i] - fr[i];
+        }
+        let minv = spd_inverse(&terms.m);
+        let qdd = minv * rhs;
+        let mut bv = -terms.dh_v;
         for i in 0..N {
             for j in 0..N {
                 bv[(i, j)] -= ti_v[(i, j)];
             }
             bv[(i, i)] -= dfr[i];
         }
+        let bq = bq.bq(&ti_q, &qdd);
         AccelJacobian {
             qdd,
             a_q: minv * bq,
@@ -443,7 +416,6 @@ impl<const N: usize, T: StageTorque<N>> TailoredRk4<'_, N, T> {
         &self,
         tau: f64,
         x: &JointState<f64, N>,
-        u: &SVector<f64, N>,
         trig: &mut Option<LinkTrig>,
     ) -> AccelJacobian<N> {
         debug_assert_eq!(N, 2);
@@ -494,64 +466,134 @@ impl<const N: usize, T: StageTorque<N>> TailoredRk4<'_, N, T> {
         let g0 = g1 + k.w[0] * s0;
         let (wc0, wc1) = (k.w[0] * c0, k.w[1] * c1);
         let dg00 = 0.0 + wc0 + wc1;
-        // Friction and its (diagonal) derivative.
-        let rb = &self.robot;
-        let mut fr = SVector::<f64, N>::zeros();
-        let mut dfr = [0.0; N];
-        for i in 0..N {
-            let (coul, dcoul) = friction_terms(rb, v[i]);
-            fr[i] = v[i] * rb.viscous + coul;
-            dfr[i] = rb.viscous + dcoul;
+        let mut hv = SVector::<f64, N>::zeros();
+        let mut g = SVector::<f64, N>::zeros();
+        (hv[0], hv[1], g[0], g[1]) = (hv0, hv1, g0, g1);
+        let terms = ChainTerms { m, hv, g, dh_v };
+        let bq = TwoLinkBq {
+            a,
+            b,
+            c,
+            dh_q01,
+            dh_q11,
+            wc1,
+            dg00,
+        };
+        self.accel(tau, x, &terms, &bq)
+    }
+}
+
+/// `N × N` matrix of `f64`.
+type Mat<const N: usize> = SMatrix<f64, N, N>;
+
+/// The mass matrix `M`, the Coriolis term `h = C qd` with `∂h/∂qd`, and gravity `G` of the chain
+/// at one stage (MODEL.md §1).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct ChainTerms<const N: usize> {
+    m: Mat<N>,
+    hv: SVector<f64, N>,
+    g: SVector<f64, N>,
+    dh_v: Mat<N>,
+}
+
+/// `bq = −∂T_ext/∂q − ∂h/∂q − ∂G/∂q − ∂M/∂q qdd`, the right-hand side of `M ∂qdd/∂q = bq`
+/// (`∂(M qdd)/∂q_r = ∂rhs/∂q_r`), from the chain's derivative terms at one stage.
+pub(crate) trait PositionBlock<const N: usize> {
+    /// `bq` given `∂T_ext/∂q` and `qdd`.
+    fn bq(&self, ti_q: &Mat<N>, qdd: &SVector<f64, N>) -> Mat<N>;
+}
+
+/// The chain code's terms of `bq`: `∂M/∂q` (`d1[r][i][j] = ∂M_ij/∂q_r`), `∂h/∂q` and `∂G/∂q`.
+struct ChainBq<const N: usize> {
+    d1: [[[f64; N]; N]; N],
+    dh_q: Mat<N>,
+    dg: Mat<N>,
+}
+
+impl<const N: usize> PositionBlock<N> for ChainBq<N> {
+    #[inline(always)]
+    fn bq(&self, ti_q: &Mat<N>, qdd: &SVector<f64, N>) -> Mat<N> {
+        let (d1, dh_q, dg) = (&self.d1, &self.dh_q, &self.dg);
+        let mut bq = SMatrix::<f64, N, N>::zeros();
+        for r in 0..N {
+            for i in 0..N {
+                let mut dmq = 0.0;
+                for j in 0..N {
+                    dmq += d1[r][i][j] * qdd[j];
+                }
+                bq[(i, r)] = -ti_q[(i, r)] - dh_q[(i, r)] - dg[(i, r)] - dmq;
+            }
         }
-        let (t_int, ti_q, ti_v) = self.torque.terms(tau, q, v);
-        let hv = [hv0, hv1];
-        let g = [g0, g1];
-        let mut rhs = SVector::<f64, N>::zeros();
-        for i in 0..N {
-            rhs[i] = u[i] + t_int[i] + self.disturbance[i] - hv[i] - g[i] - fr[i];
-        }
-        let minv = spd_inverse(&m);
-        let qdd = minv * rhs;
+        bq
+    }
+}
+
+/// The two-link code's nonzero terms of `bq`: `∂M/∂q`'s `a`, `b`, `c`, `∂h/∂q`'s second column
+/// and `∂G/∂q` (`dg00`, the others `wc1`).
+struct TwoLinkBq {
+    a: f64,
+    b: f64,
+    c: f64,
+    dh_q01: f64,
+    dh_q11: f64,
+    wc1: f64,
+    dg00: f64,
+}
+
+impl<const N: usize> PositionBlock<N> for TwoLinkBq {
+    #[inline(always)]
+    fn bq(&self, ti_q: &Mat<N>, qdd: &SVector<f64, N>) -> Mat<N> {
+        let TwoLinkBq {
+            a,
+            b,
+            c,
+            dh_q01,
+            dh_q11,
+            wc1,
+            dg00,
+        } = *self;
         let mut bq = SMatrix::<f64, N, N>::zeros();
         bq[(0, 0)] = -ti_q[(0, 0)] - dg00;
         bq[(1, 0)] = -ti_q[(1, 0)] - wc1;
         bq[(0, 1)] = -ti_q[(0, 1)] - dh_q01 - wc1 - (a * qdd[0] + b * qdd[1]);
         bq[(1, 1)] = -ti_q[(1, 1)] - dh_q11 - wc1 - c * qdd[0];
-        let mut bv = -dh_v;
-        for i in 0..N {
-            for j in 0..N {
-                bv[(i, j)] -= ti_v[(i, j)];
-            }
-            bv[(i, i)] -= dfr[i];
-        }
-        AccelJacobian {
-            qdd,
-            a_q: minv * bq,
-            a_v: minv * bv,
-            minv,
-        }
+        bq
     }
 }
 
-/// Coulomb friction of one joint speed and its derivative (smooth or sign).
+/// The velocity rows of a stage's sensitivity by the chain rule through the stage state's
+/// sensitivity `sx`: `∂qdd/∂q₀ = a_q·sx.qq + a_v·sx.vq`, likewise for `qd₀`, and `∂qdd/∂u` with
+/// the direct term `M⁻¹`.
 #[inline(always)]
-fn friction_terms<const N: usize>(rb: &RobotModel<N>, v: f64) -> (f64, f64) {
-    match rb.friction {
-        Friction::Sign => (
-            if v > 0.0 {
-                rb.coulomb
-            } else if v < 0.0 {
-                -rb.coulomb
-            } else {
-                0.0
-            },
-            0.0,
-        ),
-        Friction::Tanh { width } => {
-            let t: f64 = tanh(v * (1.0 / width));
-            (t * rb.coulomb, rb.coulomb * (1.0 - t * t) * (1.0 / width))
-        }
-    }
+pub(crate) fn chained<const N: usize>(
+    d: &AccelJacobian<N>,
+    sx: &StepJacobian<N>,
+) -> [SMatrix<f64, N, N>; 3] {
+    [
+        d.a_q * sx.qq + d.a_v * sx.vq,
+        d.a_q * sx.qv + d.a_v * sx.vv,
+        d.a_q * sx.qu + d.a_v * sx.vu + d.minv,
+    ]
+}
+
+/// Coulomb friction of one joint speed and its derivative, sign law.
+#[inline(always)]
+fn sign_friction<const N: usize>(rb: &RobotModel<N>, v: f64) -> (f64, f64) {
+    let c = if v > 0.0 {
+        rb.coulomb
+    } else if v < 0.0 {
+        -rb.coulomb
+    } else {
+        0.0
+    };
+    (c, 0.0)
+}
+
+/// Coulomb friction of one joint speed and its derivative, smooth law `tanh(v / width)`.
+#[inline(always)]
+fn tanh_friction<const N: usize>(rb: &RobotModel<N>, width: f64, v: f64) -> (f64, f64) {
+    let t: f64 = tanh(v * (1.0 / width));
+    (t * rb.coulomb, rb.coulomb * (1.0 - t * t) * (1.0 / width))
 }
 
 /// Inverse of a small symmetric positive-definite matrix (closed form for `N ≤ 2`).
@@ -728,10 +770,12 @@ impl<const N: usize> StepJacobian<N> {
             vu: d.vu * h,
         }
     }
+}
 
+impl<const N: usize> RkState for StepJacobian<N> {
     /// `self + h · d`, block-wise.
     #[inline(always)]
-    pub(crate) fn add_scaled(&self, h: f64, d: &Self) -> Self {
+    fn add_scaled(&self, h: f64, d: &Self) -> Self {
         StepJacobian {
             qq: self.qq + d.qq * h,
             qv: self.qv + d.qv * h,
