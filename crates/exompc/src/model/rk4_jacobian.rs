@@ -457,15 +457,15 @@ impl<const N: usize, T: StageTorque<N>> TailoredRk4<'_, N, T> {
         dh_v[(0, 1)] = a * v0 + b * v1 + b * v1;
         dh_v[(1, 0)] = g00 * v0 + g00 * v0 + g01 * v1 + g10 * v1;
         dh_v[(1, 1)] = g01 * v0 + g10 * v0;
-        // ∂h/∂q: the first column is zero.
-        let (e00, e01, e10) = (-(0.5 * e), gd - 0.5 * f, -(0.5 * gd));
-        let dh_q01 = e * v0 * v1 + f * v1 * v1;
-        let dh_q11 = e00 * v0 * v0 + e01 * v0 * v1 + e10 * v1 * v0;
         // Gravity and its derivative.
         let g1 = 0.0 + k.w[1] * s1;
         let g0 = g1 + k.w[0] * s0;
         let (wc0, wc1) = (k.w[0] * c0, k.w[1] * c1);
         let dg00 = 0.0 + wc0 + wc1;
+        // ∂h/∂q: the first column is zero.
+        let (e00, e01, e10) = (-(0.5 * e), gd - 0.5 * f, -(0.5 * gd));
+        let dh_q01 = e * v0 * v1 + f * v1 * v1;
+        let dh_q11 = e00 * v0 * v0 + e01 * v0 * v1 + e10 * v1 * v0;
         let mut hv = SVector::<f64, N>::zeros();
         let mut g = SVector::<f64, N>::zeros();
         (hv[0], hv[1], g[0], g[1]) = (hv0, hv1, g0, g1);
