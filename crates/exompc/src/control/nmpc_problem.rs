@@ -321,7 +321,8 @@ impl<const N: usize> LeastSquares for NmpcProblem<N> {
             self.torque(z, j, &mut u);
             let (xn, g): (JointState<f64, N>, StepJacobian<N>) = self
                 .model
-                .step_with_jacobian_using(&consts, &x, &u, j as f64 * self.model.dt, &self.inputs);
+                .tailored(&consts, &self.inputs, &u)
+                .step_with_jacobian(&x, j as f64 * self.model.dt);
             // S_{j+1}[i] = Φ S_j[i] + Γ for every block i ≤ min(j, Nc−1); S_j[j] = 0 on entry.
             let active = j.min(nc - 1);
             let row = j * 2 * N;

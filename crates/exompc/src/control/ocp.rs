@@ -398,7 +398,8 @@ impl<const N: usize> StageWork<N> {
             let xn = if jac {
                 let (xn, g): (JointState<f64, N>, StepJacobian<N>) = problem
                     .model
-                    .step_with_jacobian_using(&consts, &x, &u, tau, &inp);
+                    .tailored(&consts, &inp, &u)
+                    .step_with_jacobian(&x, tau);
                 // The only non-constant entries of A_j and B_j.
                 // Branch-free: `v − v` is 0 for a finite `v` and NaN otherwise; one lane per
                 // entry (six adds deep instead of one chain of 6·N² adds).

@@ -227,7 +227,8 @@ impl<const N: usize> TreeWork<N> {
                 x = if jac {
                     let (xn, g): (JointState<f64, N>, StepJacobian<N>) = problem
                         .model
-                        .step_with_jacobian_using(&consts, &x, &u, tau, &inp);
+                        .tailored(&consts, &inp, &u)
+                        .step_with_jacobian(&x, tau);
                     let ao = (i * np + j) * nx * nx;
                     let aj = &mut self.qp.a[ao..ao + nx * nx];
                     aj.fill(0.0);

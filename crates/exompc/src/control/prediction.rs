@@ -183,36 +183,23 @@ impl<const N: usize> PredictionModel<N> {
         tau0: f64,
         inp: &HorizonInputs<N>,
     ) -> (JointState<f64, N>, StepJacobian<N>) {
-        self.step_with_jacobian_using(&self.jacobian_constants(), x, u, tau0, inp)
+        self.tailored(&self.jacobian_constants(), inp, u)
+            .step_with_jacobian(x, tau0)
     }
 
-    /// The model constants [`Self::step_with_jacobian_using`] needs, computed once for a
-    /// rollout of many steps.
+    /// The model constants [`Self::tailored`] needs, computed once for a rollout of many
+    /// steps.
     #[inline]
     pub(crate) fn jacobian_constants(&self) -> StageConstants<N> {
         StageConstants::new(self)
     }
 
-    /// [`Self::step_with_jacobian`] with the constants of [`Self::jacobian_constants`] (of this
-    /// model) computed by the caller: the same numbers.
-    #[inline]
-    pub(crate) fn step_with_jacobian_using(
-        &self,
-        consts: &StageConstants<N>,
-        x: &JointState<f64, N>,
-        u: &SVector<f64, N>,
-        tau0: f64,
-        inp: &HorizonInputs<N>,
-    ) -> (JointState<f64, N>, StepJacobian<N>) {
-        self.tailored(consts, inp, u).step_with_jacobian(x, tau0)
-    }
-
-    /// The state of [`Self::step_with_jacobian_using`] without the sensitivities, for the
+    /// The state of the tailored step with Jacobian ([`Self::tailored`]) without the sensitivities, for the
     /// rollouts that need no Jacobian (the line search's backtracking trials, the dense
     /// back-end's residuals). With two links the stages use the written-out two-link
     /// acceleration and the trigonometry of the Jacobian code (its derivative terms,
     /// unused, are left out by the compiler), so the state equals that of
-    /// `step_with_jacobian_using` to the bit and [`Self::step`] to rounding; other link counts
+    /// `step_with_jacobian` to the bit and [`Self::step`] to rounding; other link counts
     /// take [`Self::step`].
     #[inline]
     pub(crate) fn step_value_using(
@@ -231,9 +218,10 @@ impl<const N: usize> PredictionModel<N> {
 
     /// The model-level tailored RK4 of this model with the constants `consts`, the horizon
     /// inputs `inp` and the input `u`: the strap torque of [`Self::interaction_terms`] as the
-    /// external torque.
+    /// external torque. Its `step_with_jacobian` is [`Self::step_with_jacobian`] with the
+    /// constants computed by the caller (of this model: the same numbers).
     #[inline(always)]
-    fn tailored<'a>(
+    pub(crate) fn tailored<'a>(
         &'a self,
         consts: &'a StageConstants<N>,
         inp: &'a HorizonInputs<N>,
@@ -342,7 +330,7 @@ impl<const N: usize> StageConstants<N> {
 
 /// The strap torque of a prediction model as the tailored RK4's external torque
 /// ([`PredictionModel::interaction_terms`]).
-struct StrapTorque<'a, const N: usize> {
+pub(crate) struct StrapTorque<'a, const N: usize> {
     model: &'a PredictionModel<N>,
     consts: &'a StageConstants<N>,
     inp: &'a HorizonInputs<N>,
@@ -606,7 +594,7 @@ mod tests {
                 let v = m.step_value_using(&consts, &x, &u, tau0, &inp);
                 let p = m.step(&x, &u, tau0, &inp);
                 if N == 2 {
-                    let (s, _) = m.step_with_jacobian_using(&consts, &x, &u, tau0, &inp);
+                    let (s, _) = m.tailored(&consts, &inp, &u).step_with_jacobian(&x, tau0);
                     assert_eq!(v, s, "N = {N} case {case}");
                 } else {
                     assert_eq!(v, p, "N = {N} case {case}");
