@@ -1,6 +1,7 @@
 //! Riding through sensor faults: per-channel fault detection and the estimate that stands in
 //! for a rejected channel ([`ChannelGuard`], used by the [`Supervisor`](super::Supervisor)).
 
+use super::safety::GAIT_MAX_HZ;
 use super::Measurement;
 #[cfg(not(feature = "std"))]
 use crate::math::Float;
@@ -471,4 +472,181 @@ impl<const N: usize> ChannelGuard<N> {
             _ => prev,
         }
     }
+}
+
+/// Length (s) of the applied-torque history a [`TorqueExtrapolation`] is fitted to (at most;
+/// at least [`EXTRAPOLATION_MIN_S`]).
+pub const EXTRAPOLATION_FIT_S: f64 = 0.8;
+/// Shortest history (s) a [`TorqueExtrapolation`] is fitted to; with less the torque is held.
+pub const EXTRAPOLATION_MIN_S: f64 = 0.3;
+/// Window (s) of the angles whose oscillation gives the gait frequency of a
+/// [`TorqueExtrapolation`].
+pub const EXTRAPOLATION_ANGLE_S: f64 = 0.5;
+/// Slowest gait frequency (Hz) a [`TorqueExtrapolation`] accepts from the angles.
+pub const EXTRAPOLATION_MIN_HZ: f64 = 0.2;
+
+/// The applied torque continued at the gait frequency, for the first gait period of a run
+/// (before [`GaitFrequency`](super::GaitFrequency) knows the period, the torque of one period back cannot be
+/// replayed): while every encoder channel is lost the torque follows
+/// `T(τ) = a + Σ_{h=1,2} (b_h sin hωτ + c_h cos hωτ)`, fitted by least squares to the
+/// applied torque of the last [`EXTRAPOLATION_FIT_S`], and kept within the range of those
+/// torques. `ω` is the gait frequency of the angles before the fault: each joint's swing is
+/// fitted as a harmonic oscillator `q̈ = α − ω² q` over the last [`EXTRAPOLATION_ANGLE_S`]
+/// (second differences at a 50-ms stride, exact for a sine), and the joint with the widest
+/// swing gives `ω`
+/// (issue 28: coasting on the predicted human motion; docs/RELIABILITY.md §2).
+#[derive(Clone, Copy, Debug)]
+pub struct TorqueExtrapolation<const N: usize> {
+    omega: f64,
+    coef: [[f64; 5]; N],
+    lo: SVector<f64, N>,
+    hi: SVector<f64, N>,
+}
+
+impl<const N: usize> TorqueExtrapolation<N> {
+    /// Fits the extrapolation to the rings `torques` (applied torques) and `angles` (the
+    /// angles of the same steps), `pos` the next slot to write, `filled` the samples held,
+    /// `dt` the control period; `None` when the history is too short, the angles do not
+    /// oscillate at a gait frequency in [[`EXTRAPOLATION_MIN_HZ`], [`GAIT_MAX_HZ`]], or the
+    /// fit is not finite.
+    pub fn fit(
+        torques: &[SVector<f64, N>],
+        angles: &[SVector<f64, N>],
+        pos: usize,
+        filled: usize,
+        dt: f64,
+    ) -> Option<Self> {
+        let len = torques.len().min(angles.len());
+        if len == 0 || !(dt.is_finite() && dt > 0.0) {
+            return None;
+        }
+        let filled = filled.min(len);
+        // `i` steps back (1 = the last sample).
+        let back = |ring: &[SVector<f64, N>], i: usize| ring[(pos + len - i % len) % len];
+        let omega = Self::gait_omega(|i| back(angles, i), filled, dt)?;
+        let n = ((EXTRAPOLATION_FIT_S / dt).round() as usize).min(filled);
+        if (n as f64) * dt < EXTRAPOLATION_MIN_S - 1e-9 {
+            return None;
+        }
+        let feats = |tau: f64| {
+            let (s1, c1) = (omega * tau).sin_cos();
+            let (s2, c2) = (2.0 * omega * tau).sin_cos();
+            [1.0, s1, c1, s2, c2]
+        };
+        let mut coef = [[0.0; 5]; N];
+        let mut lo = SVector::<f64, N>::repeat(f64::INFINITY);
+        let mut hi = SVector::<f64, N>::repeat(f64::NEG_INFINITY);
+        let mut a = [[0.0; 5]; 5];
+        let mut b = [[0.0; N]; 5];
+        for i in 1..=n {
+            let x = feats(-(i as f64) * dt);
+            let t = back(torques, i);
+            for r in 0..5 {
+                for c in 0..5 {
+                    a[r][c] += x[r] * x[c];
+                }
+                for j in 0..N {
+                    b[r][j] += x[r] * t[j];
+                }
+            }
+            lo = lo.inf(&t);
+            hi = hi.sup(&t);
+        }
+        for (r, row) in a.iter_mut().enumerate() {
+            row[r] += 1e-9 * n as f64;
+        }
+        for (j, cj) in coef.iter_mut().enumerate() {
+            let rhs: [f64; 5] = core::array::from_fn(|r| b[r][j]);
+            *cj = solve5(a, rhs)?;
+        }
+        Some(TorqueExtrapolation {
+            omega,
+            coef,
+            lo,
+            hi,
+        })
+    }
+
+    /// The gait frequency (rad/s) of the angles `back(i)` (`i` steps back), if they swing.
+    fn gait_omega(back: impl Fn(usize) -> SVector<f64, N>, filled: usize, dt: f64) -> Option<f64> {
+        let stride = ((0.05 / dt).round() as usize).max(1);
+        let n = ((EXTRAPOLATION_ANGLE_S / dt).round() as usize).min(filled);
+        if n < 2 * stride + 3 {
+            return None;
+        }
+        let h2 = (stride as f64 * dt).powi(2);
+        let mut best: Option<(f64, f64)> = None;
+        for j in 0..N {
+            // Least squares of y = α + β x, x = q(k − s), y = (q(k) − 2 q(k − s) + q(k − 2s)) / (s dt)².
+            let (mut sx, mut sy, mut sxx, mut sxy, mut m) = (0.0, 0.0, 0.0, 0.0, 0.0);
+            for i in 1..=(n - 2 * stride) {
+                let (q0, q1, q2) = (back(i)[j], back(i + stride)[j], back(i + 2 * stride)[j]);
+                let y = (q0 - 2.0 * q1 + q2) / h2;
+                sx += q1;
+                sy += y;
+                sxx += q1 * q1;
+                sxy += q1 * y;
+                m += 1.0;
+            }
+            let var = sxx - sx * sx / m;
+            if !(var.is_finite() && var > 0.0) {
+                continue;
+            }
+            let beta = (sxy - sx * sy / m) / var;
+            // A sine's second difference at stride h is −(2/h)² sin²(ωh/2) times it:
+            // ω = (2/h) asin(h √−β / 2) (asin by its series, x ≤ 0.32 up to 2 Hz at 50 ms).
+            let h = stride as f64 * dt;
+            let x = (h * (-beta).max(0.0).sqrt() / 2.0).min(1.0);
+            let x2 = x * x;
+            let asin = x * (1.0 + x2 * (1.0 / 6.0 + x2 * (3.0 / 40.0 + x2 * 15.0 / 336.0)));
+            let f = 2.0 * asin / h / (2.0 * core::f64::consts::PI);
+            if f.is_finite()
+                && (EXTRAPOLATION_MIN_HZ..=GAIT_MAX_HZ).contains(&f)
+                && best.is_none_or(|(v, _)| var > v)
+            {
+                best = Some((var, f));
+            }
+        }
+        best.map(|(_, f)| 2.0 * core::f64::consts::PI * f)
+    }
+
+    /// The extrapolated torque `steps` control periods after the last applied one's
+    /// successor (0: the step the coast begins).
+    pub fn at(&self, steps: u32, dt: f64) -> SVector<f64, N> {
+        let tau = f64::from(steps) * dt;
+        let (s1, c1) = (self.omega * tau).sin_cos();
+        let (s2, c2) = (2.0 * self.omega * tau).sin_cos();
+        let x = [1.0, s1, c1, s2, c2];
+        SVector::from_fn(|j, _| {
+            let v: f64 = self.coef[j].iter().zip(&x).map(|(c, x)| c * x).sum();
+            v.clamp(self.lo[j], self.hi[j])
+        })
+    }
+}
+
+/// Solves the 5×5 system `a x = b` by Gaussian elimination with partial pivoting; `None` when
+/// it is singular or not finite.
+fn solve5(mut a: [[f64; 5]; 5], mut b: [f64; 5]) -> Option<[f64; 5]> {
+    for c in 0..5 {
+        let p = (c..5).max_by(|&x, &y| a[x][c].abs().total_cmp(&a[y][c].abs()))?;
+        if !(a[p][c].is_finite() && a[p][c].abs() > 1e-300) {
+            return None;
+        }
+        a.swap(c, p);
+        b.swap(c, p);
+        let pivot = a[c];
+        for r in (c + 1)..5 {
+            let f = a[r][c] / pivot[c];
+            for (x, p) in a[r][c..].iter_mut().zip(&pivot[c..]) {
+                *x -= f * p;
+            }
+            b[r] -= f * b[c];
+        }
+    }
+    let mut x = [0.0; 5];
+    for r in (0..5).rev() {
+        let s: f64 = ((r + 1)..5).map(|k| a[r][k] * x[k]).sum();
+        x[r] = (b[r] - s) / a[r][r];
+    }
+    x.iter().all(|v| v.is_finite()).then_some(x)
 }
