@@ -466,3 +466,68 @@ fn torque_extrapolation_continues_a_periodic_torque() {
     assert!(TorqueExtrapolation::<2>::fit(&tq, &still, n, n, dt).is_none());
     assert!(TorqueExtrapolation::<2>::fit(&tq, &an, 25, 25, dt).is_none());
 }
+
+/// A stalled acquisition (every raw sample frozen at once, a dropout or stuck fault of every
+/// sensor): the filtered velocities still move for `window − 1` samples, but they are rejected
+/// in the same sample as the angles (before: after up to 3 samples, while the controller
+/// stepped on them). A frozen angle alone (the velocities measured) leaves the velocities
+/// accepted after the filter window.
+#[test]
+fn a_stalled_acquisition_flags_the_velocities_in_the_same_sample() {
+    for every in [true, false] {
+        let mut g = Gait::new();
+        let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
+        let held = g.raw(299);
+        for k in 0..320 {
+            let mut raw = g.raw(k);
+            if k >= 300 {
+                raw.0 = held.0;
+                if every {
+                    raw.1 = held.1;
+                    raw.2 = held.2;
+                }
+            }
+            let m = g.measure(k, raw);
+            let rep = guard.repair(&m, Some(1.0), 50, None);
+            if k < 300 {
+                assert!(!rep.any_rejected, "false alarm at step {k}");
+            } else if k == 300 {
+                assert!(rep.stalled, "every={every}");
+                for j in 0..2 {
+                    assert!(
+                        guard.is_rejected(0, j) && guard.is_rejected(1, j),
+                        "joint {j}"
+                    );
+                }
+            } else if !every && k >= 306 {
+                for j in 0..2 {
+                    assert!(!guard.is_rejected(1, j), "every={every} joint {j} step {k}");
+                }
+            } else if every {
+                for j in 0..2 {
+                    assert!(guard.is_rejected(1, j), "joint {j} step {k}");
+                }
+            }
+        }
+    }
+}
+
+/// Issue 28, one group at 3 kg: a 200-ms stuck or dropped fault of both angles at 5.3 s (a
+/// stalled acquisition of the encoders, the velocities flagged with them and the torque
+/// replayed until every channel is back) keeps the peak true strap force ≤ 12 N and the RMS
+/// ≤ 1.5× clean, without a latch (before: 36.2 / 37.0 N, RMS 1.55 / 1.53×).
+#[test]
+fn a_stuck_encoder_pair_at_3_kg_is_ridden_through() {
+    let clean = scenario(ControllerKind::MSNMPC, 3.0, 10.0);
+    let (_, rms0, _, _) = run(&clean);
+    for fk in [FaultKind::Stuck, FaultKind::Dropout] {
+        let mut faulty = clean.clone();
+        faulty.faults.events = fault(fk, &ANGLES, 5.3, 0.2, 0.0);
+        let (peak, rms, rep, _) = run(&faulty);
+        assert!(peak <= 12.0, "{fk:?}: peak {peak:.1} N");
+        for i in 0..2 {
+            assert!(rms[i] <= 1.5 * rms0[i], "{fk:?}: RMS {rms:?} vs {rms0:?}");
+        }
+        assert_eq!(rep.latched_at, None, "{fk:?}");
+    }
+}

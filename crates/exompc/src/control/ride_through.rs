@@ -105,6 +105,9 @@ pub struct ChannelGuard<const N: usize> {
     /// Per joint: consecutive accepted angle samples (the angle's slope over the filter
     /// window stands for the velocity only once the window holds no estimate).
     q_good_for: [u32; N],
+    /// Per joint: samples left during which a velocity rejected with a stalled acquisition
+    /// (every angle frozen or non-finite at once) is not accepted again.
+    stall_left: [u32; N],
 }
 
 /// Which channels of a measurement stand in for rejected ones and must not update a
@@ -151,6 +154,9 @@ pub struct Repaired<const N: usize> {
     pub encoders_good: bool,
     /// The estimate is usable (at least one measurement has been accepted).
     pub ready: bool,
+    /// Every angle turned frozen or non-finite in this sample (a stalled acquisition): the
+    /// velocities were rejected with them.
+    pub stalled: bool,
 }
 
 impl<const N: usize> ChannelGuard<N> {
@@ -183,6 +189,7 @@ impl<const N: usize> ChannelGuard<N> {
             railed: [false; N],
             after_accept: [[0; N]; 3],
             q_good_for: [0; N],
+            stall_left: [0; N],
             last_t: f64::NAN,
         }
     }
@@ -252,6 +259,22 @@ impl<const N: usize> ChannelGuard<N> {
             core::array::from_fn(|s| self.back(s, 1) * 2.0 - self.back(s, 2));
         let span = (self.window - 1).max(1);
         let force_resync = (FORCE_RESYNC_S / self.dt).ceil().max(1.0) as u64;
+        // Every angle frozen or non-finite in the same sample: the acquisition stalled, and
+        // the filtered velocities of the same encoders still move on the samples before the
+        // stall for `window − 1` samples: they are rejected with the angles.
+        let stall = warm
+            && (0..N).all(|j| {
+                let v = vals[Q][j];
+                let in_range = v.is_finite() && v.abs() <= self.bounds[Q];
+                let qd = if self.bad_for[QD][j] == 0 && vals[QD][j].is_finite() {
+                    vals[QD][j]
+                } else {
+                    self.back(QD, 1)[j]
+                };
+                self.bad_for[Q][j] == 0
+                    && (!in_range
+                        || (v.to_bits() == self.raw[Q][0][j].to_bits() && qd.abs() > STUCK_SPEED))
+            });
         for j in 0..N {
             // Angle first: the velocity check needs the angle's verdict.
             for sig in [Q, QD, F] {
@@ -301,7 +324,18 @@ impl<const N: usize> ChannelGuard<N> {
                         .any(|r| r[j].is_finite() && r[j].abs() >= self.bounds[F]);
                 definite |= !in_range || stuck;
                 let after_accept = !was_bad && self.after_accept[sig][j] > 0;
-                let good = if !in_range || stuck {
+                // A velocity rejected with a stalled acquisition stays rejected for a filter
+                // window: by then a stalled velocity has frozen (and is rejected as such), a
+                // good one is accepted again.
+                let stalled = sig == QD && ((stall && !was_bad) || self.stall_left[j] > 0);
+                if sig == QD {
+                    self.stall_left[j] = if stall && !was_bad {
+                        self.window as u32
+                    } else {
+                        self.stall_left[j].saturating_sub(1)
+                    };
+                }
+                let good = if !in_range || stuck || stalled {
                     false
                 } else if (was_bad && self.railed[j]) || (!was_bad && (after_rail || after_accept))
                 {
@@ -424,6 +458,7 @@ impl<const N: usize> ChannelGuard<N> {
             longest_fault_s: longest as f64 * self.dt,
             encoders_good,
             ready,
+            stalled: stall,
         }
     }
 
@@ -476,12 +511,14 @@ impl<const N: usize> ChannelGuard<N> {
 
 /// Length (s) of the applied-torque history a [`TorqueExtrapolation`] is fitted to (at most;
 /// at least [`EXTRAPOLATION_MIN_S`]).
-pub const EXTRAPOLATION_FIT_S: f64 = 0.8;
+pub const EXTRAPOLATION_FIT_S: f64 = 1.0;
 /// Shortest history (s) a [`TorqueExtrapolation`] is fitted to; with less the torque is held.
 pub const EXTRAPOLATION_MIN_S: f64 = 0.3;
 /// Window (s) of the angles whose oscillation gives the gait frequency of a
 /// [`TorqueExtrapolation`].
 pub const EXTRAPOLATION_ANGLE_S: f64 = 0.5;
+/// Steps over which a [`TorqueExtrapolation`]'s offset to the last applied torque fades out.
+pub const EXTRAPOLATION_FADE_STEPS: u32 = 10;
 /// Slowest gait frequency (Hz) a [`TorqueExtrapolation`] accepts from the angles.
 pub const EXTRAPOLATION_MIN_HZ: f64 = 0.2;
 
@@ -500,6 +537,9 @@ pub struct TorqueExtrapolation<const N: usize> {
     omega: f64,
     coef: [[f64; 5]; N],
     lo: SVector<f64, N>,
+    /// The last applied torque less the fit there: added at the start, fading out linearly
+    /// over [`EXTRAPOLATION_FADE_STEPS`], so that the extrapolation starts where the torque is.
+    offset: SVector<f64, N>,
     hi: SVector<f64, N>,
 }
 
@@ -559,9 +599,15 @@ impl<const N: usize> TorqueExtrapolation<N> {
             let rhs: [f64; 5] = core::array::from_fn(|r| b[r][j]);
             *cj = solve5(a, rhs)?;
         }
+        let x = feats(-dt);
+        let last = back(torques, 1);
+        let offset = SVector::from_fn(|j, _| {
+            last[j] - coef[j].iter().zip(&x).map(|(c, x)| c * x).sum::<f64>()
+        });
         Some(TorqueExtrapolation {
             omega,
             coef,
+            offset,
             lo,
             hi,
         })
@@ -617,9 +663,10 @@ impl<const N: usize> TorqueExtrapolation<N> {
         let (s1, c1) = (self.omega * tau).sin_cos();
         let (s2, c2) = (2.0 * self.omega * tau).sin_cos();
         let x = [1.0, s1, c1, s2, c2];
+        let fade = 1.0 - f64::from(steps.saturating_add(1)) / f64::from(EXTRAPOLATION_FADE_STEPS);
         SVector::from_fn(|j, _| {
             let v: f64 = self.coef[j].iter().zip(&x).map(|(c, x)| c * x).sum();
-            v.clamp(self.lo[j], self.hi[j])
+            (v + self.offset[j] * fade.max(0.0)).clamp(self.lo[j], self.hi[j])
         })
     }
 }

@@ -717,6 +717,8 @@ pub struct Supervisor<const N: usize, C> {
     /// is known (`None`: hold the torque), and the steps since it began.
     extrapolation: Option<TorqueExtrapolation<N>>,
     extrapolated_steps: u32,
+    /// The current coast began with a stalled acquisition ([`Repaired::stalled`](super::Repaired::stalled)).
+    stall_coast: bool,
     /// The torque replay had the torque on the previous step.
     coasting: bool,
     /// Steps left of the blend from the replay back to the controller.
@@ -795,6 +797,7 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             torque_filled: 0,
             extrapolation: None,
             extrapolated_steps: 0,
+            stall_coast: false,
             coasting: false,
             handback: 0,
         };
@@ -1129,7 +1132,17 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         // from the leg (issue 28, docs/RELIABILITY.md §2).
         let all_lost =
             valid && rep.estimated.q.iter().all(|&e| e) && rep.estimated.qd.iter().all(|&e| e);
-        let coast = all_lost || (self.coasting && valid && rep.any_rejected);
+        // A coast that began with a stalled acquisition (every angle frozen or non-finite at
+        // once) before the gait period is known ends when the velocities come back while the
+        // angles are still lost: only the angles failed, and the controller on the model's
+        // angles and the measured velocities follows the leg better than the extrapolation.
+        let angles_only =
+            rep.estimated.q.iter().all(|&e| e) && !rep.estimated.qd.iter().any(|&e| e);
+        let angles_fault = self.stall_coast && angles_only && period.is_none();
+        let coast = all_lost || (self.coasting && valid && rep.any_rejected && !angles_fault);
+        if coast && !self.coasting {
+            self.stall_coast = rep.stalled;
+        }
         // (a period longer than the history, or not finite, is not replayed; no overflow)
         let replay_period = period
             .map(|p| (p / self.dt()).round())
