@@ -526,8 +526,9 @@ pub const EXTRAPOLATION_MIN_HZ: f64 = 0.2;
 /// (before [`GaitFrequency`](super::GaitFrequency) knows the period, the torque of one period back cannot be
 /// replayed): while every encoder channel is lost the torque follows
 /// `T(τ) = a + Σ_{h=1,2} (b_h sin hωτ + c_h cos hωτ)`, fitted by least squares to the
-/// applied torque of the last [`EXTRAPOLATION_FIT_S`], and kept within the range of those
-/// torques. `ω` is the gait frequency of the angles before the fault: each joint's swing is
+/// applied torque of the last [`EXTRAPOLATION_FIT_S`], started at the last applied torque (the
+/// fit's residual there fades out over [`EXTRAPOLATION_FADE_STEPS`]) and kept within the range
+/// of those torques. `ω` is the gait frequency of the angles before the fault: each joint's swing is
 /// fitted as a harmonic oscillator `q̈ = α − ω² q` over the last [`EXTRAPOLATION_ANGLE_S`]
 /// (second differences at a 50-ms stride, exact for a sine), and the joint with the widest
 /// swing gives `ω`

@@ -1125,8 +1125,9 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         // Every encoder channel lost (the estimates are the gait replayed one period back):
         // the torque replays the torque applied one gait period back (the rate limit bounds
         // the step into it), so the robot keeps following the leg as it did a period ago,
-        // until every channel is measured again (before the gait period is known it holds
-        // the torque); then it blends back to the controller's
+        // until every channel is measured again (before the gait period is known it follows
+        // the torque's extrapolation, `TorqueExtrapolation`); then it blends back to the
+        // controller's
         // over `REPLAY_HANDBACK_STEPS`. The controller keeps stepping on the estimates; its
         // output, carried over after a period of replayed estimates, drove the robot away
         // from the leg (issue 28, docs/RELIABILITY.md §2).
