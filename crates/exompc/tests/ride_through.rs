@@ -8,6 +8,7 @@
 use exompc::config::{ControllerKind, Scenario};
 use exompc::control::{
     ChannelGuard, Measurement, MonitorAction, MonitorKind, StepStatus, TorqueExtrapolation,
+    EXTRAPOLATION_MAX_HZ, GAIT_MAX_HZ,
 };
 use exompc::estimate::MovingAverage;
 use exompc::scenario::{run_experiment_report, TwoDof};
@@ -463,6 +464,8 @@ fn torque_extrapolation_continues_a_periodic_torque() {
             );
         }
     }
+    // The extrapolation's frequency bound is the supervisor's.
+    assert_eq!(EXTRAPOLATION_MAX_HZ, GAIT_MAX_HZ);
     let still = vec![SVector::<f64, 2>::from([0.1, -0.5]); len];
     assert!(TorqueExtrapolation::<2>::fit(&tq, &still, n, n, dt).is_none());
     assert!(TorqueExtrapolation::<2>::fit(&tq, &an, 25, 25, dt).is_none());

@@ -1,7 +1,6 @@
 //! Riding through sensor faults: per-channel fault detection and the estimate that stands in
 //! for a rejected channel ([`ChannelGuard`], used by the [`Supervisor`](super::Supervisor)).
 
-use super::safety::GAIT_MAX_HZ;
 use super::Measurement;
 #[cfg(not(feature = "std"))]
 use crate::math::Float;
@@ -519,6 +518,9 @@ pub const EXTRAPOLATION_MIN_S: f64 = 0.3;
 pub const EXTRAPOLATION_ANGLE_S: f64 = 0.5;
 /// Steps over which a [`TorqueExtrapolation`]'s offset to the last applied torque fades out.
 pub const EXTRAPOLATION_FADE_STEPS: u32 = 10;
+/// Fastest gait frequency (Hz) a [`TorqueExtrapolation`] accepts from the angles (the
+/// supervisor's gait-frequency bound, [`GAIT_MAX_HZ`](super::GAIT_MAX_HZ)).
+pub const EXTRAPOLATION_MAX_HZ: f64 = 2.0;
 /// Slowest gait frequency (Hz) a [`TorqueExtrapolation`] accepts from the angles.
 pub const EXTRAPOLATION_MIN_HZ: f64 = 0.2;
 
@@ -548,7 +550,7 @@ impl<const N: usize> TorqueExtrapolation<N> {
     /// Fits the extrapolation to the rings `torques` (applied torques) and `angles` (the
     /// angles of the same steps), `pos` the next slot to write, `filled` the samples held,
     /// `dt` the control period; `None` when the history is too short, the angles do not
-    /// oscillate at a gait frequency in [[`EXTRAPOLATION_MIN_HZ`], [`GAIT_MAX_HZ`]], or the
+    /// oscillate at a gait frequency in [[`EXTRAPOLATION_MIN_HZ`], [`EXTRAPOLATION_MAX_HZ`]], or the
     /// fit is not finite.
     pub fn fit(
         torques: &[SVector<f64, N>],
@@ -648,7 +650,7 @@ impl<const N: usize> TorqueExtrapolation<N> {
             let asin = x * (1.0 + x2 * (1.0 / 6.0 + x2 * (3.0 / 40.0 + x2 * 15.0 / 336.0)));
             let f = 2.0 * asin / h / (2.0 * core::f64::consts::PI);
             if f.is_finite()
-                && (EXTRAPOLATION_MIN_HZ..=GAIT_MAX_HZ).contains(&f)
+                && (EXTRAPOLATION_MIN_HZ..=EXTRAPOLATION_MAX_HZ).contains(&f)
                 && best.is_none_or(|(v, _)| var > v)
             {
                 best = Some((var, f));
