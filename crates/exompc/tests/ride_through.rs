@@ -243,9 +243,10 @@ fn delay(
 }
 
 /// Detection delays (docs/RELIABILITY.md §2), on a 1-Hz sine gait through the 5-sample filter
-/// at 10 ms: non-finite and out-of-range samples in the same sample, an encoder spike in the
-/// same sample, a stuck encoder within one sample, a velocity spike, NaN or stuck velocity
-/// within 30 ms, a strap-force spike in the same sample; a stuck (frozen) strap force once its
+/// at 10 ms: non-finite and out-of-range angles, velocities and forces in the same sample, an
+/// encoder spike in the same sample, a stuck encoder within one sample, a velocity spike or
+/// stuck velocity within 30 ms, a strap-force spike in the same sample; a stuck (frozen)
+/// strap force once its
 /// filter window repeats (≤ 50 ms), without a false alarm on the clean gait before.
 #[test]
 fn each_fault_kind_is_flagged_within_its_stated_delay() {
@@ -262,7 +263,7 @@ fn each_fault_kind_is_flagged_within_its_stated_delay() {
             _ => r.2[1] = v,
         }
     };
-    let cases: [(&str, usize, Option<usize>, usize); 9] = [
+    let cases: [(&str, usize, Option<usize>, usize); 12] = [
         ("q NaN", 0, delay(0, |r, _| r.0[1] = f64::NAN), 0),
         ("q out of range", 0, delay(0, |r, _| r.0[1] = 4.0), 0),
         ("q spike 0.5 rad", 0, delay(0, |r, _| r.0[1] += 0.5), 0),
@@ -270,6 +271,9 @@ fn each_fault_kind_is_flagged_within_its_stated_delay() {
         ("qd NaN", 1, delay(1, |r, _| r.1[1] = f64::NAN), 0),
         ("qd spike 0.5 rad/s", 1, delay(1, |r, _| r.1[1] += 0.5), 3),
         ("qd stuck", 1, delay(1, held(1)), 3),
+        ("qd out of range", 1, delay(1, |r, _| r.1[1] = 1000.0), 0),
+        ("F NaN", 2, delay(2, |r, _| r.2[1] = f64::NAN), 0),
+        ("F out of range", 2, delay(2, |r, _| r.2[1] = 1000.0), 0),
         ("F spike 30 N", 2, delay(2, |r, _| r.2[1] += 30.0), 0),
         ("F stuck", 2, delay(2, held(2)), 5),
     ];
