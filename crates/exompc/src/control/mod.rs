@@ -58,9 +58,10 @@ pub use ocp_tree::{TreeSqp, AUTO_TREE_MIN_VARS};
 pub use pd::PdController;
 pub use prediction::{HorizonInputs, Interaction, PredictionModel, StepJacobian};
 pub use ride_through::{
-    ChannelGuard, EstimatedChannels, Repaired, ACCEPT_GATES, ADAPTIVE_GATE_SIGMAS,
-    ANCHORED_LIMIT_FACTOR, FORCE_GATE, FORCE_RESYNC_S, JUMP_ACCEL, RESIDUAL_TAU_S, STUCK_SPEED,
-    VELOCITY_GATE,
+    ChannelGuard, EstimatedChannels, Repaired, TorqueExtrapolation, ACCEPT_GATES,
+    ADAPTIVE_GATE_SIGMAS, ANCHORED_LIMIT_FACTOR, EXTRAPOLATION_ANGLE_S, EXTRAPOLATION_FADE_STEPS,
+    EXTRAPOLATION_FIT_S, EXTRAPOLATION_MAX_HZ, EXTRAPOLATION_MIN_HZ, EXTRAPOLATION_MIN_S,
+    FORCE_GATE, FORCE_RESYNC_S, JUMP_ACCEL, RESIDUAL_TAU_S, STUCK_SPEED, VELOCITY_GATE,
 };
 pub use robust::{
     FilterAware, IntentEstimate, Method, RobustIntentGains, RobustSettings, PAPER_STRAP_STIFFNESS,

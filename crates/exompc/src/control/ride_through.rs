@@ -104,6 +104,9 @@ pub struct ChannelGuard<const N: usize> {
     /// Per joint: consecutive accepted angle samples (the angle's slope over the filter
     /// window stands for the velocity only once the window holds no estimate).
     q_good_for: [u32; N],
+    /// Per joint: samples left during which a velocity rejected with a stalled acquisition
+    /// (every angle frozen or non-finite at once) is not accepted again.
+    stall_left: [u32; N],
 }
 
 /// Which channels of a measurement stand in for rejected ones and must not update a
@@ -150,6 +153,9 @@ pub struct Repaired<const N: usize> {
     pub encoders_good: bool,
     /// The estimate is usable (at least one measurement has been accepted).
     pub ready: bool,
+    /// Every angle turned frozen or non-finite in this sample (a stalled acquisition): the
+    /// velocities were rejected with them.
+    pub stalled: bool,
 }
 
 impl<const N: usize> ChannelGuard<N> {
@@ -182,6 +188,7 @@ impl<const N: usize> ChannelGuard<N> {
             railed: [false; N],
             after_accept: [[0; N]; 3],
             q_good_for: [0; N],
+            stall_left: [0; N],
             last_t: f64::NAN,
         }
     }
@@ -251,6 +258,22 @@ impl<const N: usize> ChannelGuard<N> {
             core::array::from_fn(|s| self.back(s, 1) * 2.0 - self.back(s, 2));
         let span = (self.window - 1).max(1);
         let force_resync = (FORCE_RESYNC_S / self.dt).ceil().max(1.0) as u64;
+        // Every angle frozen or non-finite in the same sample: the acquisition stalled, and
+        // the filtered velocities of the same encoders still move on the samples before the
+        // stall for `window − 1` samples: they are rejected with the angles.
+        let stall = warm
+            && (0..N).all(|j| {
+                let v = vals[Q][j];
+                let in_range = v.is_finite() && v.abs() <= self.bounds[Q];
+                let qd = if self.bad_for[QD][j] == 0 && vals[QD][j].is_finite() {
+                    vals[QD][j]
+                } else {
+                    self.back(QD, 1)[j]
+                };
+                self.bad_for[Q][j] == 0
+                    && (!in_range
+                        || (v.to_bits() == self.raw[Q][0][j].to_bits() && qd.abs() > STUCK_SPEED))
+            });
         for j in 0..N {
             // Angle first: the velocity check needs the angle's verdict.
             for sig in [Q, QD, F] {
@@ -300,7 +323,18 @@ impl<const N: usize> ChannelGuard<N> {
                         .any(|r| r[j].is_finite() && r[j].abs() >= self.bounds[F]);
                 definite |= !in_range || stuck;
                 let after_accept = !was_bad && self.after_accept[sig][j] > 0;
-                let good = if !in_range || stuck {
+                // A velocity rejected with a stalled acquisition stays rejected for a filter
+                // window: by then a stalled velocity has frozen (and is rejected as such), a
+                // good one is accepted again.
+                let stalled = sig == QD && ((stall && !was_bad) || self.stall_left[j] > 0);
+                if sig == QD {
+                    self.stall_left[j] = if stall && !was_bad {
+                        self.window as u32
+                    } else {
+                        self.stall_left[j].saturating_sub(1)
+                    };
+                }
+                let good = if !in_range || stuck || stalled {
                     false
                 } else if (was_bad && self.railed[j]) || (!was_bad && (after_rail || after_accept))
                 {
@@ -423,6 +457,7 @@ impl<const N: usize> ChannelGuard<N> {
             longest_fault_s: longest as f64 * self.dt,
             encoders_good,
             ready,
+            stalled: stall,
         }
     }
 
@@ -471,4 +506,197 @@ impl<const N: usize> ChannelGuard<N> {
             _ => prev,
         }
     }
+}
+
+/// Length (s) of the applied-torque history a [`TorqueExtrapolation`] is fitted to (at most;
+/// at least [`EXTRAPOLATION_MIN_S`]).
+pub const EXTRAPOLATION_FIT_S: f64 = 1.0;
+/// Shortest history (s) a [`TorqueExtrapolation`] is fitted to; with less the torque is held.
+pub const EXTRAPOLATION_MIN_S: f64 = 0.3;
+/// Window (s) of the angles whose oscillation gives the gait frequency of a
+/// [`TorqueExtrapolation`].
+pub const EXTRAPOLATION_ANGLE_S: f64 = 0.5;
+/// Steps over which a [`TorqueExtrapolation`]'s offset to the last applied torque fades out.
+pub const EXTRAPOLATION_FADE_STEPS: u32 = 10;
+/// Fastest gait frequency (Hz) a [`TorqueExtrapolation`] accepts from the angles (the
+/// supervisor's gait-frequency bound, [`GAIT_MAX_HZ`](super::GAIT_MAX_HZ)).
+pub const EXTRAPOLATION_MAX_HZ: f64 = 2.0;
+/// Slowest gait frequency (Hz) a [`TorqueExtrapolation`] accepts from the angles.
+pub const EXTRAPOLATION_MIN_HZ: f64 = 0.2;
+
+/// The applied torque continued at the gait frequency, for the first gait period of a run
+/// (before [`GaitFrequency`](super::GaitFrequency) knows the period, the torque of one period back cannot be
+/// replayed): while every encoder channel is lost the torque follows
+/// `T(τ) = a + Σ_{h=1,2} (b_h sin hωτ + c_h cos hωτ)`, fitted by least squares to the
+/// applied torque of the last [`EXTRAPOLATION_FIT_S`], started at the last applied torque (the
+/// fit's residual there fades out over [`EXTRAPOLATION_FADE_STEPS`]) and kept within the range
+/// of those torques. `ω` is the gait frequency of the angles before the fault: each joint's swing is
+/// fitted as a harmonic oscillator `q̈ = α − ω² q` over the last [`EXTRAPOLATION_ANGLE_S`]
+/// (second differences at a 50-ms stride, exact for a sine), and the joint with the widest
+/// swing gives `ω`
+/// (issue 28: coasting on the predicted human motion; docs/RELIABILITY.md §2).
+#[derive(Clone, Copy, Debug)]
+pub struct TorqueExtrapolation<const N: usize> {
+    omega: f64,
+    coef: [[f64; 5]; N],
+    lo: SVector<f64, N>,
+    /// The last applied torque less the fit there: added at the start, fading out linearly
+    /// over [`EXTRAPOLATION_FADE_STEPS`], so that the extrapolation starts where the torque is.
+    offset: SVector<f64, N>,
+    hi: SVector<f64, N>,
+}
+
+impl<const N: usize> TorqueExtrapolation<N> {
+    /// Fits the extrapolation to the rings `torques` (applied torques) and `angles` (the
+    /// angles of the same steps), `pos` the next slot to write, `filled` the samples held,
+    /// `dt` the control period; `None` when the history is too short, the angles do not
+    /// oscillate at a gait frequency in [[`EXTRAPOLATION_MIN_HZ`], [`EXTRAPOLATION_MAX_HZ`]], or the
+    /// fit is not finite.
+    pub fn fit(
+        torques: &[SVector<f64, N>],
+        angles: &[SVector<f64, N>],
+        pos: usize,
+        filled: usize,
+        dt: f64,
+    ) -> Option<Self> {
+        let len = torques.len().min(angles.len());
+        if len == 0 || !(dt.is_finite() && dt > 0.0) {
+            return None;
+        }
+        let filled = filled.min(len);
+        // `i` steps back (1 = the last sample).
+        let back = |ring: &[SVector<f64, N>], i: usize| ring[(pos + len - i % len) % len];
+        let omega = Self::gait_omega(|i| back(angles, i), filled, dt)?;
+        let n = ((EXTRAPOLATION_FIT_S / dt).round() as usize).min(filled);
+        if (n as f64) * dt < EXTRAPOLATION_MIN_S - 1e-9 {
+            return None;
+        }
+        let feats = |tau: f64| {
+            let (s1, c1) = (omega * tau).sin_cos();
+            let (s2, c2) = (2.0 * omega * tau).sin_cos();
+            [1.0, s1, c1, s2, c2]
+        };
+        let mut coef = [[0.0; 5]; N];
+        let mut lo = SVector::<f64, N>::repeat(f64::INFINITY);
+        let mut hi = SVector::<f64, N>::repeat(f64::NEG_INFINITY);
+        let mut a = [[0.0; 5]; 5];
+        let mut b = [[0.0; N]; 5];
+        for i in 1..=n {
+            let x = feats(-(i as f64) * dt);
+            let t = back(torques, i);
+            for r in 0..5 {
+                for c in 0..5 {
+                    a[r][c] += x[r] * x[c];
+                }
+                for j in 0..N {
+                    b[r][j] += x[r] * t[j];
+                }
+            }
+            lo = lo.inf(&t);
+            hi = hi.sup(&t);
+        }
+        for (r, row) in a.iter_mut().enumerate() {
+            row[r] += 1e-9 * n as f64;
+        }
+        for (j, cj) in coef.iter_mut().enumerate() {
+            let rhs: [f64; 5] = core::array::from_fn(|r| b[r][j]);
+            *cj = solve5(a, rhs)?;
+        }
+        let x = feats(-dt);
+        let last = back(torques, 1);
+        let offset = SVector::from_fn(|j, _| {
+            last[j] - coef[j].iter().zip(&x).map(|(c, x)| c * x).sum::<f64>()
+        });
+        Some(TorqueExtrapolation {
+            omega,
+            coef,
+            offset,
+            lo,
+            hi,
+        })
+    }
+
+    /// The gait frequency (rad/s) of the angles `back(i)` (`i` steps back), if they swing.
+    fn gait_omega(back: impl Fn(usize) -> SVector<f64, N>, filled: usize, dt: f64) -> Option<f64> {
+        let stride = ((0.05 / dt).round() as usize).max(1);
+        let n = ((EXTRAPOLATION_ANGLE_S / dt).round() as usize).min(filled);
+        if n < 2 * stride + 3 {
+            return None;
+        }
+        let h2 = (stride as f64 * dt).powi(2);
+        let mut best: Option<(f64, f64)> = None;
+        for j in 0..N {
+            // Least squares of y = α + β x, x = q(k − s), y = (q(k) − 2 q(k − s) + q(k − 2s)) / (s dt)².
+            let (mut sx, mut sy, mut sxx, mut sxy, mut m) = (0.0, 0.0, 0.0, 0.0, 0.0);
+            for i in 1..=(n - 2 * stride) {
+                let (q0, q1, q2) = (back(i)[j], back(i + stride)[j], back(i + 2 * stride)[j]);
+                let y = (q0 - 2.0 * q1 + q2) / h2;
+                sx += q1;
+                sy += y;
+                sxx += q1 * q1;
+                sxy += q1 * y;
+                m += 1.0;
+            }
+            let var = sxx - sx * sx / m;
+            if !(var.is_finite() && var > 0.0) {
+                continue;
+            }
+            let beta = (sxy - sx * sy / m) / var;
+            // A sine's second difference at stride h is −(2/h)² sin²(ωh/2) times it:
+            // ω = (2/h) asin(h √−β / 2) (asin by its series, x ≤ 0.32 up to 2 Hz at 50 ms).
+            let h = stride as f64 * dt;
+            let x = (h * (-beta).max(0.0).sqrt() / 2.0).min(1.0);
+            let x2 = x * x;
+            let asin = x * (1.0 + x2 * (1.0 / 6.0 + x2 * (3.0 / 40.0 + x2 * 15.0 / 336.0)));
+            let f = 2.0 * asin / h / (2.0 * core::f64::consts::PI);
+            if f.is_finite()
+                && (EXTRAPOLATION_MIN_HZ..=EXTRAPOLATION_MAX_HZ).contains(&f)
+                && best.is_none_or(|(v, _)| var > v)
+            {
+                best = Some((var, f));
+            }
+        }
+        best.map(|(_, f)| 2.0 * core::f64::consts::PI * f)
+    }
+
+    /// The extrapolated torque `steps` control periods after the last applied one's
+    /// successor (0: the step the coast begins).
+    pub fn at(&self, steps: u32, dt: f64) -> SVector<f64, N> {
+        let tau = f64::from(steps) * dt;
+        let (s1, c1) = (self.omega * tau).sin_cos();
+        let (s2, c2) = (2.0 * self.omega * tau).sin_cos();
+        let x = [1.0, s1, c1, s2, c2];
+        let fade = 1.0 - f64::from(steps.saturating_add(1)) / f64::from(EXTRAPOLATION_FADE_STEPS);
+        SVector::from_fn(|j, _| {
+            let v: f64 = self.coef[j].iter().zip(&x).map(|(c, x)| c * x).sum();
+            (v + self.offset[j] * fade.max(0.0)).clamp(self.lo[j], self.hi[j])
+        })
+    }
+}
+
+/// Solves the 5×5 system `a x = b` by Gaussian elimination with partial pivoting; `None` when
+/// it is singular or not finite.
+fn solve5(mut a: [[f64; 5]; 5], mut b: [f64; 5]) -> Option<[f64; 5]> {
+    for c in 0..5 {
+        let p = (c..5).max_by(|&x, &y| a[x][c].abs().total_cmp(&a[y][c].abs()))?;
+        if !(a[p][c].is_finite() && a[p][c].abs() > 1e-300) {
+            return None;
+        }
+        a.swap(c, p);
+        b.swap(c, p);
+        let pivot = a[c];
+        for r in (c + 1)..5 {
+            let f = a[r][c] / pivot[c];
+            for (x, p) in a[r][c..].iter_mut().zip(&pivot[c..]) {
+                *x -= f * p;
+            }
+            b[r] -= f * b[c];
+        }
+    }
+    let mut x = [0.0; 5];
+    for r in (0..5).rev() {
+        let s: f64 = ((r + 1)..5).map(|k| a[r][k] * x[k]).sum();
+        x[r] = (b[r] - s) / a[r][r];
+    }
+    x.iter().all(|v| v.is_finite()).then_some(x)
 }

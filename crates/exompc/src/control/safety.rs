@@ -1,7 +1,7 @@
 //! Runtime safety supervision around any controller: see [`Supervisor`].
 
 use super::highpass::HighPass;
-use super::ride_through::ChannelGuard;
+use super::ride_through::{ChannelGuard, TorqueExtrapolation};
 use super::{
     ControlOutput, Controller, EstimatedChannels, FallbackSettings, Measurement, StepStatus,
     TorqueLimits, Transparent,
@@ -708,8 +708,17 @@ pub struct Supervisor<const N: usize, C> {
     /// Applied torques of the last [`ChannelGuard::HISTORY_S`] (ring, allocated once), for
     /// the torque replay while every encoder channel is lost.
     torque_hist: Vec<SVector<f64, N>>,
+    /// The angles the controller stepped on, aligned with `torque_hist` (the gait frequency
+    /// of the torque extrapolation before a gait period is known).
+    angle_hist: Vec<SVector<f64, N>>,
     torque_pos: usize,
     torque_filled: usize,
+    /// The torque extrapolation while every encoder channel is lost before the gait period
+    /// is known (`None`: hold the torque), and the steps since it began.
+    extrapolation: Option<TorqueExtrapolation<N>>,
+    extrapolated_steps: u32,
+    /// The current coast began with a stalled acquisition ([`Repaired::stalled`](super::Repaired::stalled)).
+    stall_coast: bool,
     /// The torque replay had the torque on the previous step.
     coasting: bool,
     /// Steps left of the blend from the replay back to the controller.
@@ -783,8 +792,12 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
                 ..Default::default()
             },
             torque_hist: vec![SVector::zeros(); hist_len],
+            angle_hist: vec![SVector::zeros(); hist_len],
             torque_pos: 0,
             torque_filled: 0,
+            extrapolation: None,
+            extrapolated_steps: 0,
+            stall_coast: false,
             coasting: false,
             handback: 0,
         };
@@ -1112,24 +1125,55 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         // Every encoder channel lost (the estimates are the gait replayed one period back):
         // the torque replays the torque applied one gait period back (the rate limit bounds
         // the step into it), so the robot keeps following the leg as it did a period ago,
-        // until every channel is measured again (before the gait period is known it holds
-        // the torque); then it blends back to the controller's
+        // until every channel is measured again (before the gait period is known it follows
+        // the torque's extrapolation, `TorqueExtrapolation`); then it blends back to the
+        // controller's
         // over `REPLAY_HANDBACK_STEPS`. The controller keeps stepping on the estimates; its
         // output, carried over after a period of replayed estimates, drove the robot away
         // from the leg (issue 28, docs/RELIABILITY.md §2).
         let all_lost =
             valid && rep.estimated.q.iter().all(|&e| e) && rep.estimated.qd.iter().all(|&e| e);
-        let coast = all_lost || (self.coasting && valid && rep.any_rejected);
+        // A coast that began with a stalled acquisition (every angle frozen or non-finite at
+        // once) before the gait period is known ends when the velocities come back while the
+        // angles are still lost: only the angles failed, and the controller on the model's
+        // angles and the measured velocities follows the leg better than the extrapolation.
+        let angles_only =
+            rep.estimated.q.iter().all(|&e| e) && !rep.estimated.qd.iter().any(|&e| e);
+        let angles_fault = self.stall_coast && angles_only && period.is_none();
+        let coast = all_lost || (self.coasting && valid && rep.any_rejected && !angles_fault);
+        if coast && !self.coasting {
+            self.stall_coast = rep.stalled;
+        }
         // (a period longer than the history, or not finite, is not replayed; no overflow)
         let replay_period = period
             .map(|p| (p / self.dt()).round())
             .filter(|&p| p >= 2.0 && p + 2.0 < self.torque_filled as f64)
             .map(|p| p as usize);
         let len = self.torque_hist.len();
-        // Before the gait period is known (the first gait period), the replay holds the torque.
+        // Before the gait period is known (the first gait period), the replay extrapolates
+        // the applied torque at the gait frequency of the recent angles
+        // ([`TorqueExtrapolation`], fitted when the coast begins), or holds it when no fit is
+        // possible.
+        if replay_period.is_none() && coast && !self.coasting && !gap {
+            self.extrapolation = TorqueExtrapolation::fit(
+                &self.torque_hist,
+                &self.angle_hist,
+                self.torque_pos,
+                self.torque_filled,
+                self.dt(),
+            );
+            self.extrapolated_steps = 0;
+        }
         let replay = match replay_period {
             Some(p) => Some(self.torque_hist[(self.torque_pos + len - p) % len]),
-            None => (self.torque_filled > 0).then_some(prev),
+            None => match &self.extrapolation {
+                Some(x) if !gap => {
+                    let r = x.at(self.extrapolated_steps, self.dt());
+                    self.extrapolated_steps = self.extrapolated_steps.saturating_add(1);
+                    Some(r)
+                }
+                _ => (self.torque_filled > 0).then_some(prev),
+            },
         };
         let desired = match replay {
             Some(r) if coast && !gap => {
@@ -1149,6 +1193,9 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
                 desired
             }
         };
+        if !self.coasting && self.handback == 0 {
+            self.extrapolation = None;
+        }
         let desired = if tripped {
             self.report.monitor_steps += 1;
             if self.latched && !self.is_tripped() {
@@ -1165,6 +1212,7 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         }
         let len = self.torque_hist.len();
         self.torque_hist[self.torque_pos] = torque;
+        self.angle_hist[self.torque_pos] = m.q;
         self.torque_pos = (self.torque_pos + 1) % len;
         self.torque_filled = (self.torque_filled + 1).min(len);
         self.prev = torque;
