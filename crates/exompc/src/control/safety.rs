@@ -792,6 +792,33 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         sup
     }
 
+    /// A gap of `gap_s` in the measurements (periods the runtime did not step the controller,
+    /// e.g. a link outage): the torque history moves on by the missing periods, filled with
+    /// the replay of one gait period back (what the robot plays out during the gap) or,
+    /// before the period `period_s` is known, the last torque; the history stays aligned with
+    /// time for the replay and the handback after the gap. A gap of more than the history
+    /// (or not finite) clears it.
+    fn bridge_gap(&mut self, gap_s: f64, period_s: Option<f64>) {
+        let len = self.torque_hist.len();
+        let missing = (gap_s / self.dt()).round() - 1.0;
+        if !(missing >= 0.0 && missing < len as f64) {
+            self.torque_filled = 0;
+            return;
+        }
+        let p = period_s
+            .map(|p| (p / self.dt()).round())
+            .filter(|&p| p >= 2.0 && p + 2.0 < self.torque_filled as f64)
+            .map(|p| p as usize);
+        for _ in 0..missing as usize {
+            let t = p.map_or(self.prev, |p| {
+                self.torque_hist[(self.torque_pos + len - p) % len]
+            });
+            self.torque_hist[self.torque_pos] = t;
+            self.torque_pos = (self.torque_pos + 1) % len;
+            self.torque_filled = (self.torque_filled + 1).min(len);
+        }
+    }
+
     /// Use `fallback` for the `fallback` monitor response (without one, that response ramps
     /// the torque to zero). It observes every valid measurement, so its payload estimate is
     /// ready when a monitor trips.
@@ -1064,6 +1091,9 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         // Periods without a measurement (the runtime steps no controller then): the
         // fallback's finite differences and fits would span the gap as if it were one period.
         let gap = m.t - self.last_t > 1.5 * self.dt();
+        if gap {
+            self.bridge_gap(m.t - self.last_t, period);
+        }
         if m.t.is_finite() {
             self.last_t = m.t;
         }
@@ -1131,13 +1161,20 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             Some(p) => Some(self.torque_hist[(self.torque_pos + len - p) % len]),
             None => (self.torque_filled > 0).then_some(prev),
         };
+        // After a gap in the data (a link outage: the robot rode through on its replay of the
+        // torque one gait period back) the controller resumes on fresh filters and estimates:
+        // its first outputs swung at the rate limit (issue 28, docs/REALTIME.md). The torque
+        // blends from the replay to the controller's over `REPLAY_HANDBACK_STEPS`.
+        if gap && valid && replay_period.is_some() {
+            self.handback = REPLAY_HANDBACK_STEPS;
+        }
         let desired = match replay {
             Some(r) if coast && !gap => {
                 self.coasting = true;
                 self.handback = REPLAY_HANDBACK_STEPS;
                 r
             }
-            Some(r) if self.handback > 0 && !gap && valid => {
+            Some(r) if self.handback > 0 && valid => {
                 self.coasting = false;
                 let a = 1.0 - f64::from(self.handback) / f64::from(REPLAY_HANDBACK_STEPS + 1);
                 self.handback -= 1;
@@ -1160,9 +1197,6 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             desired
         };
         let torque = self.s.limits.clamp(&prev, &desired);
-        if gap {
-            self.torque_filled = 0;
-        }
         let len = self.torque_hist.len();
         self.torque_hist[self.torque_pos] = torque;
         self.torque_pos = (self.torque_pos + 1) % len;
