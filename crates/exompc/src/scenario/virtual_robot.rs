@@ -216,8 +216,8 @@ impl<const N: usize, Tr: Trajectory<N>> VirtualRobot<N, Tr> {
     pub const MIN_GAIT_PERIOD_S: f64 = 0.4;
     /// Window of the most recent encoder angles matched against one period earlier (s).
     pub const MATCH_WINDOW_S: f64 = 0.3;
-    /// Largest mean squared mismatch of that window, as a share of the window's variance,
-    /// for a period to count as found.
+    /// Largest mean squared mismatch of that window, as a share of the angles' variance over
+    /// the history, for a period to count as found.
     pub const MATCH_TOLERANCE: f64 = 0.05;
 
     /// Periods over which the slope of the applied torque is taken for the extrapolation
@@ -488,11 +488,13 @@ impl<const N: usize, Tr: Trajectory<N>> VirtualRobot<N, Tr> {
         if var.is_nan() || var <= 1e-6 {
             return None;
         }
+        // At most 64 samples of the window per lag (keeps the search cheap at a fine `dt`).
+        let stride = w.div_ceil(64);
         let err = |p: usize| {
-            (1..=w)
-                .map(|i| (at(i) - at(i + p)).norm_squared())
-                .sum::<f64>()
-                / w as f64
+            let (sum, count) = (1..=w).step_by(stride).fold((0.0, 0usize), |(s, c), i| {
+                (s + (at(i) - at(i + p)).norm_squared(), c + 1)
+            });
+            sum / count as f64
         };
         let tol = Self::MATCH_TOLERANCE * var;
         let (mut before, mut here) = (f64::INFINITY, err(p_min));
