@@ -237,6 +237,53 @@ fn fault_schedule_runs_within_limits() {
     }
 }
 
+/// The soak's report says whether and why its supervisor latched (issue 28): the clean
+/// default soak does not (`not latched`, `latched_at_s` null), and a soak whose strap-force
+/// monitor trips on the gait itself (`force_max_n` 1 N) with `latch_trips = 1` latches on its
+/// first handover, by `strap_force`, in the printed line and in `soak.json`.
+#[test]
+fn soak_reports_whether_and_why_it_latched() {
+    let out_dir = fresh_dir("soak_latch_none");
+    let args = |dir: &Path| {
+        vec![
+            "soak".to_string(),
+            "--hours".into(),
+            "0.002".into(),
+            "--out".into(),
+            dir.to_str().unwrap().into(),
+        ]
+    };
+    let argv = args(&out_dir);
+    let out = exompc(&argv.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(out.status.success(), "{}", stderr(&out));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("  not latched"), "{stdout}");
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("soak.json")).unwrap()).unwrap();
+    assert!(r["latched_at_s"].is_null(), "{r}");
+
+    let cfg = with_config(
+        "soak_latch.toml",
+        "[monitors]\nforce_max_n = 1.0\nlatch_trips = 1\n",
+    );
+    let out_dir = fresh_dir("soak_latch");
+    let mut argv = args(&out_dir);
+    argv.extend(["--config".to_string(), cfg.to_str().unwrap().to_string()]);
+    let out = exompc(&argv.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(out.status.success(), "{}", stderr(&out));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains("LATCHED at") && stdout.contains("by strap_force after 1 handovers"),
+        "{stdout}"
+    );
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("soak.json")).unwrap()).unwrap();
+    assert!(r["latched_at_s"].as_f64().is_some(), "{r}");
+    assert_eq!(r["latched_by"], "strap_force", "{r}");
+    assert_eq!(r["handovers"], 1, "{r}");
+    assert!(r["latched_for_s"].as_f64().unwrap() > 0.0, "{r}");
+}
+
 #[test]
 fn soak_writes_its_report() {
     let out_dir = fresh_dir("soak");

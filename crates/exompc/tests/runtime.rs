@@ -597,8 +597,9 @@ fn loop_with_virtual_robot_reproduces_simulate() {
 }
 
 /// A lost sample: the loop sends nothing and does not step the controller (the output holds,
-/// counted as a bad measurement), the robot holds the last command for that period; the next
-/// sample resumes.
+/// counted as a bad measurement), the robot rides through that period (in the first gait
+/// period of the run: on the applied torque extrapolated along its slope); the next sample
+/// resumes.
 #[test]
 fn missing_sample_is_ridden_through() {
     let s = scenario(1.0);
@@ -613,8 +614,12 @@ fn missing_sample_is_ridden_through() {
     assert_eq!(link.vr.stats().held, 1);
     assert_eq!(link.vr.stats().watchdog_trips, 1);
     assert_eq!(link.vr.stats().protective_stops, 0);
-    // Period 20 (sample 21) held the command of period 19.
-    assert_eq!(link.steps[20].torque, link.steps[19].torque);
+    // Period 20 (sample 21): the command of period 19 plus a period of the slope over periods
+    // 14-19 (faded by τ (1 − e^(−1/τ)), τ in periods).
+    let tau = Robot::TREND_TAU_S / s.timing.dt;
+    let slope = (link.steps[19].torque - link.steps[14].torque) / 5.0;
+    let want = link.steps[19].torque + slope * (tau * (1.0 - (-1.0 / tau).exp()));
+    assert!((link.steps[20].torque - want).amax() < 1e-12);
     assert!(link.steps.iter().all(|st| st.within_limits));
 }
 
@@ -1253,13 +1258,16 @@ fn link_outages_are_ridden_through() {
     }
 }
 
-/// Measurement (ignored; about 2 s): link outages of 60/120/200 ms starting every 0.1 s from
-/// 0.5 s to 3.6 s into a 2-kg run (other phases of the gait than the goal test's 1 s and 3 s):
-/// prints the peak true strap force (N) and the RMS against the clean run per start, and the
-/// number of outages over the goals; asserts only the robot's limits and no protective stop.
-/// `cargo test --release -p exompc --test runtime link_outage_phases -- --ignored --nocapture`
+/// Link outages (both directions lost) of 60/120/200 ms starting every 0.1 s from 0.5 s to
+/// 3.6 s into a 2-kg run (every phase of the gait over about three gait periods, the first
+/// included, before a gait period is known): each meets issue 28's goals (peak true strap
+/// force ≤ 35 N, RMS ≤ 1.5× the clean run), without a protective stop or a limit violation.
+/// Before the robot's replay of the last gait period (or its fading extrapolation before one
+/// is known) and the supervisor's handback after the gap, 0 / 2 / 13 of the 32 starts failed
+/// (worst 13.7 / 44.3 / 65.1 N): the held torque pushed the strap to 15-35 N and the resumed
+/// controller swung at its rate limit. About 2 s in release; prints the grid:
+/// `cargo test --release -p exompc --test runtime link_outage_phases -- --nocapture`
 #[test]
-#[ignore = "measurement: prints the outage grid over gait phases (docs/REALTIME.md)"]
 fn link_outage_phases() {
     let s = scenario(4.5);
     let periods = 450;
@@ -1287,6 +1295,7 @@ fn link_outage_phases() {
         }
         println!("{ms} ms:{line}");
         println!("{ms} ms: {over} of 32 over the goals, worst peak {worst:.1} N, worst RMS x{worst_rms:.2}");
+        assert_eq!(over, 0, "{ms} ms:{line}");
     }
 }
 

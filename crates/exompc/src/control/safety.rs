@@ -66,7 +66,7 @@ impl SafetySettings {
 pub enum MonitorResponse {
     /// Hold the last safe torque.
     Hold,
-    /// Ramp the torque to zero within the rate limit.
+    /// Ramp the torque to zero at [`STOP_RAMP_NM_PER_S`] (within the rate limit).
     RampToZero,
     /// Switch to the transparent fallback controller ([`Transparent`]: the robot's own
     /// gravity, friction, most of its inertia and the estimated payload compensated, no intent
@@ -92,7 +92,7 @@ pub struct Monitors {
     /// Persistent-fault limit (s), > 0: a sensor channel rejected (non-finite, out of range,
     /// frozen or outside its innovation gate, see [`ChannelGuard`]) for longer than this trips
     /// the `sensor_timeout` monitor, whose response is always the protective stop (torque
-    /// ramped to zero at the rate limit and held until every channel has been good for
+    /// ramped to zero at [`STOP_RAMP_NM_PER_S`] and held until every channel has been good for
     /// 0.1 s). Shorter faults are ridden through on the channel's estimate. Default 0.5.
     pub sensor_timeout_s: f64,
     /// Response when tripped (`"hold"`, `"ramp_to_zero"` or `"fallback"`, the transparent
@@ -619,6 +619,13 @@ pub struct SafetyReport {
     pub sensor_faults: u64,
 }
 
+/// Rate (N·m/s) at which `ramp_to_zero` and the protective stop take the torque to zero (the
+/// torque-rate limit bounds it too): 30 N·m in 0.3 s. At the default rate limit (1000 N·m/s,
+/// 10 N·m a period) the load dropped onto the person within 1-3 periods: on the hard cells of
+/// the envelope at 3 kg the protective stop stepped a true strap force by up to 27 N in one
+/// period, 15 N at this rate (issue 28; docs/RELIABILITY.md §2b, the measured table).
+pub const STOP_RAMP_NM_PER_S: f64 = 100.0;
+
 /// Steps over which the torque goes back from the replay of one gait period back (every
 /// encoder channel lost) to the controller's, linearly (0.1 s at 10 ms).
 pub const REPLAY_HANDBACK_STEPS: u32 = 10;
@@ -641,7 +648,7 @@ pub const REPLAY_HANDBACK_STEPS: u32 = 10;
 ///   `force_max_n ≤ saturation_n`) at the sensor's full scale, and any sensor channel
 ///   without a fresh valid sample (non-finite, implausible, or bit-for-bit repeated) for longer
 ///   than `sensor_timeout_s`. A tripped monitor applies the configured response (`hold` the
-///   last torque, or `ramp_to_zero` at the rate limit; status
+///   last torque, or `ramp_to_zero` at [`STOP_RAMP_NM_PER_S`]; status
 ///   [`StepStatus::MonitorTripped`]); it clears after its condition has been absent for
 ///   `clear_after_s`, and the inner controller resumes from the applied torque. Trips and
 ///   clears are logged with their time in a bounded event list ([`SafetyReport`]).
@@ -803,6 +810,33 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         };
         sup.inner.set_previous_torque(prev);
         sup
+    }
+
+    /// A gap of `gap_s` in the measurements (periods the runtime did not step the controller,
+    /// e.g. a link outage): the torque history moves on by the missing periods, filled with
+    /// the replay of one gait period back (what the robot plays out during the gap) or,
+    /// before the period `period_s` is known, the last torque; the history stays aligned with
+    /// time for the replay and the handback after the gap. A gap of more than the history
+    /// (or not finite) clears it.
+    fn bridge_gap(&mut self, gap_s: f64, period_s: Option<f64>) {
+        let len = self.torque_hist.len();
+        let missing = (gap_s / self.dt()).round() - 1.0;
+        if !(missing >= 0.0 && missing < len as f64) {
+            self.torque_filled = 0;
+            return;
+        }
+        let p = period_s
+            .map(|p| (p / self.dt()).round())
+            .filter(|&p| p >= 2.0 && p + 2.0 < self.torque_filled as f64)
+            .map(|p| p as usize);
+        for _ in 0..missing as usize {
+            let t = p.map_or(self.prev, |p| {
+                self.torque_hist[(self.torque_pos + len - p) % len]
+            });
+            self.torque_hist[self.torque_pos] = t;
+            self.torque_pos = (self.torque_pos + 1) % len;
+            self.torque_filled = (self.torque_filled + 1).min(len);
+        }
     }
 
     /// Use `fallback` for the `fallback` monitor response (without one, that response ramps
@@ -1077,6 +1111,9 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         // Periods without a measurement (the runtime steps no controller then): the
         // fallback's finite differences and fits would span the gap as if it were one period.
         let gap = m.t - self.last_t > 1.5 * self.dt();
+        if gap {
+            self.bridge_gap(m.t - self.last_t, period);
+        }
         if m.t.is_finite() {
             self.last_t = m.t;
         }
@@ -1098,11 +1135,14 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         // good for `clear_after_s`, whatever `response` says.
         let persistent = rep.longest_fault_s > self.s.monitors.sensor_timeout_s + 1e-9;
         let stop = self.tripped[2] && (persistent || !self.railed_trip);
+        // The ramp to zero (`ramp_to_zero`, the protective stop) at `STOP_RAMP_NM_PER_S`.
+        let step = STOP_RAMP_NM_PER_S * self.dt();
+        let toward_zero = prev - prev.map(|v| v.clamp(-step, step));
         let response = match (self.s.monitors.response, &self.fallback) {
-            _ if stop => SVector::zeros(),
+            _ if stop => toward_zero,
             (MonitorResponse::Hold, _) => prev,
             (MonitorResponse::Fallback, Some(fb)) => fb.torque(),
-            (MonitorResponse::RampToZero | MonitorResponse::Fallback, _) => SVector::zeros(),
+            (MonitorResponse::RampToZero | MonitorResponse::Fallback, _) => toward_zero,
         };
         let (desired, mut status, iterations) = if valid {
             // The inner controller keeps estimating while a monitor holds the output, and
@@ -1175,13 +1215,20 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
                 _ => (self.torque_filled > 0).then_some(prev),
             },
         };
+        // After a gap in the data (a link outage: the robot rode through on its replay of the
+        // torque one gait period back) the controller resumes on fresh filters and estimates:
+        // its first outputs swung at the rate limit (issue 28, docs/REALTIME.md). The torque
+        // blends from the replay to the controller's over `REPLAY_HANDBACK_STEPS`.
+        if gap && valid && replay_period.is_some() {
+            self.handback = REPLAY_HANDBACK_STEPS;
+        }
         let desired = match replay {
             Some(r) if coast && !gap => {
                 self.coasting = true;
                 self.handback = REPLAY_HANDBACK_STEPS;
                 r
             }
-            Some(r) if self.handback > 0 && !gap && valid => {
+            Some(r) if self.handback > 0 && valid => {
                 self.coasting = false;
                 let a = 1.0 - f64::from(self.handback) / f64::from(REPLAY_HANDBACK_STEPS + 1);
                 self.handback -= 1;
@@ -1207,9 +1254,6 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             desired
         };
         let torque = self.s.limits.clamp(&prev, &desired);
-        if gap {
-            self.torque_filled = 0;
-        }
         let len = self.torque_hist.len();
         self.torque_hist[self.torque_pos] = torque;
         self.angle_hist[self.torque_pos] = m.q;

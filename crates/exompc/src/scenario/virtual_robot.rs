@@ -161,10 +161,15 @@ impl<const N: usize> RobotStep<N> {
 /// torque-rate limit relative to the previous applied torque (it ramps towards any target).
 /// It starts [`Lifecycle::Inactive`] (zero torque) and becomes active only through
 /// [`VirtualRobot::activate`] (an authenticated session). In an active session, a period
-/// without a fresh command plays out the last command's plan (then holds its last entry) for
-/// at most `ride_through` periods; one more is a lost controller: protective stop
+/// without a fresh command plays out the last command's plan (then holds its last entry);
+/// without a plan, the torque it applied one gait period earlier (the period of its own
+/// encoder angles, found when the gap began: [`VirtualRobot::MATCH_WINDOW_S`]), and before a
+/// gait period is known the applied torque extrapolated along its slope when the gap began,
+/// fading with [`VirtualRobot::TREND_TAU_S`]. This goes on
+/// for at most `ride_through` periods; one more is a lost controller: protective stop
 /// ([`Lifecycle::Error`]: torque ramped to zero at the rate limit and held there) until
-/// [`VirtualRobot::restart`].
+/// [`VirtualRobot::restart`]. Issue 28: holding the last torque instead pushed the strap to
+/// 15-35 N within a 200-ms outage (docs/REALTIME.md, the outage grid).
 pub struct VirtualRobot<const N: usize, Tr: Trajectory<N>> {
     plant: Plant<N, Tr>,
     sensors: Sensors<N>,
@@ -185,13 +190,46 @@ pub struct VirtualRobot<const N: usize, Tr: Trajectory<N>> {
     stop_requested: bool,
     ended: bool,
     end_samples: u32,
-    sampled: Option<(SVector<f64, N>, SVector<f64, N>)>,
+    /// This period's true and measured strap forces and measured angles, once sampled.
+    sampled: Option<(SVector<f64, N>, SVector<f64, N>, SVector<f64, N>)>,
+    /// Encoder angles and applied torques of the last [`VirtualRobot::HISTORY_S`] per period
+    /// (rings, allocated once), for the replay during a gap.
+    q_hist: Vec<SVector<f64, N>>,
+    hist: Vec<SVector<f64, N>>,
+    hist_pos: usize,
+    hist_filled: usize,
+    /// The gait period (periods) found when the current gap began (`None`: none found).
+    gap_period: Option<usize>,
+    /// The applied torque and its slope per period when the current gap began (`None`:
+    /// not enough history).
+    gap_trend: Option<(SVector<f64, N>, SVector<f64, N>)>,
     stats: RobotStats,
     events: Vec<WatchdogEvent>,
     stops: Vec<StopEvent>,
 }
 
 impl<const N: usize, Tr: Trajectory<N>> VirtualRobot<N, Tr> {
+    /// Encoder angles and applied torques kept for the replay during a gap (s): one gait
+    /// period of a gait down to 0.4 Hz, plus the matched window.
+    pub const HISTORY_S: f64 = 2.5;
+    /// Shortest gait period the replay looks for (s).
+    pub const MIN_GAIT_PERIOD_S: f64 = 0.4;
+    /// Window of the most recent encoder angles matched against one period earlier (s).
+    pub const MATCH_WINDOW_S: f64 = 0.3;
+    /// Largest mean squared mismatch of that window, as a share of the angles' variance over
+    /// the history, for a period to count as found.
+    pub const MATCH_TOLERANCE: f64 = 0.05;
+
+    /// Periods over which the slope of the applied torque is taken for the extrapolation
+    /// before a gait period is known.
+    pub const TREND_PERIODS: usize = 5;
+    /// Time constant (s) of the fading of that slope during a gap.
+    pub const TREND_TAU_S: f64 = 0.1;
+
+    fn history_len(dt: f64) -> usize {
+        ((Self::HISTORY_S / dt.max(1e-6)).ceil() as usize).clamp(8, 1 << 16)
+    }
+
     /// A robot over `plant` and `sensors` (noise and sensor faults), period `dt` (s), torque
     /// `limits` enforced on what it applies, riding through at most `ride_through` periods
     /// (≥ 1) without a valid command before a protective stop. It starts inactive.
@@ -223,6 +261,12 @@ impl<const N: usize, Tr: Trajectory<N>> VirtualRobot<N, Tr> {
             ended: false,
             end_samples: 0,
             sampled: None,
+            q_hist: vec![SVector::zeros(); Self::history_len(dt)],
+            hist: vec![SVector::zeros(); Self::history_len(dt)],
+            gap_period: None,
+            gap_trend: None,
+            hist_pos: 0,
+            hist_filled: 0,
             stats: RobotStats::default(),
             events: Vec::with_capacity(MAX_EVENTS),
             stops: Vec::with_capacity(64),
@@ -369,7 +413,7 @@ impl<const N: usize, Tr: Trajectory<N>> VirtualRobot<N, Tr> {
         let s = *self.plant.state();
         let force_true = self.plant.strap_force();
         let (raw, _) = self.sensors.read(t, &s.robot.q, &s.robot.qd, &force_true);
-        self.sampled = Some((force_true, raw.force));
+        self.sampled = Some((force_true, raw.force, raw.q));
         let seq = self.seq();
         let mut flags = 0;
         if self.gap {
@@ -424,6 +468,75 @@ impl<const N: usize, Tr: Trajectory<N>> VirtualRobot<N, Tr> {
         Ok(true)
     }
 
+    /// The gait period (in periods) of the robot's own encoder angles: the shortest lag, from
+    /// [`VirtualRobot::MIN_GAIT_PERIOD_S`] to what the history holds, at which the mean
+    /// squared difference (over the joints) between the last [`VirtualRobot::MATCH_WINDOW_S`]
+    /// of angles and the angles one lag earlier has a local minimum within
+    /// [`VirtualRobot::MATCH_TOLERANCE`] of the variance of the angles over the history.
+    /// `None` before a period of history, for a leg at rest or a non-finite angle in the
+    /// compared samples.
+    fn gait_period(&self) -> Option<usize> {
+        let len = self.q_hist.len();
+        let w = ((Self::MATCH_WINDOW_S / self.dt).round() as usize).clamp(2, len / 2);
+        let p_min = ((Self::MIN_GAIT_PERIOD_S / self.dt).round() as usize).max(2);
+        // `back` periods before the coming one (1: the last recorded).
+        let at = |back: usize| &self.q_hist[(self.hist_pos + len - back % len) % len];
+        let n = self.hist_filled;
+        let p_max = n.checked_sub(w)?;
+        let mean = (1..=n).map(at).sum::<SVector<f64, N>>() / n as f64;
+        let var = (1..=n).map(|i| (at(i) - mean).norm_squared()).sum::<f64>() / n as f64;
+        if var.is_nan() || var <= 1e-6 {
+            return None;
+        }
+        // At most 64 samples of the window per lag (keeps the search cheap at a fine `dt`).
+        let stride = w.div_ceil(64);
+        let err = |p: usize| {
+            let (sum, count) = (1..=w).step_by(stride).fold((0.0, 0usize), |(s, c), i| {
+                (s + (at(i) - at(i + p)).norm_squared(), c + 1)
+            });
+            sum / count as f64
+        };
+        let tol = Self::MATCH_TOLERANCE * var;
+        let (mut before, mut here) = (f64::INFINITY, err(p_min));
+        for p in p_min..=p_max {
+            let after = if p < p_max { err(p + 1) } else { f64::INFINITY };
+            if here <= tol && here <= before && here <= after {
+                return Some(p);
+            }
+            (before, here) = (here, after);
+        }
+        None
+    }
+
+    /// The applied torque and its mean slope per period over the last
+    /// [`VirtualRobot::TREND_PERIODS`] periods, for the extrapolation during a gap; `None`
+    /// with less history.
+    fn torque_trend(&self) -> Option<(SVector<f64, N>, SVector<f64, N>)> {
+        let len = self.hist.len();
+        let n = Self::TREND_PERIODS;
+        if self.hist_filled <= n {
+            return None;
+        }
+        let at = |back: usize| self.hist[(self.hist_pos + len - back) % len];
+        Some((at(1), (at(1) - at(1 + n)) / n as f64))
+    }
+
+    /// Periods of slope the extrapolation adds after `j` periods of a gap:
+    /// `τ (1 − e^(−j/τ))`, `τ` = [`VirtualRobot::TREND_TAU_S`] in periods (the slope fades, so
+    /// a gap of any length adds at most `τ` periods of it).
+    fn extrapolation_gain(j: u64, dt: f64) -> f64 {
+        let tau = Self::TREND_TAU_S / dt.max(1e-6);
+        tau * (1.0 - (-(j as f64) / tau).exp())
+    }
+
+    /// The torque applied one gait period before the coming period (the period found when
+    /// the gap began, [`VirtualRobot::gait_period`]); `None` without one.
+    fn replay(&self) -> Option<SVector<f64, N>> {
+        let p = self.gap_period?;
+        let len = self.hist.len();
+        (p < self.hist_filled).then(|| self.hist[(self.hist_pos + len - p) % len])
+    }
+
     fn close_gap(&mut self, resumed: Option<f64>) {
         if self.gap && self.event_open {
             if let Some(e) = self.events.last_mut() {
@@ -436,16 +549,17 @@ impl<const N: usize, Tr: Trajectory<N>> VirtualRobot<N, Tr> {
 
     /// Apply the torque over the period and advance the plant to `t_{k+1}`. The target: the
     /// command answering this period's sample; else, in an active session within the
-    /// ride-through, the last command's plan entry for this period (its last entry, or the
-    /// command's torque, once the plan is used up); else zero (a gap longer than the
+    /// ride-through, the last command's plan entry for this period (its last entry once used
+    /// up); without a plan the torque applied one gait period earlier, or without a known
+    /// period the extrapolated torque (see [`VirtualRobot`]); else zero (a gap longer than the
     /// ride-through makes a protective stop first). The applied torque is the target clamped
     /// to the torque limit and to the rate limit from the previous applied torque.
     pub fn advance(&mut self) -> RobotStep<N> {
         let t = self.plant.time();
         let s = *self.plant.state();
-        let (force_true, force_raw) = self.sampled.take().unwrap_or_else(|| {
+        let (force_true, force_raw, q_meas) = self.sampled.take().unwrap_or_else(|| {
             let f = self.plant.strap_force();
-            (f, f)
+            (f, f, s.robot.q)
         });
         if self.state == Lifecycle::Active
             && !(s.robot.q.iter().chain(s.robot.qd.iter())).all(|v| v.is_finite())
@@ -476,6 +590,8 @@ impl<const N: usize, Tr: Trajectory<N>> VirtualRobot<N, Tr> {
                 gap_now = true;
                 if !self.gap {
                     self.gap = true;
+                    self.gap_period = self.gait_period();
+                    self.gap_trend = self.torque_trend();
                     self.stats.watchdog_trips += 1;
                     self.event_open = self.events.len() < MAX_EVENTS;
                     if self.event_open {
@@ -491,7 +607,12 @@ impl<const N: usize, Tr: Trajectory<N>> VirtualRobot<N, Tr> {
                 self.stats.held += 1;
                 let i = (j as usize).saturating_sub(1);
                 if self.plan_len > 0 {
+                    // A plan (the controller's, or the rest of a ramp to zero before a stop).
                     self.plan[i.min(self.plan_len - 1)]
+                } else if let Some(r) = self.replay() {
+                    r
+                } else if let Some((base, slope)) = self.gap_trend {
+                    base + slope * Self::extrapolation_gain(j, self.dt)
                 } else {
                     self.last_target
                 }
@@ -535,6 +656,11 @@ impl<const N: usize, Tr: Trajectory<N>> VirtualRobot<N, Tr> {
             within_limits: within,
         };
         self.applied = torque;
+        let len = self.hist.len();
+        self.hist[self.hist_pos] = torque;
+        self.q_hist[self.hist_pos] = q_meas;
+        self.hist_pos = (self.hist_pos + 1) % len;
+        self.hist_filled = (self.hist_filled + 1).min(len);
         self.plant.step(&torque);
         self.stats.periods += 1;
         self.k += 1;
