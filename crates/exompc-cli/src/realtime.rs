@@ -487,6 +487,10 @@ pub(crate) struct RunArgs {
 struct RunSummary {
     controller: String,
     dof: usize,
+    /// The QP back-end and Hessian model `[controller.sqp]` resolved to (as `simulate`'s
+    /// `summary.json`); absent for a controller without an SQP.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    solver: Option<exompc::control::SolverChoice>,
     robot: String,
     stop_reason: String,
     /// Whether the run ended as planned (the robot's or `--duration`'s end).
@@ -835,6 +839,7 @@ fn drive<D: Dof<N>, const N: usize, R: RobotInterface<N>, K: Clock>(
     let summary = RunSummary {
         controller: name,
         dof: D::DOF,
+        solver: exompc::scenario::summary_solver(s, D::DOF).unwrap_or_default(),
         robot: robot_label.to_string(),
         stop_reason,
         completed: matches!(end, RunEnd::Planned(_)),
@@ -878,6 +883,9 @@ fn drive<D: Dof<N>, const N: usize, R: RobotInterface<N>, K: Clock>(
         a.out.display(),
         if wrote.is_ok() { " and summary.json" } else { "" }
     );
+    if let Some(c) = &summary.solver {
+        println!("  solver  {}", exompc_cli::run::solver_label(c));
+    }
     if let Some(sa) = &summary.safety_summary {
         println!("{}", exompc_cli::run::describe_safety(sa));
     }

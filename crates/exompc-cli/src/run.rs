@@ -188,6 +188,9 @@ pub fn describe(s: &Summary) -> String {
             .collect();
         out += &format!("  mean probability  {}\n", ps.join("   "));
     }
+    if let Some(c) = &s.solver {
+        out += &format!("  solver            {}\n", solver_label(c));
+    }
     out += &format!(
         "  step time         mean {:.1} us   p50 {:.1} us   p99 {:.1} us   max {:.1} us\n",
         s.step_time_us.mean, s.step_time_us.p50, s.step_time_us.p99, s.step_time_us.max
@@ -198,6 +201,17 @@ pub fn describe(s: &Summary) -> String {
     );
     out += &describe_safety(&s.safety);
     out
+}
+
+/// `qp dense, hessian structured_secant`: what `[controller.sqp] qp` and `hessian` resolved
+/// to (the summary's `solver`).
+pub fn solver_label(c: &exompc::control::SolverChoice) -> String {
+    let name = |v: serde_json::Value| v.as_str().unwrap_or("?").to_string();
+    format!(
+        "qp {}, hessian {}",
+        name(serde_json::to_value(c.qp).unwrap_or_default()),
+        name(serde_json::to_value(c.hessian).unwrap_or_default())
+    )
 }
 
 /// The printed safety lines of a summary (`exompc simulate` and `exompc run`): trips and held

@@ -36,9 +36,9 @@ fn main() {
     let mut s = Scenario::default();
     s.controller.sqp.hessian = match arg(6, "default").as_str() {
         "default" => s.controller.sqp.hessian,
-        "gauss_newton" => exompc::solver::HessianModel::GaussNewton,
-        "structured_secant" => exompc::solver::HessianModel::StructuredSecant,
-        "exact" => exompc::solver::HessianModel::Exact,
+        "gauss_newton" => exompc::control::HessianSetting::GaussNewton,
+        "structured_secant" => exompc::control::HessianSetting::StructuredSecant,
+        "exact" => exompc::control::HessianSetting::Exact,
         other => panic!("hessian `{other}`: gauss_newton, structured_secant or exact"),
     };
     s.controller.kind = ControllerKind::MSNMPC;

@@ -512,16 +512,20 @@ pub struct Sqp {
     /// iteration); absent = no time budget.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_time_us: Option<u64>,
-    /// Hessian model of the QP subproblems: `"structured_secant"` (Gauss-Newton plus a
-    /// secant estimate of the residual curvature), `"gauss_newton"` or `"exact"` (the exact
-    /// Lagrangian Hessian, in both QP back-ends, shifted by `μ I` when it is not positive
-    /// definite; the coupled scenario tree uses Gauss-Newton). Default `"structured_secant"`.
-    pub hessian: crate::solver::HessianModel,
+    /// Hessian model of the QP subproblems: `"auto"` (the QP back-end's own model:
+    /// `"structured_secant"` on the dense one, `"gauss_newton"` on the structured one),
+    /// `"structured_secant"` (Gauss-Newton plus a secant estimate of the residual curvature;
+    /// the dense back-end only, so `qp = "auto"` then stays dense), `"gauss_newton"` or
+    /// `"exact"` (the exact Lagrangian Hessian, in both QP back-ends, shifted by `μ I` when it
+    /// is not positive definite; the coupled scenario tree uses Gauss-Newton). The run summary's
+    /// `solver` names the model run ([`crate::control::QpBackend::resolve`]). Default `"auto"`.
+    pub hessian: crate::control::HessianSetting,
     /// QP solver of the SQP: `"dense"` (condensed, the oracle), `"structured"` (Riccati over
     /// the horizon stages, Gauss-Newton or exact Hessian; the coupled formulation: the block-arrowhead
     /// scenario tree) or `"auto"` (structured when joints·nc ≥ 16; coupled: when the tree's
-    /// decision variables joints·(Nr + S·(Nc − Nr)) ≥ 16).
-    /// Default `"auto"`.
+    /// decision variables joints·(Nr + S·(Nc − Nr)) ≥ 16; never a back-end that would run
+    /// another Hessian than `hessian` asks for: `auto` chooses the QP back-end only). The run
+    /// summary's `solver` names the back-end chosen. Default `"auto"`.
     pub qp: crate::control::QpBackend,
     /// Real-time iteration: one SQP iteration (one linearisation, one QP, full step) per
     /// control period from the shifted previous solution, instead of iterating to the KKT
@@ -536,7 +540,7 @@ impl Default for Sqp {
             max_iterations: d.max_iterations,
             kkt_tolerance: d.kkt_tolerance,
             max_time_us: None,
-            hessian: d.hessian,
+            hessian: crate::control::HessianSetting::Auto,
             qp: crate::control::QpBackend::Auto,
             rti: d.real_time_iteration,
         }
@@ -544,13 +548,16 @@ impl Default for Sqp {
 }
 
 impl Sqp {
-    /// The solver settings of this table: its keys set, the solver's defaults elsewhere.
+    /// The solver settings of this table: its keys set, the solver's defaults elsewhere
+    /// (`hessian = "auto"`: the solver's default model, which the structured back-ends run as
+    /// Gauss-Newton; [`crate::control::QpBackend::resolve`] names the one run).
     pub fn settings(&self) -> SqpSettings {
+        let d = SqpSettings::default();
         SqpSettings {
             max_iterations: self.max_iterations,
             kkt_tolerance: self.kkt_tolerance,
             max_time: self.max_time_us.map(Duration::from_micros),
-            hessian: self.hessian,
+            hessian: self.hessian.model().unwrap_or(d.hessian),
             real_time_iteration: self.rti,
             ..SqpSettings::default()
         }

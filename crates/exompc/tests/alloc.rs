@@ -87,7 +87,7 @@ fn control_steps_do_not_allocate() {
     s.multistage.robust_horizon = 1;
     // The exact Hessian (inertia correction and curvature blocks), both back-ends.
     s.multistage.formulation = Formulation::Decoupled;
-    s.controller.sqp.hessian = exompc::solver::HessianModel::Exact;
+    s.controller.sqp.hessian = exompc::solver::HessianModel::Exact.into();
     for qp in [
         exompc::control::QpBackend::Dense,
         exompc::control::QpBackend::Structured,

@@ -333,7 +333,7 @@ fn closed_loop_with(
     s.controller.robust.velocity_tracking = tracking;
     s.controller.np = n;
     s.controller.nc = n;
-    s.controller.sqp.hessian = hessian;
+    s.controller.sqp.hessian = hessian.into();
     s.controller.sqp.max_iterations = 1000;
     s.controller.sqp.kkt_tolerance = 1e-10;
     s.controller.sqp.qp = qp;

@@ -22,7 +22,7 @@ fn repeated_rti_reaches_sqp<D: Dof<N>, const N: usize>(n: usize, t_prev: [f64; 2
     let mut s = Scenario::default();
     s.controller.np = n;
     s.controller.nc = n;
-    s.controller.sqp.hessian = HessianModel::GaussNewton;
+    s.controller.sqp.hessian = HessianModel::GaussNewton.into();
     let model = prediction_model::<D, N>(&s, 0.0);
     let lim: TorqueLimits = limits(&s);
     let mut full = nmpc_settings(&s);
@@ -110,7 +110,7 @@ fn rti_closed_loop_diff<D: Dof<N>, const N: usize>(kind: ControllerKind, n: usiz
     let mut s = Scenario::default();
     s.controller.np = n;
     s.controller.nc = n;
-    s.controller.sqp.hessian = HessianModel::GaussNewton;
+    s.controller.sqp.hessian = HessianModel::GaussNewton.into();
     s.controller.sqp.rti = true;
     s.multistage.formulation = Formulation::Decoupled;
     let run = |qp: QpBackend| {

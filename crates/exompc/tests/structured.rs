@@ -280,7 +280,7 @@ fn closed_loop_diff(kind: ControllerKind, formulation: Formulation, n: usize, st
     let mut s = Scenario::default();
     s.controller.np = n;
     s.controller.nc = n;
-    s.controller.sqp.hessian = HessianModel::GaussNewton;
+    s.controller.sqp.hessian = HessianModel::GaussNewton.into();
     // Both solved to a KKT residual of 2e-9, which every step of the Np ≤ 10 loops attains
     // (at most 82 iterations a step for the NMPC and 291 for the three-scenario MS-NMPC at
     // Np = 10). At 1e-10 (the tolerance until issue 12's ninth pass) the Gauss–Newton SQP
@@ -316,4 +316,45 @@ fn structured_closed_loops_equal_dense() {
         eprintln!("{kind:?} {formulation:?} n={n}: max |ΔT| = {d:e}");
         assert!(d <= tol, "{kind:?} {formulation:?} n={n}: max |ΔT| = {d:e}");
     }
+}
+
+/// `qp = "auto"` chooses the QP back-end only, and the run summary says what was chosen: the
+/// default (2 joints × Nc = 3, dense, structured secant); Nc = 9 with `hessian = "auto"`
+/// (structured, Gauss–Newton: the same torques as `qp = "structured"`); Nc = 9 with
+/// `hessian = "structured_secant"`, which only the dense back-end runs (dense, secant: the
+/// same torques as `qp = "dense"`); no `solver` for the PD.
+#[test]
+fn auto_qp_keeps_the_hessian_and_the_summary_reports_the_choice() {
+    use exompc::control::SolverChoice;
+    use exompc::solver::HessianModel as H;
+    let run = |s: &Scenario| {
+        let mut t = s.clone();
+        t.timing.duration_2dof_s = 0.3;
+        let mut trace = exompc::sim::TraceLog::<2>::default();
+        let summary = exompc::scenario::run_experiment::<TwoDof, 2>(&t, &mut [&mut trace]).unwrap();
+        let torques: Vec<_> = trace.rows.iter().map(|r| r.torque_robot).collect();
+        (summary.solver, torques)
+    };
+    let choice = |qp, hessian| Some(SolverChoice { qp, hessian });
+    let mut s = Scenario::default();
+    assert_eq!(
+        run(&s).0,
+        choice(QpBackend::Dense, H::StructuredSecant),
+        "the default"
+    );
+    s.controller.kind = ControllerKind::NMPC;
+    s.controller.np = 9;
+    s.controller.nc = 9;
+    let (auto, auto_trace) = run(&s);
+    assert_eq!(auto, choice(QpBackend::Structured, H::GaussNewton));
+    s.controller.sqp.qp = QpBackend::Structured;
+    assert_eq!(run(&s).1, auto_trace);
+    s.controller.sqp.qp = QpBackend::Auto;
+    s.controller.sqp.hessian = H::StructuredSecant.into();
+    let (secant, secant_trace) = run(&s);
+    assert_eq!(secant, choice(QpBackend::Dense, H::StructuredSecant));
+    s.controller.sqp.qp = QpBackend::Dense;
+    assert_eq!(run(&s).1, secant_trace);
+    s.controller.kind = ControllerKind::PD;
+    assert_eq!(run(&s).0, None);
 }

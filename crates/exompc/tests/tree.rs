@@ -337,7 +337,7 @@ fn coupled_closed_loop_diff<D: Dof<N>, const N: usize>(n: usize, nr: usize, step
     let mut s = Scenario::default();
     s.controller.np = n;
     s.controller.nc = n;
-    s.controller.sqp.hessian = HessianModel::GaussNewton;
+    s.controller.sqp.hessian = HessianModel::GaussNewton.into();
     s.controller.sqp.max_iterations = 1000;
     s.controller.sqp.kkt_tolerance = 1e-10;
     s.multistage.formulation = Formulation::Coupled;

@@ -50,8 +50,8 @@ pub use limits::{LimitsError, TorqueLimits};
 pub use multistage::{CoupledProblem, Formulation, MultiStage, MultiStageError, MultiStageOptions};
 pub use nmpc::{classify, horizon_inputs, Nmpc, NmpcCore, NmpcError};
 pub use nmpc_problem::{
-    velocity_metric, NmpcProblem, NmpcSettings, QpBackend, VelocityTracking,
-    AUTO_STRUCTURED_MIN_VARS,
+    velocity_metric, HessianSetting, NmpcProblem, NmpcSettings, QpBackend, SolverChoice,
+    VelocityTracking, AUTO_STRUCTURED_MIN_VARS,
 };
 pub use ocp::StructuredSqp;
 pub use ocp_tree::{TreeSqp, AUTO_TREE_MIN_VARS};

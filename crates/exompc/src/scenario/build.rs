@@ -5,10 +5,10 @@
 
 use super::error::RunError;
 use super::layout::{prediction_model, scenario_robot, Dof};
-use crate::config::{Method, Scenario};
+use crate::config::{Formulation, Method, Scenario};
 use crate::control::{
     Controller, IntentEstimator, MultiStage, MultiStageOptions, Nmpc, NmpcSettings, PdController,
-    SafetySettings, TorqueLimits, Transparent, VelocityTracking,
+    SafetySettings, SolverChoice, TorqueLimits, Transparent, VelocityTracking, AUTO_TREE_MIN_VARS,
 };
 use crate::control::{AUTO_K1_PER_STIFFNESS, AUTO_K2_PER_STIFFNESS};
 use crate::estimate::EstimatorOptions;
@@ -40,6 +40,37 @@ pub fn multistage_nmpc_settings(s: &Scenario) -> NmpcSettings {
         st.velocity_tracking = s.controller.robust.velocity_tracking;
     }
     st
+}
+
+/// The QP back-end and Hessian model `[controller.sqp] qp` and `hessian` resolve to for the
+/// NMPC of scenario `s` with `joints` joints (`control::QpBackend::resolve`): for a
+/// `multistage` controller with `multistage.formulation = "coupled"` the scenario tree's, else
+/// one scenario's NMPC. The run summary reports it (`solver`).
+pub fn solver_choice(s: &Scenario, joints: usize, multistage: bool) -> SolverChoice {
+    let c = &s.controller;
+    let tree = multistage && s.multistage.formulation == Formulation::Coupled;
+    let n_vars = if tree {
+        let nr = s.multistage.robust_horizon.clamp(1, c.nc);
+        let scenarios = crate::config::scenarios::names(s).len();
+        joints * (nr + scenarios * (c.nc - nr))
+    } else {
+        joints * c.nc
+    };
+    c.sqp
+        .qp
+        .resolve(c.sqp.hessian, n_vars, tree, AUTO_TREE_MIN_VARS)
+}
+
+/// `settings` with the QP back-end of [`solver_choice`] for `joints` joints (`qp = "auto"`
+/// resolved with the Hessian setting, never `Auto`).
+fn resolved(
+    mut settings: NmpcSettings,
+    s: &Scenario,
+    joints: usize,
+    multistage: bool,
+) -> NmpcSettings {
+    settings.qp = solver_choice(s, joints, multistage).qp;
+    settings
 }
 
 /// Torque limits of a scenario (paper eqs. 8-9).
@@ -87,7 +118,7 @@ pub fn build_nmpc<D: Dof<N>, const N: usize>(
 ) -> Result<Box<dyn Controller<N>>, RunError> {
     Ok(Box::new(Nmpc::new(
         prediction_model::<D, N>(s, 0.0),
-        &nmpc_settings(s),
+        &resolved(nmpc_settings(s), s, N, false),
         intent(s),
         limits(s),
         t0,
@@ -144,7 +175,7 @@ where
     };
     let ms = MultiStage::<N, NA, NY>::new(
         models,
-        &multistage_nmpc_settings(s),
+        &resolved(multistage_nmpc_settings(s), s, N, true),
         &ekf,
         &est,
         options,

@@ -101,8 +101,22 @@ pub fn run_experiment_report<D: Dof<N>, const N: usize>(
     if super::controller_info(s.controller.kind)?.multistage {
         summary.scenarios = Some(crate::config::scenarios::names(s));
     }
+    summary.solver = summary_solver(s, D::DOF)?;
     summary.safety = SafetySummary::from_report(controller.report());
     Ok((summary, controller.report().clone()))
+}
+
+/// The run summary's `solver` for the controller of `s` with `joints` joints: what
+/// `[controller.sqp] qp` and `hessian` resolve to ([`super::solver_choice`]) for the plain
+/// NMPC and the multi-stage entries of the registry, `None` for the others (`pd`). Fails
+/// only for a `controller.kind` the registry does not know.
+pub fn summary_solver(
+    s: &Scenario,
+    joints: usize,
+) -> Result<Option<crate::control::SolverChoice>, RunError> {
+    let multistage = super::controller_info(s.controller.kind)?.multistage;
+    Ok((multistage || s.controller.kind == ControllerKind::NMPC)
+        .then(|| super::build::solver_choice(s, joints, multistage)))
 }
 
 /// Result of [`run_soak`] (written as `soak.json` by `exompc soak`).
