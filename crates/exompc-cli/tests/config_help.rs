@@ -769,3 +769,35 @@ fn run_and_virtual_robot_refuse_a_folder_with_earlier_results() {
         );
     }
 }
+
+/// The `[controller.robust]` keys removed in issue 31 (fixed constants now) are rejected, in a
+/// file (exit 2) and by `set`, with an error naming the key; the knobs that stay load.
+#[test]
+fn removed_robust_keys_are_rejected_naming_the_key() {
+    for key in exompc::control::REMOVED_ROBUST_KEYS {
+        let out = check(
+            &format!("removed_{key}.toml"),
+            &format!("[controller.robust]\n{key} = 0.5\n"),
+            &[],
+        );
+        assert_eq!(out.status.code(), Some(2), "{key}");
+        let err = stderr(&out);
+        assert!(
+            err.contains(&format!("controller.robust.{key} is no longer a setting")),
+            "{key}: {err}"
+        );
+        let s = exompc::config::Scenario::default();
+        let e = exompc_cli::io::set_key(
+            &s,
+            &format!("controller.robust.{key}"),
+            exompc_cli::io::parse_value("0.5"),
+        )
+        .unwrap_err();
+        assert!(e.contains("is no longer a setting"), "{key}: {e}");
+    }
+    let kept = "[controller.robust]\nfilter_aware = \"always\"\nrelease_s = 1.0\n\
+                human_bandwidth_hz = 4.0\nweight_smoothing_s = 0.2\nobserver_velocity_gain = 20.0\n\
+                intent_estimate = \"paper\"\nintent_gains = \"configured\"\nvelocity_tracking = \"joint\"\n";
+    let out = check("robust_kept.toml", kept, &[]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+}

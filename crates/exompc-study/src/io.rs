@@ -326,7 +326,8 @@ fn check_keys(user: &toml::Table, schema: &toml::Table, prefix: &str) -> Result<
     for (key, value) in user {
         let path = join(prefix, key);
         let Some(expected) = schema.get(key) else {
-            return Err(unknown_key(key, schema, prefix));
+            return Err(exompc::config::removed_key(&path)
+                .unwrap_or_else(|| unknown_key(key, schema, prefix)));
         };
         check_value(value, expected, &path)?;
     }

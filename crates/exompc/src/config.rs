@@ -22,7 +22,7 @@ use serde::{Deserialize, Deserializer, Serialize};
 mod controller_kind;
 mod keys;
 pub mod scenarios;
-pub use keys::{explain, Allowed, End, KeyDoc, Limit, KEYS};
+pub use keys::{explain, removed_key, Allowed, End, KeyDoc, Limit, KEYS};
 
 // ---------------------------------------------------------------------------------------------
 // Error
@@ -850,49 +850,8 @@ impl Scenario {
         reals(
             "controller.robust",
             &[
-                ("oscillation_cutoff_hz", rb.oscillation_cutoff_hz, R::Pos),
-                (
-                    "oscillation_window_s",
-                    rb.oscillation_window_s,
-                    R::OpenClosed(0.0, 10.0),
-                ),
-                (
-                    "oscillation_fraction",
-                    rb.oscillation_fraction,
-                    R::Open(0.0, 1.0),
-                ),
-                (
-                    "oscillation_min_force_n",
-                    rb.oscillation_min_force_n,
-                    R::NonNeg,
-                ),
                 ("human_bandwidth_hz", rb.human_bandwidth_hz, R::Pos),
                 ("release_s", rb.release_s, R::Closed(0.0, 1e6)),
-                ("ekf_force_lead", rb.ekf_force_lead, R::Closed(0.0, 3.0)),
-                ("disturbance_lead", rb.disturbance_lead, R::Closed(0.0, 3.0)),
-                ("disturbance_q", rb.disturbance_q, R::NonNeg),
-                ("torque_oscillation_nm", rb.torque_oscillation_nm, R::NonNeg),
-                (
-                    "torque_oscillation_window_s",
-                    rb.torque_oscillation_window_s,
-                    R::OpenClosed(0.0, 10.0),
-                ),
-                (
-                    "torque_oscillation_cutoff_hz",
-                    rb.torque_oscillation_cutoff_hz,
-                    R::Pos,
-                ),
-                (
-                    "torque_oscillation_fraction",
-                    rb.torque_oscillation_fraction,
-                    R::Closed(0.0, 0.999),
-                ),
-                ("inertia_engage_ratio", rb.inertia_engage_ratio, R::NonNeg),
-                (
-                    "inertia_engage_s",
-                    rb.inertia_engage_s,
-                    R::Closed(0.0, 10.0),
-                ),
                 (
                     "weight_smoothing_s",
                     rb.weight_smoothing_s,

@@ -63,7 +63,8 @@ pub use ride_through::{
     VELOCITY_GATE,
 };
 pub use robust::{
-    FilterAware, IntentEstimate, Method, RobustIntentGains, RobustSettings, PAPER_STRAP_STIFFNESS,
+    removed_robust_key, FilterAware, IntentEstimate, Method, RobustIntentGains, RobustSettings,
+    RobustTuning, PAPER_STRAP_STIFFNESS, REMOVED_ROBUST_KEYS,
 };
 pub use safety::{
     GaitFrequency, MonitorAction, MonitorEvent, MonitorKind, MonitorResponse, Monitors,

@@ -6,6 +6,8 @@ use super::nmpc::{classify, horizon_inputs, NmpcCore};
 use super::nmpc_problem::{NmpcProblem, NmpcSettings};
 use super::ocp_tree::{tree_is_structured, TreeSqp};
 use super::prediction::{HorizonInputs, PredictionModel};
+#[cfg(doc)]
+use super::robust::RobustTuning;
 use super::robust::{IntentEstimate, RobustSettings, RobustState};
 use super::strap_intent::StrapIntent;
 use super::weights::WeightSmoother;
@@ -382,13 +384,13 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     was_estimating: bool,
     /// Robust extensions (`[controller] method = "robust"`); `None` = the paper's method.
     robust: Option<RobustState<N>>,
-    /// The robust method's disturbance bank ([`RobustSettings::disturbance_lead`]): a copy of
+    /// The robust method's disturbance bank ([`RobustTuning::disturbance_lead`]): a copy of
     /// the bank stepped with the led strap force, whose `d̂ᵢ` the predictions take; its
     /// probabilities are not used. `None` = `d̂ᵢ` from `bank`.
     dbank: Option<EkfBank<N, NA, NY>>,
     /// The strap force the disturbance bank saw at the previous step, per scenario.
     prev_dforce: Vec<SVector<f64, N>>,
-    /// The robust method's inertia gate ([`RobustSettings::inertia_engage_ratio`]; `None` =
+    /// The robust method's inertia gate ([`RobustTuning::inertia_engage_ratio`]; `None` =
     /// off), and whether the filter-aware mode was used on the previous step.
     gate: Option<InertiaGate>,
     filter_aware_prev: bool,
@@ -488,12 +490,13 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             // positive, so this succeeds.
             self.dbank = EkfBank::new(&robots, &ekf, &self.estimator, &zero, &zero).ok();
         }
-        if r.gated() && settings.inertia_engage_ratio > 0.0 {
+        let tuning = &settings.tuning;
+        if r.gated() && tuning.inertia_engage_ratio > 0.0 {
             let dt = self.models[0].dt;
             self.gate = Some(InertiaGate::new(
                 &self.models,
-                settings.inertia_engage_ratio,
-                (settings.inertia_engage_s / dt).round() as usize,
+                tuning.inertia_engage_ratio,
+                (tuning.inertia_engage_s / dt).round() as usize,
             ));
         }
         self.strap_intent =
@@ -786,10 +789,10 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
 }
 
 impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiStage<N, NA, NY> {
-    /// One control step: [`Self::advance_banks`], [`Self::start_state`],
-    /// [`Self::scenario_inputs`], [`Self::update_weights`], then the coupled solve
-    /// (`CoupledCore::first_torque`) or every scenario's ([`Self::solve_scenarios`]) blended
-    /// by eq. 13 ([`Self::blend_increments`]), and the hard limits of eqs. 8-9.
+    /// One control step in named steps: `advance_banks` (EKF banks), `start_state`,
+    /// `scenario_inputs`, `update_weights`, then the coupled solve (`CoupledCore::first_torque`)
+    /// or every scenario's (`solve_scenarios`) blended by eq. 13 (`blend_increments`), and the
+    /// hard limits of eqs. 8-9.
     fn step(&mut self, m: &Measurement<N>) -> ControlOutput<N> {
         if !m.is_finite() {
             return self.hold(StepStatus::BadMeasurement);
