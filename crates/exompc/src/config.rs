@@ -703,6 +703,9 @@ pub struct Scenario {
     pub monitors: Monitors,
 }
 
+/// One check of [`Scenario::validate`] (a row of [`Scenario::CHECKS`]).
+pub type Check = fn(&Scenario) -> Result<(), ConfigError>;
+
 /// Most control steps one run may take (`duration / dt`), so that a tiny `dt` cannot start a
 /// practically endless run.
 pub const MAX_CONTROL_STEPS: usize = 100_000_000;
@@ -712,13 +715,38 @@ pub const MAX_SCENARIOS: usize = 32;
 
 impl Scenario {
     /// Checks every numeric field (finite and within its documented range) and the
-    /// cross-field rules (nc <= np, robust_horizon <= nc, com within the link, ...).
+    /// cross-field rules (nc <= np, robust_horizon <= nc, com within the link, ...): the
+    /// checks of [`Self::CHECKS`], in order.
     ///
     /// Returns the first violation, naming the field by its dotted path.
     pub fn validate(&self) -> Result<(), ConfigError> {
-        self.human.validate()?;
-        self.robot.validate()?;
+        Self::CHECKS.iter().try_for_each(|(_, check)| check(self))
+    }
 
+    /// The checks of [`Self::validate`], one per table of the file, in the order they run
+    /// (the first violation is reported): the table and its check. A table that is a lower
+    /// module's settings type runs that type's own `validate` (its message prefixed with the
+    /// table's path); the others, and the cross-field rules, are here.
+    pub const CHECKS: &'static [(&'static str, Check)] = &[
+        ("human", |s| s.human.validate()),
+        ("robot", |s| s.robot.validate()),
+        ("straps", Self::check_straps),
+        ("uncertainty", |s| {
+            s.uncertainty.validate().map_err(at("uncertainty"))
+        }),
+        ("trajectory", Self::check_trajectory_table),
+        ("timing", Self::check_timing),
+        ("controller", Self::check_controller),
+        ("multistage", Self::check_multistage),
+        ("ekf", |s| s.ekf.validate().map_err(at("ekf"))),
+        ("faults", |s| s.faults.validate().map_err(at("faults"))),
+        ("monitors", |s| {
+            s.monitors.validate().map_err(at("monitors"))
+        }),
+    ];
+
+    /// `[straps]`: the strap positions within their links (cross-field), stiffness and damping.
+    fn check_straps(&self) -> Result<(), ConfigError> {
         let s = &self.straps;
         for (name, v, link, l) in [
             ("ls1_m", s.ls1_m, "thigh", self.robot.thigh.length),
@@ -743,9 +771,11 @@ impl Scenario {
                 ("damping", s.damping, R::NonNeg),
             ],
         )?;
+        Ok(())
+    }
 
-        self.uncertainty.validate().map_err(at("uncertainty"))?;
-
+    /// `[trajectory]`: its own checks, and the gait frequency `base ± swing` above 0 (cross-field).
+    fn check_trajectory_table(&self) -> Result<(), ConfigError> {
         let sw = &self.trajectory.swing;
         let (swing, base) = (sw.frequency_swing_hz, sw.base_frequency_hz);
         self.trajectory
@@ -760,7 +790,11 @@ impl Scenario {
                     fix: format!("set trajectory.frequency_swing_hz < {base} or raise trajectory.base_frequency_hz"),
                 })
             })?;
+        Ok(())
+    }
 
+    /// `[timing]`: the control period, substeps and run lengths (at least one period, at most [`MAX_CONTROL_STEPS`]).
+    fn check_timing(&self) -> Result<(), ConfigError> {
         let tm = &self.timing;
         real("timing.dt", tm.dt, R::OpenClosed(0.0, 1.0))?;
         int("timing.plant_substeps", tm.plant_substeps, 1, 1000)?;
@@ -816,7 +850,11 @@ impl Scenario {
                 ));
             }
         }
+        Ok(())
+    }
 
+    /// `[controller]` with `[controller.sqp]`, `[controller.pd]` and `[controller.robust]`: horizons (`nc <= np`), weights, limits.
+    fn check_controller(&self) -> Result<(), ConfigError> {
         let c = &self.controller;
         int("controller.np", c.np, 1, 200)?;
         cross(
@@ -864,7 +902,12 @@ impl Scenario {
                 ),
             ],
         )?;
+        Ok(())
+    }
 
+    /// `[multistage]`: the scenario set, `c1`, the probability floor (below `1 / S`) and the robust horizon (`<= controller.nc`).
+    fn check_multistage(&self) -> Result<(), ConfigError> {
+        let c = &self.controller;
         let m = &self.multistage;
         // `payloads_kg` or `[[multistage.scenarios]]`: count, names, every override's range.
         let n = scenarios::validate(self)?;
@@ -911,10 +954,7 @@ impl Scenario {
                 ),
             },
         )?;
-
-        self.ekf.validate().map_err(at("ekf"))?;
-        self.faults.validate().map_err(at("faults"))?;
-        self.monitors.validate().map_err(at("monitors"))
+        Ok(())
     }
 
     /// Run length (s) of the `dof`-DOF experiment: `duration_1dof_s` for `dof == 1`,
