@@ -118,7 +118,7 @@ fn cross_field_errors_name_the_key_set_and_the_key_it_conflicts_with() {
     }
 }
 
-use exompc::config::{explain, Allowed, Limit, Scenario, KEYS};
+use exompc::config::{explain, Allowed, Experiment, Limit, KEYS};
 use std::collections::BTreeSet;
 
 /// The scenario as a TOML tree with the optional keys filled in (a solve time budget and one
@@ -251,7 +251,7 @@ fn get(tree: &toml::Table, path: &str) -> toml::Value {
 fn probe(path: &str, v: toml::Value) -> Result<(), String> {
     let mut tree = tree_for(path);
     set(&mut tree, path, v);
-    let s: Scenario = toml::Value::Table(tree)
+    let s: Experiment = toml::Value::Table(tree)
         .try_into()
         .map_err(|e: toml::de::Error| e.message().to_string())?;
     // `faults.events.start_s` is reported as `faults.events[0].start_s`.
@@ -277,7 +277,7 @@ fn limit(tree: &toml::Table, l: Limit) -> f64 {
     }
 }
 
-/// The documented ranges agree with `Scenario::validate`: each end is accepted or rejected as
+/// The documented ranges agree with `Experiment::validate`: each end is accepted or rejected as
 /// documented and values just beyond it are rejected; every word of a choice is accepted and
 /// the list is serde's own.
 #[test]
@@ -459,7 +459,7 @@ fn config_prints_every_key_with_a_comment_and_parses_back() {
     assert!(text.contains("# [m] Thigh strap distance Ls1 from the hip. Allowed: finite, in (0, robot.thigh.length_m]. (docs/MODEL.md §4)\nls1_m = 0.28"));
     assert_eq!(
         exompc_cli::io::parse_scenario(&text).unwrap(),
-        Scenario::default()
+        Experiment::default()
     );
     // The commented-out optional keys are valid too.
     let uncommented = text
@@ -786,7 +786,7 @@ fn removed_robust_keys_are_rejected_naming_the_key() {
             err.contains(&format!("controller.robust.{key} is no longer a setting")),
             "{key}: {err}"
         );
-        let s = exompc::config::Scenario::default();
+        let s = exompc::config::Experiment::default();
         let e = exompc_cli::io::set_key(
             &s,
             &format!("controller.robust.{key}"),

@@ -2,13 +2,13 @@
 //! the allowed values, and an absent key keeps the default (`auto`). `rti`: loads, reaches the
 //! solver settings, defaults to `false`. `hessian`: `auto` by default, every model loads.
 
-use exompc::config::Scenario;
+use exompc::config::Experiment;
 use exompc::control::QpBackend;
 use exompc_cli::io::{get_key, parse_value, set_key};
 
 #[test]
 fn qp_backend_key_round_trips_and_rejects_unknown_values() {
-    let s = Scenario::default();
+    let s = Experiment::default();
     assert_eq!(s.controller.sqp.qp, QpBackend::Auto);
     for (text, want) in [
         ("\"dense\"", QpBackend::Dense),
@@ -29,7 +29,7 @@ fn qp_backend_key_round_trips_and_rejects_unknown_values() {
 
 #[test]
 fn rti_key_loads_and_reaches_the_solver_settings() {
-    let s = Scenario::default();
+    let s = Experiment::default();
     assert!(!s.controller.sqp.rti);
     assert!(!exompc::scenario::nmpc_settings(&s).sqp.real_time_iteration);
     let t = set_key(&s, "controller.sqp.rti", parse_value("true")).unwrap();
@@ -41,7 +41,7 @@ fn rti_key_loads_and_reaches_the_solver_settings() {
 #[test]
 fn hessian_key_defaults_to_auto_and_loads_every_model() {
     use exompc::control::HessianSetting;
-    let s = Scenario::default();
+    let s = Experiment::default();
     assert_eq!(s.controller.sqp.hessian, HessianSetting::Auto);
     for (text, want) in [
         ("\"auto\"", HessianSetting::Auto),

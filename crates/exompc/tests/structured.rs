@@ -10,7 +10,7 @@ mod common;
 
 use clarabel::solver::{DefaultSolver, IPSolver, SolverStatus, SupportedConeT};
 use common::{Condensed, Rng};
-use exompc::config::{ControllerKind, Formulation, Scenario};
+use exompc::config::{ControllerKind, Experiment, Formulation};
 use exompc::control::{NmpcCore, NmpcSettings, QpBackend, TorqueLimits, VelocityTracking};
 use exompc::scenario::{intent, limits, nmpc_settings, prediction_model, Dof, OneDof, TwoDof};
 use exompc::solver::{HessianModel, QpSettings, QpStatus, RiccatiQp, SqpStatus};
@@ -150,7 +150,7 @@ fn riccati_qp_reports_infeasible_and_bad_data() {
     assert_eq!(inst.qp.solve().status, QpStatus::NumericalError);
 }
 
-fn settings_with(s: &Scenario, qp: QpBackend) -> NmpcSettings {
+fn settings_with(s: &Experiment, qp: QpBackend) -> NmpcSettings {
     let mut st = nmpc_settings(s);
     st.sqp.hessian = HessianModel::GaussNewton;
     // Gauss–Newton converges linearly on the hard instances: allow it to finish.
@@ -165,7 +165,7 @@ fn compare_random<D: Dof<N>, const N: usize>(
     seed: u64,
     tracking: VelocityTracking,
 ) -> (usize, usize) {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.controller.np = n;
     s.controller.nc = n;
     let model = prediction_model::<D, N>(&s, 0.0);
@@ -277,7 +277,7 @@ fn structured_nmpc_equals_dense_gauss_newton_on_random_instances() {
 /// structured and dense (Gauss–Newton) controllers, each in its own loop; returns the largest
 /// torque difference over `steps` steps.
 fn closed_loop_diff(kind: ControllerKind, formulation: Formulation, n: usize, steps: usize) -> f64 {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.controller.np = n;
     s.controller.nc = n;
     s.controller.sqp.hessian = HessianModel::GaussNewton.into();
@@ -327,7 +327,7 @@ fn structured_closed_loops_equal_dense() {
 fn auto_qp_keeps_the_hessian_and_the_summary_reports_the_choice() {
     use exompc::control::SolverChoice;
     use exompc::solver::HessianModel as H;
-    let run = |s: &Scenario| {
+    let run = |s: &Experiment| {
         let mut t = s.clone();
         t.timing.duration_2dof_s = 0.3;
         let mut trace = exompc::sim::TraceLog::<2>::default();
@@ -336,7 +336,7 @@ fn auto_qp_keeps_the_hessian_and_the_summary_reports_the_choice() {
         (summary.solver, torques)
     };
     let choice = |qp, hessian| Some(SolverChoice { qp, hessian });
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     assert_eq!(
         run(&s).0,
         choice(QpBackend::Dense, H::StructuredSecant),

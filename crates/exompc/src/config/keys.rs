@@ -2,10 +2,10 @@
 //! comes from (a `docs/MODEL.md` section or another document), for every key and table of a
 //! scenario file. `exompc config` prints these as comments and `exompc config --explain KEY`
 //! shows one entry. Tests check that every key of the scenario has an entry, that every entry
-//! names a key that exists, and that the allowed ranges agree with [`Scenario::validate`]
+//! names a key that exists, and that the allowed ranges agree with [`Experiment::validate`]
 //! (probing each end of each range).
 //!
-//! [`Scenario::validate`]: super::Scenario::validate
+//! [`Experiment::validate`]: super::Experiment::validate
 
 use super::{scenarios, MAX_CONTROL_STEPS, MAX_PAYLOAD_KG, MAX_SCENARIOS};
 use alloc::{format, string::String, vec::Vec};

@@ -18,7 +18,7 @@
 //!   a safe fallback torque; every output passes the limits ([`TorqueLimits`]).
 //!
 //! [`crate::scenario::build_controller`] and [`crate::scenario::build_supervised`] build them from a
-//! [`crate::config::Scenario`]; `docs/MODEL.md` §8 gives the equations and default values.
+//! [`crate::config::Experiment`]; `docs/MODEL.md` §8 gives the equations and default values.
 
 mod fallback;
 mod heavy;

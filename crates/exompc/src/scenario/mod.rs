@@ -1,4 +1,4 @@
-//! The scenario layer: turns a [`Scenario`](crate::config::Scenario) description into a plant,
+//! The scenario layer: turns an [`Experiment`](crate::config::Experiment) description into a plant,
 //! a trajectory, prediction models and controllers ([`build_controller`], [`build_supervised`]),
 //! and runs experiments ([`run_experiment`], [`run_soak`]).
 //!
