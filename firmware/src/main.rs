@@ -35,7 +35,7 @@ use core::sync::atomic::{AtomicU32, AtomicUsize, Ordering};
 use cortex_m_rt::entry;
 use cortex_m_semihosting::{debug, hio, nr};
 use embedded_alloc::LlffHeap;
-use exompc::config::{ControllerKind, Scenario};
+use exompc::config::{ControllerKind, Experiment};
 use exompc::control::Supervisor;
 use exompc::control::{Controller, Measurement};
 use exompc::estimate::MovingAverage;
@@ -254,12 +254,12 @@ fn addr(s: &u32) -> usize {
 type Ctrl = Supervisor<2, alloc::boxed::Box<dyn Controller<2>>>;
 
 #[cfg(not(feature = "controller-only"))]
-fn build(s: &Scenario) -> Result<Ctrl, RunError> {
+fn build(s: &Experiment) -> Result<Ctrl, RunError> {
     exompc::scenario::build_supervised::<TwoDof, 2>(s, s.controller.kind)
 }
 
 #[cfg(feature = "controller-only")]
-fn build(s: &Scenario) -> Result<Ctrl, RunError> {
+fn build(s: &Experiment) -> Result<Ctrl, RunError> {
     use exompc::scenario::{initial_torque, supervise};
     #[cfg(feature = "serial-msnmpc")]
     let (kind, builder) = (
@@ -318,7 +318,7 @@ fn link_line(name: &str, l: &LinkStats, skipped: u64) -> String {
 /// deadlines: the link runs in lockstep with the robot's simulated time): resume from the
 /// applied torque, filter velocity and force, step the supervised controller, send the
 /// command answering the sample. Ends at the robot's end-of-run sample.
-fn serial(s: &Scenario, key: &str, nonce: [u8; 32]) -> LinkStats {
+fn serial(s: &Experiment, key: &str, nonce: [u8; 32]) -> LinkStats {
     let psk = match Psk::new(key.as_bytes()) {
         Ok(p) => p,
         Err(e) => fail(&format!("key: {e}")),
@@ -418,7 +418,7 @@ fn main() -> ! {
 
     let mut buf = [0u8; 512];
     let args = command_line(&mut buf);
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     let mut serial_mode = false;
     let mut key = "";
     let mut nonce = None;
@@ -493,7 +493,7 @@ fn main() -> ! {
 /// The closed loop on the MCU (`mode=closed-loop`): plant, sensors and controller, streaming
 /// the trace and the summary.
 #[cfg(not(feature = "controller-only"))]
-fn closed_loop(s: &Scenario) {
+fn closed_loop(s: &Experiment) {
     let keys: Vec<String> = match exompc::scenario::controller_info(s.controller.kind) {
         Ok(info) if info.multistage => (1..=multistage::count(s)).map(|i| format!("{i}")).collect(),
         Ok(_) => Vec::new(),

@@ -5,7 +5,7 @@
 //! must satisfy the limits relative to the previous one, and nothing may panic.
 #![no_main]
 
-use exompc::config::{ControllerKind, Formulation, Scenario};
+use exompc::config::{ControllerKind, Formulation, Experiment};
 use exompc::control::{Controller, Measurement};
 use exompc::scenario::{build_controller, build_supervised, limits, TwoDof};
 use libfuzzer_sys::fuzz_target;
@@ -51,8 +51,8 @@ impl Bytes<'_> {
 const MAX_STEPS: usize = 64;
 
 fuzz_target!(|data: &[u8]| {
-    let s = Scenario::default();
-    let mut coupled = Scenario::default();
+    let s = Experiment::default();
+    let mut coupled = Experiment::default();
     coupled.multistage.formulation = Formulation::Coupled;
     let lim = limits(&s);
     let mut ms: Vec<Box<dyn Controller<2>>> = Vec::new();

@@ -3,7 +3,7 @@
 //! leg behind them; the protective stop on a device timeout, a drive fault, error-passive and
 //! bus-off; no torque before every device is ready.
 
-use exompc::config::Scenario;
+use exompc::config::Experiment;
 use exompc::runtime::{Clock, ControlLoop, Lifecycle, LoopSettings, PeriodRecord, RobotInterface};
 use exompc::scenario::{build_supervised, limits, plant_params, uncertainty, Dof, TwoDof};
 use exompc::sim::{Plant, Sensors};
@@ -58,7 +58,7 @@ fn force_node() -> RawForceSensor {
 }
 
 struct Rig {
-    s: Scenario,
+    s: Experiment,
     bus: VirtualBus,
     leg: Arc<Mutex<Leg>>,
     robot: CanRobot<2, VirtualEndpoint, VirtualClock>,
@@ -104,7 +104,7 @@ fn rig_opts(
     torque_rate_max: Option<f64>,
     forces: Vec<RawForceSensor>,
 ) -> Rig {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.controller.torque_max = 18.0;
     if let Some(r) = torque_rate_max {
         s.controller.torque_rate_max = r;

@@ -2,7 +2,7 @@
 //! drives at hip and knee and a virtual CANopen force node with the simulated leg behind them;
 //! the protective stop on a drive fault, a lost drive and a lost force node.
 
-use exompc::config::Scenario;
+use exompc::config::Experiment;
 use exompc::runtime::{ControlLoop, Lifecycle, LoopSettings, PeriodRecord, RobotInterface};
 use exompc::scenario::{build_supervised, limits, plant_params, uncertainty, Dof, TwoDof};
 use exompc::sim::{Plant, Sensors};
@@ -20,7 +20,7 @@ type Traj = <TwoDof as Dof<2>>::Traj;
 type Leg = Cia402Leg<2, Traj>;
 
 struct Rig {
-    s: Scenario,
+    s: Experiment,
     bus: VirtualBus,
     leg: Arc<Mutex<Leg>>,
     robot: Cia402Robot<2, VirtualEndpoint, VirtualClock>,
@@ -46,7 +46,7 @@ fn rig() -> Rig {
 }
 
 fn rig_mode(mode: Mode) -> Rig {
-    let s = Scenario::default();
+    let s = Experiment::default();
     let dt = Duration::from_secs_f64(s.timing.dt);
     let bus = VirtualBus::new(VirtualBusSettings::default(), TimeBase::Simulated);
     let plant = Plant::new(plant_params::<TwoDof, 2>(&s), TwoDof::trajectory(&s));

@@ -10,7 +10,7 @@
 //! `--set controller.method=paper` measures the paper's method; `--ms-set` to the MS-NMPC runs
 //! only.
 
-use exompc::config::{ControllerKind, Scenario};
+use exompc::config::{ControllerKind, Experiment};
 use exompc::scenario::{run_experiment, OneDof, TwoDof};
 use exompc::sim::{high_frequency_fraction, rms, Recorder, StepRecord};
 use exompc_cli::io::{parse_value, set_key};
@@ -69,7 +69,7 @@ fn stats<const N: usize>(log: &Log<N>, dt: f64) -> RunStats {
     st
 }
 
-fn run(s: &Scenario, dof: usize) -> Result<RunStats, String> {
+fn run(s: &Experiment, dof: usize) -> Result<RunStats, String> {
     let dt = s.timing.dt;
     if dof == 1 {
         let mut log = Log::<1> {
@@ -165,7 +165,7 @@ fn cells() -> Vec<EnvelopeCell> {
     c
 }
 
-fn apply(mut s: Scenario, kvs: &[(String, String)]) -> Result<Scenario, String> {
+fn apply(mut s: Experiment, kvs: &[(String, String)]) -> Result<Experiment, String> {
     // Apply in order; a key may need a companion (e.g. mass then final mass), so retry once.
     let mut pending: Vec<&(String, String)> = kvs.iter().collect();
     for _ in 0..3 {
@@ -234,7 +234,7 @@ fn main() {
     let results: Vec<_> = jobs
         .par_iter()
         .map(|(ci, dof, p, kind, kv)| {
-            let r = apply(Scenario::default(), kv).and_then(|s| run(&s, *dof));
+            let r = apply(Experiment::default(), kv).and_then(|s| run(&s, *dof));
             (*ci, *p, *kind, r)
         })
         .collect();

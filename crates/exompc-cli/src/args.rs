@@ -4,7 +4,7 @@
 
 use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::Args;
-use exompc::config::{ControllerKind, Formulation, Scenario};
+use exompc::config::{ControllerKind, Experiment, Formulation};
 use exompc::scenario::{controller_info, controllers};
 use exompc_cli::config_help::{describe_error, KeyOrigins};
 use exompc_cli::error::CliError;
@@ -27,12 +27,12 @@ pub(crate) struct ConfigOpt {
 impl ConfigOpt {
     /// Loads and validates the scenario named by `--config` (the default when absent), with
     /// the recorded gait of `--gait`.
-    pub(crate) fn load(&self) -> Result<Scenario, CliError> {
+    pub(crate) fn load(&self) -> Result<Experiment, CliError> {
         self.load_with_origins().map(|(s, _)| s)
     }
 
     /// [`ConfigOpt::load`], also returning which keys the file set.
-    pub(crate) fn load_with_origins(&self) -> Result<(Scenario, KeyOrigins), CliError> {
+    pub(crate) fn load_with_origins(&self) -> Result<(Experiment, KeyOrigins), CliError> {
         let (mut s, origins) = io::load_scenario_with_origins(self.config.as_deref())?;
         if let Some(g) = &self.gait {
             exompc_cli::gait::use_gait(&mut s, g)?;
@@ -94,7 +94,7 @@ pub(crate) fn formulation_name(f: FormulationArg) -> &'static str {
 /// Apply the command-line overrides to the scenario and validate the result; a bad flag value
 /// is reported naming the flag.
 pub(crate) fn apply_overrides(
-    s: &mut Scenario,
+    s: &mut Experiment,
     dof: u8,
     controller: Option<ControllerKind>,
     formulation: Option<FormulationArg>,
@@ -111,7 +111,7 @@ pub(crate) fn apply_overrides(
 /// [`apply_overrides`] knowing which keys the config file set (`origins`), so that a flag
 /// value conflicting with another key names both and says which one the user set where.
 pub(crate) fn apply_overrides_with(
-    s: &mut Scenario,
+    s: &mut Experiment,
     origins: &KeyOrigins,
     dof: u8,
     controller: Option<ControllerKind>,

@@ -3,7 +3,7 @@
 
 use crate::args::ConfigOpt;
 use clap::Args;
-use exompc::config::{ControllerKind, Formulation, Scenario};
+use exompc::config::{ControllerKind, Experiment, Formulation};
 use exompc::control::QpBackend;
 use exompc::scenario::{build_controller, plant_params, uncertainty, Dof, TwoDof};
 use exompc::sim::{Plant, Sensors, StepTimeStats};
@@ -39,7 +39,7 @@ struct LoopStats {
 /// Run `steps` closed-loop steps of `s` with controller `kind` (stopping early once `budget`
 /// is spent and at least `min_steps` ran); time the controller's `step` alone.
 fn closed_loop(
-    s: &Scenario,
+    s: &Experiment,
     kind: ControllerKind,
     steps: usize,
     budget: Option<Duration>,
@@ -85,7 +85,7 @@ fn closed_loop(
 }
 
 /// The scenario with the controller kind and multi-stage formulation set.
-fn variant(base: &Scenario, kind: ControllerKind, formulation: Formulation) -> Scenario {
+fn variant(base: &Experiment, kind: ControllerKind, formulation: Formulation) -> Experiment {
     let mut s = base.clone();
     s.controller.kind = kind;
     s.multistage.formulation = formulation;
@@ -127,7 +127,7 @@ pub(crate) fn run(a: BenchArgs) -> Result<(), CliError> {
 }
 
 /// Run the benchmark on scenario `base`.
-pub fn bench(base: &Scenario, as_json: bool, steps: Option<usize>) -> Result<(), CliError> {
+pub fn bench(base: &Experiment, as_json: bool, steps: Option<usize>) -> Result<(), CliError> {
     let steps = steps
         .unwrap_or_else(|| base.control_steps(2))
         .clamp(1, MAX_STEPS as usize);

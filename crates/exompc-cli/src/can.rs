@@ -3,7 +3,7 @@
 //! virtual devices with the simulated leg, and the [`CanRobot`].
 
 use crate::error::CliError;
-use exompc::config::Scenario;
+use exompc::config::Experiment;
 use exompc::runtime::{Clock, MonotonicClock};
 use exompc::scenario::{limits, plant_params, uncertainty, Dof};
 use exompc::sim::{Plant, Sensors};
@@ -77,7 +77,7 @@ pub fn force_sensors(hw: &HardwareConfig) -> Vec<RawForceSensor> {
 }
 
 /// The robot's timing and safety from the scenario and `[robot.safety]`.
-pub fn settings(s: &Scenario, hw: &HardwareConfig, phase: Option<f64>) -> CanRobotSettings {
+pub fn settings(s: &Experiment, hw: &HardwareConfig, phase: Option<f64>) -> CanRobotSettings {
     let ms = |v: f64| Duration::from_secs_f64(v * 1e-3);
     CanRobotSettings {
         dt: Duration::from_secs_f64(s.timing.dt),
@@ -92,7 +92,7 @@ pub fn settings(s: &Scenario, hw: &HardwareConfig, phase: Option<f64>) -> CanRob
 /// The simulated leg behind virtual AK motors and the first raw force node, as the config
 /// describes them; it keeps a record of `history` plant steps (0: none).
 pub fn virtual_leg<D: Dof<N>, const N: usize>(
-    s: &Scenario,
+    s: &Experiment,
     hw: &HardwareConfig,
     history: usize,
 ) -> Result<VirtualLeg<N, D::Traj>, CliError>
@@ -270,7 +270,7 @@ pub struct CanRig<const N: usize, Tr: exompc::sim::Trajectory<N>> {
 
 /// Build the robot of the config. `payload` (kg) is for the virtual devices only.
 pub fn rig<D: Dof<N>, const N: usize>(
-    s: &Scenario,
+    s: &Experiment,
     hw: &HardwareConfig,
     spin: Duration,
     history: usize,

@@ -4,7 +4,7 @@
 
 use crate::can::{virtual_bus, AnyBus, AnyClock};
 use crate::error::CliError;
-use exompc::config::Scenario;
+use exompc::config::Experiment;
 use exompc::runtime::MonotonicClock;
 use exompc::scenario::{limits, plant_params, uncertainty, Dof};
 use exompc::sim::{Plant, Sensors};
@@ -86,7 +86,7 @@ pub struct Cia402Rig<const N: usize, Tr: exompc::sim::Trajectory<N>> {
 /// The simulated leg behind the config's virtual CiA 402 drives and CANopen force node
 /// (`history`: plant steps to keep).
 pub fn virtual_leg<D: Dof<N>, const N: usize>(
-    s: &Scenario,
+    s: &Experiment,
     hw: &HardwareConfig,
     history: usize,
 ) -> Result<Cia402Leg<N, D::Traj>, CliError>
@@ -125,7 +125,7 @@ where
 
 /// Build the CiA 402 robot of the config; `history`: leg steps to keep (virtual transport).
 pub fn rig<D: Dof<N>, const N: usize>(
-    s: &Scenario,
+    s: &Experiment,
     hw: &HardwareConfig,
     spin: Duration,
     history: usize,

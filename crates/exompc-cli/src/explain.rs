@@ -7,12 +7,12 @@
 /// source of a key, or of a table and each of its keys. `Err` for an unknown key, with the
 /// whole-schema suggestion of a config file's unknown key.
 pub fn explain_text(key: &str) -> Result<String, String> {
-    use exompc::config::{Scenario, KEYS};
+    use exompc::config::{Experiment, KEYS};
     let key = key.trim();
     crate::io::check_key_path(key)?;
     let doc = exompc::config::explain(key)
         .ok_or_else(|| format!("`{key}` is a key of the scenario but has no explanation"))?;
-    let defaults = Scenario::default();
+    let defaults = Experiment::default();
     let default_of = |path: &str| -> String {
         if path.starts_with("faults.events.") {
             // Per event: `magnitude` is optional, the others are required in each table.

@@ -4,7 +4,7 @@
 
 use crate::args::ConfigOpt;
 use clap::{Args, Subcommand};
-use exompc::config::Scenario;
+use exompc::config::Experiment;
 use exompc::scenario::{Dof, OneDof, TwoDof};
 use exompc::sim::Trajectory;
 use exompc_cli::error::CliError;
@@ -128,7 +128,7 @@ fn export(a: &ExportArgs) -> Result<(), CliError> {
 }
 
 /// Joint `j`'s desired angle of layout `D` at `times`.
-fn sample<D: Dof<N>, const N: usize>(s: &Scenario, times: &[f64], j: usize) -> Vec<f64> {
+fn sample<D: Dof<N>, const N: usize>(s: &Experiment, times: &[f64], j: usize) -> Vec<f64> {
     let traj = D::trajectory(s);
     times.iter().map(|&t| traj.position(t)[j]).collect()
 }

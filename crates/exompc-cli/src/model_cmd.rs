@@ -15,7 +15,7 @@
 
 use crate::args::ConfigOpt;
 use clap::Args;
-use exompc::config::{Scenario, MAX_PAYLOAD_KG};
+use exompc::config::{Experiment, MAX_PAYLOAD_KG};
 use exompc::model::{rk4_step, Chain, Friction, JointState, RobotModel};
 use exompc::scenario::{Dof, OneDof, TwoDof};
 use exompc::sim::{robot_model, HumanLeg};
@@ -72,7 +72,7 @@ pub(crate) fn run(a: ModelArgs) -> Result<(), CliError> {
     Ok(())
 }
 
-fn evaluate(s: &Scenario, inp: &ModelInput) -> Result<Value, CliError> {
+fn evaluate(s: &Experiment, inp: &ModelInput) -> Result<Value, CliError> {
     let n = joint_count(&inp.q)?;
     for (name, v) in [("q", &inp.q), ("qd", &inp.qd), ("tau", &inp.tau)] {
         check_vec(name, v, n)?;
@@ -124,7 +124,7 @@ fn evaluate(s: &Scenario, inp: &ModelInput) -> Result<Value, CliError> {
 }
 
 fn robot<D: Dof<N>, const N: usize>(
-    s: &Scenario,
+    s: &Experiment,
     payload: f64,
     inp: &ModelInput,
 ) -> Result<Value, CliError> {
@@ -143,7 +143,7 @@ fn robot<D: Dof<N>, const N: usize>(
 }
 
 fn human<D: Dof<N>, const N: usize>(
-    s: &Scenario,
+    s: &Experiment,
     body_mass: f64,
     inp: &ModelInput,
 ) -> Result<Value, CliError> {

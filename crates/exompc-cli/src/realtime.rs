@@ -5,7 +5,7 @@
 use crate::args::ConfigOpt;
 use clap::Args;
 use exompc::config::ControllerKind;
-use exompc::config::Scenario;
+use exompc::config::Experiment;
 use exompc::control::{Controller, StepStatus};
 use exompc::runtime::frame::status_from_code;
 use exompc::runtime::{
@@ -487,6 +487,10 @@ pub(crate) struct RunArgs {
 struct RunSummary {
     controller: String,
     dof: usize,
+    /// The QP back-end and Hessian model `[controller.sqp]` resolved to (as `simulate`'s
+    /// `summary.json`); absent for a controller without an SQP.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    solver: Option<exompc::control::SolverChoice>,
     robot: String,
     stop_reason: String,
     /// Whether the run ended as planned (the robot's or `--duration`'s end).
@@ -569,7 +573,7 @@ pub(crate) fn run(a: RunArgs) -> Result<(), CliError> {
 
 /// `run --config` with `[robot.bus]`: the CAN robot the config describes.
 fn run_can<D: Dof<N>, const N: usize>(
-    s: &Scenario,
+    s: &Experiment,
     a: &RunArgs,
     hw: &exompc_can::config::HardwareConfig,
 ) -> Result<(), CliError>
@@ -608,7 +612,11 @@ pub(crate) fn max_ahead(dt: f64) -> u32 {
     (1.0 / dt).ceil().clamp(2.0, 1e6) as u32
 }
 
-fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs, psk: Psk) -> Result<(), CliError> {
+fn run_dof<D: Dof<N>, const N: usize>(
+    s: &Experiment,
+    a: &RunArgs,
+    psk: Psk,
+) -> Result<(), CliError> {
     let mut robot = UdpRobot::<N>::connect(a.bind, a.robot, psk, max_ahead(s.timing.dt))
         .map_err(|e| CliError::io(format!("binding {}", a.bind), e))?;
     let clock = MonotonicClock::new(Duration::from_micros(a.rt.spin_us));
@@ -625,7 +633,7 @@ fn run_dof<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs, psk: Psk) -> Re
 /// The control loop of `run` against any robot: connect, run the periods, write the trace
 /// and the summary (`extra`: what the robot adds to it).
 fn drive<D: Dof<N>, const N: usize, R: RobotInterface<N>, K: Clock>(
-    s: &Scenario,
+    s: &Experiment,
     a: &RunArgs,
     robot: &mut R,
     mut clock: K,
@@ -835,6 +843,7 @@ fn drive<D: Dof<N>, const N: usize, R: RobotInterface<N>, K: Clock>(
     let summary = RunSummary {
         controller: name,
         dof: D::DOF,
+        solver: exompc::scenario::summary_solver(s, D::DOF).unwrap_or_default(),
         robot: robot_label.to_string(),
         stop_reason,
         completed: matches!(end, RunEnd::Planned(_)),
@@ -878,6 +887,9 @@ fn drive<D: Dof<N>, const N: usize, R: RobotInterface<N>, K: Clock>(
         a.out.display(),
         if wrote.is_ok() { " and summary.json" } else { "" }
     );
+    if let Some(c) = &summary.solver {
+        println!("  solver  {}", exompc_cli::run::solver_label(c));
+    }
     if let Some(sa) = &summary.safety_summary {
         println!("{}", exompc_cli::run::describe_safety(sa));
     }
@@ -1075,7 +1087,7 @@ pub(crate) fn virtual_robot(a: VirtualRobotArgs) -> Result<(), CliError> {
 /// pseudo-terminal (its path printed on stdout) until `--duration` or SIGINT/SIGTERM.
 #[cfg(unix)]
 fn serve_can<D: Dof<N>, const N: usize>(
-    s: &Scenario,
+    s: &Experiment,
     a: &VirtualRobotArgs,
     hw: &exompc_can::config::HardwareConfig,
 ) -> Result<(), CliError>
@@ -1130,7 +1142,7 @@ where
 
 #[cfg(not(unix))]
 fn serve_can<D: Dof<N>, const N: usize>(
-    _s: &Scenario,
+    _s: &Experiment,
     _a: &VirtualRobotArgs,
     _hw: &exompc_can::config::HardwareConfig,
 ) -> Result<(), CliError> {
@@ -1156,7 +1168,7 @@ fn stdin_restart(flag: Arc<AtomicBool>) {
 }
 
 fn robot_dof<D: Dof<N>, const N: usize>(
-    s: &Scenario,
+    s: &Experiment,
     a: &VirtualRobotArgs,
     faults: NetFaultSettings,
     psk: Psk,
@@ -1480,7 +1492,7 @@ fn service<const N: usize, Tr: exompc::sim::Trajectory<N>>(
 /// `run --config` with CiA 402 drives (`driver = "cia402"`): the robot of
 /// `exompc_cli::can_cia402`, through the same loop, trace and summary as the AK robot.
 fn run_cia402<D: Dof<N>, const N: usize>(
-    s: &Scenario,
+    s: &Experiment,
     a: &RunArgs,
     hw: &exompc_can::config::HardwareConfig,
 ) -> Result<(), CliError>
@@ -1521,7 +1533,7 @@ where
 
 /// Periods `run --config` plans for a CAN robot: `--duration` (plus a margin) or the
 /// scenario's length, at most 2^22.
-fn can_periods<D: Dof<N>, const N: usize>(s: &Scenario, a: &RunArgs) -> usize {
+fn can_periods<D: Dof<N>, const N: usize>(s: &Experiment, a: &RunArgs) -> usize {
     a.duration
         .map_or(s.control_steps(D::DOF), |d| (d / s.timing.dt) as usize + 16)
         .min(1 << 22)

@@ -4,20 +4,20 @@ use crate::error::CliError;
 use crate::interrupt::stop_on_interrupt;
 use crate::io::write_atomic;
 use crate::trace::CsvTrace;
-use exompc::config::Scenario;
+use exompc::config::Experiment;
 use exompc::scenario::multistage;
 use exompc::scenario::{run_experiment, OneDof, RunError, TwoDof};
 use exompc::sim::{Recorder, Summary};
 use std::path::Path;
 
 /// Number of scenarios the controller of `s` reports.
-pub fn scenario_count(s: &Scenario) -> usize {
+pub fn scenario_count(s: &Experiment) -> usize {
     scenario_keys(s).len()
 }
 
 /// Trace column keys of the scenarios the controller of `s` reports (none unless it is a
 /// multi-stage controller).
-pub fn scenario_keys(s: &Scenario) -> Vec<String> {
+pub fn scenario_keys(s: &Experiment) -> Vec<String> {
     if is_multistage(s) {
         multistage_keys(s)
     } else {
@@ -28,7 +28,7 @@ pub fn scenario_keys(s: &Scenario) -> Vec<String> {
 /// Trace column keys (`mu_K`, `dist_K_J`) of the multi-stage scenarios of `s`: `1, 2, ...` for
 /// the `payloads_kg` shorthand (the columns tools already read), the names for
 /// `[[multistage.scenarios]]`.
-pub fn multistage_keys(s: &Scenario) -> Vec<String> {
+pub fn multistage_keys(s: &Experiment) -> Vec<String> {
     if multistage::is_named(s) {
         multistage::names(s)
     } else {
@@ -39,7 +39,7 @@ pub fn multistage_keys(s: &Scenario) -> Vec<String> {
 /// One warning line (for stderr) per pair of multi-stage scenarios of `s` that the estimator
 /// cannot tell apart in the `dof`-DOF layout (`exompc::scenario::multistage::warnings`); none
 /// unless the controller is the multi-stage one.
-pub fn scenario_warnings(s: &Scenario, dof: u8) -> Vec<String> {
+pub fn scenario_warnings(s: &Experiment, dof: u8) -> Vec<String> {
     if !is_multistage(s) {
         return Vec::new();
     }
@@ -50,7 +50,7 @@ pub fn scenario_warnings(s: &Scenario, dof: u8) -> Vec<String> {
 }
 
 /// Whether the controller of `s` blends the multi-stage scenarios (its registry entry says so).
-fn is_multistage(s: &Scenario) -> bool {
+fn is_multistage(s: &Experiment) -> bool {
     exompc::scenario::controller_info(s.controller.kind).is_ok_and(|c| c.multistage)
 }
 
@@ -72,7 +72,7 @@ fn run_error(e: RunError) -> CliError {
 /// On SIGINT/SIGTERM the run stops at the next control step; its trace so far and its summary
 /// (marked `"partial": true`, with `completed_steps` and `planned_steps`) are kept in `out`,
 /// and the result is [`CliError::Interrupted`] saying what was completed.
-pub fn run_to_dir(s: &Scenario, dof: u8, out: Option<&Path>) -> Result<Summary, CliError> {
+pub fn run_to_dir(s: &Experiment, dof: u8, out: Option<&Path>) -> Result<Summary, CliError> {
     let n = usize::from(dof);
     let mut trace = match out {
         Some(dir) => Some(CsvTrace::create_with(
@@ -150,7 +150,7 @@ pub fn run_to_dir(s: &Scenario, dof: u8, out: Option<&Path>) -> Result<Summary, 
 
 /// [`scenario_warnings`] computed on a helper thread, abandoned on SIGINT/SIGTERM
 /// ([`CliError::Interrupted`]): with a tiny `timing.dt` the identifiability check takes long.
-pub fn scenario_warnings_interruptible(s: &Scenario, dof: u8) -> Result<Vec<String>, CliError> {
+pub fn scenario_warnings_interruptible(s: &Experiment, dof: u8) -> Result<Vec<String>, CliError> {
     let s = s.clone();
     crate::interrupt::interruptible("before the run started, nothing written", move || {
         scenario_warnings(&s, dof)
@@ -188,6 +188,9 @@ pub fn describe(s: &Summary) -> String {
             .collect();
         out += &format!("  mean probability  {}\n", ps.join("   "));
     }
+    if let Some(c) = &s.solver {
+        out += &format!("  solver            {}\n", solver_label(c));
+    }
     out += &format!(
         "  step time         mean {:.1} us   p50 {:.1} us   p99 {:.1} us   max {:.1} us\n",
         s.step_time_us.mean, s.step_time_us.p50, s.step_time_us.p99, s.step_time_us.max
@@ -198,6 +201,17 @@ pub fn describe(s: &Summary) -> String {
     );
     out += &describe_safety(&s.safety);
     out
+}
+
+/// `qp dense, hessian structured_secant`: what `[controller.sqp] qp` and `hessian` resolved
+/// to (the summary's `solver`).
+pub fn solver_label(c: &exompc::control::SolverChoice) -> String {
+    let name = |v: serde_json::Value| v.as_str().unwrap_or("?").to_string();
+    format!(
+        "qp {}, hessian {}",
+        name(serde_json::to_value(c.qp).unwrap_or_default()),
+        name(serde_json::to_value(c.hessian).unwrap_or_default())
+    )
 }
 
 /// The printed safety lines of a summary (`exompc simulate` and `exompc run`): trips and held

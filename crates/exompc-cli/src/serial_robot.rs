@@ -8,7 +8,7 @@
 //! (docs/EMBEDDED.md, "The serial link").
 
 use super::{max_ahead, open_out, write_json, LiveTrace};
-use exompc::config::Scenario;
+use exompc::config::Experiment;
 use exompc::control::StepStatus;
 use exompc::runtime::frame::{max_frame_len, status_from_code};
 use exompc::runtime::session::random_nonce;
@@ -169,7 +169,7 @@ fn accept(path: &Path, timeout: Duration) -> Result<UnixStream, CliError> {
 
 /// Run the virtual robot of `s` over the serial line until the run's duration.
 pub(crate) fn serve<D: Dof<N>, const N: usize>(
-    s: &Scenario,
+    s: &Experiment,
     o: &SerialOpts<'_>,
     psk: Psk,
 ) -> Result<(), CliError> {

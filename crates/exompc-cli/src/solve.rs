@@ -15,7 +15,7 @@
 
 use crate::args::ConfigOpt;
 use clap::Args;
-use exompc::config::{Interaction, Scenario};
+use exompc::config::{Experiment, Interaction};
 use exompc::control::{horizon_inputs, Measurement, NmpcCore};
 use exompc::model::JointState;
 use exompc::scenario::{intent, limits, nmpc_settings, prediction_model, Dof, OneDof, TwoDof};
@@ -119,7 +119,7 @@ pub(crate) fn run(a: SolveArgs) -> Result<(), CliError> {
 }
 
 /// Applies the request's `config` overrides to the scenario and validates it, naming the field.
-fn apply_config(s: &mut Scenario, c: Option<&SolveConfig>) -> Result<(), CliError> {
+fn apply_config(s: &mut Experiment, c: Option<&SolveConfig>) -> Result<(), CliError> {
     let Some(c) = c else { return Ok(()) };
     let k = &mut s.controller;
     if let Some(v) = c.np {
@@ -165,7 +165,7 @@ fn status_name(s: SqpStatus) -> &'static str {
 }
 
 fn solve<D: Dof<N>, const N: usize>(
-    s: &Scenario,
+    s: &Experiment,
     payload: f64,
     inp: &SolveInput,
 ) -> Result<(Value, SqpStatus), CliError> {

@@ -8,7 +8,7 @@ use crate::args::{
     FormulationArg,
 };
 use clap::Args;
-use exompc::config::{ControllerKind, Scenario};
+use exompc::config::{ControllerKind, Experiment};
 use exompc::sim::Summary;
 use exompc_cli::error::CliError;
 use exompc_cli::interrupt;
@@ -91,7 +91,7 @@ struct GridResult {
 
 /// Runs the whole grid into `out`, returning the summaries payload-major.
 fn run_grid(
-    base: &Scenario,
+    base: &Experiment,
     dof: u8,
     payloads: &[f64],
     controllers: &[ControllerKind],
@@ -160,7 +160,7 @@ fn run_grid(
 
 /// One run of the grid, written whole or not at all: into a hidden temporary folder beside
 /// `dir`, renamed to `dir` when complete (removed on failure or interruption).
-fn run_job(s: &Scenario, dof: u8, dir: &Path) -> Result<Summary, CliError> {
+fn run_job(s: &Experiment, dof: u8, dir: &Path) -> Result<Summary, CliError> {
     interrupt::check("not started")?;
     let name = dir.file_name().unwrap_or_default().to_string_lossy();
     let tmp = dir.with_file_name(format!(".{name}.tmp.{}", std::process::id()));

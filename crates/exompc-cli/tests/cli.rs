@@ -24,7 +24,7 @@ fn config_prints_default_that_loads_back_identically() {
         assert!(text.contains(table), "missing {table}");
     }
     let parsed = exompc_cli::io::parse_scenario(&text).expect("printed config must load");
-    assert_eq!(parsed, exompc::config::Scenario::default());
+    assert_eq!(parsed, exompc::config::Experiment::default());
 
     let path = scratch("roundtrip.toml");
     std::fs::write(&path, &text).unwrap();

@@ -118,7 +118,7 @@ fn cross_field_errors_name_the_key_set_and_the_key_it_conflicts_with() {
     }
 }
 
-use exompc::config::{explain, Allowed, Limit, Scenario, KEYS};
+use exompc::config::{explain, Allowed, Experiment, Limit, KEYS};
 use std::collections::BTreeSet;
 
 /// The scenario as a TOML tree with the optional keys filled in (a solve time budget and one
@@ -251,7 +251,7 @@ fn get(tree: &toml::Table, path: &str) -> toml::Value {
 fn probe(path: &str, v: toml::Value) -> Result<(), String> {
     let mut tree = tree_for(path);
     set(&mut tree, path, v);
-    let s: Scenario = toml::Value::Table(tree)
+    let s: Experiment = toml::Value::Table(tree)
         .try_into()
         .map_err(|e: toml::de::Error| e.message().to_string())?;
     // `faults.events.start_s` is reported as `faults.events[0].start_s`.
@@ -277,7 +277,7 @@ fn limit(tree: &toml::Table, l: Limit) -> f64 {
     }
 }
 
-/// The documented ranges agree with `Scenario::validate`: each end is accepted or rejected as
+/// The documented ranges agree with `Experiment::validate`: each end is accepted or rejected as
 /// documented and values just beyond it are rejected; every word of a choice is accepted and
 /// the list is serde's own.
 #[test]
@@ -459,7 +459,7 @@ fn config_prints_every_key_with_a_comment_and_parses_back() {
     assert!(text.contains("# [m] Thigh strap distance Ls1 from the hip. Allowed: finite, in (0, robot.thigh.length_m]. (docs/MODEL.md §4)\nls1_m = 0.28"));
     assert_eq!(
         exompc_cli::io::parse_scenario(&text).unwrap(),
-        Scenario::default()
+        Experiment::default()
     );
     // The commented-out optional keys are valid too.
     let uncommented = text
@@ -768,4 +768,36 @@ fn run_and_virtual_robot_refuse_a_folder_with_earlier_results() {
             "{}"
         );
     }
+}
+
+/// The `[controller.robust]` keys removed in issue 31 (fixed constants now) are rejected, in a
+/// file (exit 2) and by `set`, with an error naming the key; the knobs that stay load.
+#[test]
+fn removed_robust_keys_are_rejected_naming_the_key() {
+    for key in exompc::control::REMOVED_ROBUST_KEYS {
+        let out = check(
+            &format!("removed_{key}.toml"),
+            &format!("[controller.robust]\n{key} = 0.5\n"),
+            &[],
+        );
+        assert_eq!(out.status.code(), Some(2), "{key}");
+        let err = stderr(&out);
+        assert!(
+            err.contains(&format!("controller.robust.{key} is no longer a setting")),
+            "{key}: {err}"
+        );
+        let s = exompc::config::Experiment::default();
+        let e = exompc_cli::io::set_key(
+            &s,
+            &format!("controller.robust.{key}"),
+            exompc_cli::io::parse_value("0.5"),
+        )
+        .unwrap_err();
+        assert!(e.contains("is no longer a setting"), "{key}: {e}");
+    }
+    let kept = "[controller.robust]\nfilter_aware = \"always\"\nrelease_s = 1.0\n\
+                human_bandwidth_hz = 4.0\nweight_smoothing_s = 0.2\nobserver_velocity_gain = 20.0\n\
+                intent_estimate = \"paper\"\nintent_gains = \"configured\"\nvelocity_tracking = \"joint\"\n";
+    let out = check("robust_kept.toml", kept, &[]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
 }

@@ -2,7 +2,7 @@
 //! controller (every cell passes), the scan machinery on cells that pass
 //! and on one that fails today, and `exompc envelope` end to end.
 
-use exompc::config::Scenario;
+use exompc::config::Experiment;
 use exompc::sim::{RunClass, StabilityCriteria};
 use exompc_cli::envelope::{markdown, scan, scan_until, without_monitors, Envelope, Grid};
 use exompc_cli::error::CliError;
@@ -10,10 +10,10 @@ use std::process::Command;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 fn run(grid: &Grid) -> Envelope {
-    run_on(&Scenario::default(), grid)
+    run_on(&Experiment::default(), grid)
 }
 
-fn run_on(base: &Scenario, grid: &Grid) -> Envelope {
+fn run_on(base: &Experiment, grid: &Grid) -> Envelope {
     scan(base, grid, &StabilityCriteria::default(), &|| {}).unwrap()
 }
 
@@ -114,7 +114,7 @@ fn envelope_scan_judges_cells() {
         vec!["nmpc".into(), "msnmpc".into()],
     )
     .unwrap();
-    let env = run_on(&without_monitors(&Scenario::default()), &bad);
+    let env = run_on(&without_monitors(&Experiment::default()), &bad);
     let v = env.verdicts[0].verdict.clone().unwrap();
     assert!(!v.pass && !v.stable && !v.no_worse_than_nmpc, "{v:?}");
     assert_eq!(
@@ -132,7 +132,7 @@ fn envelope_scan_judges_cells() {
 /// (every run ends between two control steps with an error entry, none completes).
 #[test]
 fn scan_until_stops_when_asked() {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.timing.duration_2dof_s = 2.0;
     let mut g = Grid::standard();
     g.cells.retain(|c| c.name == "default");
@@ -245,7 +245,7 @@ fn recorded_gaits_are_a_grid_axis() {
     grid.base = path.parent().unwrap().to_path_buf();
     grid.payloads_kg = vec![1.0];
     grid.controllers = vec!["msnmpc".into()];
-    let base = Scenario::default();
+    let base = Experiment::default();
     let mut peaks = Vec::new();
     for cell in &grid.cells {
         let s = grid.cell_scenario(&base, cell).unwrap();

@@ -316,10 +316,10 @@ fn degrees_loops_and_config_relative_paths_work() {
 fn the_trajectory_table_rejects_unknown_keys_through_serde_alone() {
     // Without the CLI's key check: the library type itself denies unknown keys (the flattened
     // parametric keys included) and reads the flat table.
-    use exompc::config::{Scenario, TrajectoryKind};
-    let bad = toml::from_str::<Scenario>("[trajectory]\nhip_amplitud = 0.3\n");
+    use exompc::config::{Experiment, TrajectoryKind};
+    let bad = toml::from_str::<Experiment>("[trajectory]\nhip_amplitud = 0.3\n");
     assert!(bad.unwrap_err().to_string().contains("hip_amplitud"));
-    let s: Scenario = toml::from_str(
+    let s: Experiment = toml::from_str(
         "[trajectory]\nkind = \"sine\"\nhip_amplitude = 0.25\none_dof_amplitude = 0.5\n",
     )
     .unwrap();
@@ -335,5 +335,5 @@ fn the_trajectory_table_rejects_unknown_keys_through_serde_alone() {
     // Serialised flat, as the table is written.
     let text = toml::to_string(&s).unwrap();
     assert!(text.contains("hip_amplitude = 0.25") && text.contains("one_dof_amplitude = 0.5"));
-    assert_eq!(toml::from_str::<Scenario>(&text).unwrap(), s);
+    assert_eq!(toml::from_str::<Experiment>(&text).unwrap(), s);
 }

@@ -2,13 +2,13 @@
 //! stiffness (`exompc::control::IntentGain`), read from a config file or `--set`, and the
 //! closed loop they give equal to the same gains written as numbers.
 
-use exompc::config::{ControllerKind, GainSetting, Scenario};
+use exompc::config::{ControllerKind, Experiment, GainSetting};
 use exompc::scenario::{run_experiment, TwoDof};
 use exompc_cli::io::{parse_scenario, parse_value, set_key};
 
 #[test]
 fn a_config_reads_auto_numbers_and_mixes() {
-    let d = Scenario::default();
+    let d = Experiment::default();
     assert_eq!(d.controller.k1, GainSetting::Value(0.005));
     assert_eq!(d.controller.k2, GainSetting::Value(0.05));
     let s = parse_scenario("[controller]\nk1 = \"auto\"\nk2 = \"auto\"\n").unwrap();
@@ -38,7 +38,7 @@ fn a_wrong_gain_names_the_key_and_the_allowed_values() {
     assert!(e.contains("k1"), "{e}");
 }
 
-fn rms(s: &Scenario) -> (f64, f64) {
+fn rms(s: &Experiment) -> (f64, f64) {
     let sum = run_experiment::<TwoDof, 2>(s, &mut []).unwrap();
     (
         sum.rms_force_n.thigh.unwrap(),
@@ -52,7 +52,7 @@ fn rms(s: &Scenario) -> (f64, f64) {
 fn auto_gains_run_the_loop_of_the_stiffness_scaled_numbers() {
     for kind in [ControllerKind::NMPC, ControllerKind::PD] {
         for (ks, cs, k1, k2) in [(937.5, 93.7, 0.005, 0.05), (1875.0, 187.4, 0.0025, 0.025)] {
-            let mut auto = Scenario::default();
+            let mut auto = Experiment::default();
             auto.controller.kind = kind;
             auto.timing.duration_2dof_s = 2.0;
             auto.uncertainty.payload_kg = 1.0;

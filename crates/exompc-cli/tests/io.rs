@@ -1,6 +1,6 @@
 //! Tests of the CLI's I/O helpers (`exompc_cli::io`).
 
-use exompc::config::{Channel, FaultKind, HumanSegment, Link, Scenario};
+use exompc::config::{Channel, Experiment, FaultKind, HumanSegment, Link};
 use exompc_cli::io::{
     closest, ensure_out_dir, levenshtein, parse_scenario, write_atomic, AtomicWriter,
 };
@@ -21,7 +21,7 @@ fn entries(dir: &std::path::Path) -> Vec<String> {
 
 #[test]
 fn empty_file_is_the_default() {
-    assert_eq!(parse_scenario("").unwrap(), Scenario::default());
+    assert_eq!(parse_scenario("").unwrap(), Experiment::default());
 }
 
 #[test]
@@ -30,7 +30,7 @@ fn partial_override_changes_only_named_fields() {
         "[human.thigh]\nmass_fraction = 0.11\n[robot.shank]\nmass_kg = 1.5\n[controller]\nkind = \"nmpc\"\nnp = 10\n[timing]\ndt = 1\n",
     )
     .unwrap();
-    let mut expected = Scenario::default();
+    let mut expected = Experiment::default();
     expected.human.thigh = HumanSegment {
         mass_fraction: 0.11,
         ..HumanSegment::WINTER_THIGH
@@ -132,7 +132,7 @@ fn ensure_out_dir_creates_and_rejects_files() {
 #[test]
 fn set_and_get_keys_by_dotted_path() {
     use exompc_cli::io::{get_key, parse_value, set_key};
-    let s = Scenario::default();
+    let s = Experiment::default();
     let t = set_key(&s, "robot.payload_position_m", parse_value("0.43")).unwrap();
     assert_eq!(t.robot.payload_position_m, 0.43);
     assert_eq!(

@@ -10,7 +10,7 @@ use crate::guard::catch;
 use crate::scenario::PyScenario;
 use crate::simulate::{dof_arg, overrides};
 use crate::ConfigError;
-use exompc::config::Scenario;
+use exompc::config::Experiment;
 use exompc::control::{ControlOutput, Controller, Measurement};
 use exompc::scenario::{build_controller, build_supervised, OneDof, TwoDof};
 use numpy::PyArray1;
@@ -25,7 +25,7 @@ enum Ctl {
     Two(Box<dyn Controller<2>>),
 }
 
-fn build(s: &Scenario, dof: u8, supervised: bool) -> PyResult<Ctl> {
+fn build(s: &Experiment, dof: u8, supervised: bool) -> PyResult<Ctl> {
     let err = |e: exompc::scenario::RunError| ConfigError::new_err(e.to_string());
     let kind = s.controller.kind;
     Ok(if dof == 1 {
@@ -94,7 +94,7 @@ pub struct PyController {
     owner: ThreadId,
     owner_name: String,
     slot: usize,
-    scenario: Scenario,
+    scenario: Experiment,
     dof: u8,
     supervised: bool,
     status_names: Vec<Py<PyString>>,
@@ -182,7 +182,7 @@ impl PyController {
     ) -> PyResult<Self> {
         catch(|| {
             let dof = dof_arg(dof)?;
-            let base = scenario.map_or_else(Scenario::default, |s| s.inner.clone());
+            let base = scenario.map_or_else(Experiment::default, |s| s.inner.clone());
             let s = overrides(&base, dof, kind, None, None, None)?;
             let slot = insert(build(&s, dof, supervised)?)?;
             let owner_name = py

@@ -3,7 +3,7 @@
 //! that aborts the interpreter.
 
 use crate::ConfigError;
-use exompc::config::{scenarios, Scenario};
+use exompc::config::{scenarios, Experiment};
 use exompc::scenario::controller_info;
 use pyo3::prelude::*;
 
@@ -30,7 +30,7 @@ fn available_bytes() -> Option<u64> {
 }
 
 /// Number of scenarios of the scenario's controller (0 without scenarios).
-pub fn scenario_count(s: &Scenario) -> usize {
+pub fn scenario_count(s: &Experiment) -> usize {
     match controller_info(s.controller.kind) {
         Ok(info) if info.multistage => scenarios::count(s),
         _ => 0,
@@ -49,7 +49,7 @@ pub fn trace_per_step(n: usize, scenarios: usize) -> u64 {
 /// (`"duration"` or the duration key); `hint` says how to need less.
 pub fn check(
     arg: &str,
-    s: &Scenario,
+    s: &Experiment,
     dof: u8,
     per_step: u64,
     runs: u64,

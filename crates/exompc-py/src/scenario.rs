@@ -4,7 +4,7 @@
 use crate::convert::{py_to_toml, toml_to_py};
 use crate::guard::{catch, os_error};
 use crate::ConfigError;
-use exompc::config::Scenario;
+use exompc::config::Experiment;
 use exompc_study::io;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyTuple};
@@ -21,7 +21,7 @@ use std::path::{Path, PathBuf};
 #[pyclass(module = "exompc", name = "Scenario", eq)]
 #[derive(Clone, PartialEq)]
 pub struct PyScenario {
-    pub inner: Scenario,
+    pub inner: Experiment,
 }
 
 fn config_err(msg: impl Into<String>) -> PyErr {
@@ -46,7 +46,7 @@ impl PyScenario {
     #[allow(clippy::should_implement_trait)]
     pub fn default() -> Self {
         PyScenario {
-            inner: Scenario::default(),
+            inner: Experiment::default(),
         }
     }
 

@@ -5,7 +5,7 @@ use crate::guard::{catch, interruptible, CancelToken, Outcome};
 use crate::memory;
 use crate::scenario::PyScenario;
 use crate::{ConfigError, RunError};
-use exompc::config::Scenario;
+use exompc::config::Experiment;
 use exompc::scenario::{plant_params, run_experiment, uncertainty, Dof, OneDof, TwoDof};
 use exompc::sim::trace::{self, Field};
 use exompc::sim::{Plant, Recorder, Sensors, StepRecord, StopWhen, Summary, Trajectory};
@@ -152,13 +152,13 @@ fn duration_key(dof: u8) -> &'static str {
 /// Applies the keyword overrides of `simulate` through the CLI's key setter (same checks and
 /// messages), naming the argument on error.
 pub fn overrides(
-    s: &Scenario,
+    s: &Experiment,
     dof: u8,
     controller: Option<&str>,
     formulation: Option<&str>,
     payload: Option<f64>,
     duration: Option<f64>,
-) -> PyResult<Scenario> {
+) -> PyResult<Experiment> {
     let mut s = s.clone();
     let mut apply = |arg: &str, key: &str, v: toml::Value| -> PyResult<()> {
         s = set_key(&s, key, v).map_err(|e| ConfigError::new_err(format!("{arg}: {e}")))?;
@@ -182,7 +182,7 @@ pub fn overrides(
 /// One closed-loop run (no Python involved: called with the GIL released), stopping between
 /// two control steps once `stop()` is true.
 fn run(
-    s: &Scenario,
+    s: &Experiment,
     dof: u8,
     cols: Option<&mut Columns>,
     stop: &(dyn Fn() -> bool + Sync),
@@ -244,7 +244,7 @@ pub fn simulate<'py>(
 ) -> PyResult<Bound<'py, PyDict>> {
     catch(|| {
         let dof = dof_arg(dof)?;
-        let base = scenario.map_or_else(Scenario::default, |s| s.inner.clone());
+        let base = scenario.map_or_else(Experiment::default, |s| s.inner.clone());
         let s = overrides(&base, dof, controller, formulation, payload, duration)?;
         let n = usize::from(dof);
         let scenarios = memory::scenario_count(&s);
@@ -334,7 +334,7 @@ fn run_many_impl<'py>(
             )))
         }
     };
-    let list: Vec<Scenario> = scenarios.iter().map(|s| s.inner.clone()).collect();
+    let list: Vec<Experiment> = scenarios.iter().map(|s| s.inner.clone()).collect();
     // The summaries of the runs in flight keep their step times: check the longest run.
     let at_once = threads
         .unwrap_or_else(rayon::current_num_threads)
@@ -409,7 +409,7 @@ type Sample<'py> = (
     Bound<'py, PyArray1<f64>>,
 );
 
-fn parts<D: Dof<N>, const N: usize>(s: &Scenario) -> (Plant<N, D::Traj>, Sensors<N>) {
+fn parts<D: Dof<N>, const N: usize>(s: &Experiment) -> (Plant<N, D::Traj>, Sensors<N>) {
     (
         Plant::new(plant_params::<D, N>(s), D::trajectory(s)),
         Sensors::new(uncertainty(s), s.uncertainty.filter_window).with_faults(&s.faults),
@@ -448,7 +448,7 @@ impl PySimulator {
     fn new(scenario: Option<PyRef<'_, PyScenario>>, dof: i64) -> PyResult<Self> {
         catch(|| {
             let dof = dof_arg(dof)?;
-            let s = scenario.map_or_else(Scenario::default, |s| s.inner.clone());
+            let s = scenario.map_or_else(Experiment::default, |s| s.inner.clone());
             s.validate()
                 .map_err(|e| ConfigError::new_err(e.to_string()))?;
             s.check_trajectory(usize::from(dof))
@@ -551,7 +551,7 @@ pub fn envelope_json<'py>(
     use exompc_study::envelope::{scan_until, without_monitors, Grid};
     catch(|| {
         let dof = dof_arg(dof)?;
-        let mut base = scenario.map_or_else(Scenario::default, |s| s.inner.clone());
+        let mut base = scenario.map_or_else(Experiment::default, |s| s.inner.clone());
         if !monitors {
             base = without_monitors(&base);
         }
@@ -573,7 +573,7 @@ pub fn envelope_json<'py>(
         }
         // Every run in flight keeps its whole trace (for the stability classification; the
         // multi-stage runs' probabilities on the heap).
-        let mut longest: Option<(u64, String, Scenario, u8)> = None;
+        let mut longest: Option<(u64, String, Experiment, u8)> = None;
         for cell in &grid.cells {
             let s = Grid::scenario(&base, cell).map_err(|e| ConfigError::new_err(e.to_string()))?;
             let steps = s.control_steps(usize::from(cell.dof.clamp(1, 2))) as u64;

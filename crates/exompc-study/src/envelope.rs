@@ -7,7 +7,7 @@
 
 use crate::error::CliError;
 use crate::io::{parse_value, set_keys};
-use exompc::config::{ControllerKind, Scenario};
+use exompc::config::{ControllerKind, Experiment};
 use exompc::control::{MonitorAction, SafetyReport};
 use exompc::scenario::{gait_demand, limits, run_experiment_report, OneDof, TwoDof};
 use exompc::sim::{
@@ -144,13 +144,13 @@ impl Grid {
 
     /// The scenario of `cell` on top of `base`, validated (errors name the cell and key); gait
     /// files relative to the working directory. See [`Grid::cell_scenario`].
-    pub fn scenario(base: &Scenario, cell: &Cell) -> Result<Scenario, CliError> {
+    pub fn scenario(base: &Experiment, cell: &Cell) -> Result<Experiment, CliError> {
         Self::scenario_in(base, cell, std::path::Path::new(""))
     }
 
     /// The scenario of the grid's `cell` on top of `base`, gait files relative to the grid
     /// file's folder ([`Grid::base`]).
-    pub fn cell_scenario(&self, base: &Scenario, cell: &Cell) -> Result<Scenario, CliError> {
+    pub fn cell_scenario(&self, base: &Experiment, cell: &Cell) -> Result<Experiment, CliError> {
         Self::scenario_in(base, cell, &self.base)
     }
 
@@ -159,10 +159,10 @@ impl Grid {
     /// names only `trajectory.file` gets `kind = "recorded"` too), gait files read relative to
     /// `folder`.
     fn scenario_in(
-        base: &Scenario,
+        base: &Experiment,
         cell: &Cell,
         folder: &std::path::Path,
-    ) -> Result<Scenario, CliError> {
+    ) -> Result<Experiment, CliError> {
         let mut changes: Vec<(String, toml::Value)> = cell
             .set
             .iter()
@@ -304,7 +304,7 @@ pub struct EnvelopeDemand {
 }
 
 impl EnvelopeDemand {
-    fn of(s: &Scenario, cell: usize, dof: u8) -> Self {
+    fn of(s: &Experiment, cell: usize, dof: u8) -> Self {
         match dof {
             1 => Self::from_demand(gait_demand::<OneDof, 1>(s), cell, s.uncertainty.payload_kg),
             _ => Self::from_demand(gait_demand::<TwoDof, 2>(s), cell, s.uncertainty.payload_kg),
@@ -380,7 +380,7 @@ fn first_trip(rep: &SafetyReport) -> Option<f64> {
 const NOT_RUN: &str = "not run (interrupted)";
 
 fn run_one(
-    s: &Scenario,
+    s: &Experiment,
     dof: u8,
     c: &StabilityCriteria,
     stop: &(dyn Fn() -> bool + Sync),
@@ -421,7 +421,7 @@ fn run_one(
 
 /// `s` with the safety monitors out of the way (thresholds beyond reach), to scan the bare
 /// controller; plausibility checks and torque limits stay.
-pub fn without_monitors(s: &Scenario) -> Scenario {
+pub fn without_monitors(s: &Experiment) -> Experiment {
     let mut s = s.clone();
     let m = &mut s.monitors;
     m.tracking_error_max_rad = 1e300;
@@ -435,7 +435,7 @@ pub fn without_monitors(s: &Scenario) -> Scenario {
 /// Runs `grid` on top of `base` in parallel (rayon), calling `progress` after each run.
 /// Bad cells (unknown key, invalid value) are reported before anything runs.
 pub fn scan(
-    base: &Scenario,
+    base: &Experiment,
     grid: &Grid,
     criteria: &StabilityCriteria,
     progress: &(dyn Fn() + Sync),
@@ -449,7 +449,7 @@ pub fn scan(
 /// the runs not started yet are skipped, all with an error entry (the caller discards that
 /// partial envelope).
 pub fn scan_until(
-    base: &Scenario,
+    base: &Experiment,
     grid: &Grid,
     criteria: &StabilityCriteria,
     progress: &(dyn Fn() + Sync),
@@ -741,7 +741,7 @@ mod tests {
         let g = Grid::standard();
         assert_eq!(g.cells.len(), 18);
         assert_eq!(g.payloads_kg, vec![0.0, 1.0, 2.0, 3.0]);
-        let base = Scenario::default();
+        let base = Experiment::default();
         for c in &g.cells {
             Grid::scenario(&base, c).unwrap();
         }

@@ -13,7 +13,7 @@
 //! ```
 
 use crate::error::CliError;
-use exompc::config::{Scenario, TrajectoryKind};
+use exompc::config::{Experiment, TrajectoryKind};
 use exompc::sim::{GaitRecording, RecordingColumn, RecordingError};
 use std::path::Path;
 use std::sync::Arc;
@@ -176,7 +176,7 @@ pub fn parse_gait(text: &str, shown: &str) -> Result<GaitRecording, String> {
 
 /// Loads the recording named by `s.trajectory.file` (relative to `base`, the config file's
 /// folder) into `s.trajectory.recording`, when `kind = "recorded"` and a file is named.
-pub fn attach_recording(s: &mut Scenario, base: &Path) -> Result<(), CliError> {
+pub fn attach_recording(s: &mut Experiment, base: &Path) -> Result<(), CliError> {
     if s.trajectory.kind != TrajectoryKind::Recorded {
         return Ok(());
     }
@@ -189,7 +189,7 @@ pub fn attach_recording(s: &mut Scenario, base: &Path) -> Result<(), CliError> {
 
 /// Makes `path` (as given on the command line, relative to the working directory) the
 /// scenario's desired motion: `kind = "recorded"`, `file = path`, recording loaded, validated.
-pub fn use_gait(s: &mut Scenario, path: &Path) -> Result<(), CliError> {
+pub fn use_gait(s: &mut Experiment, path: &Path) -> Result<(), CliError> {
     s.trajectory.kind = TrajectoryKind::Recorded;
     s.trajectory.file = Some(path.to_path_buf());
     s.trajectory.recording = Some(Arc::new(read_gait(path)?));

@@ -2,7 +2,7 @@
 
 use crate::config_help::{describe_error, KeyOrigins};
 use crate::error::CliError;
-use exompc::config::{Channel, FaultEvent, FaultKind, Scenario};
+use exompc::config::{Channel, Experiment, FaultEvent, FaultKind};
 use serde::Deserialize;
 use serde_json::Value;
 use std::fs::{self, File};
@@ -25,7 +25,7 @@ pub const CONFIG_HEADER: &str = "\
 /// The default scenario as TOML with [`CONFIG_HEADER`] on top (the output of `exompc config`).
 /// Every key carries a comment with its unit, meaning, allowed values and source.
 pub fn default_config_toml() -> Result<String, CliError> {
-    let body = toml::to_string_pretty(&Scenario::default())
+    let body = toml::to_string_pretty(&Experiment::default())
         .map_err(|e| CliError::Runtime(format!("cannot serialise the default scenario: {e}")))?;
     let body = crate::config_help::comment_scenario_toml(&body);
     Ok(format!("{CONFIG_HEADER}\n{body}"))
@@ -36,15 +36,17 @@ pub fn default_config_toml() -> Result<String, CliError> {
 ///
 /// Unknown keys are rejected with their table path and the closest valid name; `nan`/`inf`
 /// parse as floats so that validation rejects them by field name.
-pub fn load_scenario(path: Option<&Path>) -> Result<Scenario, CliError> {
+pub fn load_scenario(path: Option<&Path>) -> Result<Experiment, CliError> {
     load_scenario_with_origins(path).map(|(s, _)| s)
 }
 
 /// [`load_scenario`], also returning which keys the file set (for messages that say which
 /// value of a conflicting pair the user wrote).
-pub fn load_scenario_with_origins(path: Option<&Path>) -> Result<(Scenario, KeyOrigins), CliError> {
+pub fn load_scenario_with_origins(
+    path: Option<&Path>,
+) -> Result<(Experiment, KeyOrigins), CliError> {
     let Some(path) = path else {
-        let s = Scenario::default();
+        let s = Experiment::default();
         exompc::scenario::validate(&s)
             .map_err(|e| CliError::Config(format!("default scenario: {e}")))?;
         return Ok((s, KeyOrigins::of_file(&toml::Table::new())));
@@ -59,13 +61,13 @@ pub fn load_scenario_with_origins(path: Option<&Path>) -> Result<(Scenario, KeyO
 
 /// Parses and validates a scenario from TOML text; the error is a one-line message. A recorded
 /// gait (`[trajectory] file`) is read relative to the working directory.
-pub fn parse_scenario(text: &str) -> Result<Scenario, String> {
+pub fn parse_scenario(text: &str) -> Result<Experiment, String> {
     parse_scenario_with_origins(text).map(|(s, _)| s)
 }
 
 /// [`parse_scenario`], also returning which keys the text set. A cross-field error names the
 /// key the file set and the one it conflicts with (see [`describe_error`]).
-pub fn parse_scenario_with_origins(text: &str) -> Result<(Scenario, KeyOrigins), String> {
+pub fn parse_scenario_with_origins(text: &str) -> Result<(Experiment, KeyOrigins), String> {
     parse_scenario_with_origins_in(text, Path::new(""))
 }
 
@@ -73,7 +75,7 @@ pub fn parse_scenario_with_origins(text: &str) -> Result<(Scenario, KeyOrigins),
 pub fn parse_scenario_with_origins_in(
     text: &str,
     base: &Path,
-) -> Result<(Scenario, KeyOrigins), String> {
+) -> Result<(Experiment, KeyOrigins), String> {
     // The hardware tables of `[robot]` (bus, joints, force sensors) are `run --config`'s;
     // checked here so that every command rejects a bad one, then left out of the scenario.
     let (text, hw) = exompc_can::config::split_hardware(text).map_err(|e| e.to_string())?;
@@ -85,7 +87,7 @@ pub fn parse_scenario_with_origins_in(
         toml::from_str(text).map_err(|e| describe_toml_error(text, &e, "TOML syntax error"))?;
     check_keys(&table, &schema(), "")?;
     check_magnitudes(&table, "")?;
-    let mut scenario: Scenario =
+    let mut scenario: Experiment =
         toml::from_str(text).map_err(|e| describe_toml_error(text, &e, "invalid scenario"))?;
     crate::gait::attach_recording(&mut scenario, base).map_err(|e| e.to_string())?;
     let origins = KeyOrigins::of_file(&table);
@@ -109,7 +111,7 @@ pub fn parse_value(value: &str) -> toml::Value {
 /// `value`, validated. The key is checked against the schema exactly as a config file's keys
 /// (unknown key → closest valid name; wrong type → what was expected), then the whole scenario
 /// is validated, so the message names the field and its allowed range.
-pub fn set_key(s: &Scenario, key: &str, value: toml::Value) -> Result<Scenario, String> {
+pub fn set_key(s: &Experiment, key: &str, value: toml::Value) -> Result<Experiment, String> {
     set_keys(s, &[(key.to_string(), value)], Path::new(""))
 }
 
@@ -117,10 +119,10 @@ pub fn set_key(s: &Scenario, key: &str, value: toml::Value) -> Result<Scenario, 
 /// each other, like `trajectory.kind = "recorded"` and `trajectory.file`, can change in one
 /// go); a newly named gait file is read relative to the folder `base`.
 pub fn set_keys(
-    s: &Scenario,
+    s: &Experiment,
     changes: &[(String, toml::Value)],
     base: &Path,
-) -> Result<Scenario, String> {
+) -> Result<Experiment, String> {
     let mut tree = match toml::Value::try_from(s) {
         Ok(toml::Value::Table(t)) => t,
         _ => return Err("cannot serialise the scenario".into()),
@@ -157,7 +159,7 @@ pub fn set_keys(
         node.insert((*last).to_string(), value.clone());
     }
     let named: Vec<&str> = changes.iter().map(|(k, _)| k.trim()).collect();
-    let mut scenario: Scenario =
+    let mut scenario: Experiment =
         toml::Value::Table(tree)
             .try_into()
             .map_err(|e: toml::de::Error| {
@@ -184,7 +186,7 @@ pub fn set_keys(
 }
 
 /// The value of one key of `s` by its dotted path, as TOML (`None` for an unset optional key).
-pub fn get_key(s: &Scenario, key: &str) -> Result<Option<toml::Value>, String> {
+pub fn get_key(s: &Experiment, key: &str) -> Result<Option<toml::Value>, String> {
     let schema = toml::Value::Table(schema());
     let tree =
         toml::Value::try_from(s).map_err(|e| format!("cannot serialise the scenario: {e}"))?;
@@ -219,7 +221,7 @@ pub fn get_key(s: &Scenario, key: &str) -> Result<Option<toml::Value>, String> {
 /// A TOML tree holding every key a scenario file may contain (optional keys and one fault
 /// event filled in), used to check user files key by key.
 fn schema() -> toml::Table {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.controller.sqp.max_time_us = Some(1);
     s.trajectory.file = Some(PathBuf::from("gait.csv"));
     s.faults.events.push(FaultEvent {
@@ -326,7 +328,8 @@ fn check_keys(user: &toml::Table, schema: &toml::Table, prefix: &str) -> Result<
     for (key, value) in user {
         let path = join(prefix, key);
         let Some(expected) = schema.get(key) else {
-            return Err(unknown_key(key, schema, prefix));
+            return Err(exompc::config::removed_key(&path)
+                .unwrap_or_else(|| unknown_key(key, schema, prefix)));
         };
         check_value(value, expected, &path)?;
     }

@@ -6,7 +6,7 @@
 mod common;
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use exompc::config::{ControllerKind, Formulation, Scenario};
+use exompc::config::{ControllerKind, Experiment, Formulation};
 use exompc::control::{horizon_inputs, NmpcCore};
 use exompc::model::JointState;
 use exompc::scenario::{
@@ -17,7 +17,7 @@ use nalgebra::{DMatrix, DVector, SVector};
 use std::hint::black_box;
 
 fn bench(c: &mut Criterion) {
-    let s = Scenario::default();
+    let s = Experiment::default();
     let meas = common::record(&s, 600);
     let model = prediction_model::<TwoDof, 2>(&s, 0.0);
     let settings = nmpc_settings(&s);

@@ -2,7 +2,7 @@
 //! step of the default 2-DOF scenario, alone and with its Jacobian (tailored and num-dual).
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use exompc::config::Scenario;
+use exompc::config::Experiment;
 use exompc::control::{HorizonInputs, PredictionModel};
 use exompc::model::JointState;
 use exompc::scenario::{prediction_model, TwoDof};
@@ -16,7 +16,7 @@ fn fixture() -> (
     Vector2<f64>,
     HorizonInputs<2>,
 ) {
-    let s = Scenario::default();
+    let s = Experiment::default();
     let m = prediction_model::<TwoDof, 2>(&s, 1.0);
     let x = JointState {
         q: Vector2::new(0.3, -0.6),

@@ -13,7 +13,7 @@
 
 use exompc::model::{rk4_step, Chain, Friction, JointState, Link, RobotModel, Straps};
 use exompc::scenario::limits;
-use exompc::{build_controller, Controller, ControllerKind, Measurement, Scenario, TwoDof};
+use exompc::{build_controller, Controller, ControllerKind, Experiment, Measurement, TwoDof};
 use nalgebra::Vector2;
 use std::f64::consts::PI;
 
@@ -62,7 +62,7 @@ impl MyPlant {
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let scenario = Scenario::default();
+    let scenario = Experiment::default();
     let dt = scenario.timing.dt;
     let lim = limits(&scenario);
     let mut controller = build_controller::<TwoDof, 2>(&scenario, ControllerKind::MSNMPC)?;

@@ -12,7 +12,7 @@
 //! optionally `decoupled | coupled` (default decoupled) and the Hessian model
 //! `gauss_newton | structured_secant | exact` (default: the scenario default).
 
-use exompc::config::{ControllerKind, Formulation, Scenario};
+use exompc::config::{ControllerKind, Experiment, Formulation};
 use exompc::control::QpBackend;
 use exompc::scenario::{build_controller, plant_params, uncertainty, Dof, TwoDof};
 use exompc::sim::{Plant, Sensors};
@@ -33,12 +33,12 @@ fn main() {
         "coupled" => Formulation::Coupled,
         other => panic!("formulation `{other}`: decoupled or coupled"),
     };
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.controller.sqp.hessian = match arg(6, "default").as_str() {
         "default" => s.controller.sqp.hessian,
-        "gauss_newton" => exompc::solver::HessianModel::GaussNewton,
-        "structured_secant" => exompc::solver::HessianModel::StructuredSecant,
-        "exact" => exompc::solver::HessianModel::Exact,
+        "gauss_newton" => exompc::control::HessianSetting::GaussNewton,
+        "structured_secant" => exompc::control::HessianSetting::StructuredSecant,
+        "exact" => exompc::control::HessianSetting::Exact,
         other => panic!("hessian `{other}`: gauss_newton, structured_secant or exact"),
     };
     s.controller.kind = ControllerKind::MSNMPC;

@@ -16,7 +16,7 @@
 
 use exompc::scenario::limits;
 use exompc::{
-    build_supervised, Controller, ControllerKind, Measurement, Scenario, StepStatus, TwoDof,
+    build_supervised, Controller, ControllerKind, Experiment, Measurement, StepStatus, TwoDof,
 };
 use nalgebra::Vector2;
 use std::time::{Duration, Instant};
@@ -40,7 +40,7 @@ fn read_sensors(k: usize, t: f64) -> Measurement<2> {
 fn write_torques(_torque: &Vector2<f64>) {}
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let scenario = Scenario::default();
+    let scenario = Experiment::default();
     let lim = limits(&scenario);
     let mut controller = build_supervised::<TwoDof, 2>(&scenario, ControllerKind::MSNMPC)?;
 

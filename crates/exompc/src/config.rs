@@ -1,13 +1,13 @@
 //! The whole simulation / control scenario as plain serde structs.
 //!
-//! [`Scenario::default()`] is the embedded default scenario: every value is the one stated in
+//! [`Experiment::default()`] is the embedded default scenario: every value is the one stated in
 //! the repository's `docs/MODEL.md` (section numbers "§n" below refer to it) or by the paper
 //! (Aliyari & Vossoughi, equation numbers "eq. N" refer to it). A configuration file
 //! (TOML in the CLI, but any serde format works) overrides only what it names: every struct is
 //! `#[serde(default)]`, and the thigh/shank sub-tables are merged field by field onto their own
 //! defaults. Unknown keys are rejected (`#[serde(deny_unknown_fields)]`).
 //!
-//! Deserialisation checks only types; [`Scenario::validate`] checks every numeric value (finite
+//! Deserialisation checks only types; [`Experiment::validate`] checks every numeric value (finite
 //! and inside a documented range) and reports the first offending field by its dotted path.
 //!
 //! Units are SI throughout (m, kg, s, rad, N, N·m).
@@ -22,7 +22,7 @@ use serde::{Deserialize, Deserializer, Serialize};
 mod controller_kind;
 mod keys;
 pub mod scenarios;
-pub use keys::{explain, Allowed, End, KeyDoc, Limit, KEYS};
+pub use keys::{explain, removed_key, Allowed, End, KeyDoc, Limit, KEYS};
 
 // ---------------------------------------------------------------------------------------------
 // Error
@@ -187,7 +187,7 @@ macro_rules! patch_deserializer {
 /// `[human]`: the human leg model and its "brain" (MODEL.md §2, paper eq. 2).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
-pub struct Human {
+pub struct HumanSettings {
     /// Body height (m); segment lengths are fractions of it (MODEL.md §2). Default 1.75.
     pub height_m: f64,
     /// Body mass m_b (kg) of the nominal brain model and initial plant mass (MODEL.md §2). Default 60.
@@ -218,7 +218,7 @@ patch_deserializer!(HumanSegmentPatch, HumanSegment,
     de_human_shank => HumanSegment::WINTER_SHANK,
 );
 
-impl Default for Human {
+impl Default for HumanSettings {
     fn default() -> Self {
         Self {
             height_m: 1.75,
@@ -232,7 +232,7 @@ impl Default for Human {
     }
 }
 
-impl Human {
+impl HumanSettings {
     fn validate(&self) -> Result<(), ConfigError> {
         reals(
             "human",
@@ -256,7 +256,7 @@ impl Human {
 /// `[robot]`: the exoskeleton (MODEL.md §3, paper eq. 1 and Table 1).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
-pub struct Robot {
+pub struct RobotSettings {
     /// Viscous friction kf1 per joint (N·m·s) (paper Table 1). Default 0.000899.
     pub viscous_friction: f64,
     /// Coulomb friction kf2 per joint (N·m) (paper Table 1). Default 0.05048.
@@ -288,7 +288,7 @@ fn de_robot_shank<'de, D: Deserializer<'de>>(d: D) -> Result<Link, D::Error> {
     scenarios::LinkOverride::deserialize(d).map(|p| p.apply(Link::ROBOT_SHANK))
 }
 
-impl Default for Robot {
+impl Default for RobotSettings {
     fn default() -> Self {
         Self {
             viscous_friction: 0.000899,
@@ -301,7 +301,7 @@ impl Default for Robot {
     }
 }
 
-impl Robot {
+impl RobotSettings {
     fn validate(&self) -> Result<(), ConfigError> {
         for (p, l) in [("robot.thigh", &self.thigh), ("robot.shank", &self.shank)] {
             l.validate().map_err(at(p)).map_err(|e| {
@@ -351,7 +351,7 @@ impl Robot {
 /// `[straps]`: spring-damper human-robot interaction (MODEL.md §4, paper eqs. 3-4).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
-pub struct Straps {
+pub struct StrapsSettings {
     /// Thigh strap distance from the hip Ls1 (m), in (0, robot.thigh.length_m]. Default 0.28.
     pub ls1_m: f64,
     /// Shank strap distance from the knee Ls2 (m), in (0, robot.shank.length_m]. Default 0.16.
@@ -362,7 +362,7 @@ pub struct Straps {
     pub damping: f64,
 }
 
-impl Default for Straps {
+impl Default for StrapsSettings {
     fn default() -> Self {
         Self {
             ls1_m: 0.28,
@@ -397,7 +397,7 @@ pub use crate::sim::GaitKind as TrajectoryKind;
 /// `[timing]`: control period, integration steps and run lengths (MODEL.md §7).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
-pub struct Timing {
+pub struct TimingSettings {
     /// Control period dt (s), in (0, 1]. Default 0.01.
     pub dt: f64,
     /// Plant RK4 steps per control period, 1..=1000. Default 10 (1 ms steps).
@@ -410,7 +410,7 @@ pub struct Timing {
     pub duration_1dof_s: f64,
 }
 
-impl Default for Timing {
+impl Default for TimingSettings {
     fn default() -> Self {
         Self {
             dt: 0.01,
@@ -438,7 +438,7 @@ use core::time::Duration;
 /// `[controller]`: intent estimation and NMPC (MODEL.md §8, paper eqs. 5-9, Table 1).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
-pub struct Controller {
+pub struct ControllerSettings {
     /// Controller used by `simulate`: the name of a registered controller (`"pd"`, `"nmpc"`,
     /// `"msnmpc"` or one added with `exompc::scenario::register_controller`). Default
     /// `"msnmpc"`.
@@ -466,9 +466,9 @@ pub struct Controller {
     /// Strap-torque model over the horizon (`"predict"` or `"hold"`). Default `"predict"`.
     pub interaction: Interaction,
     /// `[controller.sqp]` solver settings.
-    pub sqp: Sqp,
+    pub sqp: SqpOptions,
     /// `[controller.pd]` baseline PD gains.
-    pub pd: PdGains,
+    pub pd: PdSettings,
     /// Multi-stage method: `"robust"` (the paper's method with the `[controller.robust]`
     /// extensions) or `"paper"` (exactly the paper's, reproduces `docs/REPRODUCING.md`).
     /// Default `"robust"`.
@@ -477,7 +477,7 @@ pub struct Controller {
     pub robust: RobustSettings,
 }
 
-impl Default for Controller {
+impl Default for ControllerSettings {
     fn default() -> Self {
         Self {
             kind: ControllerKind::MSNMPC,
@@ -490,8 +490,8 @@ impl Default for Controller {
             torque_max: 30.0,
             torque_rate_max: 1000.0,
             interaction: Interaction::Predict,
-            sqp: Sqp::default(),
-            pd: PdGains::default(),
+            sqp: SqpOptions::default(),
+            pd: PdSettings::default(),
             method: Method::Robust,
             robust: RobustSettings::default(),
         }
@@ -499,10 +499,10 @@ impl Default for Controller {
 }
 
 /// `[controller.sqp]`: SQP solver limits (paper §3.1); the keys of [`SqpSettings`] a scenario
-/// sets (see [`Sqp::settings`]), checked by its `validate`.
+/// sets (see [`SqpOptions::settings`]), checked by its `validate`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
-pub struct Sqp {
+pub struct SqpOptions {
     /// Maximum SQP iterations per solve, 1..=1000. Default 20.
     pub max_iterations: usize,
     /// KKT residual tolerance, in [0, 1] (0: never converged, every solve runs to a limit).
@@ -512,16 +512,20 @@ pub struct Sqp {
     /// iteration); absent = no time budget.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_time_us: Option<u64>,
-    /// Hessian model of the QP subproblems: `"structured_secant"` (Gauss-Newton plus a
-    /// secant estimate of the residual curvature), `"gauss_newton"` or `"exact"` (the exact
-    /// Lagrangian Hessian, in both QP back-ends, shifted by `μ I` when it is not positive
-    /// definite; the coupled scenario tree uses Gauss-Newton). Default `"structured_secant"`.
-    pub hessian: crate::solver::HessianModel,
+    /// Hessian model of the QP subproblems: `"auto"` (the QP back-end's own model:
+    /// `"structured_secant"` on the dense one, `"gauss_newton"` on the structured one),
+    /// `"structured_secant"` (Gauss-Newton plus a secant estimate of the residual curvature;
+    /// the dense back-end only, so `qp = "auto"` then stays dense), `"gauss_newton"` or
+    /// `"exact"` (the exact Lagrangian Hessian, in both QP back-ends, shifted by `μ I` when it
+    /// is not positive definite; the coupled scenario tree uses Gauss-Newton). The run summary's
+    /// `solver` names the model run ([`crate::control::QpBackend::resolve`]). Default `"auto"`.
+    pub hessian: crate::control::HessianSetting,
     /// QP solver of the SQP: `"dense"` (condensed, the oracle), `"structured"` (Riccati over
     /// the horizon stages, Gauss-Newton or exact Hessian; the coupled formulation: the block-arrowhead
     /// scenario tree) or `"auto"` (structured when joints·nc ≥ 16; coupled: when the tree's
-    /// decision variables joints·(Nr + S·(Nc − Nr)) ≥ 16).
-    /// Default `"auto"`.
+    /// decision variables joints·(Nr + S·(Nc − Nr)) ≥ 16; never a back-end that would run
+    /// another Hessian than `hessian` asks for: `auto` chooses the QP back-end only). The run
+    /// summary's `solver` names the back-end chosen. Default `"auto"`.
     pub qp: crate::control::QpBackend,
     /// Real-time iteration: one SQP iteration (one linearisation, one QP, full step) per
     /// control period from the shifted previous solution, instead of iterating to the KKT
@@ -529,28 +533,31 @@ pub struct Sqp {
     pub rti: bool,
 }
 
-impl Default for Sqp {
+impl Default for SqpOptions {
     fn default() -> Self {
         let d = SqpSettings::default();
         Self {
             max_iterations: d.max_iterations,
             kkt_tolerance: d.kkt_tolerance,
             max_time_us: None,
-            hessian: d.hessian,
+            hessian: crate::control::HessianSetting::Auto,
             qp: crate::control::QpBackend::Auto,
             rti: d.real_time_iteration,
         }
     }
 }
 
-impl Sqp {
-    /// The solver settings of this table: its keys set, the solver's defaults elsewhere.
+impl SqpOptions {
+    /// The solver settings of this table: its keys set, the solver's defaults elsewhere
+    /// (`hessian = "auto"`: the solver's default model, which the structured back-ends run as
+    /// Gauss-Newton; [`crate::control::QpBackend::resolve`] names the one run).
     pub fn settings(&self) -> SqpSettings {
+        let d = SqpSettings::default();
         SqpSettings {
             max_iterations: self.max_iterations,
             kkt_tolerance: self.kkt_tolerance,
             max_time: self.max_time_us.map(Duration::from_micros),
-            hessian: self.hessian,
+            hessian: self.hessian.model().unwrap_or(d.hessian),
             real_time_iteration: self.rti,
             ..SqpSettings::default()
         }
@@ -580,7 +587,7 @@ impl Sqp {
 /// `[controller.pd]`: gains of the baseline PD controller.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
-pub struct PdGains {
+pub struct PdSettings {
     /// Proportional gain (N·m/rad), > 0. Default 30 (60 with kd 6 already limit-cycles on
     /// the default scenario; 30/3 keeps RMS strap forces near 7 N thigh, 3 N shank at 0 kg).
     pub kp: f64,
@@ -588,7 +595,7 @@ pub struct PdGains {
     pub kd: f64,
 }
 
-impl Default for PdGains {
+impl Default for PdSettings {
     fn default() -> Self {
         Self { kp: 30.0, kd: 3.0 }
     }
@@ -604,7 +611,7 @@ pub use crate::estimate::Innovation;
 /// `[multistage]`: scenario tree and probabilities (MODEL.md §8, paper §3.2, eqs. 10-13).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
-pub struct Multistage {
+pub struct MultistageSettings {
     /// Payload of each scenario (kg): 1..=32 entries, each in [0, 20]; a shorthand for
     /// scenarios named `"0 kg"`, `"1 kg"`, ... with the base robot and straps. Default [0, 1, 2].
     pub payloads_kg: Vec<f64>,
@@ -627,7 +634,7 @@ pub struct Multistage {
     pub scenarios: Vec<scenarios::ScenarioSpec>,
 }
 
-impl Default for Multistage {
+impl Default for MultistageSettings {
     fn default() -> Self {
         Self {
             payloads_kg: vec![0.0, 1.0, 2.0],
@@ -668,26 +675,26 @@ pub use crate::control::{FallbackSettings, MonitorResponse, Monitors};
 
 /// The complete scenario: plant, human, controller, estimator, faults and monitors.
 ///
-/// `Scenario::default()` is the embedded default scenario of `docs/MODEL.md`.
+/// `Experiment::default()` is the embedded default scenario of `docs/MODEL.md`.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
-pub struct Scenario {
+pub struct Experiment {
     /// `[human]` (MODEL.md §2).
-    pub human: Human,
+    pub human: HumanSettings,
     /// `[robot]` (MODEL.md §3).
-    pub robot: Robot,
+    pub robot: RobotSettings,
     /// `[straps]` (MODEL.md §4).
-    pub straps: Straps,
+    pub straps: StrapsSettings,
     /// `[uncertainty]` (MODEL.md §5).
     pub uncertainty: Uncertainty,
     /// `[trajectory]` (MODEL.md §6).
     pub trajectory: Trajectory,
     /// `[timing]` (MODEL.md §7).
-    pub timing: Timing,
+    pub timing: TimingSettings,
     /// `[controller]` (MODEL.md §8).
-    pub controller: Controller,
+    pub controller: ControllerSettings,
     /// `[multistage]` (MODEL.md §8).
-    pub multistage: Multistage,
+    pub multistage: MultistageSettings,
     /// `[ekf]` (MODEL.md §8).
     pub ekf: Ekf,
     /// `[faults]`.
@@ -696,6 +703,9 @@ pub struct Scenario {
     pub monitors: Monitors,
 }
 
+/// One check of [`Experiment::validate`] (a row of [`Experiment::CHECKS`]).
+pub type Check = fn(&Experiment) -> Result<(), ConfigError>;
+
 /// Most control steps one run may take (`duration / dt`), so that a tiny `dt` cannot start a
 /// practically endless run.
 pub const MAX_CONTROL_STEPS: usize = 100_000_000;
@@ -703,15 +713,40 @@ pub const MAX_CONTROL_STEPS: usize = 100_000_000;
 /// Maximum number of multi-stage scenarios.
 pub const MAX_SCENARIOS: usize = 32;
 
-impl Scenario {
+impl Experiment {
     /// Checks every numeric field (finite and within its documented range) and the
-    /// cross-field rules (nc <= np, robust_horizon <= nc, com within the link, ...).
+    /// cross-field rules (nc <= np, robust_horizon <= nc, com within the link, ...): the
+    /// checks of [`Self::CHECKS`], in order.
     ///
     /// Returns the first violation, naming the field by its dotted path.
     pub fn validate(&self) -> Result<(), ConfigError> {
-        self.human.validate()?;
-        self.robot.validate()?;
+        Self::CHECKS.iter().try_for_each(|(_, check)| check(self))
+    }
 
+    /// The checks of [`Self::validate`], one per table of the file, in the order they run
+    /// (the first violation is reported): the table and its check. A table that is a lower
+    /// module's settings type runs that type's own `validate` (its message prefixed with the
+    /// table's path); the others, and the cross-field rules, are here.
+    pub const CHECKS: &'static [(&'static str, Check)] = &[
+        ("human", |s| s.human.validate()),
+        ("robot", |s| s.robot.validate()),
+        ("straps", Self::check_straps),
+        ("uncertainty", |s| {
+            s.uncertainty.validate().map_err(at("uncertainty"))
+        }),
+        ("trajectory", Self::check_trajectory_table),
+        ("timing", Self::check_timing),
+        ("controller", Self::check_controller),
+        ("multistage", Self::check_multistage),
+        ("ekf", |s| s.ekf.validate().map_err(at("ekf"))),
+        ("faults", |s| s.faults.validate().map_err(at("faults"))),
+        ("monitors", |s| {
+            s.monitors.validate().map_err(at("monitors"))
+        }),
+    ];
+
+    /// `[straps]`: the strap positions within their links (cross-field), stiffness and damping.
+    fn check_straps(&self) -> Result<(), ConfigError> {
         let s = &self.straps;
         for (name, v, link, l) in [
             ("ls1_m", s.ls1_m, "thigh", self.robot.thigh.length),
@@ -736,9 +771,11 @@ impl Scenario {
                 ("damping", s.damping, R::NonNeg),
             ],
         )?;
+        Ok(())
+    }
 
-        self.uncertainty.validate().map_err(at("uncertainty"))?;
-
+    /// `[trajectory]`: its own checks, and the gait frequency `base ± swing` above 0 (cross-field).
+    fn check_trajectory_table(&self) -> Result<(), ConfigError> {
         let sw = &self.trajectory.swing;
         let (swing, base) = (sw.frequency_swing_hz, sw.base_frequency_hz);
         self.trajectory
@@ -753,7 +790,11 @@ impl Scenario {
                     fix: format!("set trajectory.frequency_swing_hz < {base} or raise trajectory.base_frequency_hz"),
                 })
             })?;
+        Ok(())
+    }
 
+    /// `[timing]`: the control period, substeps and run lengths (at least one period, at most [`MAX_CONTROL_STEPS`]).
+    fn check_timing(&self) -> Result<(), ConfigError> {
         let tm = &self.timing;
         real("timing.dt", tm.dt, R::OpenClosed(0.0, 1.0))?;
         int("timing.plant_substeps", tm.plant_substeps, 1, 1000)?;
@@ -809,7 +850,11 @@ impl Scenario {
                 ));
             }
         }
+        Ok(())
+    }
 
+    /// `[controller]` with `[controller.sqp]`, `[controller.pd]` and `[controller.robust]`: horizons (`nc <= np`), weights, limits.
+    fn check_controller(&self) -> Result<(), ConfigError> {
         let c = &self.controller;
         int("controller.np", c.np, 1, 200)?;
         cross(
@@ -843,49 +888,8 @@ impl Scenario {
         reals(
             "controller.robust",
             &[
-                ("oscillation_cutoff_hz", rb.oscillation_cutoff_hz, R::Pos),
-                (
-                    "oscillation_window_s",
-                    rb.oscillation_window_s,
-                    R::OpenClosed(0.0, 10.0),
-                ),
-                (
-                    "oscillation_fraction",
-                    rb.oscillation_fraction,
-                    R::Open(0.0, 1.0),
-                ),
-                (
-                    "oscillation_min_force_n",
-                    rb.oscillation_min_force_n,
-                    R::NonNeg,
-                ),
                 ("human_bandwidth_hz", rb.human_bandwidth_hz, R::Pos),
                 ("release_s", rb.release_s, R::Closed(0.0, 1e6)),
-                ("ekf_force_lead", rb.ekf_force_lead, R::Closed(0.0, 3.0)),
-                ("disturbance_lead", rb.disturbance_lead, R::Closed(0.0, 3.0)),
-                ("disturbance_q", rb.disturbance_q, R::NonNeg),
-                ("torque_oscillation_nm", rb.torque_oscillation_nm, R::NonNeg),
-                (
-                    "torque_oscillation_window_s",
-                    rb.torque_oscillation_window_s,
-                    R::OpenClosed(0.0, 10.0),
-                ),
-                (
-                    "torque_oscillation_cutoff_hz",
-                    rb.torque_oscillation_cutoff_hz,
-                    R::Pos,
-                ),
-                (
-                    "torque_oscillation_fraction",
-                    rb.torque_oscillation_fraction,
-                    R::Closed(0.0, 0.999),
-                ),
-                ("inertia_engage_ratio", rb.inertia_engage_ratio, R::NonNeg),
-                (
-                    "inertia_engage_s",
-                    rb.inertia_engage_s,
-                    R::Closed(0.0, 10.0),
-                ),
                 (
                     "weight_smoothing_s",
                     rb.weight_smoothing_s,
@@ -898,7 +902,12 @@ impl Scenario {
                 ),
             ],
         )?;
+        Ok(())
+    }
 
+    /// `[multistage]`: the scenario set, `c1`, the probability floor (below `1 / S`) and the robust horizon (`<= controller.nc`).
+    fn check_multistage(&self) -> Result<(), ConfigError> {
+        let c = &self.controller;
         let m = &self.multistage;
         // `payloads_kg` or `[[multistage.scenarios]]`: count, names, every override's range.
         let n = scenarios::validate(self)?;
@@ -945,10 +954,7 @@ impl Scenario {
                 ),
             },
         )?;
-
-        self.ekf.validate().map_err(at("ekf"))?;
-        self.faults.validate().map_err(at("faults"))?;
-        self.monitors.validate().map_err(at("monitors"))
+        Ok(())
     }
 
     /// Run length (s) of the `dof`-DOF experiment: `duration_1dof_s` for `dof == 1`,
@@ -961,7 +967,7 @@ impl Scenario {
         }
     }
 
-    /// Checks that `[trajectory]` can drive the `dof`-DOF run of [`Scenario::duration_s`]
+    /// Checks that `[trajectory]` can drive the `dof`-DOF run of [`Experiment::duration_s`]
     /// (a recording needs a hip column for 2 DOF and must last the run or loop; see
     /// [`crate::sim::Gait::check_run`]).
     pub fn check_trajectory(&self, dof: usize) -> Result<(), ConfigError> {

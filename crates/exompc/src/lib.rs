@@ -43,10 +43,10 @@
 //! ```
 //! use exompc::sim::Trajectory;
 //! use exompc::scenario::{initial_torque, limits};
-//! use exompc::{build_controller, Controller, ControllerKind, Dof, Measurement, Scenario, TwoDof};
+//! use exompc::{build_controller, Controller, ControllerKind, Dof, Measurement, Experiment, TwoDof};
 //! use nalgebra::Vector2;
 //!
-//! let scenario = Scenario::default(); // the paper's 2-DOF study (docs/MODEL.md)
+//! let scenario = Experiment::default(); // the paper's 2-DOF study (docs/MODEL.md)
 //! let mut controller = build_controller::<TwoDof, 2>(&scenario, ControllerKind::MSNMPC)?;
 //!
 //! // The robot sits on the human's desired start; the straps pull slightly.
@@ -107,7 +107,7 @@ pub mod solver;
 mod test_rng;
 
 pub use check::InvalidField;
-pub use config::{ControllerKind, Scenario};
+pub use config::{ControllerKind, Experiment};
 pub use control::{
     ControlOutput, Controller, Measurement, MultiStage, Nmpc, StepStatus, Supervisor, TorqueLimits,
 };

@@ -3,7 +3,7 @@
 //! scenario make no heap allocation. (The rayon-parallel decoupled path, off by default, is not
 //! covered: rayon's work stealing may allocate.)
 
-use exompc::config::{ControllerKind, Formulation, Scenario};
+use exompc::config::{ControllerKind, Experiment, Formulation};
 use exompc::scenario::{build_controller, plant_params, uncertainty, Dof, TwoDof};
 use exompc::sim::{Plant, Sensors};
 
@@ -14,7 +14,7 @@ use common::alloc::{allocations_in, Counting};
 static GLOBAL: Counting = Counting;
 
 /// Closed loop of `s`: 20 warm-up steps, then 200 counted controller steps.
-fn count_steps(s: &Scenario, kind: ControllerKind) -> usize {
+fn count_steps(s: &Experiment, kind: ControllerKind) -> usize {
     let mut controller = build_controller::<TwoDof, 2>(s, kind).expect("controller");
     let mut plant = Plant::new(plant_params::<TwoDof, 2>(s), TwoDof::trajectory(s));
     let mut sensors = Sensors::new(uncertainty(s), s.uncertainty.filter_window);
@@ -36,7 +36,7 @@ fn count_steps(s: &Scenario, kind: ControllerKind) -> usize {
 
 #[test]
 fn control_steps_do_not_allocate() {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.multistage.parallel = false;
 
     s.controller.kind = ControllerKind::NMPC;
@@ -87,7 +87,7 @@ fn control_steps_do_not_allocate() {
     s.multistage.robust_horizon = 1;
     // The exact Hessian (inertia correction and curvature blocks), both back-ends.
     s.multistage.formulation = Formulation::Decoupled;
-    s.controller.sqp.hessian = exompc::solver::HessianModel::Exact;
+    s.controller.sqp.hessian = exompc::solver::HessianModel::Exact.into();
     for qp in [
         exompc::control::QpBackend::Dense,
         exompc::control::QpBackend::Structured,
@@ -102,7 +102,7 @@ fn control_steps_do_not_allocate() {
             );
         }
     }
-    s.controller.sqp.hessian = Scenario::default().controller.sqp.hessian;
+    s.controller.sqp.hessian = Experiment::default().controller.sqp.hessian;
     s.controller.sqp.qp = exompc::control::QpBackend::Auto;
     s.controller.np = 3;
     s.controller.nc = 3;
@@ -135,11 +135,11 @@ fn controller_sizes() {
 /// whose monitors trip and clear.
 #[test]
 fn supervised_steps_do_not_allocate() {
-    let mut provoked = Scenario::default();
+    let mut provoked = Experiment::default();
     provoked.uncertainty.filter_window = 9;
     provoked.uncertainty.payload_kg = 2.0;
     provoked.robot.payload_position_m = 0.43;
-    for s in [Scenario::default(), provoked] {
+    for s in [Experiment::default(), provoked] {
         let mut controller =
             exompc::scenario::build_supervised::<TwoDof, 2>(&s, ControllerKind::MSNMPC).unwrap();
         let mut plant = Plant::new(plant_params::<TwoDof, 2>(&s), TwoDof::trajectory(&s));

@@ -8,14 +8,14 @@ fn close(a: f64, b: f64, tol: f64) -> bool {
 
 #[test]
 fn default_validates() {
-    Scenario::default()
+    Experiment::default()
         .validate()
         .expect("default scenario must validate");
 }
 
 #[test]
 fn default_matches_spec_values() {
-    let s = Scenario::default();
+    let s = Experiment::default();
     // MODEL.md §2
     assert_eq!(s.human.height_m, 1.75);
     assert_eq!(s.human.body_mass_kg, 60.0);
@@ -167,7 +167,7 @@ fn default_matches_spec_values() {
 
 #[test]
 fn helpers() {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     assert_eq!(s.duration_s(2), 20.0);
     assert_eq!(s.duration_s(1), 30.0);
     assert_eq!(s.control_steps(2), 2000);
@@ -196,7 +196,7 @@ fn helpers() {
 
 #[test]
 fn error_display_format() {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.robot.thigh.mass = -1.0;
     let e = s.validate().unwrap_err();
     assert_eq!(e.field, "robot.thigh.mass_kg");
@@ -208,7 +208,7 @@ fn error_display_format() {
     );
 }
 
-type Mutation = fn(&mut Scenario);
+type Mutation = fn(&mut Experiment);
 
 fn spike() -> FaultEvent {
     FaultEvent {
@@ -415,7 +415,7 @@ const RULES: &[(&str, Mutation)] = &[
 #[test]
 fn each_rule_rejects_bad_value_naming_the_field() {
     for (i, (field, mutate)) in RULES.iter().enumerate() {
-        let mut s = Scenario::default();
+        let mut s = Experiment::default();
         mutate(&mut s);
         let err = s
             .validate()
@@ -432,7 +432,7 @@ fn each_rule_rejects_bad_value_naming_the_field() {
 
 #[test]
 fn boundary_values_are_accepted() {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.uncertainty.payload_kg = 20.0;
     s.multistage.payloads_kg = vec![0.0, 20.0];
     s.multistage.probability_floor = 0.49;
@@ -493,7 +493,7 @@ fn cross_field_rules_name_both_keys() {
         ),
     ];
     for (field, other, mutate) in cases {
-        let mut s = Scenario::default();
+        let mut s = Experiment::default();
         mutate(&mut s);
         let e = s.validate().expect_err(field);
         assert_eq!(e.field, *field, "{e}");
@@ -508,14 +508,14 @@ fn cross_field_rules_name_both_keys() {
     }
     // Own-range breaches of the same fields name no other key.
     for mutate in [
-        (|s: &mut Scenario| s.straps.ls1_m = 0.0) as Mutation,
+        (|s: &mut Experiment| s.straps.ls1_m = 0.0) as Mutation,
         |s| s.robot.thigh.com = -0.1,
         |s| s.controller.nc = 0,
         |s| s.multistage.probability_floor = 0.0,
         |s| s.trajectory.swing.frequency_swing_hz = -0.1,
         |s| s.timing.duration_2dof_s = f64::NAN,
     ] {
-        let mut s = Scenario::default();
+        let mut s = Experiment::default();
         mutate(&mut s);
         let e = s.validate().unwrap_err();
         assert_eq!(e.depends_on, None, "{e}");

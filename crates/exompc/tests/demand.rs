@@ -23,7 +23,7 @@ impl Trajectory<2> for Swing {
 }
 
 fn params_2dof(payload_kg: f64, uncertainty: Uncertainty) -> PlantParams<2> {
-    let s = exompc::config::Scenario::default();
+    let s = exompc::config::Experiment::default();
     let mut p = exompc::scenario::plant_params::<exompc::scenario::TwoDof, 2>(&s);
     p.payload_kg = payload_kg;
     p.uncertainty = uncertainty;

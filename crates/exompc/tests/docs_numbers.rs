@@ -17,7 +17,7 @@
 //!   are `quoted from the paper`); every table preceded
 //!   by `<!-- numbers.json: SET -->` is compared cell by cell with that set.
 
-use exompc::config::{ControllerKind, Formulation, Scenario};
+use exompc::config::{ControllerKind, Experiment, Formulation};
 use exompc::scenario::{run_experiment, OneDof, TwoDof};
 use exompc::sim::Summary;
 use rayon::prelude::*;
@@ -93,7 +93,7 @@ fn compute() -> Numbers {
             let runs = jobs
                 .par_iter()
                 .map(|&(c, p)| {
-                    let mut s = Scenario::default();
+                    let mut s = Experiment::default();
                     s.controller.kind = ControllerKind::new(c).unwrap();
                     s.multistage.formulation = formulation;
                     s.uncertainty.payload_kg = p;
@@ -123,7 +123,7 @@ fn compute() -> Numbers {
                     Formulation::Coupled => "coupled",
                 }
                 .to_string(),
-                duration_s: Scenario::default().duration_s(dof),
+                duration_s: Experiment::default().duration_s(dof),
                 runs,
             }
         })

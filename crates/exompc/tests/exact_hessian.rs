@@ -11,7 +11,7 @@
 mod common;
 
 use common::Rng;
-use exompc::config::{ControllerKind, Scenario};
+use exompc::config::{ControllerKind, Experiment};
 use exompc::control::{
     horizon_inputs, Measurement, NmpcCore, NmpcProblem, QpBackend, VelocityTracking,
 };
@@ -29,7 +29,7 @@ fn random_problem<D: Dof<N>, const N: usize>(
     nc: usize,
     tracking: VelocityTracking,
 ) -> NmpcProblem<N> {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.controller.np = np;
     s.controller.nc = nc;
     let model = prediction_model::<D, N>(&s, 0.0);
@@ -219,7 +219,7 @@ fn riccati_with_cross_terms_equals_the_dense_qp() {
     }
 }
 
-fn exact_settings(s: &Scenario, qp: QpBackend) -> exompc::control::NmpcSettings {
+fn exact_settings(s: &Experiment, qp: QpBackend) -> exompc::control::NmpcSettings {
     let mut st = nmpc_settings(s);
     st.sqp.hessian = HessianModel::Exact;
     st.sqp.max_iterations = 200;
@@ -235,7 +235,7 @@ fn compare_random_exact<D: Dof<N>, const N: usize>(
     seed: u64,
     tracking: VelocityTracking,
 ) -> usize {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.controller.np = n;
     s.controller.nc = n;
     let model = prediction_model::<D, N>(&s, 0.0);
@@ -329,11 +329,11 @@ fn closed_loop_with(
     steps: usize,
     tracking: VelocityTracking,
 ) -> Trace {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.controller.robust.velocity_tracking = tracking;
     s.controller.np = n;
     s.controller.nc = n;
-    s.controller.sqp.hessian = hessian;
+    s.controller.sqp.hessian = hessian.into();
     s.controller.sqp.max_iterations = 1000;
     s.controller.sqp.kkt_tolerance = 1e-10;
     s.controller.sqp.qp = qp;

@@ -5,7 +5,7 @@
 //! such a force showed only as a rejected measurement and, 50 ms later, as a *sensor timeout*
 //! (a sensor fault, which does not count toward the latch).
 
-use exompc::config::{ControllerKind, Scenario};
+use exompc::config::{ControllerKind, Experiment};
 use exompc::control::{
     Controller, Measurement, MonitorAction, MonitorKind, SafetyReport, SafetySettings, Supervisor,
 };
@@ -14,7 +14,7 @@ use nalgebra::SVector;
 
 /// A supervisor around a PD controller at rest, fed the thigh strap force `thigh(t)` with
 /// fresh encoder samples (and a noisy shank strap).
-fn feed(s: &Scenario, seconds: f64, thigh: impl Fn(f64) -> f64) -> SafetyReport {
+fn feed(s: &Experiment, seconds: f64, thigh: impl Fn(f64) -> f64) -> SafetyReport {
     let inner = exompc::build_controller::<TwoDof, 2>(s, ControllerKind::PD).unwrap();
     let mut sup = Supervisor::new(inner, SafetySettings::from_scenario(s));
     let n = (seconds / s.timing.dt).round() as usize;
@@ -43,7 +43,7 @@ fn trips(rep: &SafetyReport) -> Vec<(MonitorKind, f64)> {
 /// range does not trip it.
 #[test]
 fn a_reading_at_the_sensors_full_scale_trips_the_strap_force_monitor_at_once() {
-    let s = Scenario::default();
+    let s = Experiment::default();
     assert_eq!(s.monitors.force_max_n, s.faults.saturation_n);
     let sat = s.faults.saturation_n;
     let rep = feed(&s, 1.5, |t| if t >= 1.0 - 1e-9 { -sat } else { 5.0 + t });
@@ -83,7 +83,7 @@ fn a_reading_at_the_sensors_full_scale_trips_the_strap_force_monitor_at_once() {
 /// strap-force trip in the 20-s run).
 #[test]
 fn an_over_force_in_the_fast_gait_cell_is_reported_as_strap_force() {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.trajectory.swing.base_frequency_hz = 1.3;
     s.uncertainty.payload_kg = 3.0;
     s.timing.duration_2dof_s = 3.0;

@@ -4,7 +4,7 @@
 //! gain `1/√(1 + (3/1.45)⁴)` ≈ 0.23, so a fast gait's own, torque-limited hip torque read as a
 //! 10 N·m "oscillation"; the cut-off now keeps the default's 3:1 ratio to the gait.
 
-use exompc::config::Scenario;
+use exompc::config::Experiment;
 use exompc::control::{
     ControlOutput, Controller, GaitFrequency, HighPass, Measurement, MonitorAction, MonitorKind,
     SafetyReport, SafetySettings, StepStatus, Supervisor, GAIT_MAX_HZ,
@@ -121,7 +121,7 @@ impl<F: Fn(f64) -> [f64; 2]> Controller<2> for Scripted<F> {
 /// A supervisor (default `[monitors]` but for `ratio`) around a scripted hip torque, with the
 /// encoders following a 1.45 Hz gait and the straps carrying (almost) nothing.
 fn supervise(ratio: f64, seconds: f64, torque: impl Fn(f64) -> [f64; 2]) -> SafetyReport {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.monitors.oscillation_cutoff_gait_ratio = ratio;
     let dt = s.timing.dt;
     let inner = Scripted {
@@ -198,7 +198,7 @@ fn a_clipped_fast_gait_torque_is_no_oscillation_a_4_hz_one_on_top_is() {
 /// torque-oscillation monitor trips as before.
 #[test]
 fn the_fast_gait_cell_trips_no_oscillation_monitor_with_the_gait_following_cutoff() {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.trajectory.swing.base_frequency_hz = 1.3;
     s.uncertainty.payload_kg = 2.0;
     s.timing.duration_2dof_s = 6.0;
@@ -213,14 +213,14 @@ fn the_fast_gait_cell_trips_no_oscillation_monitor_with_the_gait_following_cutof
 #[test]
 fn gait_ratio_is_validated_by_name_and_range() {
     for bad in [-0.1, 20.5, f64::NAN, f64::INFINITY] {
-        let mut s = Scenario::default();
+        let mut s = Experiment::default();
         s.monitors.oscillation_cutoff_gait_ratio = bad;
         let e = s.validate().unwrap_err();
         assert_eq!(e.field, "monitors.oscillation_cutoff_gait_ratio", "{bad}");
         assert_eq!(e.allowed, "finite, in [0, 20]");
     }
     for ok in [0.0, 3.0, 20.0] {
-        let mut s = Scenario::default();
+        let mut s = Experiment::default();
         s.monitors.oscillation_cutoff_gait_ratio = ok;
         s.validate().unwrap();
     }

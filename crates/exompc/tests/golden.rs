@@ -4,7 +4,7 @@
 //! All runs are independent and go through rayon; one test builds them all so that the whole
 //! set is computed once.
 
-use exompc::config::{ControllerKind, Formulation, Scenario};
+use exompc::config::{ControllerKind, Experiment, Formulation};
 use exompc::scenario::{run_experiment, OneDof, TwoDof};
 use exompc::sim::{Summary, TraceLog};
 use rayon::prelude::*;
@@ -15,8 +15,8 @@ enum Run {
     Ms(Formulation, f64),
 }
 
-fn scenario(r: Run) -> Scenario {
-    let mut s = Scenario::default();
+fn scenario(r: Run) -> Experiment {
+    let mut s = Experiment::default();
     match r {
         Run::Nmpc(p) => {
             s.controller.kind = ControllerKind::NMPC;

@@ -5,7 +5,7 @@
 
 mod common;
 
-use exompc::config::{ControllerKind, Scenario};
+use exompc::config::{ControllerKind, Experiment};
 use exompc::control::{
     Controller, Measurement, MonitorAction, MonitorKind, SafetyReport, SafetySettings, StepStatus,
     Supervisor,
@@ -17,11 +17,11 @@ use std::f64::consts::PI;
 
 /// The paper's method with a 9-sample filter and 2 kg at the ankle (0.43 m): a 4 Hz limit
 /// cycle from the start, which the controller restarts after every handback.
-fn provoked() -> Scenario {
+fn provoked() -> Experiment {
     common::provoked_limit_cycle()
 }
 
-fn run(s: &Scenario) -> (SafetyReport, TraceLog<2>) {
+fn run(s: &Experiment) -> (SafetyReport, TraceLog<2>) {
     let mut log = TraceLog::default();
     let (_, rep) = run_experiment_report::<TwoDof, 2>(s, &mut [&mut log]).unwrap();
     (rep, log)
@@ -97,7 +97,7 @@ fn provoked_limit_cycle_latches_after_two_handovers_and_stays_calm() {
 /// sensor noise) with fresh encoder samples (or repeated ones where `stale(t)`: a silent
 /// channel).
 fn feed(
-    s: &Scenario,
+    s: &Experiment,
     seconds: f64,
     force: impl Fn(f64) -> [f64; 2],
     stale: impl Fn(f64) -> bool,
@@ -141,7 +141,7 @@ const STARTS: &[f64] = &[1.0, 5.0, 9.0, 13.0];
 
 #[test]
 fn the_second_handover_within_the_window_latches_and_a_reset_hands_back() {
-    let s = Scenario::default();
+    let s = Experiment::default();
     let mut first_monitor_status_after_reset = None;
     let rep = feed(
         &s,
@@ -196,9 +196,9 @@ fn the_second_handover_within_the_window_latches_and_a_reset_hands_back() {
 #[test]
 fn the_latch_window_and_zero_trips_keep_handing_back() {
     // Bursts 4 s apart: with a 3 s window no two handovers fall inside it.
-    let mut short = Scenario::default();
+    let mut short = Experiment::default();
     short.monitors.latch_window_s = 3.0;
-    let mut off = Scenario::default();
+    let mut off = Experiment::default();
     off.monitors.latch_trips = 0;
     for s in [short, off] {
         let rep = feed(&s, 20.0, bursts(STARTS), |_| false, |_, _, _| {});
@@ -207,7 +207,7 @@ fn the_latch_window_and_zero_trips_keep_handing_back() {
         assert!(!rep.events.iter().any(|e| e.action == MonitorAction::Latch));
     }
     // latch_trips = 1: the first handover latches.
-    let mut one = Scenario::default();
+    let mut one = Experiment::default();
     one.monitors.latch_trips = 1;
     let rep = feed(&one, 5.0, bursts(STARTS), |_| false, |_, _, _| {});
     assert_eq!(rep.handovers, 1);
@@ -225,7 +225,7 @@ fn sensor_timeouts_do_not_count_toward_the_latch() {
             .iter()
             .any(|&s| t >= s && t < s + 0.6)
     };
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.monitors.sensor_timeout_s = 0.1;
     let rep = feed(&s, 12.0, |_| [1.0, -1.0], stale, |_, _, _| {});
     let timeouts = rep
@@ -240,13 +240,13 @@ fn sensor_timeouts_do_not_count_toward_the_latch() {
 
 #[test]
 fn latch_settings_are_validated_by_name() {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.monitors.latch_trips = 1001;
     let e = s.validate().unwrap_err();
     assert_eq!(e.field, "monitors.latch_trips");
     assert_eq!(e.allowed, "integer in 0..=1000");
     for bad in [0.0, -1.0, f64::NAN, 2e6] {
-        let mut s = Scenario::default();
+        let mut s = Experiment::default();
         s.monitors.latch_window_s = bad;
         assert_eq!(
             s.validate().unwrap_err().field,
@@ -254,7 +254,7 @@ fn latch_settings_are_validated_by_name() {
             "{bad}"
         );
     }
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.monitors.latch_trips = 0;
     s.monitors.latch_window_s = 1e6;
     assert!(s.validate().is_ok());

@@ -3,7 +3,7 @@
 
 mod common;
 use common::{closed_loop, measurement};
-use exompc::config::{ControllerKind, Formulation, IntentEstimate, Scenario};
+use exompc::config::{ControllerKind, Experiment, Formulation, IntentEstimate};
 use exompc::control::{horizon_inputs, Controller, NmpcCore};
 use exompc::model::JointState;
 use exompc::scenario::build_multistage;
@@ -17,8 +17,8 @@ use proptest::prelude::*;
 
 type V2 = Vector2<f64>;
 
-fn ms_scenario(payloads: &[f64], formulation: Formulation) -> Scenario {
-    let mut s = Scenario::default();
+fn ms_scenario(payloads: &[f64], formulation: Formulation) -> Experiment {
+    let mut s = Experiment::default();
     s.controller.kind = ControllerKind::MSNMPC;
     s.multistage.payloads_kg = payloads.to_vec();
     s.multistage.formulation = formulation;
@@ -30,7 +30,7 @@ fn ms_scenario(payloads: &[f64], formulation: Formulation) -> Scenario {
     s
 }
 
-fn controller(s: &Scenario) -> Box<dyn Controller<2>> {
+fn controller(s: &Experiment) -> Box<dyn Controller<2>> {
     build_multistage::<TwoDof, 2, 6, 4>(s, initial_torque::<TwoDof, 2>(s)).unwrap()
 }
 

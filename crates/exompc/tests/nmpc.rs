@@ -8,7 +8,7 @@ use common::measurement;
 
 use clarabel::solver::{DefaultSolver, IPSolver, SolverStatus, SupportedConeT};
 use common::Rng;
-use exompc::config::{ControllerKind, Scenario};
+use exompc::config::{ControllerKind, Experiment};
 use exompc::control::{
     horizon_inputs, Controller, HorizonInputs, IntentEstimator, Measurement, Nmpc, NmpcCore,
     NmpcSettings, PredictionModel, TorqueLimits,
@@ -29,7 +29,7 @@ struct Setup {
 }
 
 fn setup() -> Setup {
-    let s = Scenario::default();
+    let s = Experiment::default();
     Setup {
         model: prediction_model::<TwoDof, 2>(&s, 0.0),
         settings: nmpc_settings(&s),
@@ -489,7 +489,7 @@ fn nmpc_non_finite_initial_torque_is_contained() {
 
 /// A recorded closed loop: the filtered measurement and previous torque of every step.
 fn record_closed_loop(steps: usize) -> Vec<(Measurement<2>, V2)> {
-    let s = Scenario::default();
+    let s = Experiment::default();
     let su = setup();
     let t0 = exompc::scenario::initial_torque::<TwoDof, 2>(&s);
     let mut ctrl = Nmpc::new(su.model, &su.settings, su.intent, su.limits, t0).unwrap();
@@ -536,7 +536,7 @@ fn warm_start_reduces_sqp_iterations() {
 
 #[test]
 fn nmpc_closed_loop_at_zero_payload_keeps_strap_forces_small() {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.controller.kind = ControllerKind::NMPC;
     s.uncertainty.payload_kg = 0.0;
     let sum = run_experiment::<TwoDof, 2>(&s, &mut []).unwrap();

@@ -5,7 +5,7 @@
 
 mod common;
 
-use exompc::config::{ControllerKind, MonitorResponse, Scenario};
+use exompc::config::{ControllerKind, Experiment, MonitorResponse};
 use exompc::control::{
     Controller, Measurement, MonitorAction, MonitorKind, OscillationDetector, SafetySettings,
     StrapAngleEstimate, Supervisor, OSCILLATION_MIN_HALF_CYCLES,
@@ -81,7 +81,7 @@ fn strap_angle_estimate_inverts_the_strap_model() {
 }
 
 fn run(
-    s: &Scenario,
+    s: &Experiment,
 ) -> (
     exompc::sim::Summary,
     exompc::control::SafetyReport,
@@ -94,7 +94,7 @@ fn run(
 
 /// The paper's method (`controller.method = "paper"`) with a 9-sample filter and 2 kg at the
 /// ankle (0.43 m): a 4 Hz limit cycle from the start.
-fn provoked() -> Scenario {
+fn provoked() -> Experiment {
     common::provoked_limit_cycle()
 }
 
@@ -123,7 +123,7 @@ fn default_scenario_trips_no_monitor() {
     let mut cases = Vec::new();
     for kind in [ControllerKind::MSNMPC, ControllerKind::NMPC] {
         for p in [0.0, 1.0, 2.0, 3.0] {
-            let mut s = Scenario::default();
+            let mut s = Experiment::default();
             s.controller.kind = kind;
             s.uncertainty.payload_kg = p;
             cases.push(s);
@@ -140,7 +140,7 @@ fn default_scenario_trips_no_monitor() {
 }
 
 /// RMS strap forces (thigh, shank) of the 2 s after the first oscillation trip, and its time.
-fn rms_after_trip(s: &Scenario) -> (f64, [f64; 2]) {
+fn rms_after_trip(s: &Experiment) -> (f64, [f64; 2]) {
     let (_, rep, log) = run(s);
     let t = first_oscillation_trip(&rep).expect("no oscillation trip");
     let after: Vec<_> = log
@@ -221,7 +221,7 @@ fn fallback_response_calms_the_provoked_limit_cycle() {
 /// A supervisor around a PD controller, fed strap forces `force(t)` at rest; returns the
 /// first force-oscillation trip time.
 fn force_oscillation_trip(force: impl Fn(f64) -> [f64; 2], seconds: f64) -> Option<f64> {
-    let s = Scenario::default();
+    let s = Experiment::default();
     let inner = exompc::build_controller::<TwoDof, 2>(&s, ControllerKind::PD).unwrap();
     let mut sup = Supervisor::new(inner, SafetySettings::from_scenario(&s));
     let n = (seconds / s.timing.dt).round() as usize;
@@ -281,30 +281,30 @@ fn a_jolt_does_not_trip_the_force_oscillation_monitor_a_4_hz_limit_cycle_does() 
 
 #[test]
 fn oscillation_settings_are_validated_by_name() {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.monitors.oscillation_cutoff_hz = 0.0;
     assert_eq!(
         s.validate().unwrap_err().field,
         "monitors.oscillation_cutoff_hz"
     );
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.monitors.oscillation_window_s = 0.0;
     assert_eq!(
         s.validate().unwrap_err().field,
         "monitors.oscillation_window_s"
     );
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.monitors.oscillation_force_rms_n = f64::NAN;
     assert_eq!(
         s.validate().unwrap_err().field,
         "monitors.oscillation_force_rms_n"
     );
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.monitors.fallback.inertia_share = 1.5;
     let e = s.validate().unwrap_err();
     assert_eq!(e.field, "monitors.fallback.inertia_share");
     assert_eq!(e.allowed, "finite, in [0, 1]");
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.monitors.fallback.human_window = 2;
     assert_eq!(
         s.validate().unwrap_err().field,

@@ -3,7 +3,7 @@
 //! controller registered by this test alone that the config, the builders and the experiment
 //! runner accept like the built-in ones.
 
-use exompc::config::{ControllerKind, Scenario};
+use exompc::config::{ControllerKind, Experiment};
 use exompc::control::{ControlOutput, Controller, Measurement, StepStatus, TorqueLimits};
 use exompc::model::RobotModel;
 use exompc::scenario::{
@@ -61,7 +61,7 @@ fn names_are_checked_for_form_then_against_the_registry() {
     assert!(ControllerKind::new(&"x".repeat(31)).is_ok());
     // Well-formed but not registered: the scenario check and the builders name the field and
     // list the registered controllers.
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.controller.kind = ControllerKind::new("lqr").unwrap();
     s.validate().unwrap(); // the config layer checks the form only
     let registered = controllers(); // before the check: another test may register one more
@@ -83,7 +83,7 @@ fn names_are_checked_for_form_then_against_the_registry() {
 
 #[test]
 fn builders_build_the_controller_they_name() {
-    let s = Scenario::default();
+    let s = Experiment::default();
     for c in BUILTIN {
         let two = (c.build_2dof)(&s, initial_torque::<TwoDof, 2>(&s)).unwrap();
         let one = (c.build_1dof)(&s, initial_torque::<OneDof, 1>(&s)).unwrap();
@@ -127,7 +127,7 @@ impl<const N: usize> Controller<N> for GravityComp<N> {
 }
 
 fn build_gravity<D: Dof<N>, const N: usize>(
-    s: &Scenario,
+    s: &Experiment,
     t0: SVector<f64, N>,
 ) -> Result<Box<dyn Controller<N>>, RunError> {
     Ok(Box::new(GravityComp {
@@ -162,7 +162,7 @@ fn a_controller_registered_here_runs_like_the_built_in_ones() {
 
     // The config's spelling, checked by the scenario layer.
     let kind = ControllerKind::deserialize(StrDeserializer::<Error>::new("gravity-comp")).unwrap();
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.controller.kind = kind;
     s.timing.duration_2dof_s = 2.0;
     s.timing.duration_1dof_s = 2.0;

@@ -4,7 +4,7 @@
 //! cells where the paper's method limit-cycles.
 
 use exompc::config::{
-    ControllerKind, FilterAware, IntentEstimate, Method, RobustIntentGains, Scenario,
+    ControllerKind, Experiment, FilterAware, IntentEstimate, Method, RobustIntentGains,
 };
 use exompc::control::{ForceLag, HfShareDetector, Measurement, VelocityTracking};
 use exompc::estimate::MovingAverage;
@@ -20,7 +20,7 @@ const DT: f64 = 0.01;
 /// (disturbance bank, intent gains, detectors, inertia gate, weight smoothing) decide their
 /// envelope cells there; with the strap observer (the default since the seventh pass) and the
 /// strap-space velocity residual (since the ninth) those cells pass without them.
-fn paper_intent() -> Scenario {
+fn paper_intent() -> Experiment {
     let mut s = joint_tracking();
     s.controller.robust.intent_estimate = IntentEstimate::Paper;
     s
@@ -30,8 +30,8 @@ fn paper_intent() -> Scenario {
 /// (`velocity_tracking = "joint"`): the seventh and eighth passes' tests decide their cells
 /// there (with the ninth pass's strap-space residual the paper's intent estimate passes the
 /// light-load cells as well, so they would no longer test the observer).
-fn joint_tracking() -> Scenario {
-    let mut s = Scenario::default();
+fn joint_tracking() -> Experiment {
+    let mut s = Experiment::default();
     s.controller.robust.velocity_tracking = VelocityTracking::Joint;
     s
 }
@@ -141,22 +141,22 @@ fn oscillation_detector_separates_gait_from_limit_cycles() {
 
 #[test]
 fn method_and_robust_settings_are_configured_and_validated() {
-    let s = Scenario::default();
+    let s = Experiment::default();
     assert_eq!(s.controller.method, Method::Robust);
     assert_eq!(s.controller.robust.filter_aware, FilterAware::OnOscillation);
     assert_eq!(
         s.controller.robust.intent_gains,
         RobustIntentGains::StrapModel
     );
-    assert_eq!(s.controller.robust.ekf_force_lead, 0.0);
-    assert_eq!(s.controller.robust.disturbance_lead, 0.5);
-    assert_eq!(s.controller.robust.disturbance_q, 1e-3);
-    assert_eq!(s.controller.robust.torque_oscillation_nm, 3.0);
-    assert_eq!(s.controller.robust.torque_oscillation_window_s, 0.1);
-    assert_eq!(s.controller.robust.torque_oscillation_cutoff_hz, 4.0);
-    assert_eq!(s.controller.robust.torque_oscillation_fraction, 0.6);
-    assert_eq!(s.controller.robust.inertia_engage_ratio, 3.0);
-    assert_eq!(s.controller.robust.inertia_engage_s, 0.1);
+    assert_eq!(s.controller.robust.tuning.ekf_force_lead, 0.0);
+    assert_eq!(s.controller.robust.tuning.disturbance_lead, 0.5);
+    assert_eq!(s.controller.robust.tuning.disturbance_q, 1e-3);
+    assert_eq!(s.controller.robust.tuning.torque_oscillation_nm, 3.0);
+    assert_eq!(s.controller.robust.tuning.torque_oscillation_window_s, 0.1);
+    assert_eq!(s.controller.robust.tuning.torque_oscillation_cutoff_hz, 4.0);
+    assert_eq!(s.controller.robust.tuning.torque_oscillation_fraction, 0.6);
+    assert_eq!(s.controller.robust.tuning.inertia_engage_ratio, 3.0);
+    assert_eq!(s.controller.robust.tuning.inertia_engage_s, 0.1);
     assert_eq!(s.controller.robust.weight_smoothing_s, 0.15);
     assert_eq!(
         s.controller.robust.intent_estimate,
@@ -165,96 +165,32 @@ fn method_and_robust_settings_are_configured_and_validated() {
     assert_eq!(s.controller.robust.observer_velocity_gain, 25.0);
     for (set, field) in [
         (
-            (|s: &mut Scenario| s.controller.robust.oscillation_fraction = 1.0)
-                as fn(&mut Scenario),
-            "controller.robust.oscillation_fraction",
-        ),
-        (
-            |s: &mut Scenario| s.controller.robust.oscillation_cutoff_hz = 0.0,
-            "controller.robust.oscillation_cutoff_hz",
-        ),
-        (
-            |s: &mut Scenario| s.controller.robust.oscillation_window_s = 0.0,
-            "controller.robust.oscillation_window_s",
-        ),
-        (
-            |s: &mut Scenario| s.controller.robust.oscillation_min_force_n = -1.0,
-            "controller.robust.oscillation_min_force_n",
-        ),
-        (
-            |s: &mut Scenario| s.controller.robust.human_bandwidth_hz = f64::NAN,
+            (|s: &mut Experiment| s.controller.robust.human_bandwidth_hz = f64::NAN)
+                as fn(&mut Experiment),
             "controller.robust.human_bandwidth_hz",
         ),
         (
-            |s: &mut Scenario| s.controller.robust.release_s = -1.0,
+            |s: &mut Experiment| s.controller.robust.release_s = -1.0,
             "controller.robust.release_s",
         ),
         (
-            |s: &mut Scenario| s.controller.robust.ekf_force_lead = 3.5,
-            "controller.robust.ekf_force_lead",
-        ),
-        (
-            |s: &mut Scenario| s.controller.robust.ekf_force_lead = -0.1,
-            "controller.robust.ekf_force_lead",
-        ),
-        (
-            |s: &mut Scenario| s.controller.robust.disturbance_lead = 3.5,
-            "controller.robust.disturbance_lead",
-        ),
-        (
-            |s: &mut Scenario| s.controller.robust.disturbance_q = -1e-3,
-            "controller.robust.disturbance_q",
-        ),
-        (
-            |s: &mut Scenario| s.controller.robust.disturbance_q = f64::INFINITY,
-            "controller.robust.disturbance_q",
-        ),
-        (
-            |s: &mut Scenario| s.controller.robust.torque_oscillation_nm = -1.0,
-            "controller.robust.torque_oscillation_nm",
-        ),
-        (
-            |s: &mut Scenario| s.controller.robust.torque_oscillation_window_s = 0.0,
-            "controller.robust.torque_oscillation_window_s",
-        ),
-        (
-            |s: &mut Scenario| s.controller.robust.torque_oscillation_cutoff_hz = 0.0,
-            "controller.robust.torque_oscillation_cutoff_hz",
-        ),
-        (
-            |s: &mut Scenario| s.controller.robust.torque_oscillation_fraction = 1.0,
-            "controller.robust.torque_oscillation_fraction",
-        ),
-        (
-            |s: &mut Scenario| s.controller.robust.inertia_engage_ratio = -1.0,
-            "controller.robust.inertia_engage_ratio",
-        ),
-        (
-            |s: &mut Scenario| s.controller.robust.inertia_engage_ratio = f64::NAN,
-            "controller.robust.inertia_engage_ratio",
-        ),
-        (
-            |s: &mut Scenario| s.controller.robust.inertia_engage_s = 10.5,
-            "controller.robust.inertia_engage_s",
-        ),
-        (
-            |s: &mut Scenario| s.controller.robust.weight_smoothing_s = -0.1,
+            |s: &mut Experiment| s.controller.robust.weight_smoothing_s = -0.1,
             "controller.robust.weight_smoothing_s",
         ),
         (
-            |s: &mut Scenario| s.controller.robust.weight_smoothing_s = 11.0,
+            |s: &mut Experiment| s.controller.robust.weight_smoothing_s = 11.0,
             "controller.robust.weight_smoothing_s",
         ),
         (
-            |s: &mut Scenario| s.controller.robust.observer_velocity_gain = -1.0,
+            |s: &mut Experiment| s.controller.robust.observer_velocity_gain = -1.0,
             "controller.robust.observer_velocity_gain",
         ),
         (
-            |s: &mut Scenario| s.controller.robust.observer_velocity_gain = 1e4,
+            |s: &mut Experiment| s.controller.robust.observer_velocity_gain = 1e4,
             "controller.robust.observer_velocity_gain",
         ),
     ] {
-        let mut bad = Scenario::default();
+        let mut bad = Experiment::default();
         set(&mut bad);
         let e = bad.validate().expect_err(field);
         assert_eq!(e.field, field);
@@ -272,13 +208,13 @@ fn rms_and_hf<const N: usize>(log: &TraceLog<N>) -> (Vec<f64>, Vec<f64>) {
         .unzip()
 }
 
-fn run2(s: &Scenario) -> (Vec<f64>, Vec<f64>) {
+fn run2(s: &Experiment) -> (Vec<f64>, Vec<f64>) {
     let mut log = TraceLog::<2>::default();
     run_experiment::<TwoDof, 2>(s, &mut [&mut log]).expect("run");
     rms_and_hf(&log)
 }
 
-fn run1(s: &Scenario) -> (Vec<f64>, Vec<f64>) {
+fn run1(s: &Experiment) -> (Vec<f64>, Vec<f64>) {
     let mut log = TraceLog::<1>::default();
     run_experiment::<OneDof, 1>(s, &mut [&mut log]).expect("run");
     rms_and_hf(&log)
@@ -289,7 +225,7 @@ fn run1(s: &Scenario) -> (Vec<f64>, Vec<f64>) {
 /// oscillates (so the test would see a regression of the robust method to the paper's).
 #[test]
 fn robust_default_holds_where_the_paper_method_limit_cycles() {
-    type Cell = (&'static str, usize, f64, fn(&mut Scenario));
+    type Cell = (&'static str, usize, f64, fn(&mut Experiment));
     let cells: [Cell; 4] = [
         ("payload at 0.30 m", 2, 2.0, |s| {
             s.robot.payload_position_m = 0.30
@@ -308,10 +244,10 @@ fn robust_default_holds_where_the_paper_method_limit_cycles() {
         }),
     ];
     for (name, dof, payload, change) in cells {
-        let mut s = Scenario::default();
+        let mut s = Experiment::default();
         change(&mut s);
         s.uncertainty.payload_kg = payload;
-        let run = |s: &Scenario| if dof == 1 { run1(s) } else { run2(s) };
+        let run = |s: &Experiment| if dof == 1 { run1(s) } else { run2(s) };
         let robust = run(&s);
         let mut paper = s.clone();
         paper.controller.method = Method::Paper;
@@ -356,8 +292,8 @@ fn robust_default_equals_the_paper_method_on_the_default_scenario() {
     let mut p = s.clone();
     p.controller.method = Method::Paper;
     let mut nobank = s.clone();
-    nobank.controller.robust.disturbance_lead = 0.0;
-    nobank.controller.robust.disturbance_q = 0.0;
+    nobank.controller.robust.tuning.disturbance_lead = 0.0;
+    nobank.controller.robust.tuning.disturbance_q = 0.0;
     nobank.controller.robust.weight_smoothing_s = 0.0;
     let mut observer = s.clone();
     observer.controller.robust.intent_estimate = IntentEstimate::StrapObserver;
@@ -382,12 +318,12 @@ fn robust_default_equals_the_paper_method_on_the_default_scenario() {
 }
 
 /// A cell of the standard envelope at 0 kg: its name and the change from the default.
-type Cell0 = (&'static str, fn(&mut Scenario));
+type Cell0 = (&'static str, fn(&mut Experiment));
 
 /// In each 0-kg cell the default robust MS-NMPC is within 1.1× the plain NMPC's RMS strap
 /// forces with < 25 % of its power above 3 Hz (the cell passes), and with `off` applied it is
 /// not (so the cell sees a regression of the setting named `what`).
-fn assert_setting_passes_0kg_cells(what: &str, cells: &[Cell0], off: fn(&mut Scenario)) {
+fn assert_setting_passes_0kg_cells(what: &str, cells: &[Cell0], off: fn(&mut Experiment)) {
     for &(name, change) in cells {
         let mut s = paper_intent();
         change(&mut s);
@@ -428,8 +364,8 @@ fn disturbance_bank_passes_the_lag_cells_at_0_kg() {
         ("filter window 9", |s| s.uncertainty.filter_window = 9),
     ];
     assert_setting_passes_0kg_cells("disturbance bank", &cells, |s| {
-        s.controller.robust.disturbance_lead = 0.0;
-        s.controller.robust.disturbance_q = 0.0;
+        s.controller.robust.tuning.disturbance_lead = 0.0;
+        s.controller.robust.tuning.disturbance_q = 0.0;
     });
 }
 
@@ -446,7 +382,7 @@ fn strap_model_intent_gains_pass_the_stiff_straps_cell() {
     s.straps.stiffness = 1875.0;
     s.straps.damping = 187.4;
     s.uncertainty.payload_kg = 0.0;
-    let run = |s: &Scenario| {
+    let run = |s: &Experiment| {
         let mut log = TraceLog::<2>::default();
         let sum = run_experiment::<TwoDof, 2>(s, &mut [&mut log]).expect("run");
         (rms_and_hf(&log).0, sum.safety.monitor_trips)
@@ -488,7 +424,7 @@ fn strap_model_intent_gains_pass_the_stiff_straps_cell() {
 /// smoothing that cell no longer trips without the detector.)
 #[test]
 fn torque_detector_passes_the_heavy_start_up_cells() {
-    type Cell = (&'static str, fn(&mut Scenario), f64);
+    type Cell = (&'static str, fn(&mut Experiment), f64);
     let cells: [Cell; 2] = [
         (
             "gait 1.1 Hz",
@@ -497,7 +433,7 @@ fn torque_detector_passes_the_heavy_start_up_cells() {
         ),
         ("filter window 9", |s| s.uncertainty.filter_window = 9, 2.0),
     ];
-    let run = |s: &Scenario| {
+    let run = |s: &Experiment| {
         let mut log = TraceLog::<2>::default();
         let sum = run_experiment::<TwoDof, 2>(s, &mut [&mut log]).expect("run");
         (rms_and_hf(&log).0, sum.safety.monitor_trips)
@@ -508,10 +444,10 @@ fn torque_detector_passes_the_heavy_start_up_cells() {
         s.uncertainty.payload_kg = payload;
         let (robust, trips) = run(&s);
         let mut off = s.clone();
-        off.controller.robust.torque_oscillation_nm = 0.0;
+        off.controller.robust.tuning.torque_oscillation_nm = 0.0;
         // The inertia gate (sixth pass) covers the 0.30 m cell too (its 2-kg scenario's ratio
         // is 4.2): off as well, to see the torque detector alone.
-        off.controller.robust.inertia_engage_ratio = 0.0;
+        off.controller.robust.tuning.inertia_engage_ratio = 0.0;
         // The oracle is the monitor this test was written against, the fixed 3 Hz cut-off:
         // with the gait-following cut-off (eighth pass, docs/ROBUSTNESS.md §4) the 1.1 Hz
         // cell's detector-off run trips nothing (8.99 / 11.33 N over 20 s; its hip-torque
@@ -546,7 +482,7 @@ fn torque_detector_passes_the_heavy_start_up_cells() {
 fn inertia_ratios_are_the_closed_form_of_the_chain() {
     use exompc::control::inertia_ratios;
     use exompc::scenario::multistage::prediction_models;
-    let closed = |s: &Scenario, m: f64| {
+    let closed = |s: &Experiment, m: f64| {
         let (t, k, r) = (&s.robot.thigh, &s.robot.shank, s.robot.payload_position_m);
         let knee0 = k.inertia + k.mass * k.com * k.com;
         let shank_hip = k.inertia + k.mass * (t.length + k.com).powi(2);
@@ -556,7 +492,7 @@ fn inertia_ratios_are_the_closed_form_of_the_chain() {
         knee.max(hip)
     };
     for pos in [0.215, 0.43] {
-        let mut s = Scenario::default();
+        let mut s = Experiment::default();
         s.robot.payload_position_m = pos;
         let ratios = inertia_ratios(&prediction_models::<TwoDof, 2>(&s));
         let payloads = s.multistage.payloads_kg.clone();
@@ -567,7 +503,7 @@ fn inertia_ratios_are_the_closed_form_of_the_chain() {
                 "{pos} m, {m} kg: {r} vs {}",
                 closed(&s, *m)
             );
-            let heavy = *r >= s.controller.robust.inertia_engage_ratio;
+            let heavy = *r >= s.controller.robust.tuning.inertia_engage_ratio;
             assert_eq!(heavy, pos > 0.3 && *m >= 1.0, "{pos} m, {m} kg: ratio {r}");
         }
     }
@@ -583,7 +519,7 @@ fn inertia_ratios_are_the_closed_form_of_the_chain() {
 /// torque-oscillation monitor trips at the start.
 #[test]
 fn inertia_gate_passes_the_distal_load_cells() {
-    let run = |s: &Scenario| {
+    let run = |s: &Experiment| {
         let mut log = TraceLog::<2>::default();
         let sum = run_experiment::<TwoDof, 2>(s, &mut [&mut log]).expect("run");
         let (rms, hf) = rms_and_hf(&log);
@@ -609,7 +545,7 @@ fn inertia_gate_passes_the_distal_load_cells() {
     s.robot.payload_position_m = 0.40;
     s.uncertainty.payload_kg = 1.5;
     let (_, _, on_trips) = run(&s);
-    s.controller.robust.inertia_engage_ratio = 0.0;
+    s.controller.robust.tuning.inertia_engage_ratio = 0.0;
     let (_, _, off_trips) = run(&s);
     assert!(
         on_trips == 0 && off_trips > 0,
@@ -632,7 +568,7 @@ fn weight_smoothing_passes_the_chattering_cells_at_0_kg() {
             s.trajectory.swing.base_frequency_hz = 1.3
         }),
     ];
-    assert!(Scenario::default().controller.robust.weight_smoothing_s > 0.0);
+    assert!(Experiment::default().controller.robust.weight_smoothing_s > 0.0);
     assert_setting_passes_0kg_cells("weight smoothing", &cells, |s| {
         s.controller.robust.weight_smoothing_s = 0.0
     });
@@ -647,7 +583,7 @@ fn weight_smoothing_passes_the_chattering_cells_at_0_kg() {
 /// `intent_estimate = "paper"` each fails again (so the test sees a regression).
 #[test]
 fn strap_observer_passes_the_light_load_cells() {
-    type Cell = (&'static str, fn(&mut Scenario), f64);
+    type Cell = (&'static str, fn(&mut Experiment), f64);
     let cells: [Cell; 3] = [
         (
             "payload at 0.10 m",
@@ -662,7 +598,7 @@ fn strap_observer_passes_the_light_load_cells() {
         ("filter window 9", |s| s.uncertainty.filter_window = 9, 1.0),
     ];
     // (RMS, share above 3 Hz, last / first 2-s RMS, monitor trips) per strap.
-    let run = |s: &Scenario| {
+    let run = |s: &Experiment| {
         let mut log = TraceLog::<2>::default();
         let sum = run_experiment::<TwoDof, 2>(s, &mut [&mut log]).expect("run");
         let (f, hf) = rms_and_hf(&log);
@@ -715,11 +651,11 @@ fn strap_observer_passes_the_light_load_cells() {
 /// NMPC, and trips no monitor.
 #[test]
 fn weight_smoothing_from_the_first_majority_passes_the_distal_1dof_cell() {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.robot.payload_position_m = 0.43;
     s.uncertainty.payload_kg = 0.0;
     assert!(s.controller.robust.weight_smoothing_s > 0.0);
-    let run = |s: &Scenario| {
+    let run = |s: &Experiment| {
         let mut log = TraceLog::<1>::default();
         let sum = run_experiment::<OneDof, 1>(s, &mut [&mut log]).expect("run");
         let x: Vec<f64> = log.rows.iter().map(|r| r.force_true[0]).collect();

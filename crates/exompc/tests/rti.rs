@@ -4,7 +4,7 @@
 //! solution; the dense and the structured back-ends take the same step, so their closed loops
 //! agree to rounding.
 
-use exompc::config::{ControllerKind, Formulation, Scenario};
+use exompc::config::{ControllerKind, Experiment, Formulation};
 use exompc::control::QpBackend;
 use exompc::control::{horizon_inputs, Measurement, NmpcProblem, StructuredSqp, TorqueLimits};
 use exompc::model::JointState;
@@ -19,10 +19,10 @@ use nalgebra::{DVector, SVector};
 /// Repeats real-time iterations on one problem (each from the previous result, unshifted) with
 /// both back-ends, and compares with the converged Gauss–Newton SQP solution.
 fn repeated_rti_reaches_sqp<D: Dof<N>, const N: usize>(n: usize, t_prev: [f64; 2], force: f64) {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.controller.np = n;
     s.controller.nc = n;
-    s.controller.sqp.hessian = HessianModel::GaussNewton;
+    s.controller.sqp.hessian = HessianModel::GaussNewton.into();
     let model = prediction_model::<D, N>(&s, 0.0);
     let lim: TorqueLimits = limits(&s);
     let mut full = nmpc_settings(&s);
@@ -107,10 +107,10 @@ fn repeated_real_time_iterations_reach_the_sqp_solution() {
 /// Closed loop with real-time iterations, dense vs structured back-end: the largest torque
 /// difference over `steps` steps; every step is one iteration with status Ok.
 fn rti_closed_loop_diff<D: Dof<N>, const N: usize>(kind: ControllerKind, n: usize) -> f64 {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.controller.np = n;
     s.controller.nc = n;
-    s.controller.sqp.hessian = HessianModel::GaussNewton;
+    s.controller.sqp.hessian = HessianModel::GaussNewton.into();
     s.controller.sqp.rti = true;
     s.multistage.formulation = Formulation::Decoupled;
     let run = |qp: QpBackend| {

@@ -7,7 +7,7 @@
 //! limits (property test over arbitrary frame sequences), the ride-through of link outages and
 //! the protective stop, the stop ramp, and the network fault injector.
 
-use exompc::config::Scenario;
+use exompc::config::Experiment;
 use exompc::control::{Controller, StepStatus};
 use exompc::runtime::frame::{
     command_flags, command_len, encode_hello, robot_flags, sample_len, status_code,
@@ -292,7 +292,7 @@ fn status_codes_round_trip() {
 
 type Robot = VirtualRobot<2, <TwoDof as Dof<2>>::Traj>;
 
-fn robot(s: &Scenario, ride_through: u64) -> Robot {
+fn robot(s: &Experiment, ride_through: u64) -> Robot {
     let plant = Plant::new(plant_params::<TwoDof, 2>(s), TwoDof::trajectory(s));
     let sensors = Sensors::new(uncertainty(s), s.uncertainty.filter_window).with_faults(&s.faults);
     VirtualRobot::new(plant, sensors, limits(s), s.timing.dt, ride_through)
@@ -491,8 +491,8 @@ impl RobotInterface<2> for Direct {
     }
 }
 
-fn scenario(duration: f64) -> Scenario {
-    let mut s = Scenario::default();
+fn scenario(duration: f64) -> Experiment {
+    let mut s = Experiment::default();
     s.uncertainty.payload_kg = 2.0;
     s.timing.duration_2dof_s = duration;
     s.validate().unwrap();
@@ -501,11 +501,11 @@ fn scenario(duration: f64) -> Scenario {
 
 type Loop = ControlLoop<2, exompc::control::Supervisor<2, Box<dyn Controller<2>>>>;
 
-fn control_loop(s: &Scenario) -> Loop {
+fn control_loop(s: &Experiment) -> Loop {
     control_loop_with(s, false)
 }
 
-fn control_loop_with(s: &Scenario, send_plan: bool) -> Loop {
+fn control_loop_with(s: &Experiment, send_plan: bool) -> Loop {
     let sup = build_supervised::<TwoDof, 2>(s, s.controller.kind).unwrap();
     let mut settings = LoopSettings::new(
         Duration::from_secs_f64(s.timing.dt),
@@ -518,7 +518,7 @@ fn control_loop_with(s: &Scenario, send_plan: bool) -> Loop {
 
 /// Run `periods` periods; returns the link (holding the robot's steps) and the loop.
 fn run(
-    s: &Scenario,
+    s: &Experiment,
     periods: usize,
     link: Direct,
 ) -> (Direct, Loop, Vec<exompc::runtime::PeriodRecord<2>>) {
@@ -527,7 +527,7 @@ fn run(
 
 /// [`run`], sending the controller's plan with each command when `send_plan`.
 fn run_with(
-    s: &Scenario,
+    s: &Experiment,
     periods: usize,
     link: Direct,
     send_plan: bool,
@@ -796,7 +796,7 @@ fn robot_rejects_commands_outside_a_session_and_stale_ones() {
 
 const ATTACK_PERIODS: usize = 120;
 
-fn clean_steps(s: &Scenario) -> Vec<RobotStep<2>> {
+fn clean_steps(s: &Experiment) -> Vec<RobotStep<2>> {
     run(s, ATTACK_PERIODS, Direct::new(robot(s, 20))).0.steps
 }
 
@@ -815,7 +815,7 @@ fn forged_command(seq: u32, answers: u32, torque: f64) -> Vec<u8> {
     v
 }
 
-fn attacked(s: &Scenario, attacks: Vec<(u32, Attack)>) -> Direct {
+fn attacked(s: &Experiment, attacks: Vec<(u32, Attack)>) -> Direct {
     let mut link = Direct::new(robot(s, 20));
     link.attacks = attacks;
     run(s, ATTACK_PERIODS, link).0

@@ -5,7 +5,7 @@
 //! behaviour and a soak run with faults (60 s in CI, 1 h `#[ignore]`d).
 
 use exompc::config::{
-    Channel, ControllerKind, FaultEvent, FaultKind, Formulation, MonitorResponse, Scenario,
+    Channel, ControllerKind, Experiment, FaultEvent, FaultKind, Formulation, MonitorResponse,
 };
 use exompc::control::{
     Controller, Measurement, MonitorAction, MonitorKind, SafetySettings, StepStatus, Supervisor,
@@ -63,8 +63,8 @@ enum Kind {
     MsCoupled,
 }
 
-fn scenario(kind: Kind, payloads: &[f64]) -> Scenario {
-    let mut s = Scenario::default();
+fn scenario(kind: Kind, payloads: &[f64]) -> Experiment {
+    let mut s = Experiment::default();
     s.multistage.payloads_kg = payloads.to_vec();
     s.controller.kind = match kind {
         Kind::Pd => ControllerKind::PD,
@@ -352,7 +352,7 @@ fn supervisor_keeps_the_inner_previous_torque_in_sync() {
 }
 
 fn check_soak(seconds: f64) {
-    let r = run_soak(&Scenario::default(), seconds, 2.0, &mut []).unwrap();
+    let r = run_soak(&Experiment::default(), seconds, 2.0, &mut []).unwrap();
     let st = &r.stats;
     assert_eq!(st.steps as f64, (seconds / 0.01).round());
     assert_eq!(st.nan_count, 0);

@@ -2,7 +2,7 @@
 //! overrides, the payload shorthand, validation, the indistinguishability warnings and the EKF
 //! bank identifying the plant's scenario in closed loop.
 
-use exompc::config::{ControllerKind, Scenario};
+use exompc::config::{ControllerKind, Experiment};
 use exompc::scenario::multistage::{
     self as ms, Indistinguishable, LinkOverride, RobotOverride, ScenarioSpec, StrapsOverride,
 };
@@ -41,15 +41,15 @@ fn shank_mass(name: &str, m: f64) -> ScenarioSpec {
     }
 }
 
-fn with(specs: Vec<ScenarioSpec>) -> Scenario {
-    let mut s = Scenario::default();
+fn with(specs: Vec<ScenarioSpec>) -> Experiment {
+    let mut s = Experiment::default();
     s.multistage.scenarios = specs;
     s
 }
 
 #[test]
 fn payload_shorthand_names_and_models_are_todays() {
-    let s = Scenario::default();
+    let s = Experiment::default();
     assert!(!ms::is_named(&s));
     assert_eq!(ms::names(&s), ["0 kg", "1 kg", "2 kg"]);
     assert_eq!(ms::count(&s), 3);
@@ -57,13 +57,13 @@ fn payload_shorthand_names_and_models_are_todays() {
     for (m, p) in models.iter().zip([0.0, 1.0, 2.0]) {
         assert_eq!(*m, prediction_model::<TwoDof, 2>(&s, p));
     }
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.multistage.payloads_kg = vec![0.5, 1.25];
     assert_eq!(ms::names(&s), ["0.5 kg", "1.25 kg"]);
     assert_eq!(ms::validate(&s), Ok(2));
     // The default payloads are told apart: no warning.
-    assert!(ms::warnings(&Scenario::default(), 2).is_empty());
-    assert!(ms::warnings(&Scenario::default(), 1).is_empty());
+    assert!(ms::warnings(&Experiment::default(), 2).is_empty());
+    assert!(ms::warnings(&Experiment::default(), 1).is_empty());
 }
 
 #[test]
@@ -108,7 +108,7 @@ fn overrides_change_only_what_they_name() {
     );
 }
 
-fn err_field(s: &Scenario) -> String {
+fn err_field(s: &Experiment) -> String {
     s.validate().expect_err("invalid").field
 }
 
@@ -205,7 +205,7 @@ fn warns_about_scenarios_the_estimator_cannot_tell_apart() {
     assert_eq!(w[0].reason, Indistinguishable::Identical);
     assert_eq!(w[0].differing, ["robot.thigh.mass_kg"]);
     // A payload difference of a gram is below what the bank can resolve; 1 kg is not.
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.multistage.payloads_kg = vec![0.0, 0.001, 1.0];
     let w = ms::warnings(&s, 2);
     assert_eq!(w.len(), 1, "{w:?}");
@@ -231,7 +231,7 @@ fn warns_about_scenarios_the_estimator_cannot_tell_apart() {
     let mut s = s;
     s.multistage.scenarios[0].robot.shank.mass_kg = Some(-1.0);
     assert!(ms::warnings(&s, 2).is_empty());
-    let _ = ms::warnings_for::<OneDof, 1, 3, 2>(&Scenario::default());
+    let _ = ms::warnings_for::<OneDof, 1, 3, 2>(&Experiment::default());
 }
 
 /// The probabilities of the last step.
@@ -247,7 +247,7 @@ impl<const N: usize> Recorder<N> for LastProbabilities {
     }
 }
 
-fn closed_loop_final_probabilities(s: &Scenario, dof: usize) -> (Vec<f64>, Vec<String>) {
+fn closed_loop_final_probabilities(s: &Experiment, dof: usize) -> (Vec<f64>, Vec<String>) {
     let mut last = LastProbabilities::default();
     let summary = if dof == 1 {
         run_experiment::<OneDof, 1>(s, &mut [&mut last]).unwrap()

@@ -5,7 +5,7 @@
 mod common;
 
 use common::Rng;
-use exompc::config::Scenario;
+use exompc::config::Experiment;
 use exompc::control::TorqueLimits;
 use exompc::estimate::MovingAverage;
 use exompc::scenario::{plant_params, TwoDof};
@@ -76,7 +76,7 @@ fn trajectories_match_spec_and_finite_differences() {
     check_derivatives("swing", &SwingTrajectory::default(), swing_spec, 20.0);
     check_derivatives("knee", &KneeTrajectory::default(), knee_spec, 30.0);
     // The scenario's trajectory is the one of docs/MODEL.md.
-    let s = Scenario::default();
+    let s = Experiment::default();
     use exompc::scenario::Dof;
     check_derivatives("scenario swing", &TwoDof::trajectory(&s), swing_spec, 20.0);
 }
@@ -102,7 +102,7 @@ fn moving_average_is_the_mean_of_the_last_samples() {
         assert_eq!(f.push(x), x, "after reset the mean restarts");
     }
     // Spec default: 5 samples, fewer at start-up.
-    let mut f = MovingAverage::<1>::new(Scenario::default().uncertainty.filter_window);
+    let mut f = MovingAverage::<1>::new(Experiment::default().uncertainty.filter_window);
     let out: Vec<f64> = (1..=7)
         .map(|i| f.push(SVector::from([i as f64]))[0])
         .collect();
@@ -122,7 +122,7 @@ fn passive_plant_never_gains_energy() {
             SVector::<T, 2>::new(T::from(0.3), T::from(-0.4))
         }
     }
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.uncertainty.mass_perturbation = false;
     s.uncertainty.disturbance = false;
     s.uncertainty.human_mass_ramp = false;
@@ -203,7 +203,7 @@ proptest! {
 /// that looks healthy (NaN forces were once dropped by `f64::max`).
 #[test]
 fn diverging_plant_is_reported_as_an_error() {
-    let mut s = exompc::config::Scenario::default();
+    let mut s = exompc::config::Experiment::default();
     s.timing.dt = 1.0;
     s.timing.plant_substeps = 1;
     match exompc::scenario::run_experiment::<exompc::scenario::TwoDof, 2>(&s, &mut []) {
@@ -215,7 +215,7 @@ fn diverging_plant_is_reported_as_an_error() {
 /// A run whose step count would be absurd is rejected by validation, naming the duration.
 #[test]
 fn too_many_control_steps_are_rejected() {
-    let mut s = exompc::config::Scenario::default();
+    let mut s = exompc::config::Experiment::default();
     s.timing.dt = 1e-12;
     let e = s.validate().unwrap_err();
     assert!(e.to_string().contains("timing.duration_2dof_s"), "{e}");
@@ -226,7 +226,7 @@ fn too_many_control_steps_are_rejected() {
 fn invalid_torque_limits_are_errors_not_panics() {
     use exompc::control::{Nmpc, TorqueLimits};
     use nalgebra::Vector2;
-    let s = exompc::config::Scenario::default();
+    let s = exompc::config::Experiment::default();
     let model = exompc::scenario::prediction_model::<exompc::scenario::TwoDof, 2>(&s, 0.0);
     for bad in [
         TorqueLimits {
@@ -268,7 +268,7 @@ fn controller_build_errors_are_typed() {
     use exompc::control::MultiStageError;
     use exompc::estimate::EstimateError;
     use exompc::scenario::{build_controller, RunError, TwoDof};
-    let mut s = exompc::config::Scenario::default();
+    let mut s = exompc::config::Experiment::default();
     s.ekf.q_angle = -1.0; // not validated here: build_controller trusts its caller
     match build_controller::<TwoDof, 2>(&s, exompc::config::ControllerKind::MSNMPC) {
         Err(RunError::MultiStage(MultiStageError::Estimator(EstimateError::Settings(e)))) => {
@@ -277,7 +277,7 @@ fn controller_build_errors_are_typed() {
         Err(e) => panic!("expected an estimator error, got {e}"),
         Ok(_) => panic!("a negative EKF variance was accepted"),
     }
-    let mut s = exompc::config::Scenario::default();
+    let mut s = exompc::config::Experiment::default();
     s.controller.torque_max = f64::NAN;
     for kind in [
         exompc::config::ControllerKind::NMPC,

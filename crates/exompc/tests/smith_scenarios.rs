@@ -2,7 +2,7 @@
 //! Smith predictor and EKF use that scenario's straps (docs/MODEL.md §8), so the closed loop
 //! does not depend on the order in which the scenarios are listed.
 
-use exompc::config::{FilterAware, Method, Scenario};
+use exompc::config::{Experiment, FilterAware, Method};
 use exompc::scenario::multistage::{ScenarioSpec, StrapsOverride};
 use exompc::scenario::{run_experiment, OneDof, TwoDof};
 use exompc::sim::{Recorder, StepRecord};
@@ -32,7 +32,7 @@ impl<const N: usize> Recorder<N> for Log {
     }
 }
 
-fn run(s: &Scenario, dof: usize) -> Log {
+fn run(s: &Experiment, dof: usize) -> Log {
     s.validate().unwrap();
     let mut log = Log::default();
     if dof == 1 {
@@ -46,7 +46,7 @@ fn run(s: &Scenario, dof: usize) -> Log {
 /// Largest torque difference (N·m) between the run of `specs` and the run of `specs` reversed,
 /// and the largest difference of the correspondingly reversed probabilities.
 fn order_difference(specs: Vec<ScenarioSpec>, dof: usize) -> (f64, f64) {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.controller.method = Method::Robust;
     s.controller.robust.filter_aware = FilterAware::Always;
     s.uncertainty.payload_kg = 1.0;

@@ -10,7 +10,7 @@ mod common;
 
 use clarabel::solver::{DefaultSolver, IPSolver, SolverStatus, SupportedConeT};
 use common::{Condensed, Rng};
-use exompc::config::{ControllerKind, Formulation, Scenario};
+use exompc::config::{ControllerKind, Experiment, Formulation};
 use exompc::control::{NmpcCore, NmpcSettings, QpBackend, TorqueLimits, VelocityTracking};
 use exompc::scenario::{intent, limits, nmpc_settings, prediction_model, Dof, OneDof, TwoDof};
 use exompc::solver::{HessianModel, QpSettings, QpStatus, RiccatiQp, SqpStatus};
@@ -150,7 +150,7 @@ fn riccati_qp_reports_infeasible_and_bad_data() {
     assert_eq!(inst.qp.solve().status, QpStatus::NumericalError);
 }
 
-fn settings_with(s: &Scenario, qp: QpBackend) -> NmpcSettings {
+fn settings_with(s: &Experiment, qp: QpBackend) -> NmpcSettings {
     let mut st = nmpc_settings(s);
     st.sqp.hessian = HessianModel::GaussNewton;
     // Gauss–Newton converges linearly on the hard instances: allow it to finish.
@@ -165,7 +165,7 @@ fn compare_random<D: Dof<N>, const N: usize>(
     seed: u64,
     tracking: VelocityTracking,
 ) -> (usize, usize) {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.controller.np = n;
     s.controller.nc = n;
     let model = prediction_model::<D, N>(&s, 0.0);
@@ -277,10 +277,10 @@ fn structured_nmpc_equals_dense_gauss_newton_on_random_instances() {
 /// structured and dense (Gauss–Newton) controllers, each in its own loop; returns the largest
 /// torque difference over `steps` steps.
 fn closed_loop_diff(kind: ControllerKind, formulation: Formulation, n: usize, steps: usize) -> f64 {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.controller.np = n;
     s.controller.nc = n;
-    s.controller.sqp.hessian = HessianModel::GaussNewton;
+    s.controller.sqp.hessian = HessianModel::GaussNewton.into();
     // Both solved to a KKT residual of 2e-9, which every step of the Np ≤ 10 loops attains
     // (at most 82 iterations a step for the NMPC and 291 for the three-scenario MS-NMPC at
     // Np = 10). At 1e-10 (the tolerance until issue 12's ninth pass) the Gauss–Newton SQP
@@ -316,4 +316,45 @@ fn structured_closed_loops_equal_dense() {
         eprintln!("{kind:?} {formulation:?} n={n}: max |ΔT| = {d:e}");
         assert!(d <= tol, "{kind:?} {formulation:?} n={n}: max |ΔT| = {d:e}");
     }
+}
+
+/// `qp = "auto"` chooses the QP back-end only, and the run summary says what was chosen: the
+/// default (2 joints × Nc = 3, dense, structured secant); Nc = 9 with `hessian = "auto"`
+/// (structured, Gauss–Newton: the same torques as `qp = "structured"`); Nc = 9 with
+/// `hessian = "structured_secant"`, which only the dense back-end runs (dense, secant: the
+/// same torques as `qp = "dense"`); no `solver` for the PD.
+#[test]
+fn auto_qp_keeps_the_hessian_and_the_summary_reports_the_choice() {
+    use exompc::control::SolverChoice;
+    use exompc::solver::HessianModel as H;
+    let run = |s: &Experiment| {
+        let mut t = s.clone();
+        t.timing.duration_2dof_s = 0.3;
+        let mut trace = exompc::sim::TraceLog::<2>::default();
+        let summary = exompc::scenario::run_experiment::<TwoDof, 2>(&t, &mut [&mut trace]).unwrap();
+        let torques: Vec<_> = trace.rows.iter().map(|r| r.torque_robot).collect();
+        (summary.solver, torques)
+    };
+    let choice = |qp, hessian| Some(SolverChoice { qp, hessian });
+    let mut s = Experiment::default();
+    assert_eq!(
+        run(&s).0,
+        choice(QpBackend::Dense, H::StructuredSecant),
+        "the default"
+    );
+    s.controller.kind = ControllerKind::NMPC;
+    s.controller.np = 9;
+    s.controller.nc = 9;
+    let (auto, auto_trace) = run(&s);
+    assert_eq!(auto, choice(QpBackend::Structured, H::GaussNewton));
+    s.controller.sqp.qp = QpBackend::Structured;
+    assert_eq!(run(&s).1, auto_trace);
+    s.controller.sqp.qp = QpBackend::Auto;
+    s.controller.sqp.hessian = H::StructuredSecant.into();
+    let (secant, secant_trace) = run(&s);
+    assert_eq!(secant, choice(QpBackend::Dense, H::StructuredSecant));
+    s.controller.sqp.qp = QpBackend::Dense;
+    assert_eq!(run(&s).1, secant_trace);
+    s.controller.kind = ControllerKind::PD;
+    assert_eq!(run(&s).0, None);
 }

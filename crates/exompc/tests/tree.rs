@@ -11,7 +11,7 @@
 mod common;
 
 use common::{Condensed, Rng};
-use exompc::config::{ControllerKind, Formulation, Scenario};
+use exompc::config::{ControllerKind, Experiment, Formulation};
 use exompc::control::{horizon_inputs, CoupledProblem, Measurement, TorqueLimits, TreeSqp};
 use exompc::model::JointState;
 use exompc::scenario::{intent, limits, nmpc_settings, prediction_model, Dof, OneDof, TwoDof};
@@ -197,7 +197,7 @@ fn compare_coupled<D: Dof<N>, const N: usize>(
     ns: usize,
     seed: u64,
 ) -> (usize, usize) {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.controller.np = n;
     s.controller.nc = n;
     let mut st = nmpc_settings(&s);
@@ -334,10 +334,10 @@ fn tree_sqp_equals_dense_coupled_gauss_newton_on_random_instances() {
 /// robust horizon `nr`, structured and dense (Gauss–Newton) each in its own loop: the largest
 /// torque difference over `steps` steps.
 fn coupled_closed_loop_diff<D: Dof<N>, const N: usize>(n: usize, nr: usize, steps: usize) -> f64 {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.controller.np = n;
     s.controller.nc = n;
-    s.controller.sqp.hessian = HessianModel::GaussNewton;
+    s.controller.sqp.hessian = HessianModel::GaussNewton.into();
     s.controller.sqp.max_iterations = 1000;
     s.controller.sqp.kkt_tolerance = 1e-10;
     s.multistage.formulation = Formulation::Coupled;

@@ -2,7 +2,7 @@
 //! `control::VelocityTracking`): its metric against the strap model, its residuals and
 //! Jacobian against an independent evaluation, and where the scenario layer uses it.
 
-use exompc::config::{Method, Scenario};
+use exompc::config::{Experiment, Method};
 use exompc::control::{velocity_metric, NmpcProblem, VelocityTracking};
 use exompc::model::{JointState, Straps};
 use exompc::scenario::{multistage_nmpc_settings, nmpc_settings, prediction_model, TwoDof};
@@ -54,7 +54,7 @@ fn the_strap_metric_is_each_straps_stretch_rate_in_its_links_angle_units() {
 }
 
 fn problem(tracking: VelocityTracking) -> NmpcProblem<2> {
-    let mut s = Scenario::default();
+    let mut s = Experiment::default();
     s.controller.np = 6;
     s.controller.nc = 4;
     let model = prediction_model::<TwoDof, 2>(&s, 1.0);
@@ -87,7 +87,7 @@ fn strap_residuals_follow_the_metric_and_their_jacobian_is_exact() {
     // Independent evaluation from the predicted trajectory: position rows equal, velocity rows
     // `√r_d L (qd − qd_ref)`, increment rows equal.
     let (xs, _) = strap.predict(&z);
-    let sqrt_rd = nmpc_settings(&Scenario::default()).r_d.sqrt();
+    let sqrt_rd = nmpc_settings(&Experiment::default()).r_d.sqrt();
     for (j, x) in xs.iter().enumerate() {
         let base = j * 4;
         let ev = l * (x.qd - strap.inputs.qd_h);
@@ -124,7 +124,7 @@ fn strap_residuals_follow_the_metric_and_their_jacobian_is_exact() {
 
 #[test]
 fn the_scenario_layer_gives_the_strap_metric_to_the_robust_multi_stage_nmpc_only() {
-    let s = Scenario::default();
+    let s = Experiment::default();
     assert_eq!(s.controller.method, Method::Robust);
     assert_eq!(
         multistage_nmpc_settings(&s).velocity_tracking,

@@ -1,13 +1,13 @@
 //! Shared bench fixtures: the default 2-DOF scenario and measurements recorded from its closed
 //! loop.
 
-use exompc::config::{ControllerKind, Scenario};
+use exompc::config::{ControllerKind, Experiment};
 use exompc::control::Measurement;
 use exompc::scenario::{build_controller, plant_params, uncertainty, Dof, TwoDof};
 use exompc::sim::{Plant, Sensors};
 
 /// `steps` filtered measurements of a closed loop of `s` under the plain NMPC.
-pub fn record(s: &Scenario, steps: usize) -> Vec<Measurement<2>> {
+pub fn record(s: &Experiment, steps: usize) -> Vec<Measurement<2>> {
     let mut c = build_controller::<TwoDof, 2>(s, ControllerKind::NMPC).expect("controller");
     let mut plant = Plant::new(plant_params::<TwoDof, 2>(s), TwoDof::trajectory(s));
     let mut sensors = Sensors::new(uncertainty(s), s.uncertainty.filter_window);

@@ -2,10 +2,10 @@
 //! comes from (a `docs/MODEL.md` section or another document), for every key and table of a
 //! scenario file. `exompc config` prints these as comments and `exompc config --explain KEY`
 //! shows one entry. Tests check that every key of the scenario has an entry, that every entry
-//! names a key that exists, and that the allowed ranges agree with [`Scenario::validate`]
+//! names a key that exists, and that the allowed ranges agree with [`Experiment::validate`]
 //! (probing each end of each range).
 //!
-//! [`Scenario::validate`]: super::Scenario::validate
+//! [`Experiment::validate`]: super::Experiment::validate
 
 use super::{scenarios, MAX_CONTROL_STEPS, MAX_PAYLOAD_KG, MAX_SCENARIOS};
 use alloc::{format, string::String, vec::Vec};
@@ -400,31 +400,18 @@ pub const KEYS: &[KeyDoc] = &[
     k("controller.sqp.kkt_tolerance", "-", real(closed(0.0), closed(1.0)), M8, "KKT residual at which a solve counts as converged (0: never, every solve runs to a limit)."),
     k("controller.sqp.max_time_us", "µs", int(0, 10_000_000), M8, "Optional wall-clock budget per solve (0: stop after the first iteration); absent (the default) = no budget."),
     k("controller.sqp.rti", "", Allowed::Bool, PERF, "Real-time iteration: one linearisation and one QP per control period from the shifted previous solution, instead of iterating to the KKT tolerance."),
-    k("controller.sqp.hessian", "", Allowed::Choice(&["gauss_newton", "structured_secant", "exact"]), PERF, "Hessian model of the QP subproblems: Gauss-Newton, Gauss-Newton plus a structured secant term, or the exact Hessian (shifted by mu*I, IPOPT's inertia correction, when not positive definite; the coupled tree uses Gauss-Newton)."),
-    k("controller.sqp.qp", "", Allowed::Choice(&["dense", "structured", "auto"]), PERF, "QP solver: condensed dense, Riccati over the stages (coupled: block-arrowhead scenario tree), or auto (structured when joints·nc >= 16; coupled: when the tree has >= 16 decision variables)."),
+    k("controller.sqp.hessian", "", Allowed::Choice(&["auto", "gauss_newton", "structured_secant", "exact"]), PERF, "Hessian model of the QP subproblems: auto (the QP back-end's own: structured_secant on dense, gauss_newton on structured), Gauss-Newton, Gauss-Newton plus a structured secant term (dense back-end only), or the exact Hessian (shifted by mu*I, IPOPT's inertia correction, when not positive definite; the coupled tree uses Gauss-Newton). The run summary's solver.hessian names the model run."),
+    k("controller.sqp.qp", "", Allowed::Choice(&["dense", "structured", "auto"]), PERF, "QP solver: condensed dense, Riccati over the stages (coupled: block-arrowhead scenario tree), or auto (structured when joints·nc >= 16; coupled: when the tree has >= 16 decision variables; auto chooses the back-end only, never one that runs another Hessian than hessian asks for). The run summary's solver.qp names the back-end chosen."),
     table("controller.pd", M8X, "Gains of the baseline PD controller (controller.kind = \"pd\")."),
     k("controller.pd.kp", "N·m/rad", POS, M8X, "PD proportional gain on the estimated human angle error."),
     k("controller.pd.kd", "N·m·s/rad", POS, M8X, "PD derivative gain on the estimated human velocity error."),
-    table("controller.robust", ROB, "Extensions of method = \"robust\" (ignored for \"paper\")."),
-    k("controller.robust.filter_aware", "", Allowed::Choice(&["off", "on_oscillation", "always"]), ROB, "When the filter-aware intent estimate is used: never, from the first detected oscillation, or always."),
-    k("controller.robust.oscillation_cutoff_hz", "Hz", POS, ROB, "Cut-off above which strap-force power counts as oscillation."),
-    k("controller.robust.oscillation_window_s", "s", real(open(0.0), closed(10.0)), ROB, "Averaging time of the oscillation detector."),
-    k("controller.robust.oscillation_fraction", "-", real(open(0.0), open(1.0)), ROB, "Share of strap-force power above the cut-off that counts as oscillation."),
-    k("controller.robust.oscillation_min_force_n", "N", NONNEG, ROB, "Smallest RMS of the high-passed strap forces that counts as oscillation."),
-    k("controller.robust.human_bandwidth_hz", "Hz", POS, ROB, "Bandwidth of the human's motion in the Smith predictor and the strap observer."),
+    table("controller.robust", ROB, "Extensions of method = \"robust\" (ignored for \"paper\"); the detectors' thresholds, the disturbance bank and the inertia gate are fixed constants (control::RobustTuning), and a file setting one of their former keys is rejected naming it."),
+    k("controller.robust.filter_aware", "", Allowed::Choice(&["off", "on_oscillation", "always"]), ROB, "When the filter-aware mode (the EKF bank's lag-free velocity and the Smith-predicted strap force instead of the filtered ones) is used: never (the paper's estimate), from the first interaction oscillation the detectors or the inertia gate see, or from the first step (tracks less tightly where the paper's method is stable)."),
+    k("controller.robust.human_bandwidth_hz", "Hz", POS, ROB, "Bandwidth of the human's motion in the Smith predictor and the strap observer: the human's acceleration is the robot's low-passed at it; raise it for faster movements than walking (follows more of the robot's acceleration and its noise)."),
     k("controller.robust.release_s", "s", real(closed(0.0), closed(1e6)), ROB, "Return to the paper's estimate after this long without oscillation; 0 = stay engaged."),
-    k("controller.robust.ekf_force_lead", "-", real(closed(0.0), closed(3.0)), ROB, "Lead of the EKF's strap-force input, as a share of the moving average's delay (w-1)/2 samples; 0 = the filtered force."),
-    k("controller.robust.disturbance_lead", "-", real(closed(0.0), closed(3.0)), ROB, "Lead of the disturbance bank's strap-force input (the second EKF bank whose d̂ the predictions take), as a share of the moving average's delay (w-1)/2 samples."),
-    k("controller.robust.disturbance_q", "(N·m)²", NONNEG, ROB, "Random-walk variance of the disturbance bank's d̂ per step; 0 = ekf.q_disturbance (and no bank if disturbance_lead is 0 too)."),
-    k("controller.robust.torque_oscillation_nm", "N·m", NONNEG, ROB, "With on_oscillation: also engage when the controller's own torque, high-passed, has this RMS (and the share below); 0 = off."),
-    k("controller.robust.torque_oscillation_window_s", "s", real(open(0.0), closed(10.0)), ROB, "Averaging time of the torque detector."),
-    k("controller.robust.torque_oscillation_cutoff_hz", "Hz", POS, ROB, "Cut-off of the torque detector's high-pass."),
-    k("controller.robust.torque_oscillation_fraction", "-", real(closed(0.0), closed(0.999)), ROB, "Share of the torque power above the cut-off that counts as oscillation."),
-    k("controller.robust.inertia_engage_ratio", "-", NONNEG, ROB, "Inertia ratio (a scenario's diagonal mass-matrix entry at the stretched leg over the lightest scenario's, largest over the joints) from which the filter-aware mode is used while such scenarios hold half the probability; 0 = off."),
-    k("controller.robust.inertia_engage_s", "s", real(closed(0.0), closed(10.0)), ROB, "How long the heavy scenarios must hold half the probability without a break before the inertia gate opens (then it stays open)."),
-    k("controller.robust.weight_smoothing_s", "s", real(closed(0.0), closed(10.0)), ROB, "Time constant of the low-pass on the scenario probabilities that weight the MS-NMPC's costs, started once one scenario first holds more than half of the probability; 0 = the probabilities as they are."),
+    k("controller.robust.weight_smoothing_s", "s", real(closed(0.0), closed(10.0)), ROB, "Time constant of the low-pass on the scenario probabilities that weight the MS-NMPC's costs, started once one scenario first holds more than half of the probability; longer = smoother torque where the posteriors chatter, slower to follow a real payload change; 0 = the probabilities as they are."),
     k("controller.robust.intent_estimate", "", Allowed::Choice(&["strap_observer", "paper"]), ROB, "Human-intent estimate of the robust method: the strap model inverted as an observer of the stretch and its rate, moved over the sensor filter's lag, with the NMPC started from the EKF bank's velocity; or the paper's eqs. 5-6."),
-    k("controller.robust.observer_velocity_gain", "1/s", real(closed(0.0), closed(1000.0)), ROB, "With intent_estimate = \"strap_observer\": gain of the human-robot angle error in the reference velocity, qd_ref = q̂d_H + kv (q̂_H - q_R)."),
+    k("controller.robust.observer_velocity_gain", "1/s", real(closed(0.0), closed(1000.0)), ROB, "With intent_estimate = \"strap_observer\": gain of the human-robot angle error in the reference velocity, qd_ref = q̂d_H + kv (q̂_H - q_R); higher closes an angle gap to the person faster, with stiffer interaction."),
     k("controller.robust.velocity_tracking", "", Allowed::Choice(&["strap", "joint"]), ROB, "Where the NMPC's velocity residual is measured: at the straps (each strap's stretch rate in its link's angle units, L = diag(J)^-1 J), so a hip on its torque limit does not load the shank strap too; or in joint space (the paper's eq. 7)."),
     k("controller.robust.intent_gains", "", Allowed::Choice(&["strap_model", "configured"]), ROB, "Intent gains of the robust method: controller.k1/k2 scaled by 937.5 N/m / straps.stiffness (equal at the default straps), or as configured."),
     // [multistage]
@@ -507,3 +494,13 @@ const DURATION_NOTE_2: &str =
 const DURATION_NOTE_1: &str =
     "Length of the 1-DOF run (also at most 100000000 control steps, duration/dt).";
 const _: () = assert!(MAX_CONTROL_STEPS == 100_000_000, "update DURATION_NOTE_*");
+
+/// The error for a key the scenario file no longer has, by its dotted path
+/// (`controller.robust.disturbance_lead`, [`crate::control::REMOVED_ROBUST_KEYS`]); `None`
+/// for any other path. A file or `set` naming such a key is rejected with it, never ignored.
+pub fn removed_key(path: &str) -> Option<String> {
+    let key = path.strip_prefix("controller.robust.")?;
+    crate::control::REMOVED_ROBUST_KEYS
+        .contains(&key)
+        .then(|| crate::control::removed_robust_key(key))
+}

@@ -28,7 +28,9 @@
 //! as `multistage.scenarios[2].straps.stiffness`. [`warnings`](crate::scenario::multistage::warnings) lists pairs of scenarios the EKF
 //! bank cannot tell apart (see [`ScenarioWarning`](crate::scenario::multistage::ScenarioWarning) for the criterion).
 
-use super::{ConfigError, Link, Robot, Scenario, Straps, MAX_PAYLOAD_KG, MAX_SCENARIOS};
+use super::{
+    ConfigError, Experiment, Link, RobotSettings, StrapsSettings, MAX_PAYLOAD_KG, MAX_SCENARIOS,
+};
 use crate::check::{self, Range};
 use alloc::{format, string::String, vec::Vec};
 use serde::{Deserialize, Serialize};
@@ -59,7 +61,7 @@ pub struct ScenarioSpec {
     pub straps: StrapsOverride,
 }
 
-/// Partial `[robot]` table of a scenario; every key as in [`Robot`].
+/// Partial `[robot]` table of a scenario; every key as in [`RobotSettings`].
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct RobotOverride {
@@ -101,7 +103,7 @@ pub struct LinkOverride {
     pub inertia_kgm2: Option<f64>,
 }
 
-/// Partial `[straps]` table of a scenario; every key as in [`Straps`].
+/// Partial `[straps]` table of a scenario; every key as in [`StrapsSettings`].
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct StrapsOverride {
@@ -123,7 +125,7 @@ impl ScenarioSpec {
     /// An entry with every key set (to the base defaults): the schema of
     /// `[[multistage.scenarios]]` for tools that check a file key by key.
     pub fn every_key() -> Self {
-        let (r, st) = (Robot::default(), Straps::default());
+        let (r, st) = (RobotSettings::default(), StrapsSettings::default());
         let link = |l: Link| LinkOverride {
             length_m: Some(l.length),
             mass_kg: Some(l.mass),
@@ -180,7 +182,7 @@ impl RobotOverride {
     }
 
     /// `base` with the given keys replaced.
-    pub fn apply(&self, base: &Robot) -> Robot {
+    pub fn apply(&self, base: &RobotSettings) -> RobotSettings {
         let mut r = base.clone();
         set(&mut r.viscous_friction, self.viscous_friction);
         set(&mut r.coulomb_friction, self.coulomb_friction);
@@ -199,7 +201,7 @@ impl StrapsOverride {
     }
 
     /// `base` with the given keys replaced.
-    pub fn apply(&self, base: &Straps) -> Straps {
+    pub fn apply(&self, base: &StrapsSettings) -> StrapsSettings {
         let mut s = base.clone();
         set(&mut s.ls1_m, self.ls1_m);
         set(&mut s.ls2_m, self.ls2_m);
@@ -221,14 +223,14 @@ pub struct ResolvedScenario {
     /// Payload its robot model carries (kg).
     pub payload_kg: f64,
     /// `[robot]` of its model.
-    pub robot: Robot,
+    pub robot: RobotSettings,
     /// `[straps]` of its model.
-    pub straps: Straps,
+    pub straps: StrapsSettings,
 }
 
 impl ResolvedScenario {
     /// `s` with this scenario's robot and straps (the base of its models).
-    pub fn apply_to(&self, s: &Scenario) -> Scenario {
+    pub fn apply_to(&self, s: &Experiment) -> Experiment {
         let mut out = s.clone();
         out.robot = self.robot.clone();
         out.straps = self.straps.clone();
@@ -238,7 +240,7 @@ impl ResolvedScenario {
 
 /// Whether the scenarios come from `[[multistage.scenarios]]` (true) or from the
 /// `payloads_kg` shorthand (false).
-pub fn is_named(s: &Scenario) -> bool {
+pub fn is_named(s: &Experiment) -> bool {
     !s.multistage.scenarios.is_empty()
 }
 
@@ -248,7 +250,7 @@ pub fn payload_name(kg: f64) -> String {
 }
 
 /// Number of multi-stage scenarios of `s`.
-pub fn count(s: &Scenario) -> usize {
+pub fn count(s: &Experiment) -> usize {
     if is_named(s) {
         s.multistage.scenarios.len()
     } else {
@@ -257,7 +259,7 @@ pub fn count(s: &Scenario) -> usize {
 }
 
 /// The scenario names of `s`, in order.
-pub fn names(s: &Scenario) -> Vec<String> {
+pub fn names(s: &Experiment) -> Vec<String> {
     if is_named(s) {
         s.multistage
             .scenarios
@@ -274,7 +276,7 @@ pub fn names(s: &Scenario) -> Vec<String> {
 }
 
 /// Every scenario of `s` with its override applied to the base `[robot]` and `[straps]`.
-pub fn resolve(s: &Scenario) -> Vec<ResolvedScenario> {
+pub fn resolve(s: &Experiment) -> Vec<ResolvedScenario> {
     if is_named(s) {
         s.multistage
             .scenarios
@@ -322,7 +324,7 @@ fn name_ok(n: &str) -> bool {
 /// `[straps]` pass the base validation, cross-field rules included), reported as
 /// `multistage.scenarios[i].robot.shank.mass_kg`. `payloads_kg` must keep its default when
 /// named scenarios are given (the two would contradict each other).
-pub fn validate(s: &Scenario) -> Result<usize, ConfigError> {
+pub fn validate(s: &Experiment) -> Result<usize, ConfigError> {
     let m = &s.multistage;
     if !is_named(s) {
         let n = m.payloads_kg.len();
@@ -346,7 +348,7 @@ pub fn validate(s: &Scenario) -> Result<usize, ConfigError> {
             format!("1 to {MAX_SCENARIOS} entries"),
         ));
     }
-    if m.payloads_kg != crate::config::Multistage::default().payloads_kg {
+    if m.payloads_kg != crate::config::MultistageSettings::default().payloads_kg {
         return Err(ConfigError::new(
             "multistage.payloads_kg",
             format!("{:?}", m.payloads_kg),
@@ -380,7 +382,7 @@ pub fn validate(s: &Scenario) -> Result<usize, ConfigError> {
         // The base tables are valid (checked before): an error of the scenario's resolved
         // tables comes from its override, or from a cross-field rule the override breaks.
         let mut probe = r.apply_to(s);
-        probe.multistage = crate::config::Multistage::default();
+        probe.multistage = crate::config::MultistageSettings::default();
         if let Err(e) = probe.validate() {
             if e.field.starts_with("robot.") || e.field.starts_with("straps.") {
                 return Err(ConfigError {

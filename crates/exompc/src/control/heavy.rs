@@ -1,4 +1,4 @@
-//! The inertia gate of the robust method ([`super::RobustSettings::inertia_engage_ratio`]): the
+//! The inertia gate of the robust method ([`super::RobustTuning::inertia_engage_ratio`]): the
 //! filter-aware mode is also used while the identified scenario makes the leg heavy.
 //!
 //! The moving average on the velocities and strap forces (docs/MODEL.md §5) delays the force
@@ -10,7 +10,7 @@
 //! of `Mᵢ,jj(0) / minₛ Mₛ,jj(0)`, the joint's diagonal mass-matrix entry at the stretched leg
 //! (`q = 0`, docs/MODEL.md §3) over the lightest scenario's, and the gate is open while the
 //! probability `Σ μᵢ` of the scenarios whose ratio reaches the threshold has been at least ½
-//! for [`super::RobustSettings::inertia_engage_s`] without a break; it then stays open (like the
+//! for [`super::RobustTuning::inertia_engage_s`] without a break; it then stays open (like the
 //! detectors' engagement), so that a brief identification error does not switch the mode back
 //! and forth.
 

@@ -18,7 +18,7 @@
 //!   a safe fallback torque; every output passes the limits ([`TorqueLimits`]).
 //!
 //! [`crate::scenario::build_controller`] and [`crate::scenario::build_supervised`] build them from a
-//! [`crate::config::Scenario`]; `docs/MODEL.md` §8 gives the equations and default values.
+//! [`crate::config::Experiment`]; `docs/MODEL.md` §8 gives the equations and default values.
 
 mod fallback;
 mod heavy;
@@ -50,8 +50,8 @@ pub use limits::{LimitsError, TorqueLimits};
 pub use multistage::{CoupledProblem, Formulation, MultiStage, MultiStageError, MultiStageOptions};
 pub use nmpc::{classify, horizon_inputs, Nmpc, NmpcCore, NmpcError};
 pub use nmpc_problem::{
-    velocity_metric, NmpcProblem, NmpcSettings, QpBackend, VelocityTracking,
-    AUTO_STRUCTURED_MIN_VARS,
+    velocity_metric, HessianSetting, NmpcProblem, NmpcSettings, QpBackend, SolverChoice,
+    VelocityTracking, AUTO_STRUCTURED_MIN_VARS,
 };
 pub use ocp::StructuredSqp;
 pub use ocp_tree::{TreeSqp, AUTO_TREE_MIN_VARS};
@@ -64,7 +64,8 @@ pub use ride_through::{
     FORCE_GATE, FORCE_RESYNC_S, JUMP_ACCEL, RESIDUAL_TAU_S, STUCK_SPEED, VELOCITY_GATE,
 };
 pub use robust::{
-    FilterAware, IntentEstimate, Method, RobustIntentGains, RobustSettings, PAPER_STRAP_STIFFNESS,
+    removed_robust_key, FilterAware, IntentEstimate, Method, RobustIntentGains, RobustSettings,
+    RobustTuning, PAPER_STRAP_STIFFNESS, REMOVED_ROBUST_KEYS,
 };
 pub use safety::{
     GaitFrequency, MonitorAction, MonitorEvent, MonitorKind, MonitorResponse, Monitors,

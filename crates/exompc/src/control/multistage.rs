@@ -6,6 +6,8 @@ use super::nmpc::{classify, horizon_inputs, NmpcCore};
 use super::nmpc_problem::{NmpcProblem, NmpcSettings};
 use super::ocp_tree::{tree_is_structured, TreeSqp};
 use super::prediction::{HorizonInputs, PredictionModel};
+#[cfg(doc)]
+use super::robust::RobustTuning;
 use super::robust::{IntentEstimate, RobustSettings, RobustState};
 use super::strap_intent::StrapIntent;
 use super::weights::WeightSmoother;
@@ -302,6 +304,27 @@ impl<const N: usize> CoupledCore<N> {
         }
         info
     }
+
+    /// Step 5 (coupled) of [`MultiStage`]'s step: solve the tree and return the desired
+    /// torque `T(k−1) + dT₀` (the shared first increment; `T(k−1)` when the solve is not
+    /// usable), the status and the iterations.
+    fn first_torque(
+        &mut self,
+        x0: JointState<f64, N>,
+        prev: SVector<f64, N>,
+        inputs: &[HorizonInputs<N>],
+        weights: &[f64],
+        limits: &TorqueLimits,
+    ) -> (SVector<f64, N>, StepStatus, u32) {
+        let info = self.solve(x0, prev, inputs, weights, limits);
+        let (status, usable) = classify(info.status);
+        let dt0 = SVector::<f64, N>::from_fn(|a, _| self.z[a]);
+        (
+            if usable { prev + dt0 } else { prev },
+            status,
+            info.iterations as u32,
+        )
+    }
 }
 
 /// Options of the multi-stage controller (MODEL.md §8).
@@ -361,13 +384,13 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     was_estimating: bool,
     /// Robust extensions (`[controller] method = "robust"`); `None` = the paper's method.
     robust: Option<RobustState<N>>,
-    /// The robust method's disturbance bank ([`RobustSettings::disturbance_lead`]): a copy of
+    /// The robust method's disturbance bank ([`RobustTuning::disturbance_lead`]): a copy of
     /// the bank stepped with the led strap force, whose `d̂ᵢ` the predictions take; its
     /// probabilities are not used. `None` = `d̂ᵢ` from `bank`.
     dbank: Option<EkfBank<N, NA, NY>>,
     /// The strap force the disturbance bank saw at the previous step, per scenario.
     prev_dforce: Vec<SVector<f64, N>>,
-    /// The robust method's inertia gate ([`RobustSettings::inertia_engage_ratio`]; `None` =
+    /// The robust method's inertia gate ([`RobustTuning::inertia_engage_ratio`]; `None` =
     /// off), and whether the filter-aware mode was used on the previous step.
     gate: Option<InertiaGate>,
     filter_aware_prev: bool,
@@ -467,12 +490,13 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             // positive, so this succeeds.
             self.dbank = EkfBank::new(&robots, &ekf, &self.estimator, &zero, &zero).ok();
         }
-        if r.gated() && settings.inertia_engage_ratio > 0.0 {
+        let tuning = &settings.tuning;
+        if r.gated() && tuning.inertia_engage_ratio > 0.0 {
             let dt = self.models[0].dt;
             self.gate = Some(InertiaGate::new(
                 &self.models,
-                settings.inertia_engage_ratio,
-                (settings.inertia_engage_s / dt).round() as usize,
+                tuning.inertia_engage_ratio,
+                (tuning.inertia_engage_s / dt).round() as usize,
             ));
         }
         self.strap_intent =
@@ -542,20 +566,22 @@ pub enum MultiStageError {
     Solver(#[from] SolverError),
 }
 
-impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiStage<N, NA, NY> {
-    fn step(&mut self, m: &Measurement<N>) -> ControlOutput<N> {
-        if !m.is_finite() {
-            return self.hold(StepStatus::BadMeasurement);
-        }
-        let mut y = SVector::<f64, NY>::zeros();
-        for a in 0..N {
-            y[a] = m.q[a];
-            y[N + a] = m.qd[a];
-        }
+/// Strap stretch and its rate whose force the Smith predictor removes (filter-aware mode).
+type Stretch<const N: usize> = (SVector<f64, N>, SVector<f64, N>);
+
+/// The named steps of [`Controller::step`] for [`MultiStage`], in the order it runs them.
+impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
+    /// Step 1: advance the EKF bank (and the robust method's disturbance bank) with
+    /// `y = [q, qd]`, `T(k−1)` and each scenario's strap torque of step `k−1` (eqs. 10-11);
+    /// on the first step, after skipped periods or back from estimated channels, restart the
+    /// filters' joint states at the measurement instead. Returns whether this step follows
+    /// such a gap.
+    fn advance_banks(&mut self, m: &Measurement<N>) -> bool {
         let dt = self.models[0].dt;
         // Back from estimated channels: the filters resume at the measurement like after a gap.
         let resync = self.was_estimating && !self.estimating;
-        let gap = !self.started || m.t - self.last_t > 1.5 * dt || resync;
+        let skipped = m.t - self.last_t > 1.5 * dt;
+        let gap = !self.started || skipped || resync;
         #[cfg(not(feature = "std"))]
         let ekf_start = crate::clock::Instant::now();
         if !self.started {
@@ -564,48 +590,65 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
                 b.reset_to(&m.q, &m.qd);
             }
             self.started = true;
-        } else if m.t - self.last_t > 1.5 * dt || resync {
+        } else if skipped || resync {
             // Periods were skipped (e.g. a supervisor rejected bad data): restart the filters'
             // joint states at the measurement, keep d̂ and the probabilities.
             self.bank.resume_at(&m.q, &m.qd);
             if let Some(b) = self.dbank.as_mut() {
                 b.resume_at(&m.q, &m.qd);
             }
-        } else if self.estimating {
-            // Estimated channels: the filters update with the measured rows only (the
-            // probabilities kept); a failed filter keeps its state.
-            let (models, forces, measured) = (&self.models, &self.prev_force, &self.measured);
-            let _ = self
-                .bank
-                .step_masked_per_scenario(&y, measured, &self.prev, |i| {
-                    models[i].straps.torque(&forces[i])
-                });
-            if let Some(b) = self.dbank.as_mut() {
-                let forces = &self.prev_dforce;
-                let _ = b.step_masked_per_scenario(&y, measured, &self.prev, |i| {
-                    models[i].straps.torque(&forces[i])
-                });
-            }
         } else {
-            // A failed filter keeps its state and the probabilities; the controller goes on.
-            let (models, forces) = (&self.models, &self.prev_force);
-            let _ = self
-                .bank
-                .step_per_scenario(&y, &self.prev, |i| models[i].straps.torque(&forces[i]));
-            if let Some(b) = self.dbank.as_mut() {
-                let forces = &self.prev_dforce;
-                let _ =
-                    b.step_per_scenario(&y, &self.prev, |i| models[i].straps.torque(&forces[i]));
-            }
+            self.update_banks(m);
         }
         #[cfg(not(feature = "std"))]
         crate::clock::account(crate::clock::Part::EkfBank, ekf_start.elapsed());
         self.last_t = m.t;
         self.was_estimating = self.estimating;
+        gap
+    }
+
+    /// The banks' predict-and-update with `y = [q, qd]`: every row, or with estimated
+    /// channels ([`Controller::step_estimated`]) the measured rows only (the probabilities
+    /// kept). A failed filter keeps its state and the probabilities; the controller goes on.
+    fn update_banks(&mut self, m: &Measurement<N>) {
+        let mut y = SVector::<f64, NY>::zeros();
+        for a in 0..N {
+            y[a] = m.q[a];
+            y[N + a] = m.qd[a];
+        }
+        let (models, prev) = (&self.models, &self.prev);
+        let (forces, dforces) = (&self.prev_force, &self.prev_dforce);
+        if self.estimating {
+            let measured = &self.measured;
+            let _ = self.bank.step_masked_per_scenario(&y, measured, prev, |i| {
+                models[i].straps.torque(&forces[i])
+            });
+            if let Some(b) = self.dbank.as_mut() {
+                let _ = b.step_masked_per_scenario(&y, measured, prev, |i| {
+                    models[i].straps.torque(&dforces[i])
+                });
+            }
+        } else {
+            let _ = self
+                .bank
+                .step_per_scenario(&y, prev, |i| models[i].straps.torque(&forces[i]));
+            if let Some(b) = self.dbank.as_mut() {
+                let _ = b.step_per_scenario(&y, prev, |i| models[i].straps.torque(&dforces[i]));
+            }
+        }
+    }
+
+    /// Step 2: the NMPC's start state `x0` and the measurement the intent estimate uses: the
+    /// filtered one, or in the robust filter-aware mode (engaged by the oscillation detectors
+    /// or the inertia gate) the bank's probability-weighted lag-free velocity, with the strap
+    /// stretch whose force the Smith predictor removes; with the strap observer `x0` takes the
+    /// lag-free velocity at every step. `gap` restarts the robust method's histories.
+    fn start_state(
+        &mut self,
+        m: &Measurement<N>,
+        gap: bool,
+    ) -> (JointState<f64, N>, Measurement<N>, Option<Stretch<N>>) {
         let mut x0 = JointState { q: m.q, qd: m.qd };
-        // The measurement the intent estimate and the EKF's strap torque use: the filtered one,
-        // or in the robust filter-aware mode the lag-free velocity and each scenario's
-        // Smith-predicted force (its own strap model removes the robot's own force change).
         let mut mi = *m;
         let mut stretch = None;
         let heavy = match self.gate.as_mut() {
@@ -629,8 +672,6 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
         }
         if let Some(si) = self.strap_intent.as_mut() {
             si.update(m, gap);
-            // With the strap observer every scenario's NMPC starts from the bank's
-            // probability-weighted (lag-free) velocity, as in the filter-aware mode.
             if stretch.is_none() {
                 let qd = self.bank.weighted_velocity();
                 if qd.iter().all(|v| v.is_finite()) {
@@ -638,6 +679,19 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
                 }
             }
         }
+        (x0, mi, stretch)
+    }
+
+    /// Step 3: per scenario, the strap force its EKF takes at the next step (the filtered
+    /// force, led by the robust method, or the Smith-predicted one of its own strap model
+    /// when `stretch` is given), its disturbance estimate `d̂ᵢ` and its horizon inputs (the
+    /// intent estimate of eqs. 5-6 from `mi`, or the strap observer's).
+    fn scenario_inputs(
+        &mut self,
+        m: &Measurement<N>,
+        mut mi: Measurement<N>,
+        stretch: Option<Stretch<N>>,
+    ) {
         let (ekf_force, dist_force) = match self.robust.as_mut() {
             Some(r) => r.ekf_forces(&m.force),
             None => (m.force, m.force),
@@ -663,59 +717,96 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
                 }
             }
         }
+    }
+
+    /// Step 4: the scenario weights of the costs (eq. 12): the bank's probabilities, or the
+    /// robust method's low-passed ones.
+    fn update_weights(&mut self) {
         match self.smoother.as_mut() {
             Some(sm) => sm.apply(self.bank.probabilities(), &mut self.weights),
             None => self.weights.copy_from_slice(self.bank.probabilities()),
         }
-        let prev = self.prev;
-        let (desired, status, iterations) = if let Some(c) = self.coupled.as_mut() {
-            let info = c.solve(x0, prev, &self.inputs, &self.weights, &self.limits);
-            let (status, usable) = classify(info.status);
-            let dt0 = SVector::<f64, N>::from_fn(|a, _| c.z[a]);
-            (
-                if usable { prev + dt0 } else { prev },
-                status,
-                info.iterations as u32,
-            )
-        } else {
-            let limits = self.limits;
-            let inputs = &self.inputs;
-            let solve = |(i, core): (usize, &mut NmpcCore<N>)| {
-                core.solve(x0, prev, inputs[i], &limits).status
-            };
+    }
+
+    /// Step 5 (decoupled): every scenario's NMPC of eq. 7 from `x0`, in parallel with rayon
+    /// when `parallel` is set (and `std` is on), else in turn.
+    fn solve_scenarios(&mut self, x0: JointState<f64, N>) {
+        let (prev, limits, inputs) = (self.prev, self.limits, &self.inputs);
+        let solve =
+            |(i, core): (usize, &mut NmpcCore<N>)| core.solve(x0, prev, inputs[i], &limits).status;
+        #[cfg(feature = "std")]
+        let parallel = self.options.parallel;
+        #[cfg(not(feature = "std"))]
+        let parallel = false; // no threads without std: the scenarios run in turn
+        if parallel {
             #[cfg(feature = "std")]
-            let parallel = self.options.parallel;
-            #[cfg(not(feature = "std"))]
-            let parallel = false; // no threads without std: the scenarios run in turn
-            if parallel {
-                #[cfg(feature = "std")]
-                self.cores.par_iter_mut().enumerate().for_each(|p| {
-                    solve(p);
-                });
-            } else {
-                self.cores.iter_mut().enumerate().for_each(|p| {
-                    solve(p);
-                });
+            self.cores.par_iter_mut().enumerate().for_each(|p| {
+                solve(p);
+            });
+        } else {
+            self.cores.iter_mut().enumerate().for_each(|p| {
+                solve(p);
+            });
+        }
+    }
+
+    /// Step 6 (decoupled): eq. 13 over the scenarios whose solve is usable, renormalised:
+    /// the desired torque `T(k−1) + Σ wᵢ dTᵢ / Σ wᵢ`, the worst status and the iterations.
+    fn blend_increments(&self) -> (SVector<f64, N>, StepStatus, u32) {
+        let prev = self.prev;
+        let mut sum = SVector::<f64, N>::zeros();
+        let (mut wsum, mut iters) = (0.0, 0u32);
+        let mut worst = StepStatus::Ok;
+        for (i, core) in self.cores.iter().enumerate() {
+            let (st, usable) = classify(core.info.status);
+            iters += core.info.iterations as u32;
+            if st != StepStatus::Ok && worst != StepStatus::SolverFailed {
+                worst = st;
             }
-            // Eq. 13 over the scenarios whose solve is usable, renormalised.
-            let mut sum = SVector::<f64, N>::zeros();
-            let (mut wsum, mut iters) = (0.0, 0u32);
-            let mut worst = StepStatus::Ok;
-            for (i, core) in self.cores.iter().enumerate() {
-                let (st, usable) = classify(core.info.status);
-                iters += core.info.iterations as u32;
-                if st != StepStatus::Ok && worst != StepStatus::SolverFailed {
-                    worst = st;
-                }
-                if usable {
-                    sum += core.first_increment() * self.weights[i];
-                    wsum += self.weights[i];
-                }
+            if usable {
+                sum += core.first_increment() * self.weights[i];
+                wsum += self.weights[i];
             }
-            if wsum > 0.0 {
-                (prev + sum / wsum, worst, iters)
-            } else {
-                (prev, StepStatus::SolverFailed, iters)
+        }
+        if wsum > 0.0 {
+            (prev + sum / wsum, worst, iters)
+        } else {
+            (prev, StepStatus::SolverFailed, iters)
+        }
+    }
+
+    /// Which rows of `y = [q, qd]` the filters update with while channels are estimated: an
+    /// estimated strap force (the filters' input) would move `d̂`, so then no row (the filters
+    /// predict without an update, `d̂` and the probabilities held through the fault).
+    fn mark_estimated(&mut self, estimated: &EstimatedChannels<N>) {
+        let force = estimated.force.iter().any(|&e| e);
+        self.estimating = estimated.any();
+        for a in 0..N {
+            self.measured[a] = !estimated.q[a] && !force;
+            self.measured[N + a] = !estimated.qd[a] && !force;
+        }
+    }
+}
+
+impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiStage<N, NA, NY> {
+    /// One control step in named steps: `advance_banks` (EKF banks), `start_state`,
+    /// `scenario_inputs`, `update_weights`, then the coupled solve (`CoupledCore::first_torque`)
+    /// or every scenario's (`solve_scenarios`) blended by eq. 13 (`blend_increments`), and the
+    /// hard limits of eqs. 8-9.
+    fn step(&mut self, m: &Measurement<N>) -> ControlOutput<N> {
+        if !m.is_finite() {
+            return self.hold(StepStatus::BadMeasurement);
+        }
+        let gap = self.advance_banks(m);
+        let (x0, mi, stretch) = self.start_state(m, gap);
+        self.scenario_inputs(m, mi, stretch);
+        self.update_weights();
+        let prev = self.prev;
+        let (desired, status, iterations) = match self.coupled.as_mut() {
+            Some(c) => c.first_torque(x0, prev, &self.inputs, &self.weights, &self.limits),
+            None => {
+                self.solve_scenarios(x0);
+                self.blend_increments()
             }
         };
         let torque = self.limits.clamp(&prev, &desired);
@@ -792,14 +883,7 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
         m: &Measurement<N>,
         estimated: &EstimatedChannels<N>,
     ) -> ControlOutput<N> {
-        // An estimated strap force (the filters' input) would move d̂: then the filters
-        // predict without an update (d̂ and the probabilities held through the fault).
-        let force = estimated.force.iter().any(|&e| e);
-        self.estimating = estimated.any();
-        for a in 0..N {
-            self.measured[a] = !estimated.q[a] && !force;
-            self.measured[N + a] = !estimated.qd[a] && !force;
-        }
+        self.mark_estimated(estimated);
         let out = self.step(m);
         self.estimating = false;
         out

@@ -8,7 +8,7 @@ use super::TorqueLimits;
 #[cfg(not(feature = "std"))]
 use crate::math::Float;
 use crate::model::JointState;
-use crate::solver::{Constraints, LeastSquares, SqpSettings};
+use crate::solver::{Constraints, HessianModel, LeastSquares, SqpSettings};
 use alloc::{vec, vec::Vec};
 use nalgebra::{DMatrix, SMatrix, SVector};
 use serde::{Deserialize, Serialize};
@@ -33,7 +33,9 @@ pub enum QpBackend {
 pub const AUTO_STRUCTURED_MIN_VARS: usize = 16;
 
 impl QpBackend {
-    /// Whether this backend resolves to the structured solver for `n_vars = N·Nc` variables.
+    /// Whether this backend resolves to the structured solver for `n_vars = N·Nc` variables
+    /// by size alone (a library caller's [`NmpcSettings`]; a scenario file's `qp` and `hessian`
+    /// are resolved together by [`QpBackend::resolve`]).
     pub fn is_structured(self, n_vars: usize) -> bool {
         match self {
             QpBackend::Dense => false,
@@ -41,6 +43,114 @@ impl QpBackend {
             QpBackend::Auto => n_vars >= AUTO_STRUCTURED_MIN_VARS,
         }
     }
+
+    /// What `[controller.sqp] qp = self` and `hessian` resolve to for a problem of `n_vars`
+    /// decision variables: the scenario tree of the coupled formulation when `tree` (whose
+    /// `auto` threshold is `tree_min_vars`, `AUTO_TREE_MIN_VARS`), else one scenario's NMPC
+    /// (threshold [`AUTO_STRUCTURED_MIN_VARS`]).
+    ///
+    /// `qp = "auto"` chooses only the QP back-end: the structured one when the problem has at
+    /// least the threshold's variables and the structured back-end runs the Hessian the dense
+    /// one would (so `hessian = "structured_secant"`, which only the dense back-end runs, keeps
+    /// the dense back-end). `hessian = "auto"` (the default) is the back-end's own model:
+    /// `structured_secant` on the dense back-end, `gauss_newton` on the structured one. An
+    /// explicit model is run where the back-end has it; the structured back-end runs
+    /// `gauss_newton` for `structured_secant`, and the scenario tree (either back-end) runs
+    /// `gauss_newton` for `exact` ([`HessianModel::Exact`]); the result names the model run.
+    pub fn resolve(
+        self,
+        hessian: HessianSetting,
+        n_vars: usize,
+        tree: bool,
+        tree_min_vars: usize,
+    ) -> SolverChoice {
+        let min_vars = if tree {
+            tree_min_vars
+        } else {
+            AUTO_STRUCTURED_MIN_VARS
+        };
+        let structured = match self {
+            QpBackend::Dense => false,
+            QpBackend::Structured => true,
+            QpBackend::Auto => {
+                n_vars >= min_vars
+                    && match hessian.model() {
+                        None => true,
+                        Some(h) => hessian_run(true, tree, h) == hessian_run(false, tree, h),
+                    }
+            }
+        };
+        let hessian = match hessian.model() {
+            None if structured => HessianModel::GaussNewton,
+            None => HessianModel::StructuredSecant,
+            Some(h) => hessian_run(structured, tree, h),
+        };
+        SolverChoice {
+            qp: if structured {
+                QpBackend::Structured
+            } else {
+                QpBackend::Dense
+            },
+            hessian,
+        }
+    }
+}
+
+/// The Hessian model a back-end runs for the requested `h` (see [`QpBackend::resolve`]).
+fn hessian_run(structured: bool, tree: bool, h: HessianModel) -> HessianModel {
+    match h {
+        HessianModel::StructuredSecant if structured => HessianModel::GaussNewton,
+        HessianModel::Exact if tree => HessianModel::GaussNewton,
+        h => h,
+    }
+}
+
+/// `[controller.sqp] hessian`: the Hessian model of the QP subproblems, or `"auto"` (the
+/// default: the model of the QP back-end `qp` resolves to, [`QpBackend::resolve`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum HessianSetting {
+    /// `structured_secant` on the dense back-end, `gauss_newton` on the structured one.
+    #[default]
+    Auto,
+    /// [`HessianModel::StructuredSecant`] (only the dense back-end runs it).
+    StructuredSecant,
+    /// [`HessianModel::GaussNewton`].
+    GaussNewton,
+    /// [`HessianModel::Exact`] (the scenario tree runs Gauss–Newton instead).
+    Exact,
+}
+
+impl HessianSetting {
+    /// The explicit model, `None` for `Auto`.
+    pub fn model(self) -> Option<HessianModel> {
+        match self {
+            HessianSetting::Auto => None,
+            HessianSetting::StructuredSecant => Some(HessianModel::StructuredSecant),
+            HessianSetting::GaussNewton => Some(HessianModel::GaussNewton),
+            HessianSetting::Exact => Some(HessianModel::Exact),
+        }
+    }
+}
+
+impl From<HessianModel> for HessianSetting {
+    fn from(h: HessianModel) -> Self {
+        match h {
+            HessianModel::StructuredSecant => HessianSetting::StructuredSecant,
+            HessianModel::GaussNewton => HessianSetting::GaussNewton,
+            HessianModel::Exact => HessianSetting::Exact,
+        }
+    }
+}
+
+/// The QP back-end and the Hessian model an NMPC's solves run, as resolved from
+/// `[controller.sqp] qp` and `hessian` ([`QpBackend::resolve`]); the run summary's `solver`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SolverChoice {
+    /// `dense` or `structured` (for the coupled formulation: the block-arrowhead tree).
+    pub qp: QpBackend,
+    /// The Hessian model run.
+    pub hessian: HessianModel,
 }
 
 /// Horizon and weights of eq. 7 (MODEL.md §8).
@@ -375,5 +485,78 @@ impl<const N: usize> LeastSquares for NmpcProblem<N> {
             r,
             hess,
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `qp = "auto"` chooses only the back-end: it never makes the solve run another Hessian
+    /// than the dense back-end would for the same `hessian`; `hessian = "auto"` follows the
+    /// back-end chosen.
+    #[test]
+    fn auto_qp_chooses_the_back_end_only() {
+        use HessianModel as H;
+        use HessianSetting as S;
+        use QpBackend::{Auto, Dense, Structured};
+        let (small, big) = (6, 18);
+        // (qp, hessian, n_vars, tree) → (back-end, Hessian run)
+        let cases = [
+            (Auto, S::Auto, small, false, Dense, H::StructuredSecant),
+            (Auto, S::Auto, big, false, Structured, H::GaussNewton),
+            (
+                Auto,
+                S::StructuredSecant,
+                big,
+                false,
+                Dense,
+                H::StructuredSecant,
+            ),
+            (Auto, S::GaussNewton, big, false, Structured, H::GaussNewton),
+            (Auto, S::GaussNewton, small, false, Dense, H::GaussNewton),
+            (Auto, S::Exact, big, false, Structured, H::Exact),
+            (Auto, S::Exact, big, true, Structured, H::GaussNewton),
+            (Auto, S::Exact, small, true, Dense, H::GaussNewton),
+            (
+                Auto,
+                S::StructuredSecant,
+                big,
+                true,
+                Dense,
+                H::StructuredSecant,
+            ),
+            (Auto, S::Auto, big, true, Structured, H::GaussNewton),
+            (Dense, S::Auto, big, false, Dense, H::StructuredSecant),
+            (
+                Structured,
+                S::Auto,
+                small,
+                false,
+                Structured,
+                H::GaussNewton,
+            ),
+            (
+                Structured,
+                S::StructuredSecant,
+                small,
+                false,
+                Structured,
+                H::GaussNewton,
+            ),
+            (Dense, S::Exact, small, false, Dense, H::Exact),
+        ];
+        for (qp, h, n, tree, want_qp, want_h) in cases {
+            let c = qp.resolve(h, n, tree, 16);
+            assert_eq!(
+                (c.qp, c.hessian),
+                (want_qp, want_h),
+                "{qp:?} {h:?} n {n} tree {tree}"
+            );
+            // The size rule of `is_structured` where the Hessian does not object.
+            if qp != Auto || h == S::Auto || h == S::GaussNewton {
+                assert_eq!(c.qp == Structured, qp.is_structured(n), "{qp:?} {h:?} {n}");
+            }
+        }
     }
 }

@@ -1,14 +1,14 @@
 //! Building the controllers of one experiment of the paper's simulation study from a
-//! [`Scenario`](crate::config::Scenario): the settings each controller takes from it, the PD,
+//! [`Experiment`](crate::config::Experiment): the settings each controller takes from it, the PD,
 //! the plain NMPC, the multi-stage NMPC and the supervisor's transparent fallback, for either
 //! layout ([`Dof`]).
 
 use super::error::RunError;
 use super::layout::{prediction_model, scenario_robot, Dof};
-use crate::config::{Method, Scenario};
+use crate::config::{Experiment, Formulation, Method};
 use crate::control::{
     Controller, IntentEstimator, MultiStage, MultiStageOptions, Nmpc, NmpcSettings, PdController,
-    SafetySettings, TorqueLimits, Transparent, VelocityTracking,
+    SafetySettings, SolverChoice, TorqueLimits, Transparent, VelocityTracking, AUTO_TREE_MIN_VARS,
 };
 use crate::control::{AUTO_K1_PER_STIFFNESS, AUTO_K2_PER_STIFFNESS};
 use crate::estimate::EstimatorOptions;
@@ -17,7 +17,7 @@ use alloc::{boxed::Box, vec};
 use nalgebra::SVector;
 
 /// NMPC settings of a scenario.
-pub fn nmpc_settings(s: &Scenario) -> NmpcSettings {
+pub fn nmpc_settings(s: &Experiment) -> NmpcSettings {
     let c = &s.controller;
     NmpcSettings {
         np: c.np,
@@ -34,7 +34,7 @@ pub fn nmpc_settings(s: &Scenario) -> NmpcSettings {
 
 /// The NMPC settings of every scenario of the multi-stage NMPC: [`nmpc_settings`] with the
 /// robust method's `[controller.robust] velocity_tracking` (the paper's method: joint space).
-pub fn multistage_nmpc_settings(s: &Scenario) -> NmpcSettings {
+pub fn multistage_nmpc_settings(s: &Experiment) -> NmpcSettings {
     let mut st = nmpc_settings(s);
     if s.controller.method == Method::Robust {
         st.velocity_tracking = s.controller.robust.velocity_tracking;
@@ -42,8 +42,39 @@ pub fn multistage_nmpc_settings(s: &Scenario) -> NmpcSettings {
     st
 }
 
+/// The QP back-end and Hessian model `[controller.sqp] qp` and `hessian` resolve to for the
+/// NMPC of scenario `s` with `joints` joints (`control::QpBackend::resolve`): for a
+/// `multistage` controller with `multistage.formulation = "coupled"` the scenario tree's, else
+/// one scenario's NMPC. The run summary reports it (`solver`).
+pub fn solver_choice(s: &Experiment, joints: usize, multistage: bool) -> SolverChoice {
+    let c = &s.controller;
+    let tree = multistage && s.multistage.formulation == Formulation::Coupled;
+    let n_vars = if tree {
+        let nr = s.multistage.robust_horizon.clamp(1, c.nc);
+        let scenarios = crate::config::scenarios::names(s).len();
+        joints * (nr + scenarios * (c.nc - nr))
+    } else {
+        joints * c.nc
+    };
+    c.sqp
+        .qp
+        .resolve(c.sqp.hessian, n_vars, tree, AUTO_TREE_MIN_VARS)
+}
+
+/// `settings` with the QP back-end of [`solver_choice`] for `joints` joints (`qp = "auto"`
+/// resolved with the Hessian setting, never `Auto`).
+fn resolved(
+    mut settings: NmpcSettings,
+    s: &Experiment,
+    joints: usize,
+    multistage: bool,
+) -> NmpcSettings {
+    settings.qp = solver_choice(s, joints, multistage).qp;
+    settings
+}
+
 /// Torque limits of a scenario (paper eqs. 8-9).
-pub fn limits(s: &Scenario) -> TorqueLimits {
+pub fn limits(s: &Experiment) -> TorqueLimits {
     TorqueLimits {
         max: s.controller.torque_max,
         rate: s.rate_limit_per_step(),
@@ -51,7 +82,7 @@ pub fn limits(s: &Scenario) -> TorqueLimits {
 }
 
 /// Intent-estimate gains of a scenario (paper eqs. 5-6; `"auto"` = `κ / ks`, `control::IntentGain`).
-pub fn intent(s: &Scenario) -> IntentEstimator {
+pub fn intent(s: &Experiment) -> IntentEstimator {
     IntentEstimator {
         k1: s.controller.k1.gain(AUTO_K1_PER_STIFFNESS),
         k2: s.controller.k2.gain(AUTO_K2_PER_STIFFNESS),
@@ -59,14 +90,14 @@ pub fn intent(s: &Scenario) -> IntentEstimator {
 }
 
 /// Initial previous torque `T_R(−1) = G_R(q(0))` of the nominal robot (MODEL.md §7).
-pub fn initial_torque<D: Dof<N>, const N: usize>(s: &Scenario) -> SVector<f64, N> {
+pub fn initial_torque<D: Dof<N>, const N: usize>(s: &Experiment) -> SVector<f64, N> {
     let q0 = D::trajectory(s).eval(0.0).0;
     scenario_robot::<D, N>(s, 0.0).chain.gravity_torque(&q0)
 }
 
 /// The PD baseline of scenario `s` (`[controller.pd]` gains), previous torque `t0`.
 pub fn build_pd<D: Dof<N>, const N: usize>(
-    s: &Scenario,
+    s: &Experiment,
     t0: SVector<f64, N>,
 ) -> Result<Box<dyn Controller<N>>, RunError> {
     Ok(Box::new(PdController::new(
@@ -82,12 +113,12 @@ pub fn build_pd<D: Dof<N>, const N: usize>(
 
 /// The plain NMPC of scenario `s` on the nominal (0 kg) model, previous torque `t0`.
 pub fn build_nmpc<D: Dof<N>, const N: usize>(
-    s: &Scenario,
+    s: &Experiment,
     t0: SVector<f64, N>,
 ) -> Result<Box<dyn Controller<N>>, RunError> {
     Ok(Box::new(Nmpc::new(
         prediction_model::<D, N>(s, 0.0),
-        &nmpc_settings(s),
+        &resolved(nmpc_settings(s), s, N, false),
         intent(s),
         limits(s),
         t0,
@@ -97,7 +128,7 @@ pub fn build_nmpc<D: Dof<N>, const N: usize>(
 /// The transparent fallback controller of scenario `s` (the supervisor's `fallback` response):
 /// the bare robot and the robot with 1 kg at `robot.payload_position_m`, the straps, and the
 /// known measurement filter window.
-pub fn fallback<D: Dof<N>, const N: usize>(s: &Scenario) -> Transparent<N> {
+pub fn fallback<D: Dof<N>, const N: usize>(s: &Experiment) -> Transparent<N> {
     Transparent::new(
         scenario_robot::<D, N>(s, 0.0),
         scenario_robot::<D, N>(s, 1.0),
@@ -110,7 +141,7 @@ pub fn fallback<D: Dof<N>, const N: usize>(s: &Scenario) -> Transparent<N> {
 
 /// Build the multi-stage controller of scenario `s` for layout `D`.
 pub fn build_multistage<D, const N: usize, const NA: usize, const NY: usize>(
-    s: &Scenario,
+    s: &Experiment,
     t0: SVector<f64, N>,
 ) -> Result<Box<dyn Controller<N>>, RunError>
 where
@@ -144,7 +175,7 @@ where
     };
     let ms = MultiStage::<N, NA, NY>::new(
         models,
-        &multistage_nmpc_settings(s),
+        &resolved(multistage_nmpc_settings(s), s, N, true),
         &ekf,
         &est,
         options,
@@ -161,7 +192,7 @@ where
 
 impl SafetySettings {
     /// The settings of scenario `s` (`[monitors]`, `[faults] saturation_n`, limits, K1, dt).
-    pub fn from_scenario(s: &Scenario) -> Self {
+    pub fn from_scenario(s: &Experiment) -> Self {
         SafetySettings {
             limits: TorqueLimits {
                 max: s.controller.torque_max,

@@ -5,7 +5,7 @@
 use super::error::RunError;
 use super::layout::TwoDof;
 use super::run::run_experiment_report;
-use crate::config::Scenario;
+use crate::config::Experiment;
 use crate::sim::{Channel, FaultEvent, FaultKind, Recorder, StepRecord};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -187,7 +187,7 @@ struct Outcome {
     violations: u64,
 }
 
-fn run_one(s: &Scenario) -> Result<Outcome, RunError> {
+fn run_one(s: &Experiment) -> Result<Outcome, RunError> {
     let mut peak = Peak::default();
     let (sum, rep) = run_experiment_report::<TwoDof, 2>(s, &mut [&mut peak])?;
     Ok(Outcome {
@@ -207,11 +207,11 @@ fn run_one(s: &Scenario) -> Result<Outcome, RunError> {
 /// The faulted scenario of a cell: `base` (2-DOF, `run_s` long, `payload_kg`) with one
 /// `[[faults.events]]` per channel of `group`.
 pub fn cell_scenario(
-    base: &Scenario,
+    base: &Experiment,
     run_s: f64,
     payload_kg: f64,
     fault: Option<(FaultKind, ChannelGroup, f64, f64)>,
-) -> Scenario {
+) -> Experiment {
     let mut s = base.clone();
     s.uncertainty.payload_kg = payload_kg;
     s.timing.duration_2dof_s = run_s;
@@ -241,7 +241,7 @@ pub fn cell_scenario(
 /// groups × durations × starts × payloads. A scenario that does not validate (a payload out of
 /// range, a start beyond the run) is an error before anything runs.
 pub fn run_fault_scan(
-    base: &Scenario,
+    base: &Experiment,
     grid: &FaultGrid,
     progress: &(dyn Fn() + Sync),
 ) -> Result<Vec<FaultCell>, RunError> {

@@ -2,14 +2,14 @@
 //! ([`Builder`]).
 
 use super::error::RunError;
-use crate::config::{ControllerKind, Scenario};
+use crate::config::{ControllerKind, Experiment};
 use crate::control::Controller;
 use alloc::boxed::Box;
 use nalgebra::SVector;
 
 /// Builds a controller of scenario `s` with `N` joints and initial previous torque `t0`.
 pub type Builder<const N: usize> =
-    fn(&Scenario, SVector<f64, N>) -> Result<Box<dyn Controller<N>>, RunError>;
+    fn(&Experiment, SVector<f64, N>) -> Result<Box<dyn Controller<N>>, RunError>;
 
 /// One registered controller.
 #[derive(Clone, Copy, Debug)]

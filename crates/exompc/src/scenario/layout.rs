@@ -1,9 +1,9 @@
 //! The paper's two experiment layouts ([`TwoDof`], [`OneDof`] with the hip locked) and what a
-//! [`Scenario`] means for them: the plant's parameters, the robot, the trajectory and the
+//! [`Experiment`] means for them: the plant's parameters, the robot, the trajectory and the
 //! prediction models.
 
 use super::info::{Builder, ControllerInfo};
-use crate::config::Scenario;
+use crate::config::Experiment;
 use crate::control::PredictionModel;
 use crate::model::{Friction, HumanSegment, Link, RobotModel, Straps};
 use crate::sim::{
@@ -18,13 +18,13 @@ pub trait Dof<const N: usize> {
     /// Number of joints, as reported in summaries.
     const DOF: usize = N;
     /// Bare robot links (hip outwards).
-    fn robot_links(s: &Scenario) -> [Link; N];
+    fn robot_links(s: &Experiment) -> [Link; N];
     /// Human Winter segments.
-    fn human_segments(s: &Scenario) -> [HumanSegment; N];
+    fn human_segments(s: &Experiment) -> [HumanSegment; N];
     /// Strap model.
-    fn straps(s: &Scenario) -> Straps<N>;
+    fn straps(s: &Experiment) -> Straps<N>;
     /// The human's desired trajectory.
-    fn trajectory(s: &Scenario) -> Self::Traj;
+    fn trajectory(s: &Experiment) -> Self::Traj;
     /// The builder of controller `c` for this layout (see [`controllers`](super::controllers)).
     fn builder(c: &ControllerInfo) -> Builder<N>;
 }
@@ -39,13 +39,13 @@ pub struct OneDof;
 
 impl Dof<2> for TwoDof {
     type Traj = GaitTrajectory<SwingTrajectory, 2>;
-    fn robot_links(s: &Scenario) -> [Link; 2] {
+    fn robot_links(s: &Experiment) -> [Link; 2] {
         [s.robot.thigh, s.robot.shank]
     }
-    fn human_segments(s: &Scenario) -> [HumanSegment; 2] {
+    fn human_segments(s: &Experiment) -> [HumanSegment; 2] {
         [s.human.thigh, s.human.shank]
     }
-    fn straps(s: &Scenario) -> Straps<2> {
+    fn straps(s: &Experiment) -> Straps<2> {
         Straps::two_dof(
             s.straps.ls1_m,
             s.straps.ls2_m,
@@ -53,7 +53,7 @@ impl Dof<2> for TwoDof {
             s.straps.damping,
         )
     }
-    fn trajectory(s: &Scenario) -> GaitTrajectory<SwingTrajectory, 2> {
+    fn trajectory(s: &Experiment) -> GaitTrajectory<SwingTrajectory, 2> {
         s.trajectory.two_dof()
     }
     fn builder(c: &ControllerInfo) -> Builder<2> {
@@ -63,16 +63,16 @@ impl Dof<2> for TwoDof {
 
 impl Dof<1> for OneDof {
     type Traj = GaitTrajectory<KneeTrajectory, 1>;
-    fn robot_links(s: &Scenario) -> [Link; 1] {
+    fn robot_links(s: &Experiment) -> [Link; 1] {
         [s.robot.shank]
     }
-    fn human_segments(s: &Scenario) -> [HumanSegment; 1] {
+    fn human_segments(s: &Experiment) -> [HumanSegment; 1] {
         [s.human.shank]
     }
-    fn straps(s: &Scenario) -> Straps<1> {
+    fn straps(s: &Experiment) -> Straps<1> {
         Straps::one_dof(s.straps.ls2_m, s.straps.stiffness, s.straps.damping)
     }
-    fn trajectory(s: &Scenario) -> GaitTrajectory<KneeTrajectory, 1> {
+    fn trajectory(s: &Experiment) -> GaitTrajectory<KneeTrajectory, 1> {
         s.trajectory.one_dof()
     }
     fn builder(c: &ControllerInfo) -> Builder<1> {
@@ -82,12 +82,12 @@ impl Dof<1> for OneDof {
 
 /// The plant's uncertainty settings of a scenario: its `[uncertainty]` table, which is the
 /// simulator's own [`Uncertainty`] type.
-pub fn uncertainty(s: &Scenario) -> Uncertainty {
+pub fn uncertainty(s: &Experiment) -> Uncertainty {
     s.uncertainty
 }
 
 /// Plant parameters of a scenario for layout `D` (MODEL.md §2-7).
-pub fn plant_params<D: Dof<N>, const N: usize>(s: &Scenario) -> PlantParams<N> {
+pub fn plant_params<D: Dof<N>, const N: usize>(s: &Experiment) -> PlantParams<N> {
     let duration = s.duration_s(D::DOF);
     let ramp = D::DOF == 2 && s.uncertainty.human_mass_ramp;
     PlantParams {
@@ -120,7 +120,7 @@ pub fn plant_params<D: Dof<N>, const N: usize>(s: &Scenario) -> PlantParams<N> {
 /// of the desired trajectory on the true robot (payload `uncertainty.payload_kg`, mass
 /// perturbation, friction, disturbance) at the run's control instants, against
 /// `controller.torque_max`. It depends on the scenario, not on the controller.
-pub fn gait_demand<D: Dof<N>, const N: usize>(s: &Scenario) -> ActuatorDemand<N> {
+pub fn gait_demand<D: Dof<N>, const N: usize>(s: &Experiment) -> ActuatorDemand<N> {
     actuator_demand(
         &plant_params::<D, N>(s),
         &D::trajectory(s),
@@ -130,7 +130,7 @@ pub fn gait_demand<D: Dof<N>, const N: usize>(s: &Scenario) -> ActuatorDemand<N>
 }
 
 /// The controller's robot model for a payload scenario `payload_kg` (smooth friction).
-pub fn scenario_robot<D: Dof<N>, const N: usize>(s: &Scenario, payload_kg: f64) -> RobotModel<N> {
+pub fn scenario_robot<D: Dof<N>, const N: usize>(s: &Experiment, payload_kg: f64) -> RobotModel<N> {
     robot_model(
         &D::robot_links(s),
         s.robot.viscous_friction,
@@ -146,7 +146,7 @@ pub fn scenario_robot<D: Dof<N>, const N: usize>(s: &Scenario, payload_kg: f64) 
 
 /// The NMPC prediction model of a payload scenario (MODEL.md §8).
 pub fn prediction_model<D: Dof<N>, const N: usize>(
-    s: &Scenario,
+    s: &Experiment,
     payload_kg: f64,
 ) -> PredictionModel<N> {
     PredictionModel {

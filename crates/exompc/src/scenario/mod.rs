@@ -1,4 +1,4 @@
-//! The scenario layer: turns a [`Scenario`](crate::config::Scenario) description into a plant,
+//! The scenario layer: turns an [`Experiment`](crate::config::Experiment) description into a plant,
 //! a trajectory, prediction models and controllers ([`build_controller`], [`build_supervised`]),
 //! and runs experiments ([`run_experiment`], [`run_soak`]).
 //!
@@ -19,7 +19,7 @@ mod virtual_robot;
 
 pub use build::{
     build_multistage, build_nmpc, build_pd, fallback, initial_torque, intent, limits,
-    multistage_nmpc_settings, nmpc_settings,
+    multistage_nmpc_settings, nmpc_settings, solver_choice,
 };
 pub use error::RunError;
 #[cfg(feature = "std")]
@@ -37,6 +37,8 @@ pub use registry::{
     build_controller, build_supervised, controller_by_name, controller_info, controllers,
     supervise, validate, DuplicateController, BUILTIN,
 };
-pub use run::{run_experiment, run_experiment_report, run_soak, soak_scenario, SoakReport};
+pub use run::{
+    run_experiment, run_experiment_report, run_soak, soak_scenario, summary_solver, SoakReport,
+};
 #[cfg(feature = "std")]
 pub use virtual_robot::{RobotStats, RobotStep, StopCause, StopEvent, VirtualRobot, WatchdogEvent};

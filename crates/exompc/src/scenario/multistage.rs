@@ -5,7 +5,7 @@
 
 use super::layout::{prediction_model, Dof, OneDof, TwoDof};
 pub use crate::config::scenarios::*;
-use crate::config::Scenario;
+use crate::config::Experiment;
 use crate::control::PredictionModel;
 use crate::estimate::{EkfBank, EstimatorOptions};
 #[cfg(not(feature = "std"))]
@@ -18,7 +18,7 @@ use nalgebra::SVector;
 
 /// The prediction model of every scenario for layout `D` (docs/MODEL.md §8): the base model
 /// with the scenario's override and payload. The EKF bank uses each model's robot.
-pub fn prediction_models<D: Dof<N>, const N: usize>(s: &Scenario) -> Vec<PredictionModel<N>> {
+pub fn prediction_models<D: Dof<N>, const N: usize>(s: &Experiment) -> Vec<PredictionModel<N>> {
     resolve(s)
         .iter()
         .map(|r| prediction_model::<D, N>(&r.apply_to(s), r.payload_kg))
@@ -165,9 +165,9 @@ pub fn differing_keys(a: &ResolvedScenario, b: &ResolvedScenario) -> Vec<String>
 
 /// The pairs of scenarios of `s` that the EKF bank cannot tell apart in the `dof`-DOF layout
 /// (1 or 2), see [`ScenarioWarning`]. Empty for a single scenario, and for the default
-/// scenario set. `s` should be valid ([`Scenario::validate`]); an invalid one gives no
+/// scenario set. `s` should be valid ([`Experiment::validate`]); an invalid one gives no
 /// warnings.
-pub fn warnings(s: &Scenario, dof: usize) -> Vec<ScenarioWarning> {
+pub fn warnings(s: &Experiment, dof: usize) -> Vec<ScenarioWarning> {
     if s.validate().is_err() {
         return Vec::new();
     }
@@ -180,7 +180,7 @@ pub fn warnings(s: &Scenario, dof: usize) -> Vec<ScenarioWarning> {
 
 /// [`warnings`] for layout `D` (`NA = 3N`, `NY = 2N` as in the EKF bank).
 pub fn warnings_for<D: Dof<N>, const N: usize, const NA: usize, const NY: usize>(
-    s: &Scenario,
+    s: &Experiment,
 ) -> Vec<ScenarioWarning> {
     let resolved = resolve(s);
     let models = prediction_models::<D, N>(s);
@@ -237,7 +237,7 @@ fn warning(
 /// `ev[t][j]`: with scenario `t` as the truth, the log-likelihood of eq. 10 of scenario `j`'s
 /// filter summed over the identifiability run (see [`ScenarioWarning`]).
 fn evidence<D: Dof<N>, const N: usize, const NA: usize, const NY: usize>(
-    s: &Scenario,
+    s: &Experiment,
     models: &[PredictionModel<N>],
 ) -> Vec<Vec<f64>> {
     let robots: Vec<_> = models.iter().map(|m| m.robot).collect();

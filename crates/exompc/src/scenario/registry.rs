@@ -12,7 +12,7 @@ use super::build::{build_multistage, build_nmpc, build_pd, fallback, initial_tor
 use super::error::RunError;
 use super::info::ControllerInfo;
 use super::layout::{Dof, OneDof, TwoDof};
-use crate::config::{ConfigError, ControllerKind, MonitorResponse, Scenario};
+use crate::config::{ConfigError, ControllerKind, Experiment, MonitorResponse};
 use crate::control::{Controller, SafetySettings, Supervisor};
 use alloc::{boxed::Box, format, string::String, vec::Vec};
 #[cfg(feature = "std")]
@@ -64,7 +64,7 @@ pub struct DuplicateController(pub ControllerKind);
 /// [`run_experiment`](super::run_experiment) build it. Fails if the name is taken.
 ///
 /// ```
-/// use exompc::config::{ControllerKind, Scenario};
+/// use exompc::config::{ControllerKind, Experiment};
 /// use exompc::scenario::{build_pd, register_controller, ControllerInfo, OneDof, TwoDof};
 ///
 /// static MINE: ControllerInfo = ControllerInfo {
@@ -77,7 +77,7 @@ pub struct DuplicateController(pub ControllerKind);
 ///     build_1dof: build_pd::<OneDof, 1>,
 /// };
 /// register_controller(&MINE).unwrap();
-/// let mut s = Scenario::default();
+/// let mut s = Experiment::default();
 /// s.controller.kind = ControllerKind::new("my-pd").unwrap();
 /// exompc::scenario::validate(&s).unwrap();
 /// assert!(register_controller(&MINE).is_err());
@@ -127,9 +127,9 @@ pub fn controller_info(kind: ControllerKind) -> Result<&'static ControllerInfo, 
     })
 }
 
-/// [`Scenario::validate`], and `controller.kind` names a registered controller: the whole
+/// [`Experiment::validate`], and `controller.kind` names a registered controller: the whole
 /// check of a scenario before it is run.
-pub fn validate(s: &Scenario) -> Result<(), ConfigError> {
+pub fn validate(s: &Experiment) -> Result<(), ConfigError> {
     s.validate()?;
     controller_info(s.controller.kind).map(|_| ())
 }
@@ -138,7 +138,7 @@ pub fn validate(s: &Scenario) -> Result<(), ConfigError> {
 /// ([`controllers`](super::controllers)); [`RunError::Config`] naming `controller.kind` if no
 /// controller of that name is registered.
 pub fn build_controller<D: Dof<N>, const N: usize>(
-    s: &Scenario,
+    s: &Experiment,
     kind: ControllerKind,
 ) -> Result<Box<dyn Controller<N>>, RunError> {
     let info = controller_info(kind)?;
@@ -149,7 +149,7 @@ pub fn build_controller<D: Dof<N>, const N: usize>(
 /// The controller `kind` of scenario `s` wrapped in the safety [`Supervisor`]
 /// (plausibility checks and the `[monitors]` of `s`).
 pub fn build_supervised<D: Dof<N>, const N: usize>(
-    s: &Scenario,
+    s: &Experiment,
     kind: ControllerKind,
 ) -> Result<Supervisor<N, Box<dyn Controller<N>>>, RunError> {
     Ok(supervise::<D, N>(s, build_controller::<D, N>(s, kind)?))
@@ -160,7 +160,7 @@ pub fn build_supervised<D: Dof<N>, const N: usize>(
 /// build that names its controller's builder directly instead of going through the registry
 /// (the firmware's controller-only image links one controller only).
 pub fn supervise<D: Dof<N>, const N: usize>(
-    s: &Scenario,
+    s: &Experiment,
     ctrl: Box<dyn Controller<N>>,
 ) -> Supervisor<N, Box<dyn Controller<N>>> {
     let sup = Supervisor::new(ctrl, SafetySettings::from_scenario(s));

@@ -1,4 +1,4 @@
-//! Running one experiment of a [`Scenario`] (closed loop, metrics, safety report) and the
+//! Running one experiment of an [`Experiment`] (closed loop, metrics, safety report) and the
 //! fault-injected soak run.
 
 use super::build::limits;
@@ -7,7 +7,7 @@ use super::layout::{plant_params, uncertainty, Dof, TwoDof};
 use super::registry::build_supervised;
 #[cfg(not(feature = "std"))]
 use crate::clock::Instant;
-use crate::config::{ControllerKind, Scenario};
+use crate::config::{ControllerKind, Experiment};
 use crate::control::{Controller, MonitorEvent, SafetyReport};
 use crate::sim::{
     default_schedule, repeat_schedule, run_closed_loop, Metrics, Plant, Recorder, SafetySummary,
@@ -26,7 +26,7 @@ use std::time::Instant;
 /// A recorder returning [`stop_requested`](crate::sim::stop_requested) ends the run early
 /// with the summary of the steps run so far.
 pub fn run_experiment<D: Dof<N>, const N: usize>(
-    s: &Scenario,
+    s: &Experiment,
     recorders: &mut [&mut dyn Recorder<N>],
 ) -> Result<Summary, RunError> {
     run_experiment_report::<D, N>(s, recorders).map(|(summary, _)| summary)
@@ -55,7 +55,7 @@ const MAX_PREALLOCATED_STEPS: usize = 1 << 22;
 
 /// [`run_experiment`], also returning the safety supervisor's counters and monitor events.
 pub fn run_experiment_report<D: Dof<N>, const N: usize>(
-    s: &Scenario,
+    s: &Experiment,
     recorders: &mut [&mut dyn Recorder<N>],
 ) -> Result<(Summary, SafetyReport), RunError> {
     s.validate()?;
@@ -101,8 +101,22 @@ pub fn run_experiment_report<D: Dof<N>, const N: usize>(
     if super::controller_info(s.controller.kind)?.multistage {
         summary.scenarios = Some(crate::config::scenarios::names(s));
     }
+    summary.solver = summary_solver(s, D::DOF)?;
     summary.safety = SafetySummary::from_report(controller.report());
     Ok((summary, controller.report().clone()))
+}
+
+/// The run summary's `solver` for the controller of `s` with `joints` joints: what
+/// `[controller.sqp] qp` and `hessian` resolve to ([`super::solver_choice`]) for the plain
+/// NMPC and the multi-stage entries of the registry, `None` for the others (`pd`). Fails
+/// only for a `controller.kind` the registry does not know.
+pub fn summary_solver(
+    s: &Experiment,
+    joints: usize,
+) -> Result<Option<crate::control::SolverChoice>, RunError> {
+    let multistage = super::controller_info(s.controller.kind)?.multistage;
+    Ok((multistage || s.controller.kind == ControllerKind::NMPC)
+        .then(|| super::build::solver_choice(s, joints, multistage)))
 }
 
 /// Result of [`run_soak`] (written as `soak.json` by `exompc soak`).
@@ -145,7 +159,7 @@ pub struct SoakReport {
 /// The soak scenario: `base` as a 2-DOF MS-NMPC run of `seconds` simulated seconds with true
 /// payload `payload_kg`; when `base` has no fault events, [`default_schedule`] repeated every
 /// 60 s.
-pub fn soak_scenario(base: &Scenario, seconds: f64, payload_kg: f64) -> Scenario {
+pub fn soak_scenario(base: &Experiment, seconds: f64, payload_kg: f64) -> Experiment {
     let mut s = base.clone();
     s.controller.kind = ControllerKind::MSNMPC;
     s.uncertainty.payload_kg = payload_kg;
@@ -159,7 +173,7 @@ pub fn soak_scenario(base: &Scenario, seconds: f64, payload_kg: f64) -> Scenario
 /// Run the soak scenario of [`soak_scenario`] (2-DOF), feeding every step to `recorders` as
 /// well; memory stays constant apart from the summary's step-time samples.
 pub fn run_soak(
-    base: &Scenario,
+    base: &Experiment,
     seconds: f64,
     payload_kg: f64,
     recorders: &mut [&mut dyn Recorder<2>],

@@ -79,6 +79,11 @@ pub struct Summary {
     /// scenarios.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub scenarios: Option<Vec<String>>,
+    /// The QP back-end and Hessian model the NMPC solves ran (`[controller.sqp] qp` and
+    /// `hessian` resolved, `control::QpBackend::resolve`); `null` for a controller without
+    /// an SQP (`pd`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub solver: Option<crate::control::SolverChoice>,
     /// Controller compute time per step (µs).
     pub step_time_us: StepTimeStats,
     /// Steps whose torque violated a limit (must be 0).
@@ -139,6 +144,7 @@ impl Metrics {
                 Some(self.prob_sum.iter().map(|s| s / n).collect())
             },
             scenarios: None,
+            solver: None,
             step_time_us: StepTimeStats::from_samples(&mut times),
             limit_violations: self.limit_violations,
             solver_failures: self.solver_failures,

@@ -61,7 +61,7 @@ pub fn robot_links() -> [exompc::model::Link; 2] {
 /// docs/MODEL.md §5); `each` sees the step index, the filtered measurement, the previous torque,
 /// the driver's output torque and the driver.
 pub fn closed_loop(
-    s: &exompc::config::Scenario,
+    s: &exompc::config::Experiment,
     driver: &mut dyn exompc::control::Controller<2>,
     steps: usize,
     mut each: impl FnMut(
@@ -181,7 +181,7 @@ pub type Trace<const N: usize> = Vec<(nalgebra::SVector<f64, N>, u32, exompc::co
 /// The closed loop of scenario `s` with controller `kind` for `steps` steps (plant, sensors
 /// and controller as `exompc simulate` builds them).
 pub fn closed_loop_trace<D: exompc::scenario::Dof<N>, const N: usize>(
-    s: &exompc::config::Scenario,
+    s: &exompc::config::Experiment,
     kind: exompc::config::ControllerKind,
     steps: usize,
 ) -> Trace<N> {
@@ -335,7 +335,7 @@ pub fn solve_both_cold<const N: usize>(
 /// structured QP back-end (`[controller.sqp] qp`), controller `kind`: the largest difference
 /// between their torques (N·m). Prints the first step that differs by more than 1e-9.
 pub fn dense_vs_structured_torque_diff<D: exompc::scenario::Dof<N>, const N: usize>(
-    s: &exompc::config::Scenario,
+    s: &exompc::config::Experiment,
     kind: exompc::config::ControllerKind,
     steps: usize,
 ) -> f64 {
@@ -364,8 +364,8 @@ pub fn dense_vs_structured_torque_diff<D: exompc::scenario::Dof<N>, const N: usi
 
 /// The provoked limit cycle of issue 10: the paper's method (`controller.method = "paper"`)
 /// with a 9-sample filter and 2 kg at the ankle (0.43 m) oscillates at 4 Hz from the start.
-pub fn provoked_limit_cycle() -> exompc::config::Scenario {
-    let mut s = exompc::config::Scenario::default();
+pub fn provoked_limit_cycle() -> exompc::config::Experiment {
+    let mut s = exompc::config::Experiment::default();
     s.controller.method = exompc::config::Method::Paper;
     s.uncertainty.filter_window = 9;
     s.uncertainty.payload_kg = 2.0;
