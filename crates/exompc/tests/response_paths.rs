@@ -12,7 +12,7 @@
 //! monitor applies `response`); the protective stop by a NaN on both angles for 1 s from 3 s
 //! (a persistent fault: the stop from 3.5 s, the controller back 0.1 s after the angles).
 
-use exompc::config::Scenario;
+use exompc::config::Experiment;
 use exompc::control::{MonitorAction, MonitorKind, MonitorResponse, TorqueLimits};
 use exompc::scenario::{run_experiment_report, TwoDof};
 use exompc::sim::{
@@ -32,9 +32,9 @@ const MAX_JUMP_N: f64 = 8.0;
 const RAMP_WINDOW_S: f64 = 0.4;
 
 /// The hard cells at 3 kg, 6-s 2-DOF MS-NMPC runs.
-fn cells() -> Vec<(&'static str, Scenario)> {
+fn cells() -> Vec<(&'static str, Experiment)> {
     let base = || {
-        let mut s = Scenario::default();
+        let mut s = Experiment::default();
         s.uncertainty.payload_kg = 3.0;
         s.timing.duration_2dof_s = 6.0;
         s
@@ -84,7 +84,7 @@ fn event(kind: FaultKind, channel: Channel, start_s: f64, duration_s: f64) -> Fa
 }
 
 /// `s` with the fault that drives `path` from 3 s.
-fn driven(s: &Scenario, path: Path) -> Scenario {
+fn driven(s: &Experiment, path: Path) -> Experiment {
     let mut s = s.clone();
     let railed = vec![event(FaultKind::Saturation, Channel::F2, 3.0, 0.5)];
     match path {
@@ -123,7 +123,7 @@ struct Felt {
     limit_violations: u64,
 }
 
-fn feel(s: &Scenario, from: f64) -> Felt {
+fn feel(s: &Experiment, from: f64) -> Felt {
     let mut log = TraceLog::<2>::default();
     let (sum, rep) = run_experiment_report::<TwoDof, 2>(s, &mut [&mut log]).unwrap();
     let rows = &log.rows;
@@ -197,7 +197,7 @@ fn table() {
     // The persistent fault of docs/RELIABILITY.md §2 on the default cell: a NaN on both
     // angles for 1.5 s from 2 s (the stop from 2.5 s).
     for payload in [0.0, 2.0, 3.0] {
-        let mut s = Scenario::default();
+        let mut s = Experiment::default();
         s.uncertainty.payload_kg = payload;
         s.timing.duration_2dof_s = 6.0;
         s.faults.events = vec![

@@ -5,7 +5,7 @@
 //! sensor fault do not latch, a loss of every sensor is ridden through on the replayed torque,
 //! and a persistent fault ends in the protective stop.
 
-use exompc::config::{ControllerKind, Scenario};
+use exompc::config::{ControllerKind, Experiment};
 use exompc::control::{
     ChannelGuard, Measurement, MonitorAction, MonitorKind, StepStatus, TorqueExtrapolation,
     EXTRAPOLATION_MAX_HZ, GAIT_MAX_HZ,
@@ -15,8 +15,8 @@ use exompc::scenario::{run_experiment_report, TwoDof};
 use exompc::sim::{Channel, FaultEvent, FaultKind, TraceLog};
 use nalgebra::SVector;
 
-fn scenario(kind: ControllerKind, payload: f64, seconds: f64) -> Scenario {
-    let mut s = Scenario::default();
+fn scenario(kind: ControllerKind, payload: f64, seconds: f64) -> Experiment {
+    let mut s = Experiment::default();
     s.controller.kind = kind;
     s.uncertainty.payload_kg = payload;
     s.timing.duration_2dof_s = seconds;
@@ -37,7 +37,7 @@ fn fault(kind: FaultKind, channels: &[Channel], start: f64, dur: f64, mag: f64) 
 }
 
 /// (peak |true strap force| (N), RMS per strap (N), safety report, trace).
-fn run(s: &Scenario) -> (f64, [f64; 2], exompc::control::SafetyReport, TraceLog<2>) {
+fn run(s: &Experiment) -> (f64, [f64; 2], exompc::control::SafetyReport, TraceLog<2>) {
     let mut log = TraceLog::default();
     let (sum, rep) = run_experiment_report::<TwoDof, 2>(s, &mut [&mut log]).unwrap();
     assert_eq!(sum.limit_violations, 0);
