@@ -24,6 +24,7 @@ use super::lag::{ForceLag, HfShareDetector};
 use super::Measurement;
 #[cfg(not(feature = "std"))]
 use crate::math::Float;
+use alloc::{format, string::String};
 use nalgebra::SVector;
 use serde::de::IgnoredAny;
 use serde::{Deserialize, Serialize};
