@@ -812,6 +812,16 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         sup
     }
 
+    /// The gait period `period_s` in steps, when the torque history holds more than it: the lag
+    /// of the replay of one gait period back. A period longer than the history, shorter than
+    /// two steps or not finite is not replayed (checked in floating point: no overflow).
+    fn replay_lag(&self, period_s: Option<f64>) -> Option<usize> {
+        period_s
+            .map(|p| (p / self.dt()).round())
+            .filter(|&p| p >= 2.0 && p + 2.0 < self.torque_filled as f64)
+            .map(|p| p as usize)
+    }
+
     /// A gap of `gap_s` in the measurements (periods the runtime did not step the controller,
     /// e.g. a link outage): the torque history moves on by the missing periods, filled with
     /// the replay of one gait period back (what the robot plays out during the gap) or,
@@ -825,10 +835,7 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             self.torque_filled = 0;
             return;
         }
-        let p = period_s
-            .map(|p| (p / self.dt()).round())
-            .filter(|&p| p >= 2.0 && p + 2.0 < self.torque_filled as f64)
-            .map(|p| p as usize);
+        let p = self.replay_lag(period_s);
         for _ in 0..missing as usize {
             let t = p.map_or(self.prev, |p| {
                 self.torque_hist[(self.torque_pos + len - p) % len]
@@ -1184,11 +1191,7 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         if coast && !self.coasting {
             self.stall_coast = rep.stalled;
         }
-        // (a period longer than the history, or not finite, is not replayed; no overflow)
-        let replay_period = period
-            .map(|p| (p / self.dt()).round())
-            .filter(|&p| p >= 2.0 && p + 2.0 < self.torque_filled as f64)
-            .map(|p| p as usize);
+        let replay_period = self.replay_lag(period);
         let len = self.torque_hist.len();
         // Before the gait period is known (the first gait period), the replay extrapolates
         // the applied torque at the gait frequency of the recent angles
