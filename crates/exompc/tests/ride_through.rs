@@ -242,6 +242,50 @@ fn delay(
     None
 }
 
+/// A gap in the data (the runtime steps nothing in a period without a sample) while a channel
+/// is rejected (no gait period known yet): the first sample after it, in range, is accepted on
+/// every channel, and the estimate is ready. There is no warm history to compare it with; before, the rejected angle
+/// waited for the resynchronisation (`resync_after` steps, `sensor_timeout_s`) while the
+/// guard, its history restarted, stayed not ready, so the supervisor held the torque for
+/// 0.5 s (the runtime's 20-ms delay spikes: 74.6 N, docs/REALTIME.md).
+#[test]
+fn a_gap_in_the_data_ends_a_rejection_without_waiting() {
+    for (sig, spike) in [(0, 0.5), (1, 5.0), (2, 30.0)] {
+        let mut g = Gait::new();
+        let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
+        for k in 0..303 {
+            let mut raw = g.raw(k);
+            if k >= 300 {
+                match sig {
+                    0 => raw.0[1] += spike,
+                    1 => raw.1[1] += spike,
+                    _ => raw.2[1] += spike,
+                }
+            }
+            let m = g.measure(k, raw);
+            guard.repair(&m, None, 50, None);
+        }
+        assert!(
+            guard.is_rejected(sig, 1),
+            "signal {sig}: the spike is rejected"
+        );
+        // Samples 303-312 never arrive; the loop restarts its filter windows after the gap.
+        g.qd_f.reset();
+        g.f_f.reset();
+        for k in 313..320 {
+            let m = g.measure(k, g.raw(k));
+            let rep = guard.repair(&m, None, 50, None);
+            assert!(rep.ready, "signal {sig}, step {k}: not ready");
+            assert!(
+                !rep.any_rejected,
+                "signal {sig}, step {k}: {:?}",
+                rep.estimated
+            );
+            assert_eq!(rep.m, m, "signal {sig}, step {k}");
+        }
+    }
+}
+
 /// Detection delays (docs/RELIABILITY.md §2), on a 1-Hz sine gait through the 5-sample filter
 /// at 10 ms: non-finite and out-of-range angles, velocities and forces in the same sample, an
 /// encoder spike in the same sample, a stuck encoder within one sample, a velocity spike or

@@ -351,6 +351,13 @@ struct Direct {
     drop_commands: Vec<u32>,
     /// Samples arriving 3 ms after their timestamp.
     late_samples: Vec<u64>,
+    /// Samples arriving `delay` after their timestamp, past the loop's sample timeout (a
+    /// network delay spike); non-empty: the robot advances with the clock ([`Direct::read_delayed`]).
+    delayed_samples: Vec<u64>,
+    delay: Duration,
+    /// Sample datagrams in flight: arrival time, bytes.
+    inbox: Vec<(Duration, Vec<u8>)>,
+    last_stamp: Option<Duration>,
     attacks: Vec<(u32, Attack)>,
     /// Every command datagram the controller sent (for replays).
     sent: Vec<Vec<u8>>,
@@ -373,6 +380,10 @@ impl Direct {
             drop_samples: Vec::new(),
             drop_commands: Vec::new(),
             late_samples: Vec::new(),
+            delayed_samples: Vec::new(),
+            delay: Duration::ZERO,
+            inbox: Vec::new(),
+            last_stamp: None,
             attacks: Vec::new(),
             sent: Vec::new(),
             nonces: 0,
@@ -397,6 +408,47 @@ impl Direct {
             }
             RobotRx::Reply | RobotRx::Nothing => {}
         }
+    }
+
+    /// [`RobotInterface::read`] over a network that delays some samples: the robot advances
+    /// with the clock (one sample per period up to the read's timeout), each sample arrives
+    /// at its timestamp (plus `delay` when delayed), and the read returns the earliest one
+    /// arrived by the timeout, or none, as a socket does.
+    fn read_delayed(&mut self, timeout: Duration) -> Option<RobotSample<2>> {
+        const PERIOD: Duration = Duration::from_millis(10);
+        let until = self.clock.now() + timeout;
+        while self.last_stamp.is_none_or(|t| t + PERIOD <= until) {
+            if self.started {
+                self.steps.push(self.vr.advance());
+            }
+            self.started = true;
+            let s = self.vr.sample();
+            let stamp = Duration::from_nanos(s.stamp_ns);
+            self.last_stamp = Some(stamp);
+            let seq = u64::from(s.seq);
+            let late = if self.delayed_samples.contains(&seq) {
+                self.delay
+            } else {
+                Duration::ZERO
+            };
+            if !self.drop_samples.contains(&seq) {
+                if let Some((bytes, _)) = self.rob.sample(&s) {
+                    self.inbox.push((stamp + late, bytes.to_vec()));
+                }
+            }
+        }
+        while let Some(i) = (0..self.inbox.len())
+            .filter(|&i| self.inbox[i].0 <= until)
+            .min_by_key(|&i| self.inbox[i].0)
+        {
+            let (at, bytes) = self.inbox.remove(i);
+            self.clock.sleep_until(at);
+            if let Some(sample) = self.ctl.receive(&bytes) {
+                return Some(sample);
+            }
+        }
+        self.clock.sleep_until(until);
+        None
     }
 
     /// Advance the robot one period with no controller at all (it died).
@@ -455,7 +507,10 @@ impl RobotInterface<2> for Direct {
         Ok(self.vr.state() == Lifecycle::Active)
     }
 
-    fn read(&mut self, _timeout: Duration) -> std::io::Result<Option<RobotSample<2>>> {
+    fn read(&mut self, timeout: Duration) -> std::io::Result<Option<RobotSample<2>>> {
+        if !self.delayed_samples.is_empty() {
+            return Ok(self.read_delayed(timeout));
+        }
         if self.started {
             self.steps.push(self.vr.advance());
         }
@@ -1256,6 +1311,49 @@ fn link_outages_are_ridden_through() {
             assert!(rms <= 1.5 * rms0, "{ms} ms at {at} s: RMS {rms} vs {rms0}");
         }
     }
+}
+
+/// Network delay spikes: every sample of a 50-ms window arrives 20 ms late (past the loop's
+/// sample timeout), once a second from 1 s, in a 2-kg run (the virtual robot's `--delay-every
+/// 1 --delay-ms 20 --delay-width 0.05` on the samples). The loop answers the late samples,
+/// skips the ones overtaken and resumes, the robot riding through the stale commands: peak true
+/// strap force ≤ 2× the clean run's (issue 28's bound for one channel group) and RMS within
+/// 1.2×, no protective stop, no limit violation (measured: 8.5 N / 6.1 N, RMS 1.11×).
+/// Before, the loop restarted its filter windows after every period without a sample, even
+/// when the next sample followed on in time: the filtered velocities and forces jumped, the
+/// supervisor rejected them, and after the data's gap its fault detector waited
+/// `sensor_timeout_s` holding the torque (here 45.3 N, RMS 1.87×; the UDP run of
+/// docs/REALTIME.md 74.6 N, RMS 8.64 / 6.62 N against 2.17 / 2.44 N clean).
+#[test]
+fn delay_spikes_are_not_felt() {
+    let s = scenario(4.0);
+    let periods = 400;
+    let clean = run(&s, periods, Direct::new(robot(&s, 20))).0.steps;
+    let (peak0, rms0) = force_stats(&clean);
+    let mut link = Direct::new(robot(&s, 20));
+    link.delay = Duration::from_millis(20);
+    link.delayed_samples = [100u64, 200, 300]
+        .iter()
+        .flat_map(|&k| k + 1..k + 6)
+        .collect();
+    let (link, lp, recs) = run(&s, periods, link);
+    let (peak, rms) = force_stats(&link.steps);
+    let missing = recs.iter().filter(|r| r.sample.is_none()).count();
+    println!(
+        "delay spikes: peak {peak:.1} N (clean {peak0:.1}), RMS {rms:.2} N (clean {rms0:.2}), \
+         {missing} periods without a sample, {} ridden through by the robot, {:?}",
+        link.vr.stats().held,
+        lp.stats()
+    );
+    assert!(
+        missing >= 3,
+        "the delays must cost the loop samples ({missing})"
+    );
+    assert_eq!(link.vr.stats().protective_stops, 0);
+    assert!(link.steps.iter().all(|x| x.within_limits));
+    assert_eq!(lp.stats().limit_violations, 0);
+    assert!(peak <= 2.0 * peak0, "peak {peak} N vs clean {peak0} N");
+    assert!(rms <= 1.2 * rms0, "RMS {rms} vs clean {rms0}");
 }
 
 /// Link outages (both directions lost) of 60/120/200 ms starting every 0.1 s from 0.5 s to

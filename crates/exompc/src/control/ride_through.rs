@@ -336,8 +336,14 @@ impl<const N: usize> ChannelGuard<N> {
                 }
                 let good = if !in_range || stuck || stalled {
                     false
-                } else if (was_bad && self.railed[j]) || (!was_bad && (after_rail || after_accept))
+                } else if (was_bad && (self.railed[j] || !warm))
+                    || (!was_bad && (after_rail || after_accept))
                 {
+                    // Without a warm history (the start, or a gap in the data) there is no
+                    // estimate to compare with: a value in range is accepted, as a channel that
+                    // was good is then. Waiting for the resynchronisation instead held the
+                    // torque for `sensor_timeout_s` after a gap (`ready` stays false while a
+                    // channel is rejected and the history is empty).
                     true
                 } else if was_bad {
                     let estimate = if sig == QD && slope_ok {

@@ -139,8 +139,9 @@ pub struct ControlLoop<const N: usize, C> {
     cmd_seq: u32,
     last_t: f64,
     started: bool,
-    /// The previous period had no sample (a gap in the data).
-    missed: bool,
+    /// The timestamp of the last sample (ns): a later one more than 1.5 periods after it
+    /// follows a gap in the data.
+    last_stamp_ns: Option<u64>,
     stopping: bool,
     stats: LoopStats,
     timing: TimingStats,
@@ -164,7 +165,7 @@ impl<const N: usize, C: Controller<N>> ControlLoop<N, C> {
             cmd_seq: 0,
             last_t: 0.0,
             started: false,
-            missed: false,
+            last_stamp_ns: None,
             stopping: false,
             stats: LoopStats::default(),
             timing: TimingStats::with_capacity(capacity),
@@ -367,11 +368,19 @@ impl<const N: usize, C: Controller<N>> ControlLoop<N, C> {
                 self.started = true;
                 let t = s.stamp_ns as f64 * 1e-9;
                 self.last_t = t;
-                // After a gap the filter windows restart: the samples from before the gap
-                // would pull the filtered velocity and force back to the leg's motion of
-                // up to `filter_window` samples before it (a 120-ms outage at 3 s into a 2-kg
-                // run: the controller resumed on a velocity of the wrong sign).
-                if std::mem::take(&mut self.missed) {
+                // After a gap in the data the filter windows restart: the samples from before
+                // the gap would pull the filtered velocity and force back to the leg's motion
+                // of up to `filter_window` samples before it (a 120-ms outage at 3 s into a
+                // 2-kg run: the controller resumed on a velocity of the wrong sign). A sample
+                // that only arrived late (a period without a sample, then this one, next in
+                // time) is no gap: restarting the windows then made the filtered channels
+                // jump, and the supervisor rejected them (20-ms delay spikes: 74.6 N).
+                let period_ns = self.s.dt.as_nanos() as u64;
+                let gap = self
+                    .last_stamp_ns
+                    .is_some_and(|p| s.stamp_ns > p + period_ns + period_ns / 2);
+                self.last_stamp_ns = Some(s.stamp_ns);
+                if gap {
                     self.vel.reset();
                     self.force.reset();
                 }
@@ -384,7 +393,6 @@ impl<const N: usize, C: Controller<N>> ControlLoop<N, C> {
             }
             None => {
                 self.stats.missing_samples += 1;
-                self.missed = true;
                 self.last_t += dt_s;
                 Measurement {
                     t: self.last_t,
