@@ -107,6 +107,9 @@ pub struct ChannelGuard<const N: usize> {
     /// Per joint: samples left during which a velocity rejected with a stalled acquisition
     /// (every angle frozen or non-finite at once) is not accepted again.
     stall_left: [u32; N],
+    /// Per joint: samples left during which a velocity found frozen is not accepted again: once
+    /// it moves, its filter window still holds frozen samples for `window − 1` more.
+    unfreeze_left: [u32; N],
 }
 
 /// Which channels of a measurement stand in for rejected ones and must not update a
@@ -189,6 +192,7 @@ impl<const N: usize> ChannelGuard<N> {
             after_accept: [[0; N]; 3],
             q_good_for: [0; N],
             stall_left: [0; N],
+            unfreeze_left: [0; N],
             last_t: f64::NAN,
         }
     }
@@ -334,7 +338,21 @@ impl<const N: usize> ChannelGuard<N> {
                         self.stall_left[j].saturating_sub(1)
                     };
                 }
-                let good = if !in_range || stuck || stalled {
+                // A frozen filtered velocity (a stuck or dropped-out raw velocity) that moves
+                // again still averages frozen samples for `window − 1` samples: its ramp
+                // back crosses the estimate, and accepting it there fed the controller a
+                // velocity between the frozen and the true one (a 60-ms stuck velocity at
+                // 1.5 s, 0 kg: 70 N).
+                let frozen = stuck && in_range;
+                let unfreezing = sig == QD && !frozen && self.unfreeze_left[j] > 0;
+                if sig == QD {
+                    self.unfreeze_left[j] = if frozen {
+                        self.window.saturating_sub(1) as u32
+                    } else {
+                        self.unfreeze_left[j].saturating_sub(1)
+                    };
+                }
+                let good = if !in_range || stuck || stalled || unfreezing {
                     false
                 } else if (was_bad && (self.railed[j] || !warm))
                     || (!was_bad && (after_rail || after_accept))
