@@ -270,7 +270,13 @@ impl RiccatiQp {
                     ls[c * NU + r] = rj[c * NU + r] + m[(ns + r, ns + c)];
                 }
             }
-            SMatrix::<f64, NU, NX>::from_fn(|i, c| m[(ns + i, c)])
+            let mut sb = SMatrix::<f64, NU, NX>::zeros();
+            for c in 0..NX {
+                for i in 0..NU {
+                    sb[(i, c)] = m[(ns + i, c)];
+                }
+            }
+            sb
         } else {
             let b = SMatrix::<f64, NX, NU>::from_column_slice(
                 &self.data.b[j * NX * NU..(j + 1) * NX * NU],
