@@ -195,6 +195,25 @@ def test_trace_keys_are_the_column_tables():
         assert c["per"] in {"step", "joint", "strap", "scenario", "scenario_joint"} and c["unit"]
 
 
+def test_summary_keys_are_the_typed_dict():
+    # exompc.Summary types the summary: a key the library adds (or drops) without the TypedDict
+    # fails here; `solver` holds one of the values its Literal types allow.
+    from typing import get_args, get_type_hints
+
+    required, optional = exompc.Summary.__required_keys__, exompc.Summary.__optional_keys__
+    choice = get_type_hints(exompc.SolverChoice)
+    for kind, solver in (("msnmpc", True), ("nmpc", True), ("pd", False)):
+        r = exompc.simulate(duration=0.2, controller=kind)
+        assert required <= set(r) <= required | optional, kind
+        assert ("solver" in r) == solver, kind
+        if solver:
+            assert set(r["solver"]) == set(choice)
+            for k, v in r["solver"].items():
+                assert v in get_args(choice[k]), (kind, k, v)
+    assert set(exompc.Summary.__annotations__) | set(exompc._SummaryKeys.__annotations__) \
+        >= set(TIMING_FREE)
+
+
 def test_bad_values_raise_naming_the_field():
     s = exompc.Scenario.default()
     cases = [

@@ -22,7 +22,7 @@ stops a long call (the process stays usable). See docs/PYTHON.md.
 from __future__ import annotations
 
 import itertools
-from typing import Any, Dict, Iterable, List, Literal, Mapping, Optional, Sequence
+from typing import Any, Dict, Iterable, List, Literal, Mapping, Optional, Sequence, TypedDict, cast
 
 import numpy as np
 
@@ -56,6 +56,9 @@ __all__ = [
     "RunError",
     "Scenario",
     "Simulator",
+    "SolverChoice",
+    "StepTime",
+    "Summary",
     "Uniform",
     "__version__",
     "default_config_toml",
@@ -72,6 +75,53 @@ __all__ = [
 ]
 
 
+class SolverChoice(TypedDict):
+    """The summary's ``solver``: what ``[controller.sqp] qp`` and ``hessian`` resolved to for
+    the NMPC solves (``"auto"`` never appears here)."""
+
+    qp: Literal["dense", "structured"]
+    hessian: Literal["gauss_newton", "structured_secant", "exact"]
+
+
+class StepTime(TypedDict):
+    """The summary's ``step_time_us``: controller compute time per step (µs)."""
+
+    mean: float
+    p50: float
+    p99: float
+    max: float
+
+
+class _SummaryKeys(TypedDict):
+    controller: str
+    dof: int
+    payload_kg: float
+    duration_s: float
+    steps: int
+    rms_force_n: Dict[str, Optional[float]]
+    delta_max_deg: Dict[str, Optional[float]]
+    mean_probability: Optional[List[float]]
+    step_time_us: StepTime
+    limit_violations: int
+    solver_failures: int
+    safety: Dict[str, Any]
+
+
+class Summary(_SummaryKeys, total=False):
+    """A run's summary (the keys of ``exompc simulate --json``), as :func:`simulate` and
+    :func:`sweep` return it: ``rms_force_n`` ``{"thigh", "shank"}`` and ``delta_max_deg``
+    ``{"hip", "knee"}`` (``None`` for a joint the run has not), ``mean_probability`` (``None``
+    without scenarios), ``step_time_us``, ``limit_violations``, ``solver_failures``, ``safety``
+    (monitor trips and held steps); only some runs have ``scenarios`` (multi-stage: the names
+    in the order of ``mean_probability``), ``solver`` (controllers with an SQP: the QP back-end
+    and Hessian model they ran, :class:`SolverChoice`; not for ``pd``) and ``trace``
+    (:func:`simulate` with ``trace=True``: numpy columns)."""
+
+    scenarios: List[str]
+    solver: SolverChoice
+    trace: Dict[str, np.ndarray]
+
+
 def simulate(
     scenario: Optional[Scenario] = None,
     *,
@@ -82,12 +132,14 @@ def simulate(
     formulation: Optional[str] = None,
     trace: bool = True,
     cancel: Optional[CancelToken] = None,
-) -> Dict[str, Any]:
+) -> Summary:
     """Run one closed-loop experiment; return its summary dict (+ ``"trace"`` columns).
 
-    The summary has the keys of ``exompc simulate --json`` (``rms_force_n``,
-    ``delta_max_deg``, ``mean_probability``, ``step_time_us``, ``limit_violations``,
-    ``solver_failures``, ...). ``trace`` (unless ``trace=False``) maps column names to numpy
+    The summary (:class:`Summary`) has the keys of ``exompc simulate --json``
+    (``rms_force_n``, ``delta_max_deg``, ``mean_probability``, ``step_time_us``,
+    ``limit_violations``, ``solver_failures``, ``safety``; ``solver``, e.g.
+    ``{"qp": "dense", "hessian": "structured_secant"}``, for a controller with an SQP;
+    ...). ``trace`` (unless ``trace=False``) maps column names to numpy
     arrays with one row per control step: ``t``, ``q_robot``, ``qd_robot``, ``q_human``,
     ``qd_human``, ``q_desired``, ``torque_robot``, ``torque_prev``, ``torque_human``,
     ``force_true``, ``force_measured`` (shape ``(steps, dof)``), ``probabilities``
@@ -100,7 +152,7 @@ def simulate(
     needs 16 B per step); ``RunError`` if the plant diverges or ``cancel`` (a
     :class:`CancelToken`) is cancelled; ``KeyboardInterrupt`` on Ctrl-C (within about 50 ms).
     """
-    out = _core.simulate(
+    raw = _core.simulate(
         scenario,
         controller=controller,
         payload=payload,
@@ -110,6 +162,7 @@ def simulate(
         trace=trace,
         cancel=cancel,
     )
+    out = cast(Summary, raw)
     tr = out.get("trace")
     if tr is not None:
         codes = tr.pop("status")
@@ -147,10 +200,11 @@ def sweep(
     dof: int = 2,
     threads: Optional[int] = None,
     cancel: Optional[CancelToken] = None,
-) -> List[Dict[str, Any]]:
+) -> List[Summary]:
     """Every payload x controller run of ``scenario`` in parallel (like ``exompc sweep``).
 
-    Returns one summary dict per run, payload-major in the order given, then controllers.
+    Returns one summary dict (:class:`Summary`, without ``trace``) per run, payload-major in
+    the order given, then controllers.
     Ctrl-C raises ``KeyboardInterrupt``; ``cancel`` stops it from another thread (``RunError``).
     """
     base = scenario if scenario is not None else Scenario.default()
@@ -158,7 +212,7 @@ def sweep(
     for p in payloads:
         for c in controllers:
             runs.append(base.replace({"uncertainty.payload_kg": float(p), "controller.kind": c}))
-    return run_many(runs, dof=dof, threads=threads, cancel=cancel)
+    return cast(List[Summary], run_many(runs, dof=dof, threads=threads, cancel=cancel))
 
 
 def scan(

@@ -416,7 +416,7 @@ mod tests {
             let w = m.step_lagrangian_hessian(&x, &u, tau0, &inp, &lq, &lv);
             // λᵀ J as a row over (q, qd, u).
             let grad = |x: &JointState<f64, N>, u: &SVector<f64, N>| {
-                let (_, j) = m.step_with_jacobian_dual(x, u, tau0, &inp);
+                let (_, j) = StepJacobian::by_dual_numbers(x, u, |x, u| m.step(x, u, tau0, &inp));
                 let mut g = vec![0.0; 3 * N];
                 for c in 0..N {
                     for r in 0..N {

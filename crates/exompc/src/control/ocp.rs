@@ -63,18 +63,15 @@ struct StageWork<const N: usize> {
     torques_trial: Vec<f64>,
     /// The decision-variable part of the last QP step.
     dz: DVector<f64>,
-    /// Gradient of the cost in trajectory layout at the current point (`qp.g` is overwritten by
-    /// trial linearisations).
+    /// Gradient of the cost in trajectory layout at the current point (`qp.data.g` is
+    /// overwritten by trial linearisations).
     grad: Vec<f64>,
     costate: Vec<f64>,
-    /// Backward recursion `V_j = Q_j + A_{j+1}ᵀ V_{j+1} A_{j+1}` (`nx × nx`, with `2N × 2N`
-    /// and `2N × N` products) for the diagonal of the condensed Gauss–Newton Hessian.
-    gram: Vec<f64>,
     /// The box of the step (from the solve's limits).
     bounds: StepBounds,
     /// `HessianModel::Exact`: the QP gets the stage blocks `W_j` of `control::hessian`.
     exact: bool,
-    /// `qp.q`, `qp.s` hold curvature (must be reset before a Gauss–Newton or projection QP).
+    /// `qp.data.q`, `qp.s` hold curvature (must be reset before a Gauss–Newton or projection QP).
     curved: bool,
     /// States `x_j` (`j = 0..Np`) and held torques `T_j` of the last linearisation, and of the
     /// current point (exact Hessian only).
@@ -91,8 +88,9 @@ struct StageWork<const N: usize> {
     maxdiag_known: bool,
     /// Inertia correction of the exact Hessian (shared rule with the dense back-end).
     shift: HessianShift,
-    /// `qp.a`, `qp.b` hold the constant zero and identity entries of the held-input form, so a
-    /// linearisation writes only `F_j`, `G_j` (`projection_qp` writes the layout alone).
+    /// `qp.data.a`, `qp.data.b` hold the constant zero and identity entries of the held-input
+    /// form, so a linearisation writes only `F_j`, `G_j` (`projection_qp` writes the layout
+    /// alone).
     layout: bool,
     /// The problem's velocity-residual metric `L` (`NmpcProblem::velocity_metric`) and the
     /// Gauss–Newton velocity block `r_d LᵀL` of `Q_j`.
@@ -132,7 +130,6 @@ impl<const N: usize> StructuredSqp<N> {
                 dz: DVector::zeros(nc * N),
                 grad: vec![0.0; len],
                 costate: vec![0.0; 2 * nx],
-                gram: vec![0.0; nx * nx + 6 * N * N],
                 bounds: StepBounds::default(),
                 exact: s.sqp.hessian == HessianModel::Exact,
                 curved: false,
@@ -203,7 +200,7 @@ impl<const N: usize> StageWork<N> {
     /// Writes `R = diag(r)` into every input stage of the QP.
     fn set_input_weight(&mut self, r: f64) {
         for j in 0..self.nc {
-            let rj = &mut self.qp.r[j * N * N..(j + 1) * N * N];
+            let rj = &mut self.qp.data.r[j * N * N..(j + 1) * N * N];
             rj.fill(0.0);
             for a in 0..N {
                 rj[a * N + a] = r;
@@ -228,7 +225,7 @@ impl<const N: usize> StageWork<N> {
     /// Adds `μ I` to every `R_j` (the condensed Hessian gets `+ μ I`).
     fn shift_input_weight(&mut self, mu: f64) {
         for j in 0..self.nc {
-            let rj = &mut self.qp.r[j * N * N..(j + 1) * N * N];
+            let rj = &mut self.qp.data.r[j * N * N..(j + 1) * N * N];
             for a in 0..N {
                 rj[a * N + a] += mu;
             }
@@ -261,9 +258,9 @@ impl<const N: usize> StageWork<N> {
         let (np, nc) = (self.np, self.nc);
         let qp = &self.qp;
         let mut maxdiag = self.r_t;
-        let mut v = SMatrix::<f64, NX, NX>::from_column_slice(&qp.q[(np - 1) * nn..np * nn]);
+        let mut v = SMatrix::<f64, NX, NX>::from_column_slice(&qp.data.q[(np - 1) * nn..np * nn]);
         for j in (0..np).rev() {
-            let a = SMatrix::<f64, NX, NX>::from_column_slice(&qp.a[j * nn..(j + 1) * nn]);
+            let a = SMatrix::<f64, NX, NX>::from_column_slice(&qp.data.a[j * nn..(j + 1) * nn]);
             let w = held_congruence::<NX, NU>(&v, &a);
             if j < nc {
                 for i in 0..NU {
@@ -273,96 +270,17 @@ impl<const N: usize> StageWork<N> {
             if j == 0 {
                 break;
             }
-            v = w + SMatrix::<f64, NX, NX>::from_column_slice(&qp.q[(j - 1) * nn..j * nn]);
+            v = w + SMatrix::<f64, NX, NX>::from_column_slice(&qp.data.q[(j - 1) * nn..j * nn]);
         }
         maxdiag
     }
 
-    /// [`Self::max_condensed_diagonal`] for any `N` (slices).
+    /// [`Self::max_condensed_diagonal`] for any `N`: the Riccati solver's general stage
+    /// kernels ([`RiccatiQp::max_condensed_gram_diagonal`], `Bᵀ V B` without `R`) plus `r_t`.
     fn max_condensed_diagonal_any_size(&mut self) -> f64 {
-        let nx = 3 * N;
-        let s2 = 2 * N;
-        let nn = nx * nx;
-        let (np, nc) = (self.np, self.nc);
-        let (v, rest) = self.gram.split_at_mut(nn);
-        let (w, x) = rest.split_at_mut(s2 * s2);
-        let mut maxdiag = self.r_t;
-        v.copy_from_slice(&self.qp.q[(np - 1) * nn..np * nn]);
-        for j in (0..np).rev() {
-            if j + 1 < np {
-                // Column-major blocks: F(r, c) = a[c·nx + r], G(r, k) = a[(s2 + k)·nx + r].
-                let a = &self.qp.a[(j + 1) * nn..(j + 2) * nn];
-                for c in 0..s2 {
-                    for r in 0..s2 {
-                        let mut acc = 0.0;
-                        for t in 0..s2 {
-                            acc += v[t * nx + r] * a[c * nx + t];
-                        }
-                        w[c * s2 + r] = acc;
-                    }
-                }
-                for k in 0..N {
-                    for r in 0..s2 {
-                        let mut acc = v[(s2 + k) * nx + r];
-                        for t in 0..s2 {
-                            acc += v[t * nx + r] * a[(s2 + k) * nx + t];
-                        }
-                        x[k * s2 + r] = acc;
-                    }
-                }
-                // V22 ← GᵀX + V12ᵀG + V22 (uses the old V12).
-                for l in 0..N {
-                    for k in 0..N {
-                        let mut acc = v[(s2 + l) * nx + s2 + k];
-                        for t in 0..s2 {
-                            acc += a[(s2 + k) * nx + t] * x[l * s2 + t]
-                                + v[(s2 + k) * nx + t] * a[(s2 + l) * nx + t];
-                        }
-                        v[(s2 + l) * nx + s2 + k] = acc;
-                    }
-                }
-                // V12 ← FᵀX (and its mirror V21), V11 ← FᵀW.
-                for k in 0..N {
-                    for r in 0..s2 {
-                        let mut acc = 0.0;
-                        for t in 0..s2 {
-                            acc += a[r * nx + t] * x[k * s2 + t];
-                        }
-                        v[(s2 + k) * nx + r] = acc;
-                        v[r * nx + s2 + k] = acc;
-                    }
-                }
-                for c in 0..s2 {
-                    for r in 0..s2 {
-                        let mut acc = 0.0;
-                        for t in 0..s2 {
-                            acc += a[r * nx + t] * w[c * s2 + t];
-                        }
-                        v[c * nx + r] = acc;
-                    }
-                }
-                for (vi, qi) in v.iter_mut().zip(&self.qp.q[j * nn..(j + 1) * nn]) {
-                    *vi += qi;
-                }
-            }
-            if j < nc {
-                let b = &self.qp.b[j * nx * N..(j + 1) * nx * N];
-                for i in 0..N {
-                    let col = &b[i * nx..(i + 1) * nx];
-                    let mut d = 0.0;
-                    for c in 0..nx {
-                        let mut vb = 0.0;
-                        for r in 0..nx {
-                            vb += v[c * nx + r] * col[r];
-                        }
-                        d += col[c] * vb;
-                    }
-                    maxdiag = maxdiag.max(d + self.r_t);
-                }
-            }
-        }
-        maxdiag
+        self.r_t + self.qp.max_condensed_gram_diagonal()
     }
+
     /// Simulates from `problem.x0` with increments `z`; with `jac`, fills the QP's dynamics
     /// matrices and gradient. Writes the cumulative torques into `torques_trial` and returns the
     /// cost `½‖r‖²` (non-finite when anything is).
@@ -411,8 +329,8 @@ impl<const N: usize> StageWork<N> {
                 }
                 finite &= nan.sum() == 0.0;
                 // The zero and identity entries are in place (`write_held_layout`).
-                let aj = &mut self.qp.a[j * nx * nx..(j + 1) * nx * nx];
-                let bj = (j < nc).then(|| &mut self.qp.b[j * nx * N..(j + 1) * nx * N]);
+                let aj = &mut self.qp.data.a[j * nx * nx..(j + 1) * nx * nx];
+                let bj = (j < nc).then(|| &mut self.qp.data.b[j * nx * N..(j + 1) * nx * N]);
                 write_stage_jacobian(&g, aj, bj);
                 xn
             } else {
@@ -421,14 +339,14 @@ impl<const N: usize> StageWork<N> {
             x = xn;
             let tj = (j + 1) as f64 * dt;
             let xo = off + j * nx;
-            let grad = jac.then(|| (1.0, &mut self.qp.g[xo..xo + nx]));
+            let grad = jac.then(|| (1.0, &mut self.qp.data.g[xo..xo + nx]));
             finite &= stage_residual(problem, &x, tj, sqrt_rd, &mut sum, grad);
         }
         for (k, zk) in z.iter().enumerate() {
             let rz = sqrt_rt * zk;
             sum += rz * rz;
             if jac {
-                self.qp.g[k] = sqrt_rt * rz;
+                self.qp.data.g[k] = sqrt_rt * rz;
             }
         }
         if finite {
@@ -442,7 +360,7 @@ impl<const N: usize> StageWork<N> {
     /// identity `I` of `A_j`'s last block and `B_j`'s last rows (the linearisation fills in `F_j`
     /// and `G_j`).
     fn write_held_layout(&mut self) {
-        held_layout(&mut self.qp.a, &mut self.qp.b, N);
+        held_layout(&mut self.qp.data.a, &mut self.qp.data.b, N);
         self.layout = true;
     }
 
@@ -453,9 +371,9 @@ impl<const N: usize> StageWork<N> {
             return;
         }
         let nx = 3 * N;
-        self.qp.q.fill(0.0);
+        self.qp.data.q.fill(0.0);
         for j in 0..self.np {
-            let qj = &mut self.qp.q[j * nx * nx..(j + 1) * nx * nx];
+            let qj = &mut self.qp.data.q[j * nx * nx..(j + 1) * nx * nx];
             for a in 0..N {
                 qj[a * nx + a] = 1.0;
                 for b in 0..N {
@@ -470,14 +388,14 @@ impl<const N: usize> StageWork<N> {
     /// Adds the exact stage blocks `W_j` (`control::hessian`) at the current point to the
     /// Gauss–Newton QP: with `x_j = (q_j, qd_j, T_{j−1})` and `T_j = T_{j−1} + u_j`,
     /// `Q_j += W_j`, `R_j += W_j[T, T]`, `S_j = W_j[T, :]` (for `j ≥ Nc`, `T_j = T_{j−1}`: `Q_j`
-    /// only). The costates come from the cost gradient `grad` and the dynamics `qp.a`. Returns
-    /// `false` (and restores the Gauss–Newton blocks) when a block is non-finite.
+    /// only). The costates come from the cost gradient `grad` and the dynamics `qp.data.a`.
+    /// Returns `false` (and restores the Gauss–Newton blocks) when a block is non-finite.
     fn add_curvature(&mut self, problem: &NmpcProblem<N>) -> bool {
         let nx = 3 * N;
         let s2 = 2 * N;
         let (np, nc) = (self.np, self.nc);
         let off = nc * N;
-        let (grad, a) = (&self.grad, &self.qp.a);
+        let (grad, a) = (&self.grad, &self.qp.data.a);
         costates(
             np,
             |j| {
@@ -518,7 +436,7 @@ impl<const N: usize> StageWork<N> {
             );
             finite &= w.is_finite();
             if j >= 1 {
-                let qj = &mut self.qp.q[(j - 1) * nx * nx..j * nx * nx];
+                let qj = &mut self.qp.data.q[(j - 1) * nx * nx..j * nx * nx];
                 for c in 0..nx {
                     for r in 0..nx {
                         qj[c * nx + r] += w.get(r, c);
@@ -526,7 +444,7 @@ impl<const N: usize> StageWork<N> {
                 }
             }
             if j < nc {
-                let rj = &mut self.qp.r[j * N * N..(j + 1) * N * N];
+                let rj = &mut self.qp.data.r[j * N * N..(j + 1) * N * N];
                 for c in 0..N {
                     for r in 0..N {
                         rj[c * N + r] += w.uu[(r, c)];
@@ -550,7 +468,7 @@ impl<const N: usize> StageWork<N> {
     /// Hessian its states and held torques).
     fn accept(&mut self) {
         self.torques.copy_from_slice(&self.torques_trial);
-        self.grad.copy_from_slice(&self.qp.g);
+        self.grad.copy_from_slice(&self.qp.data.g);
         if self.exact {
             core::mem::swap(&mut self.states, &mut self.states_trial);
             core::mem::swap(&mut self.held, &mut self.held_trial);
@@ -571,12 +489,12 @@ impl<const N: usize> StageWork<N> {
         let nx = 3 * N;
         let off = self.nc * N;
         self.bounds
-            .shift_inputs(z, &mut self.qp.lo, &mut self.qp.hi);
+            .shift_inputs(z, &mut self.qp.data.lo, &mut self.qp.data.hi);
         for j in 0..self.nc {
             for a in 0..N {
                 let i = off + j * nx + 2 * N + a;
-                self.qp.lo[i] = -self.bounds.tmax - self.torques[j * N + a];
-                self.qp.hi[i] = self.bounds.tmax - self.torques[j * N + a];
+                self.qp.data.lo[i] = -self.bounds.tmax - self.torques[j * N + a];
+                self.qp.data.hi[i] = self.bounds.tmax - self.torques[j * N + a];
             }
         }
     }
@@ -596,7 +514,7 @@ impl<const N: usize> StageWork<N> {
             for c in 0..nx {
                 let mut s = self.grad[xo + c] + mult[xo + c];
                 if j + 1 < np {
-                    let a = &self.qp.a[(j + 1) * nx * nx..(j + 2) * nx * nx];
+                    let a = &self.qp.data.a[(j + 1) * nx * nx..(j + 2) * nx * nx];
                     for t in 0..nx {
                         s += a[c * nx + t] * next[t];
                     }
@@ -604,7 +522,7 @@ impl<const N: usize> StageWork<N> {
                 mu[c] = s;
             }
             if j < nc {
-                let b = &self.qp.b[j * nx * N..(j + 1) * nx * N];
+                let b = &self.qp.data.b[j * nx * N..(j + 1) * nx * N];
                 for i in 0..N {
                     let mut s = self.grad[j * N + i] + mult[j * N + i];
                     for t in 0..nx {
@@ -702,7 +620,7 @@ fn adjoint_stationarity<const NX: usize, const NU: usize>(
             mu[c] = gj[c] + mj[c];
         }
         if j + 1 < np {
-            let a = &qp.a[(j + 1) * nn..(j + 2) * nn];
+            let a = &qp.data.a[(j + 1) * nn..(j + 2) * nn];
             for c in 0..NX {
                 let mut s = mu[c];
                 for (act, nt) in a[c * NX..c * NX + ns].iter().zip(next.iter()) {
@@ -715,7 +633,7 @@ fn adjoint_stationarity<const NX: usize, const NU: usize>(
             }
         }
         if j < nc {
-            let b = &qp.b[j * NX * NU..(j + 1) * NX * NU];
+            let b = &qp.data.b[j * NX * NU..(j + 1) * NX * NU];
             let (guj, muj) = (&gu[j * NU..(j + 1) * NU], &mu_u[j * NU..(j + 1) * NU]);
             for i in 0..NU {
                 let mut s = guj[i] + muj[i];
@@ -771,7 +689,7 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
         // The held layout alone (F_j = G_j = 0) is these dynamics.
         w.write_held_layout();
         w.set_input_weight(1.0);
-        w.qp.g.fill(0.0);
+        w.qp.data.g.fill(0.0);
         w.solve_step(z)
     }
 
@@ -781,7 +699,7 @@ impl<const N: usize> SqpSteps for StageSteps<'_, N> {
         w.reset_curvature();
         let r = w.gauss_newton_input_weight();
         w.set_input_weight(r);
-        w.qp.g.copy_from_slice(&w.grad);
+        w.qp.data.g.copy_from_slice(&w.grad);
         w.shift_bounds(z);
         let qi = if w.exact && w.add_curvature(self.problem) {
             let qi = w.qp.solve();
@@ -1020,7 +938,7 @@ mod tests {
         let mut next = crate::test_rng::lcg(seed);
         let nx = 3 * N;
         for j in 0..np {
-            let a = &mut w.qp.a[j * nx * nx..(j + 1) * nx * nx];
+            let a = &mut w.qp.data.a[j * nx * nx..(j + 1) * nx * nx];
             for c in 0..nx {
                 for r in 0..nx {
                     a[c * nx + r] = if r < 2 * N {
@@ -1034,7 +952,7 @@ mod tests {
             }
             if j < nc {
                 let tail = a[2 * N * nx..].to_vec();
-                w.qp.b[j * nx * N..(j + 1) * nx * N].copy_from_slice(&tail);
+                w.qp.data.b[j * nx * N..(j + 1) * nx * N].copy_from_slice(&tail);
             }
         }
         w

@@ -187,7 +187,7 @@ impl<const N: usize> TreeWork<N> {
             }
         }
         let per = self.nc - self.nr;
-        for (k, rk) in self.qp.r.chunks_exact_mut(N * N).enumerate() {
+        for (k, rk) in self.qp.data.r.chunks_exact_mut(N * N).enumerate() {
             let mu = if weighted { self.weights[k / per] } else { 1.0 };
             rk.fill(0.0);
             for a in 0..N {
@@ -230,14 +230,14 @@ impl<const N: usize> TreeWork<N> {
                         .tailored(&consts, &inp, &u)
                         .step_with_jacobian(&x, tau);
                     let ao = (i * np + j) * nx * nx;
-                    let aj = &mut self.qp.a[ao..ao + nx * nx];
+                    let aj = &mut self.qp.data.a[ao..ao + nx * nx];
                     aj.fill(0.0);
                     for c in 0..N {
                         aj[(2 * N + c) * nx + 2 * N + c] = 1.0;
                     }
                     let bj = (j < nc).then(|| {
                         let bo = (i * nc + j) * nx * N;
-                        let bj = &mut self.qp.b[bo..bo + nx * N];
+                        let bj = &mut self.qp.data.b[bo..bo + nx * N];
                         bj.fill(0.0);
                         for c in 0..N {
                             bj[c * nx + 2 * N + c] = 1.0;
@@ -251,7 +251,7 @@ impl<const N: usize> TreeWork<N> {
                 };
                 let tj = (j + 1) as f64 * dt;
                 let xo = nv + (i * np + j) * nx;
-                let grad = jac.then(|| (mu, &mut self.qp.g[xo..xo + nx]));
+                let grad = jac.then(|| (mu, &mut self.qp.data.g[xo..xo + nx]));
                 finite &= stage_residual(problem, &x, tj, sqrt_rd, &mut sum, grad);
             }
             for zk in &self.zi {
@@ -263,17 +263,17 @@ impl<const N: usize> TreeWork<N> {
         if jac {
             let (sh, pr) = (self.nsh(), self.npr());
             let wsum: f64 = self.weights.iter().sum();
-            for (g, zk) in self.qp.g[..sh].iter_mut().zip(&z[..sh]) {
+            for (g, zk) in self.qp.data.g[..sh].iter_mut().zip(&z[..sh]) {
                 *g = wsum * self.r_t * zk;
             }
             for i in 0..self.ns {
                 for k in 0..pr {
                     let idx = sh + i * pr + k;
-                    self.qp.g[idx] = self.weights[i] * self.r_t * z[idx];
+                    self.qp.data.g[idx] = self.weights[i] * self.r_t * z[idx];
                 }
             }
-            finite &=
-                self.qp.a.iter().all(|v| v.is_finite()) && self.qp.b.iter().all(|v| v.is_finite());
+            finite &= self.qp.data.a.iter().all(|v| v.is_finite())
+                && self.qp.data.b.iter().all(|v| v.is_finite());
         }
         if finite {
             0.5 * total
@@ -285,7 +285,7 @@ impl<const N: usize> TreeWork<N> {
     /// The trial point becomes the current one (its torques and gradient).
     fn accept(&mut self) {
         self.torques.copy_from_slice(&self.torques_trial);
-        self.grad.copy_from_slice(&self.qp.g);
+        self.grad.copy_from_slice(&self.qp.data.g);
     }
 
     /// The QP (linear term written by the caller) with the step-space bounds at `z`, its step
@@ -301,18 +301,18 @@ impl<const N: usize> TreeWork<N> {
     /// shared stage's torque bound only on scenario 1.
     fn shift_bounds(&mut self, z: &DVector<f64>) {
         self.bounds
-            .shift_inputs(z, &mut self.qp.lo, &mut self.qp.hi);
+            .shift_inputs(z, &mut self.qp.data.lo, &mut self.qp.data.hi);
         for i in 0..self.ns {
             for j in 0..self.nc {
                 for a in 0..N {
                     let x = self.qp.x_index(i, j + 1, 2 * N + a);
                     if j < self.nr && i > 0 {
-                        self.qp.lo[x] = f64::NEG_INFINITY;
-                        self.qp.hi[x] = f64::INFINITY;
+                        self.qp.data.lo[x] = f64::NEG_INFINITY;
+                        self.qp.data.hi[x] = f64::INFINITY;
                     } else {
                         let t = self.torques[(i * self.nc + j) * N + a];
-                        self.qp.lo[x] = -self.bounds.tmax - t;
-                        self.qp.hi[x] = self.bounds.tmax - t;
+                        self.qp.data.lo[x] = -self.bounds.tmax - t;
+                        self.qp.data.hi[x] = self.bounds.tmax - t;
                     }
                 }
             }
@@ -341,7 +341,7 @@ impl<const N: usize> TreeWork<N> {
                     let mut s = self.grad[xo + c] + mult[xo + c];
                     if j + 1 < np {
                         let ao = (i * np + j + 1) * nx * nx;
-                        let a = &self.qp.a[ao..ao + nx * nx];
+                        let a = &self.qp.data.a[ao..ao + nx * nx];
                         for t in 0..nx {
                             s += a[c * nx + t] * next[t];
                         }
@@ -350,7 +350,7 @@ impl<const N: usize> TreeWork<N> {
                 }
                 if j < nc {
                     let bo = (i * nc + j) * nx * N;
-                    let b = &self.qp.b[bo..bo + nx * N];
+                    let b = &self.qp.data.b[bo..bo + nx * N];
                     for t in 0..N {
                         let mut s = 0.0;
                         for c in 0..nx {
@@ -412,7 +412,8 @@ impl<const N: usize> SqpSteps for TreeSteps<'_, N> {
         // scenario i's problem, the identity in the paper's eq. 7).
         let nx = 3 * N;
         for ((qi, &mu), p) in
-            w.qp.q
+            w.qp.data
+                .q
                 .chunks_exact_mut(w.np * nx * nx)
                 .zip(&w.weights)
                 .zip(ps)
@@ -452,9 +453,9 @@ impl<const N: usize> SqpSteps for TreeSteps<'_, N> {
     fn projection_qp(&mut self, z: &DVector<f64>) -> QpInfo {
         // min ½|d|² with the same QP: dynamics reduced to T_j = T_{j−1} + u_j.
         let w = &mut *self.w;
-        super::ocp::held_layout(&mut w.qp.a, &mut w.qp.b, N);
+        super::ocp::held_layout(&mut w.qp.data.a, &mut w.qp.data.b, N);
         w.set_input_weights(1.0, false, 0.0);
-        w.qp.g.fill(0.0);
+        w.qp.data.g.fill(0.0);
         w.solve_step(z)
     }
 
@@ -465,7 +466,7 @@ impl<const N: usize> SqpSteps for TreeSteps<'_, N> {
         w.set_input_weights(r_t, true, 0.0);
         let delta = w.hessian_regularization * (1.0 + w.qp.max_condensed_diagonal());
         w.set_input_weights(r_t, true, delta);
-        w.qp.g.copy_from_slice(&w.grad);
+        w.qp.data.g.copy_from_slice(&w.grad);
         w.solve_step(z)
     }
 

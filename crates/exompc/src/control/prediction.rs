@@ -6,8 +6,6 @@ use crate::model::{
     TorqueTerms,
 };
 use nalgebra::{SMatrix, SVector};
-#[cfg(feature = "std")]
-use num_dual::{DualSVec64, DualStruct};
 use serde::{Deserialize, Serialize};
 
 /// How the strap torque is modelled over the horizon (MODEL.md §8).
@@ -107,75 +105,11 @@ impl<const N: usize> PredictionModel<N> {
         s
     }
 
-    /// [`Self::step`] with its exact Jacobian, by forward-mode dual numbers seeded on `q`, `qd`
-    /// and `u` in three passes. The reference for [`Self::step_with_jacobian`] (same values to
-    /// rounding), about ten times slower. A test and benchmark oracle, hidden from the docs.
-    #[doc(hidden)]
-    #[cfg(feature = "std")]
-    pub fn step_with_jacobian_dual(
-        &self,
-        x: &JointState<f64, N>,
-        u: &SVector<f64, N>,
-        tau0: f64,
-        inp: &HorizonInputs<N>,
-    ) -> (JointState<f64, N>, StepJacobian<N>) {
-        type D<const N: usize> = DualSVec64<N>;
-        let lift = |v: &SVector<f64, N>| v.map(D::<N>::from);
-        let seed = |v: &SVector<f64, N>| {
-            let mut out = lift(v);
-            for i in 0..N {
-                out[i] = D::<N>::from(v[i]).derivative(i);
-            }
-            out
-        };
-        let unpack = |s: &JointState<D<N>, N>| {
-            let mut a = SMatrix::<f64, N, N>::zeros();
-            let mut b = SMatrix::<f64, N, N>::zeros();
-            for r in 0..N {
-                for (m, v) in [(&mut a, &s.q[r]), (&mut b, &s.qd[r])] {
-                    if let Some(e) = &v.eps.0 {
-                        for col in 0..N {
-                            m[(r, col)] = e[col];
-                        }
-                    }
-                }
-            }
-            (a, b)
-        };
-        // One pass seeded on `q`, `qd` or `u`.
-        let pass = |on: usize| {
-            let pick = |k: usize, v: &SVector<f64, N>| if on == k { seed(v) } else { lift(v) };
-            let x0 = JointState {
-                q: pick(0, &x.q),
-                qd: pick(1, &x.qd),
-            };
-            self.step(&x0, &pick(2, u), tau0, inp)
-        };
-        let (sq, sv, su) = (pass(0), pass(1), pass(2));
-        let (qq, vq) = unpack(&sq);
-        let (qv, vv) = unpack(&sv);
-        let (qu, vu) = unpack(&su);
-        let next = JointState {
-            q: sq.q.map(|v| v.re()),
-            qd: sq.qd.map(|v| v.re()),
-        };
-        (
-            next,
-            StepJacobian {
-                qq,
-                qv,
-                vq,
-                vv,
-                qu,
-                vu,
-            },
-        )
-    }
-
     /// [`Self::step`] with its exact Jacobian, hand-derived: per RK4 stage the analytic partial
     /// derivatives of `qdd = M⁻¹(u + T_int + d − C qd − G − friction)` with respect to `q`, `qd`
     /// and `u` (first and second derivatives of `M` from the chain's closed form), chained
-    /// through the stages. Equals the dual-number Jacobian (`step_with_jacobian_dual`, the tests' oracle) to rounding.
+    /// through the stages. Equals the dual-number Jacobian of [`Self::step`]
+    /// ([`StepJacobian::by_dual_numbers`], the tests' oracle) to rounding.
     pub fn step_with_jacobian(
         &self,
         x: &JointState<f64, N>,
@@ -476,7 +410,7 @@ mod tests {
             let Case { m, x, u, inp, tau0 } =
                 scan_case::<N>(&mut rng, case, width, 1 + case % 3, (1.5, 3.0));
             let (xa, ja) = m.step_with_jacobian(&x, &u, tau0, &inp);
-            let (xb, jb) = m.step_with_jacobian_dual(&x, &u, tau0, &inp);
+            let (xb, jb) = StepJacobian::by_dual_numbers(&x, &u, |x, u| m.step(x, u, tau0, &inp));
             let close = |a: &SMatrix<f64, N, N>, b: &SMatrix<f64, N, N>, what: &str| {
                 let err = (a - b).amax();
                 let scale = 1.0 + b.amax();

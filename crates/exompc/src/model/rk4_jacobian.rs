@@ -29,6 +29,75 @@ pub struct StepJacobian<const N: usize> {
     pub vu: SMatrix<f64, N, N>,
 }
 
+impl<const N: usize> StepJacobian<N> {
+    /// The state `Φ(x, u)` of a step function and its Jacobian by forward-mode dual numbers
+    /// seeded on `q`, `qd` and `u` in three passes: the oracle of the hand-derived Jacobians
+    /// (`control::PredictionModel::step_with_jacobian`; same values to rounding, about ten
+    /// times slower) in tests and benchmarks, hidden from the docs. `step` is the step at dual
+    /// scalars, e.g. `|x, u| model.step(x, u, tau0, &inp)`.
+    #[doc(hidden)]
+    #[cfg(feature = "std")]
+    pub fn by_dual_numbers(
+        x: &JointState<f64, N>,
+        u: &SVector<f64, N>,
+        step: impl Fn(&JointState<Dual<N>, N>, &SVector<Dual<N>, N>) -> JointState<Dual<N>, N>,
+    ) -> (JointState<f64, N>, Self) {
+        use num_dual::DualStruct;
+        let lift = |v: &SVector<f64, N>| v.map(Dual::<N>::from);
+        let seed = |v: &SVector<f64, N>| {
+            let mut out = lift(v);
+            for i in 0..N {
+                out[i] = Dual::<N>::from(v[i]).derivative(i);
+            }
+            out
+        };
+        let unpack = |s: &JointState<Dual<N>, N>| {
+            let mut a = SMatrix::<f64, N, N>::zeros();
+            let mut b = SMatrix::<f64, N, N>::zeros();
+            for r in 0..N {
+                for (m, v) in [(&mut a, &s.q[r]), (&mut b, &s.qd[r])] {
+                    if let Some(e) = &v.eps.0 {
+                        for col in 0..N {
+                            m[(r, col)] = e[col];
+                        }
+                    }
+                }
+            }
+            (a, b)
+        };
+        // One pass seeded on `q`, `qd` or `u`.
+        let pass = |on: usize| {
+            let pick = |k: usize, v: &SVector<f64, N>| if on == k { seed(v) } else { lift(v) };
+            let x0 = JointState {
+                q: pick(0, &x.q),
+                qd: pick(1, &x.qd),
+            };
+            step(&x0, &pick(2, u))
+        };
+        let (sq, sv, su) = (pass(0), pass(1), pass(2));
+        let (qq, vq) = unpack(&sq);
+        let (qv, vv) = unpack(&sv);
+        let (qu, vu) = unpack(&su);
+        let next = JointState {
+            q: sq.q.map(|v| v.re()),
+            qd: sq.qd.map(|v| v.re()),
+        };
+        let jac = Self {
+            qq,
+            qv,
+            vq,
+            vv,
+            qu,
+            vu,
+        };
+        (next, jac)
+    }
+}
+
+/// The dual number of [`StepJacobian::by_dual_numbers`]: `N` derivative directions.
+#[cfg(feature = "std")]
+type Dual<const N: usize> = num_dual::DualSVec64<N>;
+
 /// The external joint torque `T_ext(τ, q, qd)` on the right-hand side of eq. 1 besides the input
 /// `u` and the disturbance `d`, with its partial derivatives: [`StageTorque::terms`] at time `τ`
 /// into the period and the stage state `(q, qd)`.

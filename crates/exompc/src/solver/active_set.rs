@@ -163,17 +163,33 @@ pub(crate) fn bounds_ordered(lo: &[f64], hi: &[f64]) -> bool {
     ok
 }
 
-/// Implements [`BoxDual`] for a solver with a [`BoxWork`] field `w`, bounds `lo`, `hi` and an
-/// inherent `normal_solve(&mut self, id, sigma)`, and the accessors of the solution.
+/// Implements [`BoxDual`] for a solver with a [`BoxWork`] field `w`, its problem data in a
+/// field `data` ([`super::StageQpData`], bounds `lo`, `hi`) and an inherent
+/// `normal_solve(&mut self, id, sigma)`; the accessors of the solution; and `Deref` to the data
+/// (`qp.a` for `qp.data.a`).
 macro_rules! box_dual_from_fields {
     ($qp:ty) => {
         impl $crate::solver::active_set::BoxDual for $qp {
             fn parts(&mut self) -> $crate::solver::active_set::BoxParts<'_> {
-                self.w.parts(&self.lo, &self.hi)
+                self.w.parts(&self.data.lo, &self.data.hi)
             }
 
             fn normal_solve(&mut self, id: usize, sigma: f64) {
                 <$qp>::normal_solve(self, id, sigma);
+            }
+        }
+
+        impl core::ops::Deref for $qp {
+            type Target = $crate::solver::StageQpData;
+
+            fn deref(&self) -> &Self::Target {
+                &self.data
+            }
+        }
+
+        impl core::ops::DerefMut for $qp {
+            fn deref_mut(&mut self) -> &mut Self::Target {
+                &mut self.data
             }
         }
 

@@ -29,57 +29,33 @@
 use super::active_set::{box_dual_from_fields, solve_box, BoxWork};
 use super::cholesky::{chol_solve, cholesky};
 use super::qp::{QpInfo, QpSettings};
-use super::stage::{self, dim, quad, with_stage_size};
+use super::stage::{self, quad, with_stage_size, RiccatiFactor};
+use super::stage_data::{check_dims, dim, StageDims, StageQpData};
 use super::SolverError;
 use alloc::{vec, vec::Vec};
 
 /// The scenario-tree QP described in the module documentation, with all workspace allocated at
-/// construction. Trajectory vectors (`g`, `lo`, `hi`, solution, multipliers) use the layout
-/// `[s_0..s_{Nr−1}, u_{1,Nr}..u_{1,Nc−1}, …, u_{S,Nr}..u_{S,Nc−1}, x_{1,1}..x_{1,Np}, …,
-/// x_{S,1}..x_{S,Np}]`: the decision part (inputs) first, in the order of the coupled NLP's
-/// decision vector, then every scenario's states.
+/// construction: its [`StageQpData`] (`S` scenarios, the first `Nr` inputs shared; trajectory
+/// vectors `[s_0..s_{Nr−1}, u_{1,Nr}..u_{1,Nc−1}, …, u_{S,Nr}..u_{S,Nc−1}, x_{1,1}..x_{1,Np}, …,
+/// x_{S,1}..x_{S,Np}]`, the inputs first, in the order of the coupled NLP's decision vector)
+/// with the shared inputs' `R̄_j` beside it, and the factor.
 #[derive(Debug, Clone)]
 pub struct TreeQp {
-    nx: usize,
-    nu: usize,
-    np: usize,
-    nc: usize,
-    nr: usize,
-    ns: usize,
-    settings: QpSettings,
-    /// `A_{i,j}`, `j = 0..Np`, each `nx × nx` column-major, at `(i·Np + j)·nx²`.
-    pub a: Vec<f64>,
-    /// `B_{i,j}`, `j = 0..Nc`, each `nx × nu` column-major, at `(i·Nc + j)·nx·nu`.
-    pub b: Vec<f64>,
-    /// `Q_{i,j}` of state `x_{i,j}`, `j = 1..=Np`, at `(i·Np + j − 1)·nx²` (positive
-    /// semidefinite).
-    pub q: Vec<f64>,
+    /// Dynamics, the scenarios' own input and state costs, linear term and bounds (`qp.a` reads
+    /// `qp.data.a`).
+    pub data: StageQpData,
     /// `R̄_j` of the shared inputs, `j < Nr`, at `j·nu²` (symmetric positive definite).
     pub r_shared: Vec<f64>,
-    /// `R_{i,j}` of scenario `i`'s inputs, `Nr ≤ j < Nc`, at `(i·(Nc − Nr) + j − Nr)·nu²`.
-    pub r: Vec<f64>,
-    /// Linear term in trajectory layout.
-    pub g: Vec<f64>,
-    /// Lower bounds in trajectory layout (`−∞` for none).
-    pub lo: Vec<f64>,
-    /// Upper bounds in trajectory layout (`+∞` for none).
-    pub hi: Vec<f64>,
-    // Factor: per scenario and stage (index i·Nc + j) for the private stages; the shared block.
-    pm: Vec<f64>,
-    pa: Vec<f64>,
-    pb: Vec<f64>,
+    settings: QpSettings,
+    /// The scenarios' Riccati factor of their own stages and the sweeps' workspace.
+    f: RiccatiFactor,
+    // The shared block: `Bᵀ P B`, `C_{j+1}`, `C_j`, `Σ_i E_{i,0} + R̄` (factorised), and the
+    // sweeps' `e`.
     bpb: Vec<f64>,
     cm: Vec<f64>,
     cn: Vec<f64>,
-    sbar: Vec<f64>,
-    kgain: Vec<f64>,
-    lchol: Vec<f64>,
     hs: Vec<f64>,
-    // Vector sweeps.
-    pv: Vec<f64>,
-    kff: Vec<f64>,
     ev: Vec<f64>,
-    xs: Vec<f64>,
     /// Solution, multipliers and active set.
     w: BoxWork,
 }
@@ -106,82 +82,34 @@ impl TreeQp {
         settings: QpSettings,
     ) -> Result<Self, SolverError> {
         settings.validate()?;
-        stage::check_dims(nx, nu, np, nc)?;
+        check_dims(nx, nu, np, nc)?;
         dim("nr", nr, nr >= 1 && nr <= nc, "1 ≤ nr ≤ nc")?;
-        dim("scenarios", ns, ns >= 1, "at least 1")?;
-        let nsh = nr * nu;
-        let nv = nsh + ns * (nc - nr) * nu;
-        let len = nv + ns * np * nx;
-        // At most nv linearly independent active constraints; one spare for the entering one.
-        let cap = nv + 1;
-        Ok(Self {
+        let dims = StageDims {
             nx,
             nu,
             np,
             nc,
             nr,
             ns,
-            settings,
-            a: vec![0.0; ns * np * nx * nx],
-            b: vec![0.0; ns * nc * nx * nu],
-            q: vec![0.0; ns * np * nx * nx],
+        };
+        let data = StageQpData::new(dims)?;
+        let nsh = nr * nu;
+        let len = data.len();
+        // At most as many linearly independent active constraints as inputs; one spare for the
+        // entering one.
+        let cap = data.num_inputs() + 1;
+        Ok(Self {
+            data,
             r_shared: vec![0.0; nr * nu * nu],
-            r: vec![0.0; ns * (nc - nr) * nu * nu],
-            g: vec![0.0; len],
-            lo: vec![f64::NEG_INFINITY; len],
-            hi: vec![f64::INFINITY; len],
-            pm: vec![0.0; (np + 1) * nx * nx],
-            pa: vec![0.0; nx * nx],
-            pb: vec![0.0; nx * nu],
+            settings,
+            f: RiccatiFactor::new(dims),
             bpb: vec![0.0; nu * nu],
             cm: vec![0.0; nx * nsh],
             cn: vec![0.0; nx * nsh],
-            sbar: vec![0.0; ns * nc * nu * nx],
-            kgain: vec![0.0; ns * nc * nu * nx],
-            lchol: vec![0.0; ns * nc * nu * nu],
             hs: vec![0.0; nsh * nsh],
-            pv: vec![0.0; (np + 1) * nx],
-            kff: vec![0.0; ns * nc * nu],
             ev: vec![0.0; nsh],
-            xs: vec![0.0; nx],
             w: BoxWork::new(len, cap),
         })
-    }
-
-    /// Length of trajectory vectors, `Nr·nu + S·((Nc − Nr)·nu + Np·nx)`.
-    pub fn len(&self) -> usize {
-        self.num_inputs() + self.ns * self.np * self.nx
-    }
-
-    /// Always `false` (dimensions are at least one); present for API symmetry with `len`.
-    pub fn is_empty(&self) -> bool {
-        false
-    }
-
-    /// Number of input variables (shared and private), `Nr·nu + S·(Nc − Nr)·nu`: the leading
-    /// part of the trajectory layout.
-    pub fn num_inputs(&self) -> usize {
-        self.nr * self.nu + self.ns * (self.nc - self.nr) * self.nu
-    }
-
-    /// Number of scenarios `S`.
-    pub fn scenarios(&self) -> usize {
-        self.ns
-    }
-
-    /// Index of component `k` of the input of stage `j < Nc` seen by scenario `i` (the shared
-    /// input for `j < Nr`) in trajectory layout.
-    pub fn u_index(&self, i: usize, j: usize, k: usize) -> usize {
-        if j < self.nr {
-            j * self.nu + k
-        } else {
-            self.nr * self.nu + (i * (self.nc - self.nr) + j - self.nr) * self.nu + k
-        }
-    }
-
-    /// Index of component `k` of state `x_{i,j}`, `1 ≤ j ≤ Np`, in trajectory layout.
-    pub fn x_index(&self, i: usize, j: usize, k: usize) -> usize {
-        self.num_inputs() + (i * self.np + j - 1) * self.nx + k
     }
 
     /// Largest diagonal entry of the condensed Hessian (in the inputs) of the current data:
@@ -190,14 +118,13 @@ impl TreeQp {
     /// shared input the sum over the scenarios plus `R̄_j`. Uses the factor workspace (call
     /// before [`Self::solve`]); `O(S·Np·nx³)`.
     pub fn max_condensed_diagonal(&mut self) -> f64 {
-        with_stage_size!((self.nx, self.nu), |nx, nu| self
+        with_stage_size!((self.data.dims.nx, self.data.dims.nu), |nx, nu| self
             .max_condensed_diagonal_dims(nx, nu))
     }
 
     #[inline(always)]
     fn max_condensed_diagonal_dims(&mut self, nx: usize, nu: usize) -> f64 {
-        let (np, nc, nr) = (self.np, self.nc, self.nr);
-        let n2 = nx * nx;
+        let StageDims { nc, nr, .. } = self.data.dims;
         let mut maxd: f64 = 0.0;
         // Shared diagonal accumulated in `ev`.
         for j in 0..nr {
@@ -205,37 +132,17 @@ impl TreeQp {
                 self.ev[j * nu + k] = self.r_shared[j * nu * nu + k * nu + k];
             }
         }
-        let v = &mut self.pm[..n2];
-        for i in 0..self.ns {
-            let ab = i * np * n2;
-            v.copy_from_slice(&self.q[ab + (np - 1) * n2..ab + np * n2]);
-            // V_{Np−1} = Q_{Np}; V_j = Q_{j+1} + A_{j+1}ᵀ V_{j+1} A_{j+1}, down to j = 0.
-            for j in (0..np).rev() {
-                if j + 1 < np {
-                    let a = &self.a[ab + (j + 1) * n2..ab + (j + 2) * n2];
-                    stage::p_times(nx, nx, v, a, &mut self.pa);
-                    let qj = &self.q[ab + j * n2..ab + (j + 1) * n2];
-                    stage::cost_to_go(nx, nu, qj, a, &self.pa, None, v);
-                }
-                if j < nc {
-                    let b = &self.b[(i * nc + j) * nx * nu..(i * nc + j + 1) * nx * nu];
-                    // diag(Bᵀ V B) from P B.
-                    stage::p_times(nx, nu, v, b, &mut self.pb);
-                    for k in 0..nu {
-                        let col = &b[k * nx..(k + 1) * nx];
-                        let mut d = 0.0;
-                        for (c, bc) in col.iter().enumerate() {
-                            d += bc * self.pb[k * nx + c];
-                        }
-                        if j < nr {
-                            self.ev[j * nu + k] += d;
-                        } else {
-                            let rij = (i * (nc - nr) + j - nr) * nu * nu;
-                            maxd = maxd.max(d + self.r[rij + k * nu + k]);
-                        }
+        for i in 0..self.data.dims.ns {
+            let (ev, r) = (&mut self.ev, &self.data.r);
+            self.f
+                .condensed_diagonal((nx, nu), &self.data, i, |j, k, d| {
+                    if j < nr {
+                        ev[j * nu + k] += d;
+                    } else {
+                        let rij = (i * (nc - nr) + j - nr) * nu * nu;
+                        maxd = maxd.max(d + r[rij + k * nu + k]);
                     }
-                }
-            }
+                });
         }
         for &d in &self.ev {
             maxd = maxd.max(d);
@@ -247,60 +154,30 @@ impl TreeQp {
     /// `false` when a reduced Hessian is not numerically positive definite.
     fn factor(&mut self) -> bool {
         // The NMPC's stage sizes (1-DOF, 2-DOF) as constants: unrolled, bounds checks removed.
-        with_stage_size!((self.nx, self.nu), |nx, nu| self.factor_dims(nx, nu))
+        with_stage_size!((self.data.dims.nx, self.data.dims.nu), |nx, nu| self
+            .factor_dims(nx, nu))
     }
 
     #[inline(always)]
     fn factor_dims(&mut self, nx: usize, nu: usize) -> bool {
-        let (np, nc, nr, ns) = (self.np, self.nc, self.nr, self.ns);
+        let StageDims { np, nc, nr, ns, .. } = self.data.dims;
         let n2 = nx * nx;
         let nsh = nr * nu;
         self.hs.fill(0.0);
         for i in 0..ns {
-            let ab = i * np * n2;
-            self.pm[np * n2..(np + 1) * n2]
-                .copy_from_slice(&self.q[ab + (np - 1) * n2..ab + np * n2]);
-            // Private stages j = Np−1 .. Nr: the Riccati recursion of `RiccatiQp`.
-            for j in (nr..np).rev() {
-                let (head, tail) = self.pm.split_at_mut((j + 1) * n2);
-                let p = &tail[..n2];
-                let a = &self.a[ab + j * n2..ab + (j + 1) * n2];
-                stage::p_times(nx, nx, p, a, &mut self.pa);
-                let st = i * nc + j;
-                let sx = st * nu * nx..(st + 1) * nu * nx;
-                if j < nc {
-                    let b = &self.b[st * nx * nu..(st + 1) * nx * nu];
-                    stage::p_times(nx, nu, p, b, &mut self.pb);
-                    let l = &mut self.lchol[st * nu * nu..(st + 1) * nu * nu];
-                    let rij = (i * (nc - nr) + j - nr) * nu * nu;
-                    stage::bt_times(nx, nu, nu, Some(&self.r[rij..]), b, &self.pb, l);
-                    let sb = &mut self.sbar[sx.clone()];
-                    stage::bt_times(nx, nu, nx, None, b, &self.pa, sb);
-                    if !stage::stage_gain(nx, nu, l, sb, &mut self.kgain[sx.clone()], None) {
-                        return false;
-                    }
-                }
-                // P_j = Q_j + AᵀPA (+ sbarᵀK); j ≥ Nr ≥ 1.
-                let gain = (j < nc).then(|| (&self.sbar[sx.clone()], &self.kgain[sx]));
-                let qj = &self.q[ab + (j - 1) * n2..ab + j * n2];
-                stage::cost_to_go(
-                    nx,
-                    nu,
-                    qj,
-                    a,
-                    &self.pa,
-                    gain,
-                    &mut head[j * n2..(j + 1) * n2],
-                );
+            // Own stages j = Np−1 .. Nr: the Riccati recursion of `RiccatiQp`.
+            if !self.f.own_stages((nx, nu), &self.data, i, None, None) {
+                return false;
             }
+            let ab = i * np * n2;
             // Shared stages j = Nr−1 .. 0, shared inputs as parameters: C_{j+1} in `cm`
             // (columns (j+1)·nu .. Nr·nu), contributions to the lower part of `hs`.
             for j in (0..nr).rev() {
-                let p = &self.pm[(j + 1) * n2..(j + 2) * n2];
+                let p = &self.f.pm[(j + 1) * n2..(j + 2) * n2];
                 let st = i * nc + j;
-                let b = &self.b[st * nx * nu..(st + 1) * nx * nu];
-                stage::p_times(nx, nu, p, b, &mut self.pb);
-                stage::bt_times(nx, nu, nu, None, b, &self.pb, &mut self.bpb);
+                let b = &self.data.b[st * nx * nu..(st + 1) * nx * nu];
+                stage::p_times(nx, nu, p, b, &mut self.f.pb);
+                stage::bt_times(nx, nu, nu, None, b, &self.f.pb, &mut self.bpb);
                 let jo = j * nu;
                 for c in 0..nu {
                     for rr in c..nu {
@@ -321,10 +198,10 @@ impl TreeQp {
                 if j == 0 {
                     break;
                 }
-                let a = &self.a[ab + j * n2..ab + (j + 1) * n2];
+                let a = &self.data.a[ab + j * n2..ab + (j + 1) * n2];
                 // C_j = [Aᵀ P B, Aᵀ C_{j+1}].
                 let (cj, cn) = (jo * nx, (j + 1) * nu * nx);
-                stage::at_times(nx, nu, a, &self.pb, &mut self.cn[cj..cn]);
+                stage::at_times(nx, nu, a, &self.f.pb, &mut self.cn[cj..cn]);
                 stage::at_times(
                     nx,
                     nsh - (j + 1) * nu,
@@ -334,10 +211,10 @@ impl TreeQp {
                 );
                 core::mem::swap(&mut self.cm, &mut self.cn);
                 // P_j = Q_j + AᵀPA.
-                stage::p_times(nx, nx, p, a, &mut self.pa);
-                let qj = &self.q[ab + (j - 1) * n2..ab + j * n2];
-                let (head, _) = self.pm.split_at_mut((j + 1) * n2);
-                stage::cost_to_go(nx, nu, qj, a, &self.pa, None, &mut head[j * n2..]);
+                stage::p_times(nx, nx, p, a, &mut self.f.pa);
+                let qj = &self.data.q[ab + (j - 1) * n2..ab + j * n2];
+                let (head, _) = self.f.pm.split_at_mut((j + 1) * n2);
+                stage::cost_to_go(nx, nu, qj, a, &self.f.pa, None, &mut head[j * n2..]);
             }
         }
         for j in 0..nr {
@@ -353,25 +230,25 @@ impl TreeQp {
             return false;
         }
         self.hs.iter().all(|v| v.is_finite())
-            && self.lchol.iter().all(|v| v.is_finite())
-            && self.kgain.iter().all(|v| v.is_finite())
+            && self.f.lchol.iter().all(|v| v.is_finite())
+            && self.f.kgain.iter().all(|v| v.is_finite())
     }
 
     /// Minimiser of `½wᵀHw + linᵀw` over the dynamics (trajectory layout) into `sol` or `yp`,
     /// where `lin` (`g` or `unit`) is zero outside the shared inputs and the scenarios of `act`,
     /// and in those zero on every stage after `act.top`.
     fn sweep(&mut self, use_unit: bool, act: Active, out_is_yp: bool) {
-        with_stage_size!((self.nx, self.nu), |nx, nu| self
+        with_stage_size!((self.data.dims.nx, self.data.dims.nu), |nx, nu| self
             .sweep_dims(nx, nu, use_unit, act, out_is_yp))
     }
 
     #[inline(always)]
     fn sweep_dims(&mut self, nx: usize, nu: usize, use_unit: bool, act: Active, out_is_yp: bool) {
-        let (np, nc, nr) = (self.np, self.nc, self.nr);
+        let StageDims { np, nc, nr, .. } = self.data.dims;
         let n2 = nx * nx;
         let nsh = nr * nu;
         let nv = self.num_inputs();
-        let lin: &[f64] = if use_unit { &self.w.unit } else { &self.g };
+        let lin: &[f64] = if use_unit { &self.w.unit } else { &self.data.g };
         self.ev.fill(0.0);
         for i in act.lo..act.hi {
             let ab = i * np * n2;
@@ -379,36 +256,40 @@ impl TreeQp {
             let ub = nsh + i * (nc - nr) * nu;
             let top = act.top;
             let xi = xb + top * nx;
-            self.pv[(top + 1) * nx..(top + 2) * nx].copy_from_slice(&lin[xi..xi + nx]);
+            self.f.pv[(top + 1) * nx..(top + 2) * nx].copy_from_slice(&lin[xi..xi + nx]);
             for j in nr.max(top + 1)..nc {
                 let st = i * nc + j;
-                self.kff[st * nu..(st + 1) * nu].fill(0.0);
+                self.f.kff[st * nu..(st + 1) * nu].fill(0.0);
             }
             // Private stages top .. Nr.
             for j in (nr..=top).rev() {
-                let (head, tail) = self.pv.split_at_mut((j + 1) * nx);
+                let (head, tail) = self.f.pv.split_at_mut((j + 1) * nx);
                 let pn = &tail[..nx];
                 let st = i * nc + j;
                 let su = st * nu..(st + 1) * nu;
                 if j < nc {
-                    let b = &self.b[st * nx * nu..(st + 1) * nx * nu];
-                    let l = &self.lchol[st * nu * nu..(st + 1) * nu * nu];
+                    let b = &self.data.b[st * nx * nu..(st + 1) * nx * nu];
+                    let l = &self.f.lchol[st * nu * nu..(st + 1) * nu * nu];
                     let uo = ub + (j - nr) * nu;
-                    let k = &mut self.kff[su.clone()];
+                    let k = &mut self.f.kff[su.clone()];
                     stage::feed_forward(nx, nu, b, &lin[uo..uo + nu], pn, (l, None), k);
                 }
-                let a = &self.a[ab + j * n2..ab + (j + 1) * n2];
+                let a = &self.data.a[ab + j * n2..ab + (j + 1) * n2];
                 let xo = xb + (j - 1) * nx;
-                let gain =
-                    (j < nc).then(|| (&self.sbar[st * nu * nx..(st + 1) * nu * nx], &self.kff[su]));
+                let gain = (j < nc).then(|| {
+                    (
+                        &self.f.sbar[st * nu * nx..(st + 1) * nu * nx],
+                        &self.f.kff[su],
+                    )
+                });
                 stage::costate(nx, nu, a, &lin[xo..xo + nx], pn, gain, &mut head[j * nx..]);
             }
             // Shared stages: e_j += B_jᵀ p_{j+1}, p_j = lin_x_j + A_jᵀ p_{j+1}.
             for j in (0..nr.min(top + 1)).rev() {
-                let (head, tail) = self.pv.split_at_mut((j + 1) * nx);
+                let (head, tail) = self.f.pv.split_at_mut((j + 1) * nx);
                 let pn = &tail[..nx];
                 let st = i * nc + j;
-                let b = &self.b[st * nx * nu..(st + 1) * nx * nu];
+                let b = &self.data.b[st * nx * nu..(st + 1) * nx * nu];
                 for t in 0..nu {
                     let mut s = 0.0;
                     for c in 0..nx {
@@ -419,7 +300,7 @@ impl TreeQp {
                 if j == 0 {
                     break;
                 }
-                let a = &self.a[ab + j * n2..ab + (j + 1) * n2];
+                let a = &self.data.a[ab + j * n2..ab + (j + 1) * n2];
                 let xo = xb + (j - 1) * nx;
                 stage::costate(nx, nu, a, &lin[xo..xo + nx], pn, None, &mut head[j * nx..]);
             }
@@ -435,40 +316,42 @@ impl TreeQp {
         }
         chol_solve(&self.hs, nsh, &mut out[..nsh]);
         // Forward pass of every scenario from x_0 = 0.
-        for i in 0..self.ns {
+        for i in 0..self.data.dims.ns {
             let ab = i * np * n2;
             let xb = nv + i * np * nx;
             let ub = nsh + i * (nc - nr) * nu;
             let own = i >= act.lo && i < act.hi;
-            self.xs.fill(0.0);
+            self.f.xs.fill(0.0);
             for j in 0..np {
-                let a = &self.a[ab + j * n2..ab + (j + 1) * n2];
+                let a = &self.data.a[ab + j * n2..ab + (j + 1) * n2];
                 let xo = xb + j * nx;
-                stage::a_times(nx, a, &self.xs, &mut out[xo..xo + nx]);
+                stage::a_times(nx, a, &self.f.xs, &mut out[xo..xo + nx]);
                 if j < nc {
                     let st = i * nc + j;
-                    let b = &self.b[st * nx * nu..(st + 1) * nx * nu];
-                    let kg = &self.kgain[st * nu * nx..(st + 1) * nu * nx];
+                    let b = &self.data.b[st * nx * nu..(st + 1) * nx * nu];
+                    let kg = &self.f.kgain[st * nu * nx..(st + 1) * nu * nx];
                     for t in 0..nu {
                         let v = if j < nr {
                             out[j * nu + t]
                         } else {
-                            let kf = if own { self.kff[st * nu + t] } else { 0.0 };
-                            let s = stage::feedback(nx, nu, t, kf, kg, &self.xs);
+                            let kf = if own { self.f.kff[st * nu + t] } else { 0.0 };
+                            let s = stage::feedback(nx, nu, t, kf, kg, &self.f.xs);
                             out[ub + (j - nr) * nu + t] = s;
                             s
                         };
                         stage::add_input(nx, b, t, v, &mut out[xo..xo + nx]);
                     }
                 }
-                self.xs.copy_from_slice(&out[xo..xo + nx]);
+                self.f.xs.copy_from_slice(&out[xo..xo + nx]);
             }
         }
     }
 
     /// Trajectory `H⁻¹ n` for the constraint normal `n = σ e_id` into `yp`.
     fn normal_solve(&mut self, id: usize, sigma: f64) {
-        let (nx, nu, np, nc, nr) = (self.nx, self.nu, self.np, self.nc, self.nr);
+        let StageDims {
+            nx, nu, np, nc, nr, ..
+        } = self.data.dims;
         let nsh = nr * nu;
         let nv = self.num_inputs();
         let act = if id < nsh {
@@ -506,10 +389,16 @@ impl TreeQp {
 
     /// Objective `½wᵀHw + gᵀw` of the trajectory `w = self.w.sol`.
     fn objective(&self) -> f64 {
-        let (nx, nu, nr) = (self.nx, self.nu, self.nr);
+        let StageDims { nx, nu, nr, .. } = self.data.dims;
         let nsh = nr * nu;
         let nv = self.num_inputs();
-        let mut f: f64 = self.w.sol.iter().zip(&self.g).map(|(w, g)| w * g).sum();
+        let mut f: f64 = self
+            .w
+            .sol
+            .iter()
+            .zip(&self.data.g)
+            .map(|(w, g)| w * g)
+            .sum();
         for j in 0..nr {
             f += quad(
                 &self.w.sol[j * nu..(j + 1) * nu],
@@ -517,10 +406,10 @@ impl TreeQp {
                 nu,
             );
         }
-        for (k, rk) in self.r.chunks_exact(nu * nu).enumerate() {
+        for (k, rk) in self.data.r.chunks_exact(nu * nu).enumerate() {
             f += quad(&self.w.sol[nsh + k * nu..nsh + (k + 1) * nu], rk, nu);
         }
-        for (k, qk) in self.q.chunks_exact(nx * nx).enumerate() {
+        for (k, qk) in self.data.q.chunks_exact(nx * nx).enumerate() {
             f += quad(&self.w.sol[nv + k * nx..nv + (k + 1) * nx], qk, nx);
         }
         f
@@ -530,18 +419,18 @@ impl TreeQp {
     /// [`Self::solution`] and the multipliers [`Self::multipliers`].
     pub fn solve(&mut self) -> QpInfo {
         let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
-        let data_finite = finite(&self.a)
-            && finite(&self.b)
-            && finite(&self.q)
-            && finite(&self.r)
+        let data_finite = finite(&self.data.a)
+            && finite(&self.data.b)
+            && finite(&self.data.q)
+            && finite(&self.data.r)
             && finite(&self.r_shared)
-            && finite(&self.g);
+            && finite(&self.data.g);
         let settings = self.settings;
         let start = |qp: &mut Self| {
             let all = Active {
                 lo: 0,
-                hi: qp.ns,
-                top: qp.np - 1,
+                hi: qp.data.dims.ns,
+                top: qp.data.dims.np - 1,
             };
             qp.factor() && {
                 qp.sweep(false, all, false);

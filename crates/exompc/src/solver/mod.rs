@@ -26,12 +26,14 @@ pub mod riccati;
 mod settings;
 pub mod sqp;
 mod stage;
+mod stage_data;
 
 pub use arrowhead::TreeQp;
 pub use qp::{DenseQp, QpInfo, QpSettings, QpStatus};
 pub use riccati::RiccatiQp;
 pub use settings::{HessianModel, SqpInfo, SqpSettings, SqpStatus};
 pub use sqp::{Constraints, LeastSquares, Sqp};
+pub use stage_data::{StageDims, StageQpData};
 
 /// Error returned when a solver is configured with invalid settings or dimensions.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

@@ -27,52 +27,29 @@
 use super::active_set::{box_dual_from_fields, solve_box, BoxWork};
 use super::cholesky::chol_solve;
 use super::qp::{QpInfo, QpSettings, QpStatus};
-use super::stage::{self, neg_adjugate_solve};
+use super::stage::{self, neg_adjugate_solve, RiccatiFactor};
+use super::stage_data::{StageDims, StageQpData};
 use super::SolverError;
 use alloc::{vec, vec::Vec};
 use nalgebra::{SMatrix, SVector};
 
 /// The stage-structured QP described in the module documentation, with all workspace allocated
-/// at construction. Trajectory vectors (`g`, `lo`, `hi`, the solution and the multipliers) use
-/// the layout `[u_0, …, u_{Nc−1}, x_1, …, x_{Np}]`.
+/// at construction: its [`StageQpData`] (one scenario, no shared inputs; trajectory vectors
+/// `[u_0, …, u_{Nc−1}, x_1, …, x_{Np}]`) with the cross terms `S_j` beside it, and the factor.
 #[derive(Debug, Clone)]
 pub struct RiccatiQp {
-    nx: usize,
-    nu: usize,
-    np: usize,
-    nc: usize,
-    settings: QpSettings,
-    /// `A_j`, `j = 0..Np`, each `nx × nx` column-major, concatenated.
-    pub a: Vec<f64>,
-    /// `B_j`, `j = 0..Nc`, each `nx × nu` column-major, concatenated.
-    pub b: Vec<f64>,
-    /// `Q_j` of state `x_j`, `j = 1..=Np` (stored at index `j − 1`), each `nx × nx` column-major.
-    pub q: Vec<f64>,
-    /// `R_j`, `j = 0..Nc`, each `nu × nu` column-major (symmetric positive definite).
-    pub r: Vec<f64>,
+    /// Dynamics, stage costs, linear term and bounds (`qp.a` reads `qp.data.a`).
+    pub data: StageQpData,
     /// Cross terms `S_j` of the stage cost `u_jᵀ S_j x_j`, `j = 0..Nc`, each `nu × nx`
     /// column-major (zero by default; `S_0` multiplies `x_0 = 0`). Used by the exact-Hessian SQP
     /// (`control::ocp`); all zero gives exactly the factorisation without cross terms.
     pub s: Vec<f64>,
-    /// Linear term in trajectory layout.
-    pub g: Vec<f64>,
-    /// Lower bounds in trajectory layout (`−∞` for none).
-    pub lo: Vec<f64>,
-    /// Upper bounds in trajectory layout (`+∞` for none).
-    pub hi: Vec<f64>,
-    // Riccati factor.
-    pm: Vec<f64>,
-    sbar: Vec<f64>,
-    kgain: Vec<f64>,
-    lchol: Vec<f64>,
-    pa: Vec<f64>,
-    pb: Vec<f64>,
-    pv: Vec<f64>,
-    kff: Vec<f64>,
+    settings: QpSettings,
+    /// The Riccati factor and the sweeps' workspace.
+    f: RiccatiFactor,
     /// `[a, b, c, 1/(ac − b²)]` of each two-input stage's `M = [[a, b], [b, c]]` (Gauss–Newton
     /// factorisations, see [`neg_adjugate_solve`]).
     madj: Vec<f64>,
-    xs: Vec<f64>,
     /// Solution, multipliers and active set.
     w: BoxWork,
     /// The data of the last factorisation has the held-input form
@@ -99,34 +76,24 @@ impl RiccatiQp {
         settings: QpSettings,
     ) -> Result<Self, SolverError> {
         settings.validate()?;
-        stage::check_dims(nx, nu, np, nc)?;
-        let len = nc * nu + np * nx;
-        // At most nc·nu linearly independent active constraints; one spare for the entering one.
-        let cap = nc * nu + 1;
-        Ok(Self {
+        let dims = StageDims {
             nx,
             nu,
             np,
             nc,
-            settings,
-            a: vec![0.0; np * nx * nx],
-            b: vec![0.0; nc * nx * nu],
-            q: vec![0.0; np * nx * nx],
-            r: vec![0.0; nc * nu * nu],
+            nr: 0,
+            ns: 1,
+        };
+        let data = StageQpData::new(dims)?;
+        let len = data.len();
+        // At most nc·nu linearly independent active constraints; one spare for the entering one.
+        let cap = nc * nu + 1;
+        Ok(Self {
+            data,
             s: vec![0.0; nc * nu * nx],
-            g: vec![0.0; len],
-            lo: vec![f64::NEG_INFINITY; len],
-            hi: vec![f64::INFINITY; len],
-            pm: vec![0.0; (np + 1) * nx * nx],
-            sbar: vec![0.0; nc * nu * nx],
-            kgain: vec![0.0; nc * nu * nx],
-            lchol: vec![0.0; nc * nu * nu],
-            pa: vec![0.0; nx * nx],
-            pb: vec![0.0; nx * nu],
-            pv: vec![0.0; (np + 1) * nx],
-            kff: vec![0.0; nc * nu],
+            settings,
+            f: RiccatiFactor::new(dims),
             madj: vec![0.0; nc * 4],
-            xs: vec![0.0; nx],
             w: BoxWork::new(len, cap),
             held: false,
             cross: false,
@@ -135,24 +102,27 @@ impl RiccatiQp {
         })
     }
 
-    /// Length of trajectory vectors, `Nc·nu + Np·nx`.
-    pub fn len(&self) -> usize {
-        self.nc * self.nu + self.np * self.nx
-    }
-
-    /// Always `false` (dimensions are at least one); present for API symmetry with `len`.
-    pub fn is_empty(&self) -> bool {
-        false
-    }
-
     /// Index of input component `i` of stage `j < Nc` in trajectory layout.
     pub fn u_index(&self, j: usize, i: usize) -> usize {
-        j * self.nu + i
+        self.data.u_index(0, j, i)
     }
 
     /// Index of component `i` of state `x_j`, `1 ≤ j ≤ Np`, in trajectory layout.
     pub fn x_index(&self, j: usize, i: usize) -> usize {
-        self.nc * self.nu + (j - 1) * self.nx + i
+        self.data.x_index(0, j, i)
+    }
+
+    /// Largest diagonal entry of the Gram part `Bᵀ V B` of the condensed Hessian (in the
+    /// inputs) of the current data, the condensed Hessian without `R`: for input `(j, k)`,
+    /// `(B_jᵀ V_j B_j)_kk` with `V_{Np−1} = Q_{Np}`, `V_j = Q_{j+1} + A_{j+1}ᵀ V_{j+1} A_{j+1}`
+    /// (as [`super::TreeQp::max_condensed_diagonal`], which adds `R`). Uses the factor
+    /// workspace (call before [`Self::solve`]); `O(Np·nx³)`.
+    pub fn max_condensed_gram_diagonal(&mut self) -> f64 {
+        let (nx, nu) = (self.data.dims.nx, self.data.dims.nu);
+        let mut maxd: f64 = 0.0;
+        self.f
+            .condensed_diagonal((nx, nu), &self.data, 0, |_, _, d| maxd = maxd.max(d));
+        maxd
     }
 
     /// Declares that every `A_j`, `B_j` this solver will be given has the held-input form of
@@ -161,7 +131,7 @@ impl RiccatiQp {
     /// (24 comparisons a stage). Only for the stage sizes with those kernels (`nx × nu` = 3 × 1,
     /// 6 × 2); ignored for others. Debug builds still check the form.
     pub(crate) fn assume_held_input_form(&mut self) {
-        self.held_known = matches!((self.nx, self.nu), (3, 1) | (6, 2));
+        self.held_known = matches!((self.data.dims.nx, self.data.dims.nu), (3, 1) | (6, 2));
     }
 
     /// Declares that the `A_j`, `B_j`, `Q_j` and `S_j` this solver will be given are always
@@ -178,7 +148,7 @@ impl RiccatiQp {
     fn factor(&mut self) -> bool {
         self.cross = any_nonzero(&self.s);
         // The NMPC's stage sizes (1-DOF, 2-DOF) as constants: unrolled, bounds checks removed.
-        let detect = |qp: &Self| match (qp.nx, qp.nu) {
+        let detect = |qp: &Self| match (qp.data.dims.nx, qp.data.dims.nu) {
             (3, 1) => qp.held_input_structure::<3, 1>(),
             (6, 2) => qp.held_input_structure::<6, 2>(),
             _ => false,
@@ -189,11 +159,11 @@ impl RiccatiQp {
         } else {
             detect(self)
         };
-        match (self.nx, self.nu) {
-            (3, 1) if self.held => self.factor_held::<3, 1>(),
-            (6, 2) if self.held => self.factor_held::<6, 2>(),
-            (3, 1) => self.factor_fixed::<3, 1>(),
-            (6, 2) => self.factor_fixed::<6, 2>(),
+        match (self.data.dims.nx, self.data.dims.nu) {
+            (3, 1) if self.held => self.factor_fixed::<3, 1, true>(),
+            (6, 2) if self.held => self.factor_fixed::<6, 2, true>(),
+            (3, 1) => self.factor_fixed::<3, 1, false>(),
+            (6, 2) => self.factor_fixed::<6, 2, false>(),
             (nx, nu) => self.factor_dims(nx, nu),
         }
     }
@@ -206,8 +176,8 @@ impl RiccatiQp {
         let ns = NX - NU;
         let n2 = NX * NX;
         // Branch-free within a stage (every comparison is made; the answer is the same).
-        for j in 0..self.np {
-            let a = &self.a[j * n2..(j + 1) * n2];
+        for j in 0..self.data.dims.np {
+            let a = &self.data.a[j * n2..(j + 1) * n2];
             let mut differ = false;
             for c in 0..NX {
                 for r in ns..NX {
@@ -215,8 +185,8 @@ impl RiccatiQp {
                     differ |= a[c * NX + r] != want;
                 }
             }
-            if j < self.nc {
-                let b = &self.b[j * NX * NU..(j + 1) * NX * NU];
+            if j < self.data.dims.nc {
+                let b = &self.data.b[j * NX * NU..(j + 1) * NX * NU];
                 for (bv, av) in b.iter().zip(&a[ns * NX..]) {
                     differ |= bv != av;
                 }
@@ -228,83 +198,31 @@ impl RiccatiQp {
         true
     }
 
-    /// The Riccati recursion of [`Self::factor_fixed`] for the held-input form of
-    /// [`Self::held_input_structure`], which skips the zero and identity blocks of `A_j` and
-    /// reads `Bᵀ P A`, `Bᵀ P B` off `Aᵀ P A` (about half the multiply-adds of the general
-    /// stage). Equals the general recursion to rounding (unit test against
-    /// [`Self::factor_dims`]).
-    fn factor_held<const NX: usize, const NU: usize>(&mut self) -> bool {
-        let ns = NX - NU;
-        let (np, nc) = (self.np, self.nc);
+    /// The Riccati recursion with fixed-size blocks on the stack for the NMPC's `nx × nu`
+    /// stages: `P_j = Q_{j−1} + A_jᵀ P_{j+1} A_j + S̄_jᵀ K_j`, `S̄_j = B_jᵀ P_{j+1} A_j`,
+    /// `K_j = −(R_j + B_jᵀ P_{j+1} B_j)⁻¹ S̄_j`. In general form every sum runs in the order of
+    /// [`RiccatiFactor::own_stages`], so the factor is identical to the last bit (nalgebra's
+    /// `P A`, `P B`, `Bᵀ(PA)` accumulate column by column from zero like the slice loops). With
+    /// `HELD` (the held-input form of [`Self::held_input_structure`]) the stage's products come
+    /// from the congruence `W = Aᵀ P A` that skips the zero and identity blocks of `A_j`, with
+    /// `Bᵀ P A`, `Bᵀ P B` read off `W` (about half the multiply-adds of the general stage;
+    /// equal to it to rounding, unit test against the general recursion).
+    fn factor_fixed<const NX: usize, const NU: usize, const HELD: bool>(&mut self) -> bool {
+        let StageDims { np, nc, .. } = self.data.dims;
         let n2 = NX * NX;
-        let mut p = SMatrix::<f64, NX, NX>::from_column_slice(&self.q[(np - 1) * n2..np * n2]);
+        let mut p = SMatrix::<f64, NX, NX>::from_column_slice(&self.data.q[(np - 1) * n2..np * n2]);
         for j in (0..np).rev() {
-            let a = SMatrix::<f64, NX, NX>::from_column_slice(&self.a[j * n2..(j + 1) * n2]);
-            let w = held_congruence::<NX, NU>(&p, &a);
+            let a = SMatrix::<f64, NX, NX>::from_column_slice(&self.data.a[j * n2..(j + 1) * n2]);
+            // Held: `W = Aᵀ P A`; general: `P A` (`Aᵀ (P A)` is summed in the update below).
+            let m = if HELD {
+                held_congruence::<NX, NU>(&p, &a)
+            } else {
+                p * a
+            };
             let mut sb = SMatrix::<f64, NU, NX>::zeros();
             let mut kg = SMatrix::<f64, NU, NX>::zeros();
             if j < nc {
-                // S̄ = Bᵀ P A = W[ns.., :], R + Bᵀ P B = R + W[ns.., ns..].
-                for c in 0..NX {
-                    for i in 0..NU {
-                        sb[(i, c)] = w[(ns + i, c)];
-                    }
-                }
-                if self.cross {
-                    self.add_cross::<NX, NU>(j, &mut sb);
-                }
-                let rj = &self.r[j * NU * NU..(j + 1) * NU * NU];
-                let ls = &mut self.lchol[j * NU * NU..(j + 1) * NU * NU];
-                for c in 0..NU {
-                    for r in 0..NU {
-                        ls[c * NU + r] = rj[c * NU + r] + w[(ns + r, ns + c)];
-                    }
-                }
-                match self.stage_gain(j, &sb) {
-                    Some(k) => kg = k,
-                    None => return false,
-                }
-            }
-            if j == 0 {
-                break;
-            }
-            let qj = &self.q[(j - 1) * n2..j * n2];
-            riccati_update(&mut p, j < nc, &sb, &kg, |r, c| qj[c * NX + r] + w[(r, c)]);
-        }
-        all_finite(&self.lchol) && all_finite(&self.kgain)
-    }
-
-    /// [`Self::factor_dims`] with fixed-size blocks on the stack for the NMPC's `nx × nu` stages:
-    /// `P_j = Q_{j−1} + A_jᵀ P_{j+1} A_j + S̄_jᵀ K_j`, `S̄_j = B_jᵀ P_{j+1} A_j`,
-    /// `K_j = −(R_j + B_jᵀ P_{j+1} B_j)⁻¹ S̄_j`. Every sum runs in the order of `factor_dims`, so
-    /// the factor is identical to the last bit (nalgebra's `P A`, `P B`, `Bᵀ(PA)` accumulate
-    /// column by column from zero like the slice loops).
-    fn factor_fixed<const NX: usize, const NU: usize>(&mut self) -> bool {
-        let (np, nc) = (self.np, self.nc);
-        let n2 = NX * NX;
-        let mut p = SMatrix::<f64, NX, NX>::from_column_slice(&self.q[(np - 1) * n2..np * n2]);
-        for j in (0..np).rev() {
-            let a = SMatrix::<f64, NX, NX>::from_column_slice(&self.a[j * n2..(j + 1) * n2]);
-            let pa = p * a;
-            let mut sb = SMatrix::<f64, NU, NX>::zeros();
-            let mut kg = SMatrix::<f64, NU, NX>::zeros();
-            if j < nc {
-                let b = SMatrix::<f64, NX, NU>::from_column_slice(
-                    &self.b[j * NX * NU..(j + 1) * NX * NU],
-                );
-                let pb = p * b;
-                let rj = &self.r[j * NU * NU..(j + 1) * NU * NU];
-                let ls = &mut self.lchol[j * NU * NU..(j + 1) * NU * NU];
-                for c in 0..NU {
-                    for rr in 0..NU {
-                        let mut s = rj[c * NU + rr];
-                        for k in 0..NX {
-                            s += b[(k, rr)] * pb[(k, c)];
-                        }
-                        ls[c * NU + rr] = s;
-                    }
-                }
-                sb = b.tr_mul(&pa);
+                sb = self.input_blocks::<NX, NU, HELD>(j, &p, &m);
                 if self.cross {
                     self.add_cross::<NX, NU>(j, &mut sb);
                 }
@@ -316,16 +234,65 @@ impl RiccatiQp {
             if j == 0 {
                 break;
             }
-            let qj = &self.q[(j - 1) * n2..j * n2];
-            riccati_update(&mut p, j < nc, &sb, &kg, |rr, c| {
-                let mut s = qj[c * NX + rr];
-                for k in 0..NX {
-                    s += a[(k, rr)] * pa[(k, c)];
+            let qj = &self.data.q[(j - 1) * n2..j * n2];
+            riccati_update(&mut p, j < nc, &sb, &kg, |r, c| {
+                let mut s = qj[c * NX + r];
+                if HELD {
+                    s += m[(r, c)];
+                } else {
+                    for k in 0..NX {
+                        s += a[(k, r)] * m[(k, c)];
+                    }
                 }
                 s
             });
         }
-        all_finite(&self.lchol) && all_finite(&self.kgain)
+        all_finite(&self.f.lchol) && all_finite(&self.f.kgain)
+    }
+
+    /// The input blocks of stage `j` from `P = P_{j+1}` and the stage product `m` of
+    /// [`Self::factor_fixed`]: writes `R_j + Bᵀ P B` into `lchol[j]` and returns
+    /// `S̄ = Bᵀ P A`. Held form: `B = [G; I]` is the last `NU` columns of `A`, so both are rows
+    /// `ns..` of `W = m`; general: `Bᵀ (P B)` and `Bᵀ (P A)`.
+    #[inline(always)]
+    fn input_blocks<const NX: usize, const NU: usize, const HELD: bool>(
+        &mut self,
+        j: usize,
+        p: &SMatrix<f64, NX, NX>,
+        m: &SMatrix<f64, NX, NX>,
+    ) -> SMatrix<f64, NU, NX> {
+        let rj = &self.data.r[j * NU * NU..(j + 1) * NU * NU];
+        let ls = &mut self.f.lchol[j * NU * NU..(j + 1) * NU * NU];
+        if HELD {
+            let ns = NX - NU;
+            for c in 0..NU {
+                for r in 0..NU {
+                    ls[c * NU + r] = rj[c * NU + r] + m[(ns + r, ns + c)];
+                }
+            }
+            let mut sb = SMatrix::<f64, NU, NX>::zeros();
+            for c in 0..NX {
+                for i in 0..NU {
+                    sb[(i, c)] = m[(ns + i, c)];
+                }
+            }
+            sb
+        } else {
+            let b = SMatrix::<f64, NX, NU>::from_column_slice(
+                &self.data.b[j * NX * NU..(j + 1) * NX * NU],
+            );
+            let pb = p * b;
+            for c in 0..NU {
+                for rr in 0..NU {
+                    let mut s = rj[c * NU + rr];
+                    for k in 0..NX {
+                        s += b[(k, rr)] * pb[(k, c)];
+                    }
+                    ls[c * NU + rr] = s;
+                }
+            }
+            b.tr_mul(m)
+        }
     }
 
     /// `S̄ ← S̄ + S_j` (the stage cross term).
@@ -351,69 +318,30 @@ impl RiccatiQp {
     ) -> Option<SMatrix<f64, NU, NX>> {
         let mut kg = SMatrix::<f64, NU, NX>::zeros();
         let adj = (NU == 2 && !self.cross).then_some(&mut self.madj[j * 4..(j + 1) * 4]);
-        let ls = &mut self.lchol[j * NU * NU..(j + 1) * NU * NU];
+        let ls = &mut self.f.lchol[j * NU * NU..(j + 1) * NU * NU];
         if !stage::stage_gain(NX, NU, ls, sb.as_slice(), kg.as_mut_slice(), adj) {
             return None;
         }
-        self.sbar[j * NU * NX..(j + 1) * NU * NX].copy_from_slice(sb.as_slice());
-        self.kgain[j * NU * NX..(j + 1) * NU * NX].copy_from_slice(kg.as_slice());
+        self.f.sbar[j * NU * NX..(j + 1) * NU * NX].copy_from_slice(sb.as_slice());
+        self.f.kgain[j * NU * NX..(j + 1) * NU * NX].copy_from_slice(kg.as_slice());
         Some(kg)
     }
 
-    #[inline(always)]
+    /// The Riccati recursion for any stage size ([`RiccatiFactor::own_stages`], shared with
+    /// the tree).
     fn factor_dims(&mut self, nx: usize, nu: usize) -> bool {
-        let (np, nc) = (self.np, self.nc);
-        let n2 = nx * nx;
-        self.pm[np * n2..(np + 1) * n2].copy_from_slice(&self.q[(np - 1) * n2..np * n2]);
-        for j in (0..np).rev() {
-            let (head, tail) = self.pm.split_at_mut((j + 1) * n2);
-            let p = &tail[..n2];
-            let a = &self.a[j * n2..(j + 1) * n2];
-            stage::p_times(nx, nx, p, a, &mut self.pa);
-            let (su, sx) = (
-                j * nu * nu..(j + 1) * nu * nu,
-                j * nu * nx..(j + 1) * nu * nx,
-            );
-            if j < nc {
-                let b = &self.b[j * nx * nu..(j + 1) * nx * nu];
-                stage::p_times(nx, nu, p, b, &mut self.pb);
-                let l = &mut self.lchol[su.clone()];
-                stage::bt_times(nx, nu, nu, Some(&self.r[su]), b, &self.pb, l);
-                let sb = &mut self.sbar[sx.clone()];
-                stage::bt_times(nx, nu, nx, None, b, &self.pa, sb);
-                if self.cross {
-                    for (v, sj) in sb.iter_mut().zip(&self.s[sx.clone()]) {
-                        *v += sj;
-                    }
-                }
-                let adj = (nu == 2 && !self.cross).then_some(&mut self.madj[j * 4..(j + 1) * 4]);
-                if !stage::stage_gain(nx, nu, l, sb, &mut self.kgain[sx.clone()], adj) {
-                    return false;
-                }
-            }
-            if j == 0 {
-                break;
-            }
-            let gain = (j < nc).then(|| (&self.sbar[sx.clone()], &self.kgain[sx]));
-            let qj = &self.q[(j - 1) * n2..j * n2];
-            stage::cost_to_go(
-                nx,
-                nu,
-                qj,
-                a,
-                &self.pa,
-                gain,
-                &mut head[j * n2..(j + 1) * n2],
-            );
-        }
-        all_finite(&self.lchol) && all_finite(&self.kgain)
+        let cross = self.cross.then_some(&self.s[..]);
+        let adj = (nu == 2 && !self.cross).then_some(&mut self.madj[..]);
+        self.f.own_stages((nx, nu), &self.data, 0, cross, adj)
+            && all_finite(&self.f.lchol)
+            && all_finite(&self.f.kgain)
     }
 
     /// Minimiser of `½wᵀHw + linᵀw` over the dynamics (trajectory layout) into `out`, where
     /// `lin` is zero on every stage after `top` (inputs `u_j`, `j > top`, and states
     /// `x_j`, `j > top + 1`).
     fn sweep(&mut self, use_unit: bool, top: usize, out_is_yp: bool) {
-        match (self.nx, self.nu, self.held) {
+        match (self.data.dims.nx, self.data.dims.nu, self.held) {
             (3, 1, true) => self.sweep_fixed::<3, 1, true>(use_unit, top, out_is_yp),
             (6, 2, true) => self.sweep_fixed::<6, 2, true>(use_unit, top, out_is_yp),
             (3, 1, false) => self.sweep_fixed::<3, 1, false>(use_unit, top, out_is_yp),
@@ -432,20 +360,20 @@ impl RiccatiQp {
         top: usize,
         out_is_yp: bool,
     ) {
-        let (np, nc) = (self.np, self.nc);
+        let StageDims { np, nc, .. } = self.data.dims;
         let n2 = NX * NX;
         let off = nc * NU;
-        let lin: &[f64] = if use_unit { &self.w.unit } else { &self.g };
+        let lin: &[f64] = if use_unit { &self.w.unit } else { &self.data.g };
         // Backward pass for the feed-forward terms.
         let xi = off + top * NX;
         let mut pn = SVector::<f64, NX>::from_column_slice(&lin[xi..xi + NX]);
         for j in top + 1..nc {
-            self.kff[j * NU..(j + 1) * NU].fill(0.0);
+            self.f.kff[j * NU..(j + 1) * NU].fill(0.0);
         }
         for j in (0..=top).rev() {
             let mut kf = SVector::<f64, NU>::zeros();
             if j < nc {
-                let b = &self.b[j * NX * NU..(j + 1) * NX * NU];
+                let b = &self.data.b[j * NX * NU..(j + 1) * NX * NU];
                 for i in 0..NU {
                     let mut s = lin[j * NU + i];
                     // Held form: B = [G; I].
@@ -466,17 +394,17 @@ impl RiccatiQp {
                     kf[1] = k1;
                 } else {
                     chol_solve(
-                        &self.lchol[j * NU * NU..(j + 1) * NU * NU],
+                        &self.f.lchol[j * NU * NU..(j + 1) * NU * NU],
                         NU,
                         kf.as_mut_slice(),
                     );
                 }
-                self.kff[j * NU..(j + 1) * NU].copy_from_slice(kf.as_slice());
+                self.f.kff[j * NU..(j + 1) * NU].copy_from_slice(kf.as_slice());
             }
             if j == 0 {
                 break;
             }
-            let a = &self.a[j * n2..(j + 1) * n2];
+            let a = &self.data.a[j * n2..(j + 1) * n2];
             let xo = off + (j - 1) * NX;
             let mut next = SVector::<f64, NX>::zeros();
             for c in 0..NX {
@@ -490,7 +418,7 @@ impl RiccatiQp {
                     s += pn[c];
                 }
                 if j < nc {
-                    let sb = &self.sbar[j * NU * NX..(j + 1) * NU * NX];
+                    let sb = &self.f.sbar[j * NU * NX..(j + 1) * NU * NX];
                     for i in 0..NU {
                         s += sb[c * NU + i] * kf[i];
                     }
@@ -507,7 +435,7 @@ impl RiccatiQp {
         };
         let mut xs = SVector::<f64, NX>::zeros();
         for j in 0..np {
-            let a = SMatrix::<f64, NX, NX>::from_column_slice(&self.a[j * n2..(j + 1) * n2]);
+            let a = SMatrix::<f64, NX, NX>::from_column_slice(&self.data.a[j * n2..(j + 1) * n2]);
             let mut xn = if HELD {
                 // [F G] xs on the top rows, the held inputs copied.
                 let mut xn = SVector::<f64, NX>::zeros();
@@ -524,10 +452,10 @@ impl RiccatiQp {
                 a * xs
             };
             if j < nc {
-                let kg = &self.kgain[j * NU * NX..(j + 1) * NU * NX];
-                let b = &self.b[j * NX * NU..(j + 1) * NX * NU];
+                let kg = &self.f.kgain[j * NU * NX..(j + 1) * NU * NX];
+                let b = &self.data.b[j * NX * NU..(j + 1) * NX * NU];
                 for i in 0..NU {
-                    let mut s = self.kff[j * NU + i];
+                    let mut s = self.f.kff[j * NU + i];
                     for c in 0..NX {
                         s += kg[c * NU + i] * xs[c];
                     }
@@ -552,34 +480,34 @@ impl RiccatiQp {
 
     #[inline(always)]
     fn sweep_dims(&mut self, nx: usize, nu: usize, use_unit: bool, top: usize, out_is_yp: bool) {
-        let (np, nc) = (self.np, self.nc);
+        let StageDims { np, nc, .. } = self.data.dims;
         let n2 = nx * nx;
         let off = nc * nu;
-        let lin: &[f64] = if use_unit { &self.w.unit } else { &self.g };
+        let lin: &[f64] = if use_unit { &self.w.unit } else { &self.data.g };
         // Backward pass for the feed-forward terms.
         let xi = off + top * nx;
-        self.pv[(top + 1) * nx..(top + 2) * nx].copy_from_slice(&lin[xi..xi + nx]);
+        self.f.pv[(top + 1) * nx..(top + 2) * nx].copy_from_slice(&lin[xi..xi + nx]);
         for j in top + 1..nc {
-            self.kff[j * nu..(j + 1) * nu].fill(0.0);
+            self.f.kff[j * nu..(j + 1) * nu].fill(0.0);
         }
         let adj2 = nu == 2 && !self.cross;
         for j in (0..=top).rev() {
-            let (head, tail) = self.pv.split_at_mut((j + 1) * nx);
+            let (head, tail) = self.f.pv.split_at_mut((j + 1) * nx);
             let pn = &tail[..nx];
             let (su, sx) = (j * nu..(j + 1) * nu, j * nu * nx..(j + 1) * nu * nx);
             if j < nc {
-                let b = &self.b[j * nx * nu..(j + 1) * nx * nu];
-                let l = &self.lchol[j * nu * nu..(j + 1) * nu * nu];
+                let b = &self.data.b[j * nx * nu..(j + 1) * nx * nu];
+                let l = &self.f.lchol[j * nu * nu..(j + 1) * nu * nu];
                 let adj = adj2.then_some(&self.madj[j * 4..(j + 1) * 4]);
-                let k = &mut self.kff[su.clone()];
+                let k = &mut self.f.kff[su.clone()];
                 stage::feed_forward(nx, nu, b, &lin[su.clone()], pn, (l, adj), k);
             }
             if j == 0 {
                 break;
             }
-            let a = &self.a[j * n2..(j + 1) * n2];
+            let a = &self.data.a[j * n2..(j + 1) * n2];
             let xo = off + (j - 1) * nx;
-            let gain = (j < nc).then(|| (&self.sbar[sx], &self.kff[su]));
+            let gain = (j < nc).then(|| (&self.f.sbar[sx], &self.f.kff[su]));
             stage::costate(nx, nu, a, &lin[xo..xo + nx], pn, gain, &mut head[j * nx..]);
         }
         // Forward pass from x_0 = 0.
@@ -588,28 +516,28 @@ impl RiccatiQp {
         } else {
             &mut self.w.sol
         };
-        self.xs.fill(0.0);
+        self.f.xs.fill(0.0);
         for j in 0..np {
-            let a = &self.a[j * n2..(j + 1) * n2];
+            let a = &self.data.a[j * n2..(j + 1) * n2];
             let xo = off + j * nx;
-            stage::a_times(nx, a, &self.xs, &mut out[xo..xo + nx]);
+            stage::a_times(nx, a, &self.f.xs, &mut out[xo..xo + nx]);
             if j < nc {
-                let kg = &self.kgain[j * nu * nx..(j + 1) * nu * nx];
-                let b = &self.b[j * nx * nu..(j + 1) * nx * nu];
+                let kg = &self.f.kgain[j * nu * nx..(j + 1) * nu * nx];
+                let b = &self.data.b[j * nx * nu..(j + 1) * nx * nu];
                 for i in 0..nu {
-                    let s = stage::feedback(nx, nu, i, self.kff[j * nu + i], kg, &self.xs);
+                    let s = stage::feedback(nx, nu, i, self.f.kff[j * nu + i], kg, &self.f.xs);
                     out[j * nu + i] = s;
                     stage::add_input(nx, b, i, s, &mut out[xo..xo + nx]);
                 }
             }
-            self.xs.copy_from_slice(&out[xo..xo + nx]);
+            self.f.xs.copy_from_slice(&out[xo..xo + nx]);
         }
     }
 
     /// Trajectory `H⁻¹ n` for the constraint normal `n = σ e_id` (in trajectory coordinates)
     /// into `yp`.
     fn normal_solve(&mut self, id: usize, sigma: f64) {
-        let (nx, nu, nc) = (self.nx, self.nu, self.nc);
+        let StageDims { nx, nu, nc, .. } = self.data.dims;
         self.w.unit[id] = 1.0;
         let top = if id < nc * nu {
             id / nu
@@ -626,7 +554,7 @@ impl RiccatiQp {
 
     /// Objective `½wᵀHw + gᵀw` of the trajectory `w = self.w.sol`.
     fn objective(&self) -> f64 {
-        match (self.nx, self.nu) {
+        match (self.data.dims.nx, self.data.dims.nu) {
             (3, 1) => self.objective_fixed::<3, 1>(),
             (6, 2) => self.objective_fixed::<6, 2>(),
             _ => self.objective_dims(),
@@ -635,15 +563,16 @@ impl RiccatiQp {
 
     /// [`Self::objective_dims`] with fixed-size nalgebra blocks.
     fn objective_fixed<const NX: usize, const NU: usize>(&self) -> f64 {
-        let off = self.nc * NU;
+        let off = self.data.dims.nc * NU;
         let mut f = 0.0;
-        for (w, g) in self.w.sol.iter().zip(&self.g) {
+        for (w, g) in self.w.sol.iter().zip(&self.data.g) {
             f += w * g;
         }
-        for j in 0..self.nc {
+        for j in 0..self.data.dims.nc {
             let u = SVector::<f64, NU>::from_column_slice(&self.w.sol[j * NU..(j + 1) * NU]);
-            let rj =
-                SMatrix::<f64, NU, NU>::from_column_slice(&self.r[j * NU * NU..(j + 1) * NU * NU]);
+            let rj = SMatrix::<f64, NU, NU>::from_column_slice(
+                &self.data.r[j * NU * NU..(j + 1) * NU * NU],
+            );
             f += 0.5 * u.dot(&(rj * u));
             if self.cross && j > 0 {
                 let sj = SMatrix::<f64, NU, NX>::from_column_slice(
@@ -655,12 +584,13 @@ impl RiccatiQp {
                 f += u.dot(&(sj * x));
             }
         }
-        for j in 0..self.np {
+        for j in 0..self.data.dims.np {
             let x = SVector::<f64, NX>::from_column_slice(
                 &self.w.sol[off + j * NX..off + (j + 1) * NX],
             );
-            let qj =
-                SMatrix::<f64, NX, NX>::from_column_slice(&self.q[j * NX * NX..(j + 1) * NX * NX]);
+            let qj = SMatrix::<f64, NX, NX>::from_column_slice(
+                &self.data.q[j * NX * NX..(j + 1) * NX * NX],
+            );
             f += 0.5 * x.dot(&(qj * x));
         }
         f
@@ -668,15 +598,15 @@ impl RiccatiQp {
 
     /// Objective `½wᵀHw + gᵀw` of the trajectory `w = self.w.sol`, any stage size.
     fn objective_dims(&self) -> f64 {
-        let (nx, nu, np, nc) = (self.nx, self.nu, self.np, self.nc);
+        let StageDims { nx, nu, np, nc, .. } = self.data.dims;
         let off = nc * nu;
         let mut f = 0.0;
-        for (w, g) in self.w.sol.iter().zip(&self.g) {
+        for (w, g) in self.w.sol.iter().zip(&self.data.g) {
             f += w * g;
         }
         for j in 0..nc {
             let u = &self.w.sol[j * nu..(j + 1) * nu];
-            let rj = &self.r[j * nu * nu..(j + 1) * nu * nu];
+            let rj = &self.data.r[j * nu * nu..(j + 1) * nu * nu];
             for c in 0..nu {
                 for rr in 0..nu {
                     f += 0.5 * u[rr] * rj[c * nu + rr] * u[c];
@@ -694,7 +624,7 @@ impl RiccatiQp {
         }
         for j in 0..np {
             let x = &self.w.sol[off + j * nx..off + (j + 1) * nx];
-            let qj = &self.q[j * nx * nx..(j + 1) * nx * nx];
+            let qj = &self.data.q[j * nx * nx..(j + 1) * nx * nx];
             for c in 0..nx {
                 for rr in 0..nx {
                     f += 0.5 * x[rr] * qj[c * nx + rr] * x[c];
@@ -708,18 +638,19 @@ impl RiccatiQp {
     /// [`Self::solution`] and the multipliers [`Self::multipliers`].
     pub fn solve(&mut self) -> QpInfo {
         let finite = all_finite;
-        let stages_finite =
-            |qp: &Self| finite(&qp.a) && finite(&qp.b) && finite(&qp.q) && finite(&qp.s);
+        let stages_finite = |qp: &Self| {
+            finite(&qp.data.a) && finite(&qp.data.b) && finite(&qp.data.q) && finite(&qp.s)
+        };
         let stages_finite = if self.finite_known {
             debug_assert!(stages_finite(self), "non-finite stage data");
             true
         } else {
             stages_finite(self)
         };
-        let data_finite = stages_finite && finite(&self.r) && finite(&self.g);
+        let data_finite = stages_finite && finite(&self.data.r) && finite(&self.data.g);
         let settings = self.settings;
         let start = |qp: &mut Self| {
-            let top = qp.np - 1;
+            let top = qp.data.dims.np - 1;
             qp.factor() && {
                 qp.sweep(false, top, false);
                 true
@@ -744,7 +675,7 @@ impl RiccatiQp {
     /// rounding; unit test).
     fn objective_at_solution(&self) -> f64 {
         let mut f = 0.0;
-        for ((w, g), m) in self.w.sol.iter().zip(&self.g).zip(&self.w.mult) {
+        for ((w, g), m) in self.w.sol.iter().zip(&self.data.g).zip(&self.w.mult) {
             f += w * (g - m);
         }
         0.5 * f
@@ -869,14 +800,16 @@ mod tests {
     fn random_qp(nx: usize, nu: usize, np: usize, nc: usize, seed: u64) -> RiccatiQp {
         let mut next = crate::test_rng::lcg(seed);
         let mut qp = RiccatiQp::new(nx, nu, np, nc, QpSettings::default()).unwrap();
-        for v in
-            qp.a.iter_mut()
-                .chain(qp.b.iter_mut())
-                .chain(qp.g.iter_mut())
+        for v in qp
+            .data
+            .a
+            .iter_mut()
+            .chain(qp.data.b.iter_mut())
+            .chain(qp.data.g.iter_mut())
         {
             *v = next();
         }
-        for (blocks, n, shift) in [(&mut qp.q, nx, 0.0), (&mut qp.r, nu, 0.1)] {
+        for (blocks, n, shift) in [(&mut qp.data.q, nx, 0.0), (&mut qp.data.r, nu, 0.1)] {
             for blk in blocks.chunks_mut(n * n) {
                 let l: Vec<f64> = (0..n * n).map(|_| next()).collect();
                 for c in 0..n {
@@ -898,7 +831,7 @@ mod tests {
         let mut qp = random_qp(nx, nu, np, nc, seed);
         let ns = nx - nu;
         for j in 0..np {
-            let a = &mut qp.a[j * nx * nx..(j + 1) * nx * nx];
+            let a = &mut qp.data.a[j * nx * nx..(j + 1) * nx * nx];
             for c in 0..nx {
                 for r in ns..nx {
                     a[c * nx + r] = if c == r { 1.0 } else { 0.0 };
@@ -906,7 +839,7 @@ mod tests {
             }
             if j < nc {
                 let tail = a[ns * nx..].to_vec();
-                qp.b[j * nx * nu..(j + 1) * nx * nu].copy_from_slice(&tail);
+                qp.data.b[j * nx * nu..(j + 1) * nx * nu].copy_from_slice(&tail);
             }
         }
         qp
@@ -921,7 +854,7 @@ mod tests {
         sweep_a: impl Fn(&mut RiccatiQp, bool, usize),
         check: impl Fn(&RiccatiQp, &RiccatiQp),
     ) {
-        let (nx, nu, np) = (a.nx, a.nu, a.np);
+        let StageDims { nx, nu, np, .. } = a.data.dims;
         for top in [np - 1, np / 2, 0] {
             for use_unit in [false, true] {
                 let id = a.len() / 2;
@@ -1071,14 +1004,17 @@ mod tests {
                 c.assume_held_input_form();
                 assert!(c.factor() && c.held);
                 assert!(a.factor() && b.factor_dims(nx, nu));
-                assert_eq!((&c.lchol, &c.kgain, &c.sbar), (&a.lchol, &a.kgain, &a.sbar));
+                assert_eq!(
+                    (&c.f.lchol, &c.f.kgain, &c.f.sbar),
+                    (&a.f.lchol, &a.f.kgain, &a.f.sbar)
+                );
                 let close = |x: &[f64], y: &[f64]| {
                     let scale = y.iter().fold(1.0f64, |m, v| m.max(v.abs()));
                     x.iter().zip(y).all(|(u, v)| (u - v).abs() <= 1e-12 * scale)
                 };
-                assert!(close(&a.lchol, &b.lchol));
-                assert!(close(&a.kgain, &b.kgain));
-                assert!(close(&a.sbar, &b.sbar));
+                assert!(close(&a.f.lchol, &b.f.lchol));
+                assert!(close(&a.f.kgain, &b.f.kgain));
+                assert!(close(&a.f.sbar, &b.f.sbar));
                 assert!(a.held);
                 each_sweep(
                     &mut a,
@@ -1086,7 +1022,7 @@ mod tests {
                     |a, unit, top| a.sweep(unit, top, unit),
                     |a, b| {
                         assert!(close(&a.w.sol, &b.w.sol) && close(&a.w.yp, &b.w.yp));
-                        assert!(close(&a.kff, &b.kff));
+                        assert!(close(&a.f.kff, &b.f.kff));
                     },
                 );
                 // The general data of `random_qp` is not of the held form.
@@ -1138,8 +1074,8 @@ mod tests {
                 for bound in [f64::INFINITY, 0.5, 0.05] {
                     let mut qp = random_qp(nx, nu, np, nc, seed);
                     for i in 0..qp.len() {
-                        qp.lo[i] = -bound;
-                        qp.hi[i] = bound;
+                        qp.data.lo[i] = -bound;
+                        qp.data.hi[i] = bound;
                     }
                     let info = qp.solve();
                     assert_eq!(info.status, QpStatus::Solved);
@@ -1166,13 +1102,13 @@ mod tests {
                 let mut a = random_qp(nx, nu, np, nc, seed);
                 let mut b = a.clone();
                 let ok = match (nx, nu) {
-                    (3, 1) => a.factor_fixed::<3, 1>(),
-                    _ => a.factor_fixed::<6, 2>(),
+                    (3, 1) => a.factor_fixed::<3, 1, false>(),
+                    _ => a.factor_fixed::<6, 2, false>(),
                 };
                 assert!(ok && b.factor_dims(nx, nu));
-                assert_eq!(a.lchol, b.lchol);
-                assert_eq!(a.kgain, b.kgain);
-                assert_eq!(a.sbar, b.sbar);
+                assert_eq!(a.f.lchol, b.f.lchol);
+                assert_eq!(a.f.kgain, b.f.kgain);
+                assert_eq!(a.f.sbar, b.f.sbar);
                 each_sweep(
                     &mut a,
                     &mut b,
@@ -1183,7 +1119,7 @@ mod tests {
                     |a, b| {
                         assert_eq!(a.w.sol, b.w.sol);
                         assert_eq!(a.w.yp, b.w.yp);
-                        assert_eq!(a.kff, b.kff);
+                        assert_eq!(a.f.kff, b.f.kff);
                     },
                 );
                 let (oa, ob) = (a.objective(), b.objective_dims());

@@ -8,36 +8,152 @@
 //! 1-DOF and 2-DOF stage sizes): the functions are inlined and the loops unrolled.
 
 use super::cholesky::{chol_solve, cholesky};
-use super::SolverError;
+use super::stage_data::{StageDims, StageQpData};
+use alloc::{vec, vec::Vec};
 
-/// Checks a solver's stage dimensions: `nx, nu, np ≥ 1`, `1 ≤ nc ≤ np`.
-pub(super) fn check_dims(nx: usize, nu: usize, np: usize, nc: usize) -> Result<(), SolverError> {
-    for (what, value, ok, allowed) in [
-        ("nx", nx, nx >= 1, "at least 1"),
-        ("nu", nu, nu >= 1, "at least 1"),
-        ("np", np, np >= 1, "at least 1"),
-        ("nc", nc, nc >= 1 && nc <= np, "1 ≤ nc ≤ np"),
-    ] {
-        dim(what, value, ok, allowed)?;
-    }
-    Ok(())
+/// The factor and sweep workspace of the Riccati recursion that [`super::RiccatiQp`] and
+/// [`super::TreeQp`] share (per scenario `i` and stage `j` at index `i·Nc + j`; one scenario:
+/// `j`): the cost-to-go `P_j`, the reduced input Hessians' factors, `S̄_j`, the gains, and the
+/// vector sweeps' costates, feed-forward terms and state.
+#[derive(Debug, Clone)]
+pub(super) struct RiccatiFactor {
+    /// `P_j`, `j = 0..=Np`, of the scenario being factorised.
+    pub pm: Vec<f64>,
+    /// `P_{j+1} A_j` of the current stage.
+    pub pa: Vec<f64>,
+    /// `P_{j+1} B_j` of the current stage.
+    pub pb: Vec<f64>,
+    /// `S̄ = Bᵀ P A (+ S)` per stage.
+    pub sbar: Vec<f64>,
+    /// Gains `K = −(R + Bᵀ P B)⁻¹ S̄` per stage.
+    pub kgain: Vec<f64>,
+    /// Cholesky factors of `R + Bᵀ P B` per stage.
+    pub lchol: Vec<f64>,
+    /// Costates of the backward vector sweep.
+    pub pv: Vec<f64>,
+    /// Feed-forward terms per stage.
+    pub kff: Vec<f64>,
+    /// State of the forward sweep.
+    pub xs: Vec<f64>,
 }
 
-/// `Ok` when `ok`, else the dimension error naming `what = value` and the allowed range.
-pub(super) fn dim(
-    what: &'static str,
-    value: usize,
-    ok: bool,
-    allowed: &'static str,
-) -> Result<(), SolverError> {
-    if ok {
-        Ok(())
-    } else {
-        Err(SolverError::InvalidDimension {
-            what,
-            value,
-            allowed,
-        })
+impl RiccatiFactor {
+    /// Workspace for the dimensions `d`.
+    pub(super) fn new(d: StageDims) -> Self {
+        let (nx, nu, np, stages) = (d.nx, d.nu, d.np, d.ns * d.nc);
+        Self {
+            pm: vec![0.0; (np + 1) * nx * nx],
+            pa: vec![0.0; nx * nx],
+            pb: vec![0.0; nx * nu],
+            sbar: vec![0.0; stages * nu * nx],
+            kgain: vec![0.0; stages * nu * nx],
+            lchol: vec![0.0; stages * nu * nu],
+            pv: vec![0.0; (np + 1) * nx],
+            kff: vec![0.0; stages * nu],
+            xs: vec![0.0; nx],
+        }
+    }
+
+    /// The diagonal of the Gram part `Bᵀ V B` of the condensed Hessian (in the inputs) of
+    /// scenario `i`: `each(j, k, d)` for every input stage `j < Nc` and component `k`, with
+    /// `d = (B_jᵀ V_j B_j)_kk`, `V_{Np−1} = Q_{Np}`, `V_j = Q_{j+1} + A_{j+1}ᵀ V_{j+1} A_{j+1}`
+    /// (`O(Np·nx³)`). Uses `pm`, `pa`, `pb`.
+    #[inline(always)]
+    pub(super) fn condensed_diagonal(
+        &mut self,
+        (nx, nu): (usize, usize),
+        data: &StageQpData,
+        i: usize,
+        mut each: impl FnMut(usize, usize, f64),
+    ) {
+        let StageDims { np, nc, .. } = data.dims;
+        let n2 = nx * nx;
+        let ab = i * np * n2;
+        let v = &mut self.pm[..n2];
+        v.copy_from_slice(&data.q[ab + (np - 1) * n2..ab + np * n2]);
+        for j in (0..np).rev() {
+            if j + 1 < np {
+                let a = &data.a[ab + (j + 1) * n2..ab + (j + 2) * n2];
+                p_times(nx, nx, v, a, &mut self.pa);
+                let qj = &data.q[ab + j * n2..ab + (j + 1) * n2];
+                cost_to_go(nx, nu, qj, a, &self.pa, None, v);
+            }
+            if j < nc {
+                let b = &data.b[(i * nc + j) * nx * nu..(i * nc + j + 1) * nx * nu];
+                // diag(Bᵀ V B) from V B.
+                p_times(nx, nu, v, b, &mut self.pb);
+                for k in 0..nu {
+                    let col = &b[k * nx..(k + 1) * nx];
+                    let mut d = 0.0;
+                    for (c, bc) in col.iter().enumerate() {
+                        d += bc * self.pb[k * nx + c];
+                    }
+                    each(j, k, d);
+                }
+            }
+        }
+    }
+
+    /// The backward Riccati recursion of scenario `i` over its own stages `j = Np−1 .. Nr`
+    /// (one scenario: all, down to `j = 0`) from `P_{Np} = Q_{Np}`: `R̃ = R + BᵀPB`,
+    /// `S̄ = BᵀPA [+ S]`, `K = −R̃⁻¹S̄`, `P_j = Q_j + AᵀPA [+ S̄ᵀK]` (`j ≥ 1`). `cross` are the
+    /// cross terms `S_j` when nonzero, `adj` the two-input adjugates' store (see
+    /// [`stage_gain`]). Leaves `P_{Nr}` in `pm`; `false` when an `R̃` is not numerically
+    /// positive definite.
+    #[inline(always)]
+    pub(super) fn own_stages(
+        &mut self,
+        (nx, nu): (usize, usize),
+        data: &StageQpData,
+        i: usize,
+        cross: Option<&[f64]>,
+        mut adj: Option<&mut [f64]>,
+    ) -> bool {
+        let StageDims { np, nc, nr, .. } = data.dims;
+        let n2 = nx * nx;
+        let ab = i * np * n2;
+        self.pm[np * n2..(np + 1) * n2].copy_from_slice(&data.q[ab + (np - 1) * n2..ab + np * n2]);
+        for j in (nr..np).rev() {
+            let (head, tail) = self.pm.split_at_mut((j + 1) * n2);
+            let p = &tail[..n2];
+            let a = &data.a[ab + j * n2..ab + (j + 1) * n2];
+            p_times(nx, nx, p, a, &mut self.pa);
+            let st = i * nc + j;
+            let sx = st * nu * nx..(st + 1) * nu * nx;
+            if j < nc {
+                let b = &data.b[st * nx * nu..(st + 1) * nx * nu];
+                p_times(nx, nu, p, b, &mut self.pb);
+                let l = &mut self.lchol[st * nu * nu..(st + 1) * nu * nu];
+                let rij = (i * (nc - nr) + j - nr) * nu * nu;
+                bt_times(nx, nu, nu, Some(&data.r[rij..]), b, &self.pb, l);
+                let sb = &mut self.sbar[sx.clone()];
+                bt_times(nx, nu, nx, None, b, &self.pa, sb);
+                if let Some(s) = cross {
+                    for (v, sj) in sb.iter_mut().zip(&s[sx.clone()]) {
+                        *v += sj;
+                    }
+                }
+                let adj = adj.as_deref_mut().map(|m| &mut m[st * 4..(st + 1) * 4]);
+                if !stage_gain(nx, nu, l, sb, &mut self.kgain[sx.clone()], adj) {
+                    return false;
+                }
+            }
+            if j == 0 {
+                break;
+            }
+            let gain = (j < nc).then(|| (&self.sbar[sx.clone()], &self.kgain[sx]));
+            let qj = &data.q[ab + (j - 1) * n2..ab + j * n2];
+            cost_to_go(
+                nx,
+                nu,
+                qj,
+                a,
+                &self.pa,
+                gain,
+                &mut head[j * n2..(j + 1) * n2],
+            );
+        }
+        true
     }
 }
 
