@@ -104,12 +104,11 @@ pub struct ChannelGuard<const N: usize> {
     /// Per joint: consecutive accepted angle samples (the angle's slope over the filter
     /// window stands for the velocity only once the window holds no estimate).
     q_good_for: [u32; N],
-    /// Per joint: samples left during which a velocity rejected with a stalled acquisition
-    /// (every angle frozen or non-finite at once) is not accepted again.
-    stall_left: [u32; N],
-    /// Per joint: samples left during which a velocity found frozen is not accepted again: once
-    /// it moves, its filter window still holds frozen samples for `window − 1` more.
-    unfreeze_left: [u32; N],
+    /// Per joint: samples left during which the velocity is not accepted again, because its
+    /// filter window may still hold faulty samples: a filter window after a stalled
+    /// acquisition (every angle frozen or non-finite at once), `window − 1` after it was
+    /// found frozen (once it moves, the window still averages frozen samples).
+    qd_held_off: [u32; N],
 }
 
 /// Which channels of a measurement stand in for rejected ones and must not update a
@@ -191,8 +190,7 @@ impl<const N: usize> ChannelGuard<N> {
             railed: [false; N],
             after_accept: [[0; N]; 3],
             q_good_for: [0; N],
-            stall_left: [0; N],
-            unfreeze_left: [0; N],
+            qd_held_off: [0; N],
             last_t: f64::NAN,
         }
     }
@@ -329,30 +327,24 @@ impl<const N: usize> ChannelGuard<N> {
                 let after_accept = !was_bad && self.after_accept[sig][j] > 0;
                 // A velocity rejected with a stalled acquisition stays rejected for a filter
                 // window: by then a stalled velocity has frozen (and is rejected as such), a
-                // good one is accepted again.
-                let stalled = sig == QD && ((stall && !was_bad) || self.stall_left[j] > 0);
+                // good one is accepted again. A frozen filtered velocity (a stuck or
+                // dropped-out raw velocity) that moves again still averages frozen samples
+                // for `window − 1` samples: its ramp back crosses the estimate, and accepting
+                // it there fed the controller a velocity between the frozen and the true one
+                // (a 60-ms stuck velocity at 1.5 s, 0 kg: 70 N).
+                let stalled = stall && !was_bad;
+                let held_off = sig == QD && (stalled || self.qd_held_off[j] > 0);
                 if sig == QD {
-                    self.stall_left[j] = if stall && !was_bad {
+                    let left = self.qd_held_off[j].saturating_sub(1);
+                    self.qd_held_off[j] = if stalled {
                         self.window as u32
+                    } else if stuck && in_range {
+                        left.max(self.window.saturating_sub(1) as u32)
                     } else {
-                        self.stall_left[j].saturating_sub(1)
+                        left
                     };
                 }
-                // A frozen filtered velocity (a stuck or dropped-out raw velocity) that moves
-                // again still averages frozen samples for `window − 1` samples: its ramp
-                // back crosses the estimate, and accepting it there fed the controller a
-                // velocity between the frozen and the true one (a 60-ms stuck velocity at
-                // 1.5 s, 0 kg: 70 N).
-                let frozen = stuck && in_range;
-                let unfreezing = sig == QD && !frozen && self.unfreeze_left[j] > 0;
-                if sig == QD {
-                    self.unfreeze_left[j] = if frozen {
-                        self.window.saturating_sub(1) as u32
-                    } else {
-                        self.unfreeze_left[j].saturating_sub(1)
-                    };
-                }
-                let good = if !in_range || stuck || stalled || unfreezing {
+                let good = if !in_range || stuck || held_off {
                     false
                 } else if (was_bad && (self.railed[j] || !warm))
                     || (!was_bad && (after_rail || after_accept))
