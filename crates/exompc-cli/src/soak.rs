@@ -3,7 +3,7 @@
 //! that the output stays within the limits; prints the counters and writes `soak.json`.
 use crate::args::ConfigOpt;
 use clap::Args;
-use exompc::scenario::{run_soak, soak_scenario, RunError};
+use exompc::scenario::{run_soak, soak_scenario, RunError, SoakReport, EPISODE_AFTER_S};
 use exompc::sim::{Recorder, StepRecord};
 use exompc_cli::error::CliError;
 use exompc_cli::interrupt::{self, stop_on_interrupt};
@@ -111,7 +111,15 @@ pub(crate) fn run(a: SoakArgs) -> Result<(), CliError> {
     // Last, so that the trace holds the step the summary ends on.
     recs.push(&mut stop);
     let seconds = a.hours * 3600.0;
-    let report = run_soak(&base, seconds, a.payload, &mut recs).map_err(|e| match e {
+    let mut stop_reference = stop_on_interrupt();
+    let report = run_soak(
+        &base,
+        seconds,
+        a.payload,
+        &mut recs,
+        &mut [&mut stop_reference],
+    )
+    .map_err(|e| match e {
         RunError::Config(c) => CliError::Config(c.to_string()),
         other => CliError::Runtime(other.to_string()),
     })?;
@@ -158,6 +166,7 @@ pub(crate) fn run(a: SoakArgs) -> Result<(), CliError> {
         ),
         None => println!("  not latched"),
     }
+    print_fault_classes(&report);
     drop(recs);
     if let Some(t) = trace {
         t.trace.finish()?;
@@ -188,4 +197,34 @@ pub(crate) fn run(a: SoakArgs) -> Result<(), CliError> {
     let verdict = Verdict::of_soak(&report);
     println!("{verdict}");
     verdict.outcome("soak", a.strict)
+}
+
+/// The per-fault verdicts: one line per class of injected fault.
+fn print_fault_classes(r: &SoakReport) {
+    if r.fault_classes.is_empty() {
+        return;
+    }
+    println!(
+        "  fault episodes within issue 28's goals: {} of {} (each against the same run without \
+         faults, up to {EPISODE_AFTER_S:.0} s after it)",
+        r.fault_episodes_passing, r.fault_episodes
+    );
+    println!(
+        "    {:<24} {:<10} {:>6} {:>6} {:>9} {:>16} {:>16}",
+        "fault", "group", "dur s", "goal N", "pass", "worst peak N @s", "worst RMS x @s"
+    );
+    for c in &r.fault_classes {
+        println!(
+            "    {:<24} {:<10} {:>6.2} {:>6.0} {:>9} {:>7.2} @{:<8.1} {:>7.2} @{:<8.1}",
+            c.fault,
+            c.group.name(),
+            c.duration_s,
+            c.peak_goal_n,
+            format!("{}/{}", c.passing, c.episodes),
+            c.worst_peak_force_n,
+            c.worst_peak_at_s,
+            c.worst_rms_ratio,
+            c.worst_rms_at_s
+        );
+    }
 }

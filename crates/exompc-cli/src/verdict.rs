@@ -203,6 +203,20 @@ impl Verdict {
                 pct(s.solver_failures, s.steps)
             ));
         }
+        if r.fault_episodes_passing < r.fault_episodes {
+            let over: Vec<&str> = r
+                .fault_classes
+                .iter()
+                .filter(|c| c.passing < c.episodes)
+                .map(|c| c.fault.as_str())
+                .collect();
+            degraded.push(format!(
+                "{} of {} fault episodes over issue 28's goals ({})",
+                r.fault_episodes - r.fault_episodes_passing,
+                r.fault_episodes,
+                over.join("; ")
+            ));
+        }
         Verdict::from_parts(failed, degraded)
     }
 

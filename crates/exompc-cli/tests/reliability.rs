@@ -261,6 +261,11 @@ fn soak_reports_whether_and_why_it_latched() {
     let r: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out_dir.join("soak.json")).unwrap()).unwrap();
     assert!(r["latched_at_s"].is_null(), "{r}");
+    // Its one fault (NaN on f1 at 5 s) is judged against the fault-free run and passes.
+    assert_eq!(r["fault_episodes"], 1, "{r}");
+    assert_eq!(r["fault_episodes_passing"], 1, "{r}");
+    assert_eq!(r["fault_classes"][0]["fault"], "nan f1", "{r}");
+    assert_eq!(r["fault_classes"][0]["peak_goal_n"], 12.0, "{r}");
 
     let cfg = with_config(
         "soak_latch.toml",
@@ -282,6 +287,13 @@ fn soak_reports_whether_and_why_it_latched() {
     assert_eq!(r["latched_by"], "strap_force", "{r}");
     assert_eq!(r["handovers"], 1, "{r}");
     assert!(r["latched_for_s"].as_f64().unwrap() > 0.0, "{r}");
+    // A fault after the latch fails its goals (no latch), and the verdict says so.
+    assert_eq!(r["fault_episodes"], 1, "{r}");
+    assert_eq!(r["fault_episodes_passing"], 0, "{r}");
+    assert!(
+        stdout.contains("1 of 1 fault episodes over issue 28's goals (nan f1)"),
+        "{stdout}"
+    );
 }
 
 #[test]
@@ -312,6 +324,12 @@ fn soak_writes_its_report() {
         assert!(r.get(key).is_some(), "{key} missing: {text}");
     }
     assert!(String::from_utf8_lossy(&out.stdout).contains("limit violations 0"));
+    assert!(
+        String::from_utf8_lossy(&out.stdout)
+            .contains("fault episodes within issue 28's goals: 2 of 2"),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
     let trace = std::fs::read_to_string(out_dir.join("soak_trace.csv")).unwrap();
     assert_eq!(
         trace.lines().count(),

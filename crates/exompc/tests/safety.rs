@@ -352,7 +352,7 @@ fn supervisor_keeps_the_inner_previous_torque_in_sync() {
 }
 
 fn check_soak(seconds: f64) {
-    let r = run_soak(&Experiment::default(), seconds, 2.0, &mut []).unwrap();
+    let r = run_soak(&Experiment::default(), seconds, 2.0, &mut [], &mut []).unwrap();
     let st = &r.stats;
     assert_eq!(st.steps as f64, (seconds / 0.01).round());
     assert_eq!(st.nan_count, 0);
@@ -364,6 +364,19 @@ fn check_soak(seconds: f64) {
         r.sensor_faults >= 4 * (seconds / 60.0).floor() as u64,
         "{r:?}"
     );
+    // Every injected fault episode is judged against the fault-free run and meets issue
+    // 28's goals (six per minute in the default schedule).
+    assert_eq!(
+        r.fault_episodes,
+        6 * (seconds / 60.0).round() as u64,
+        "{r:?}"
+    );
+    assert_eq!(
+        r.fault_episodes_passing, r.fault_episodes,
+        "{:#?}",
+        r.fault_classes
+    );
+    assert_eq!(r.fault_classes.len(), 6);
     println!("{}", serde_json_like(&r));
 }
 

@@ -3,77 +3,13 @@
 //! a verdict per cell (peak true strap force, RMS ratio, monitor trips, held steps, latch).
 
 use super::error::RunError;
+use super::fault_goals::{meets_goals, peak_goal_n, spike_magnitude, ChannelGroup};
 use super::layout::TwoDof;
 use super::run::run_experiment_report;
 use crate::config::Experiment;
-use crate::sim::{Channel, FaultEvent, FaultKind, Recorder, StepRecord};
+use crate::sim::{FaultEvent, FaultKind, Recorder, StepRecord};
 use rayon::prelude::*;
 use serde::Serialize;
-
-/// A group of sensor channels that fails together in a scan cell.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ChannelGroup {
-    /// Every sensor: both angles, velocities and strap forces.
-    All,
-    /// Both encoder angles.
-    Angles,
-    /// Both filtered velocities.
-    Velocities,
-    /// Both strap forces.
-    Forces,
-}
-
-impl ChannelGroup {
-    /// Every group, in the scan's order.
-    pub const ALL: [ChannelGroup; 4] = [
-        ChannelGroup::All,
-        ChannelGroup::Angles,
-        ChannelGroup::Velocities,
-        ChannelGroup::Forces,
-    ];
-
-    /// The group's channels.
-    pub fn channels(self) -> &'static [Channel] {
-        match self {
-            ChannelGroup::All => &[
-                Channel::Q1,
-                Channel::Q2,
-                Channel::Qd1,
-                Channel::Qd2,
-                Channel::F1,
-                Channel::F2,
-            ],
-            ChannelGroup::Angles => &[Channel::Q1, Channel::Q2],
-            ChannelGroup::Velocities => &[Channel::Qd1, Channel::Qd2],
-            ChannelGroup::Forces => &[Channel::F1, Channel::F2],
-        }
-    }
-
-    /// The lowercase name (`all`, `angles`, ...).
-    pub fn name(self) -> &'static str {
-        match self {
-            ChannelGroup::All => "all",
-            ChannelGroup::Angles => "angles",
-            ChannelGroup::Velocities => "velocities",
-            ChannelGroup::Forces => "forces",
-        }
-    }
-
-    /// Parses a name of [`ChannelGroup::name`].
-    pub fn parse(s: &str) -> Option<Self> {
-        Self::ALL.into_iter().find(|g| g.name() == s)
-    }
-}
-
-/// Spike magnitude of a channel in the scan (issue 28): 0.5 rad on an angle, 0.5 rad/s on a
-/// velocity, 30 N on a strap force.
-pub fn spike_magnitude(c: Channel) -> f64 {
-    match c {
-        Channel::Q1 | Channel::Q2 | Channel::Qd1 | Channel::Qd2 => 0.5,
-        Channel::F1 | Channel::F2 => 30.0,
-    }
-}
 
 /// The scan's axes; every combination is one faulted run (2-DOF, the scenario's controller).
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -112,22 +48,6 @@ impl Default for FaultGrid {
     }
 }
 
-/// Goal on the peak true strap force (N) of a fault of `duration_s` on `group` (issue 28):
-/// 12 N for one group (twice the clean run's peak) and 35 N for every sensor, for faults up to
-/// 200 ms; 70 N for longer ones.
-pub fn peak_goal_n(group: ChannelGroup, duration_s: f64) -> f64 {
-    if duration_s > 0.2 + 1e-9 {
-        70.0
-    } else if group == ChannelGroup::All {
-        35.0
-    } else {
-        12.0
-    }
-}
-
-/// Largest RMS ratio (faulted / clean, per strap) of a passing cell of a fault up to 200 ms.
-pub const RMS_RATIO_GOAL: f64 = 1.5;
-
 /// One scanned cell and its verdict.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct FaultCell {
@@ -160,7 +80,7 @@ pub struct FaultCell {
     /// The goal on the peak force of this cell ([`peak_goal_n`]).
     pub peak_goal_n: f64,
     /// Verdict: limits held, no latch, peak ≤ its goal and (faults up to 200 ms) RMS ratio
-    /// ≤ [`RMS_RATIO_GOAL`].
+    /// ≤ [`RMS_RATIO_GOAL`](super::RMS_RATIO_GOAL) ([`meets_goals`]).
     pub pass: bool,
 }
 
@@ -293,10 +213,7 @@ pub fn run_fault_scan(
                 .map(|i| o.rms[i] / c.rms[i].max(1e-12))
                 .fold(0.0, f64::max);
             let goal = peak_goal_n(group, dur);
-            let pass = o.violations == 0
-                && !o.latched
-                && o.peak <= goal
-                && (dur > 0.2 + 1e-9 || ratio <= RMS_RATIO_GOAL);
+            let pass = meets_goals(group, dur, o.peak, ratio, o.latched, o.violations);
             Ok(FaultCell {
                 kind,
                 group,

@@ -7,6 +7,7 @@
 
 mod build;
 mod error;
+mod fault_goals;
 #[cfg(feature = "std")]
 mod fault_scan;
 mod info;
@@ -22,11 +23,12 @@ pub use build::{
     multistage_nmpc_settings, nmpc_settings, solver_choice,
 };
 pub use error::RunError;
-#[cfg(feature = "std")]
-pub use fault_scan::{
-    cell_scenario, fault_scan_markdown, peak_goal_n, run_fault_scan, spike_magnitude, ChannelGroup,
-    FaultCell, FaultGrid, RMS_RATIO_GOAL,
+pub use fault_goals::{
+    episodes, meets_goals, peak_goal_n, soak_fault_classes, spike_magnitude, ChannelGroup, Episode,
+    EpisodeStats, SoakFaultClass, EPISODE_AFTER_S, RMS_RATIO_GOAL,
 };
+#[cfg(feature = "std")]
+pub use fault_scan::{cell_scenario, fault_scan_markdown, run_fault_scan, FaultCell, FaultGrid};
 pub use info::{Builder, ControllerInfo};
 pub use layout::{
     gait_demand, plant_params, prediction_model, scenario_robot, uncertainty, Dof, OneDof, TwoDof,

@@ -3,6 +3,7 @@
 
 use super::build::limits;
 use super::error::RunError;
+use super::fault_goals::{episodes, soak_fault_classes, EpisodeStats, SoakFaultClass};
 use super::layout::{plant_params, uncertainty, Dof, TwoDof};
 use super::registry::build_supervised;
 #[cfg(not(feature = "std"))]
@@ -135,7 +136,7 @@ pub struct SoakReport {
     pub stats: SoakStats,
     /// Monitor trips (all monitors).
     pub monitor_trips: u64,
-    /// Wall time of the run (s), informative only.
+    /// Wall time (s) of the run and its fault-free reference, informative only.
     pub wall_time_s: f64,
     /// The first logged monitor events (at most 4096).
     pub monitor_events: Vec<MonitorEvent>,
@@ -154,6 +155,14 @@ pub struct SoakReport {
     pub estimated_steps: u64,
     /// Sensor channel fault episodes detected.
     pub sensor_faults: u64,
+    /// Injected fault episodes judged against issue 28's goals ([`soak_fault_classes`]: peak
+    /// true strap force, RMS over the episode against the same run without faults, limits,
+    /// no latch).
+    pub fault_episodes: u64,
+    /// Of those, the episodes that met the goals.
+    pub fault_episodes_passing: u64,
+    /// The verdicts per class of injected fault (kind, channels, duration).
+    pub fault_classes: Vec<SoakFaultClass>,
 }
 
 /// The soak scenario: `base` as a 2-DOF MS-NMPC run of `seconds` simulated seconds with true
@@ -171,24 +180,45 @@ pub fn soak_scenario(base: &Experiment, seconds: f64, payload_kg: f64) -> Experi
 }
 
 /// Run the soak scenario of [`soak_scenario`] (2-DOF), feeding every step to `recorders` as
-/// well; memory stays constant apart from the summary's step-time samples.
+/// well, then the same scenario without faults for as long as the first run got (its steps
+/// fed to `reference`), against which every injected fault episode is judged
+/// ([`soak_fault_classes`]). Memory stays constant apart from the summary's step-time samples
+/// and a few counters per fault episode.
 pub fn run_soak(
     base: &Experiment,
     seconds: f64,
     payload_kg: f64,
     recorders: &mut [&mut dyn Recorder<2>],
+    reference: &mut [&mut dyn Recorder<2>],
 ) -> Result<SoakReport, RunError> {
     let s = soak_scenario(base, seconds, payload_kg);
+    let eps = episodes(&s.faults.events);
     let mut stats = SoakStats::default();
+    let mut faulted = EpisodeStats::new(&eps);
     let start = Instant::now();
     let (summary, report) = {
-        let mut all: Vec<&mut dyn Recorder<2>> = Vec::with_capacity(recorders.len() + 1);
+        let mut all: Vec<&mut dyn Recorder<2>> = Vec::with_capacity(recorders.len() + 2);
         all.push(&mut stats);
+        all.push(&mut faulted);
         for r in recorders.iter_mut() {
             all.push(&mut **r);
         }
         run_experiment_report::<TwoDof, 2>(&s, &mut all)?
     };
+    let mut clean = s.clone();
+    clean.faults.events.clear();
+    clean.timing.duration_2dof_s = summary.duration_s.max(s.timing.dt);
+    let mut fault_free = EpisodeStats::new(&eps);
+    {
+        let mut all: Vec<&mut dyn Recorder<2>> = Vec::with_capacity(reference.len() + 1);
+        all.push(&mut fault_free);
+        for r in reference.iter_mut() {
+            all.push(&mut **r);
+        }
+        run_experiment_report::<TwoDof, 2>(&clean, &mut all)?;
+    }
+    let fault_classes =
+        soak_fault_classes(&eps, &faulted, &fault_free, summary.safety.latched_at_s);
     Ok(SoakReport {
         controller: summary.controller,
         payload_kg,
@@ -204,6 +234,9 @@ pub fn run_soak(
         latched_for_s: summary.safety.latched_for_s,
         estimated_steps: summary.safety.estimated_steps,
         sensor_faults: summary.safety.sensor_faults,
+        fault_episodes: fault_classes.iter().map(|c| c.episodes).sum(),
+        fault_episodes_passing: fault_classes.iter().map(|c| c.passing).sum(),
+        fault_classes,
         monitor_events: report.events,
     })
 }
