@@ -112,8 +112,8 @@ pub(crate) fn run(a: FaultsArgs) -> Result<(), CliError> {
     let kinds = list(
         "--kinds",
         &a.kinds,
-        |v| serde_json::from_value::<FaultKind>(serde_json::Value::String(v.into())).ok(),
-        "spike, dropout, nan, inf, stuck, saturation",
+        FaultKind::parse,
+        &FaultKind::NAMES.join(", "),
     )?;
     let groups = list(
         "--groups",
@@ -162,14 +162,6 @@ pub(crate) fn run(a: FaultsArgs) -> Result<(), CliError> {
 
 fn err(e: impl std::fmt::Display) -> CliError {
     CliError::Runtime(format!("drawing the fault heat map: {e}"))
-}
-
-/// Short name of a fault kind (`spike`, `nan`, ...).
-fn kind_name(k: FaultKind) -> String {
-    serde_json::to_value(k)
-        .ok()
-        .and_then(|v| v.as_str().map(str::to_string))
-        .unwrap_or_else(|| format!("{k:?}").to_lowercase())
 }
 
 /// The heat map: rows kind × group, columns duration × payload × start (in the grid's
@@ -249,7 +241,7 @@ where
     for (i, &(k, g)) in rows.iter().enumerate() {
         let y = top + i as i32 * ch;
         root.draw(&Text::new(
-            format!("{} · {}", kind_name(k), g.name()),
+            format!("{} · {}", k.name(), g.name()),
             (10, y + ch / 2 - 7),
             (font, 13).into_font(),
         ))

@@ -7,7 +7,7 @@
 //!
 //! [`Experiment::validate`]: super::Experiment::validate
 
-use super::{scenarios, MAX_CONTROL_STEPS, MAX_PAYLOAD_KG, MAX_SCENARIOS};
+use super::{scenarios, Channel, FaultKind, MAX_CONTROL_STEPS, MAX_PAYLOAD_KG, MAX_SCENARIOS};
 use alloc::{format, string::String, vec::Vec};
 use core::fmt::Write as _;
 
@@ -459,8 +459,8 @@ pub const KEYS: &[KeyDoc] = &[
     // [faults]
     table("faults", REL1, "Scripted sensor faults and the force sensor's range."),
     k("faults.events", "", Allowed::Tables, REL1, "Fault events, each a [[faults.events]] table; none by default."),
-    k("faults.events.kind", "", Allowed::Choice(&["nan", "inf", "dropout", "spike", "stuck", "saturation"]), REL1, "Fault kind."),
-    k("faults.events.channel", "", Allowed::Choice(&["q1", "q2", "qd1", "qd2", "f1", "f2"]), REL1, "Affected channel: joint angle, joint velocity or strap force of joint 1 (hip) or 2 (knee)."),
+    k("faults.events.kind", "", Allowed::Choice(&FaultKind::NAMES), REL1, "Fault kind."),
+    k("faults.events.channel", "", Allowed::Choice(&Channel::NAMES), REL1, "Affected channel: joint angle, joint velocity or strap force of joint 1 (hip) or 2 (knee)."),
     k("faults.events.start_s", "s", NONNEG, REL1, "Start time of the fault."),
     k("faults.events.duration_s", "s", NONNEG, REL1, "Duration of the fault."),
     k("faults.events.magnitude", "rad, rad/s or N", ANY, REL1, "Added to the reading by a spike (the channel's unit); optional, default 0."),

@@ -4,7 +4,7 @@
 
 #[cfg(not(feature = "std"))]
 use crate::math::Float;
-use crate::sim::{Channel, FaultEvent, FaultKind, RecordResult, Recorder, StepRecord};
+use crate::sim::{Channel, FaultEvent, RecordResult, Recorder, StepRecord};
 use alloc::{format, string::String, vec::Vec};
 use serde::Serialize;
 
@@ -155,30 +155,6 @@ impl Episode {
     }
 }
 
-/// Lowercase name of a fault kind (`"nan"`, `"dropout"`, ...).
-fn kind_name(k: FaultKind) -> &'static str {
-    match k {
-        FaultKind::Nan => "nan",
-        FaultKind::Inf => "inf",
-        FaultKind::Dropout => "dropout",
-        FaultKind::Spike => "spike",
-        FaultKind::Stuck => "stuck",
-        FaultKind::Saturation => "saturation",
-    }
-}
-
-/// Lowercase name of a channel (`"q1"`, ..., `"f2"`).
-fn channel_name(c: Channel) -> &'static str {
-    match c {
-        Channel::Q1 => "q1",
-        Channel::Q2 => "q2",
-        Channel::Qd1 => "qd1",
-        Channel::Qd2 => "qd2",
-        Channel::F1 => "f1",
-        Channel::F2 => "f2",
-    }
-}
-
 /// The episodes of a fault schedule, in time order: events whose active intervals overlap or
 /// touch form one episode, judged from its first start to [`Episode::window_end_s`].
 /// Events of zero duration are ignored.
@@ -189,7 +165,7 @@ pub fn episodes(events: &[FaultEvent]) -> Vec<Episode> {
     let mut channels: Vec<Channel> = Vec::new();
     for e in evs {
         let end = e.start_s + e.duration_s;
-        let label = format!("{} {}", kind_name(e.kind), channel_name(e.channel));
+        let label = format!("{} {}", e.kind.name(), e.channel.name());
         match out.last_mut() {
             Some(last) if e.start_s <= last.end_s => {
                 last.end_s = last.end_s.max(end);
@@ -373,6 +349,7 @@ pub fn soak_fault_classes(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::sim::FaultKind;
     use alloc::vec;
 
     fn ev(kind: FaultKind, channel: Channel, start_s: f64, duration_s: f64) -> FaultEvent {

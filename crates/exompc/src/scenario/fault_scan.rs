@@ -244,7 +244,7 @@ pub fn fault_scan_markdown(cells: &[FaultCell]) -> String {
     for c in cells {
         s += &format!(
             "| {} | {} | {:.2} | {:.2} | {:.1} | {:.1} | {:.0} | {:.2} | {} | {} | {} | {} | {} |\n",
-            format!("{:?}", c.kind).to_lowercase(),
+            c.kind.name(),
             c.group.name(),
             c.duration_s,
             c.start_s,

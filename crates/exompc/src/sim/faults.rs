@@ -26,6 +26,44 @@ pub enum FaultKind {
     Saturation,
 }
 
+impl FaultKind {
+    /// Every kind, in the order of [`FaultKind::NAMES`].
+    pub const ALL: [FaultKind; 6] = [
+        FaultKind::Nan,
+        FaultKind::Inf,
+        FaultKind::Dropout,
+        FaultKind::Spike,
+        FaultKind::Stuck,
+        FaultKind::Saturation,
+    ];
+    /// The kinds' names as written in `[[faults.events]] kind` and on the command line.
+    pub const NAMES: [&'static str; 6] = [
+        FaultKind::Nan.name(),
+        FaultKind::Inf.name(),
+        FaultKind::Dropout.name(),
+        FaultKind::Spike.name(),
+        FaultKind::Stuck.name(),
+        FaultKind::Saturation.name(),
+    ];
+
+    /// The lowercase name (`"nan"`, `"dropout"`, ...; the serialised form).
+    pub const fn name(self) -> &'static str {
+        match self {
+            FaultKind::Nan => "nan",
+            FaultKind::Inf => "inf",
+            FaultKind::Dropout => "dropout",
+            FaultKind::Spike => "spike",
+            FaultKind::Stuck => "stuck",
+            FaultKind::Saturation => "saturation",
+        }
+    }
+
+    /// Parses a name of [`FaultKind::name`].
+    pub fn parse(s: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|k| k.name() == s)
+    }
+}
+
 /// Measured channel affected by a fault.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -45,6 +83,37 @@ pub enum Channel {
 }
 
 impl Channel {
+    /// Every channel, in the order of [`Channel::NAMES`].
+    pub const ALL: [Channel; 6] = [
+        Channel::Q1,
+        Channel::Q2,
+        Channel::Qd1,
+        Channel::Qd2,
+        Channel::F1,
+        Channel::F2,
+    ];
+    /// The channels' names as written in `[[faults.events]] channel`.
+    pub const NAMES: [&'static str; 6] = [
+        Channel::Q1.name(),
+        Channel::Q2.name(),
+        Channel::Qd1.name(),
+        Channel::Qd2.name(),
+        Channel::F1.name(),
+        Channel::F2.name(),
+    ];
+
+    /// The lowercase name (`"q1"`, ..., `"f2"`; the serialised form).
+    pub const fn name(self) -> &'static str {
+        match self {
+            Channel::Q1 => "q1",
+            Channel::Q2 => "q2",
+            Channel::Qd1 => "qd1",
+            Channel::Qd2 => "qd2",
+            Channel::F1 => "f1",
+            Channel::F2 => "f2",
+        }
+    }
+
     /// Zero-based joint / strap index (0 = hip / thigh, 1 = knee / shank).
     pub fn joint(self) -> usize {
         match self {
@@ -401,6 +470,18 @@ impl<const N: usize> Recorder<N> for SoakStats {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_names_are_the_serialised_forms() {
+        for k in FaultKind::ALL {
+            assert_eq!(serde_json::to_value(k).unwrap(), k.name());
+            assert_eq!(FaultKind::parse(k.name()), Some(k));
+        }
+        for c in Channel::ALL {
+            assert_eq!(serde_json::to_value(c).unwrap(), c.name());
+        }
+        assert_eq!(FaultKind::parse("glitch"), None);
+    }
     use nalgebra::SVector;
 
     fn zero_measurement<const N: usize>(t: f64) -> Measurement<N> {
