@@ -34,14 +34,7 @@ impl ChannelGroup {
     /// The group's channels.
     pub fn channels(self) -> &'static [Channel] {
         match self {
-            ChannelGroup::All => &[
-                Channel::Q1,
-                Channel::Q2,
-                Channel::Qd1,
-                Channel::Qd2,
-                Channel::F1,
-                Channel::F2,
-            ],
+            ChannelGroup::All => &Channel::ALL,
             ChannelGroup::Angles => &[Channel::Q1, Channel::Q2],
             ChannelGroup::Velocities => &[Channel::Qd1, Channel::Qd2],
             ChannelGroup::Forces => &[Channel::F1, Channel::F2],
