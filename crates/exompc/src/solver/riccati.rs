@@ -717,19 +717,27 @@ pub(crate) fn held_congruence<const NX: usize, const NU: usize>(
     a: &SMatrix<f64, NX, NX>,
 ) -> SMatrix<f64, NX, NX> {
     let ns = NX - NU;
+    // Column by column as `X[:, c] += P[:, k] a_kc` (each entry summed in the order `k = 0, 1,
+    // …` from its start value, as a dot per entry would). `X[ns.., ..ns]` feeds only the
+    // lower triangle of `Aᵀ X`, which the mirror below overwrites: left at zero.
     let mut x = SMatrix::<f64, NX, NX>::zeros();
-    for c in 0..NX {
+    for c in 0..ns {
+        for k in 0..ns {
+            let akc = a[(k, c)];
+            for r in 0..ns {
+                x[(r, c)] += p[(r, k)] * akc;
+            }
+        }
+    }
+    for c in ns..NX {
         for r in 0..NX {
-            // `X[ns.., ..ns]` feeds only the lower triangle of `Aᵀ X`, which the mirror below
-            // overwrites: left at zero.
-            if r >= ns && c < ns {
-                continue;
+            x[(r, c)] = p[(r, c)];
+        }
+        for k in 0..ns {
+            let akc = a[(k, c)];
+            for r in 0..NX {
+                x[(r, c)] += p[(r, k)] * akc;
             }
-            let mut s = if c >= ns { p[(r, c)] } else { 0.0 };
-            for k in 0..ns {
-                s += p[(r, k)] * a[(k, c)];
-            }
-            x[(r, c)] = s;
         }
     }
     // The upper triangle, then mirrored. Computed on the full square (constant loop bounds,

@@ -455,16 +455,34 @@ impl DenseWork {
         }
         self.sec_w -= &self.work;
         // S ← S + (w yᵀ + y wᵀ)/(yᵀs) − (wᵀs) y yᵀ/(yᵀs)².
+        // Column by column over slices, each entry the same expression in the same order as
+        // `(w_i y_j + y_i w_j)/ys − ws y_i y_j/ys²` (bit-identical): only the factors that do
+        // not change a rounding are hoisted (`ws·y_i` into `work`, `ys²`, the column's `y_j`,
+        // `w_j`); the divisions stay per entry.
         let ws = self.sec_w.dot(&self.sec_s);
+        let ys2 = ys * ys;
         let n = self.n;
-        for j in 0..n {
-            for i in 0..n {
-                self.secant[(i, j)] +=
-                    (self.sec_w[i] * self.sec_y[j] + self.sec_y[i] * self.sec_w[j]) / ys
-                        - ws * self.sec_y[i] * self.sec_y[j] / (ys * ys);
+        for (wy, &y) in self.work.iter_mut().zip(self.sec_y.iter()) {
+            *wy = ws * y;
+        }
+        let (w, y, wsy) = (
+            self.sec_w.as_slice(),
+            self.sec_y.as_slice(),
+            self.work.as_slice(),
+        );
+        let mut finite = true;
+        for (col, (&yj, &wj)) in self
+            .secant
+            .as_mut_slice()
+            .chunks_exact_mut(n)
+            .zip(y.iter().zip(w))
+        {
+            for (((s, &wi), &yi), &wsyi) in col.iter_mut().zip(w).zip(y).zip(wsy) {
+                *s += (wi * yj + yi * wj) / ys - wsyi * yj / ys2;
+                finite &= s.is_finite();
             }
         }
-        if self.secant.iter().all(|v| v.is_finite()) {
+        if finite {
             true
         } else {
             self.secant.fill(0.0);
@@ -532,14 +550,10 @@ impl DenseWork {
 
     /// QP bounds in step space at `z` (uses `self.az = A z`).
     fn shift_bounds(&mut self, cons: &Constraints, z: &DVector<f64>) {
-        for i in 0..self.n {
-            self.dlb[i] = cons.zl[i] - z[i];
-            self.dub[i] = cons.zu[i] - z[i];
-        }
-        for j in 0..self.p {
-            self.dbl[j] = cons.bl[j] - self.az[j];
-            self.dbu[j] = cons.bu[j] - self.az[j];
-        }
+        sub_into(&mut self.dlb, &cons.zl, z);
+        sub_into(&mut self.dub, &cons.zu, z);
+        sub_into(&mut self.dbl, &cons.bl, &self.az);
+        sub_into(&mut self.dbu, &cons.bu, &self.az);
     }
 
     /// KKT residual at `z` (with `self.grad = Jᵀr(z)`, `self.az = A z`) and the current QP
@@ -585,6 +599,19 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
     s
 }
 
+/// `d ← b − x` entrywise (equally long vectors).
+#[inline]
+fn sub_into(d: &mut DVector<f64>, b: &DVector<f64>, x: &DVector<f64>) {
+    for ((d, &b), &x) in d
+        .as_mut_slice()
+        .iter_mut()
+        .zip(b.as_slice())
+        .zip(x.as_slice())
+    {
+        *d = b - x;
+    }
+}
+
 /// Largest violation of `bl ≤ v ≤ bu`.
 fn row_violation(v: &DVector<f64>, bl: &DVector<f64>, bu: &DVector<f64>) -> f64 {
     let mut viol: f64 = 0.0;
@@ -596,7 +623,12 @@ fn row_violation(v: &DVector<f64>, bl: &DVector<f64>, bu: &DVector<f64>) -> f64 
 
 /// Clamps `z` into `[zl, zu]` (removes rounding errors of steps between feasible points).
 fn clamp(z: &mut DVector<f64>, zl: &DVector<f64>, zu: &DVector<f64>) {
-    for i in 0..z.len() {
-        z[i] = z[i].max(zl[i]).min(zu[i]);
+    for ((zi, &l), &u) in z
+        .as_mut_slice()
+        .iter_mut()
+        .zip(zl.as_slice())
+        .zip(zu.as_slice())
+    {
+        *zi = zi.max(l).min(u);
     }
 }

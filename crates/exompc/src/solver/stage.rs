@@ -158,17 +158,33 @@ impl RiccatiFactor {
 }
 
 /// `out = P X` for the symmetric `nx × nx` `P` and an `nx × m` `X` (`P A`, `P B`).
+///
+/// Column by column as `out[:, c] += P[:, k] X[k, c]` over contiguous columns: each entry is
+/// summed from zero in the order `k = 0, 1, …`, the same sums as a dot per entry.
 #[inline(always)]
 pub(super) fn p_times(nx: usize, m: usize, p: &[f64], x: &[f64], out: &mut [f64]) {
-    for c in 0..m {
-        for rr in 0..nx {
-            let mut s = 0.0;
-            for k in 0..nx {
-                s += p[k * nx + rr] * x[c * nx + k];
+    let p = &p[..nx * nx];
+    for (oc, xc) in out[..nx * m]
+        .chunks_exact_mut(nx)
+        .zip(x[..nx * m].chunks_exact(nx))
+    {
+        oc.fill(0.0);
+        for (pk, &xk) in p.chunks_exact(nx).zip(xc) {
+            for (o, &pv) in oc.iter_mut().zip(pk) {
+                *o += pv * xk;
             }
-            out[c * nx + rr] = s;
         }
     }
+}
+
+/// `Σ_k u_k v_k` summed from `init` in the order `k = 0, 1, …` (equally long columns).
+#[inline(always)]
+fn dot_from(init: f64, u: &[f64], v: &[f64]) -> f64 {
+    let mut s = init;
+    for (&a, &b) in u.iter().zip(v) {
+        s += a * b;
+    }
+    s
 }
 
 /// `out = init + Bᵀ X` (`nu × m`) for `B` `nx × nu` and `X` `nx × m`, `init` zero when `None`:
@@ -183,16 +199,18 @@ pub(super) fn bt_times(
     x: &[f64],
     out: &mut [f64],
 ) {
-    for c in 0..m {
-        for rr in 0..nu {
-            let mut s = match init {
+    let b = &b[..nx * nu];
+    for (c, (oc, xc)) in out[..nu * m]
+        .chunks_exact_mut(nu)
+        .zip(x[..nx * m].chunks_exact(nx))
+        .enumerate()
+    {
+        for (rr, (o, bc)) in oc.iter_mut().zip(b.chunks_exact(nx)).enumerate() {
+            let s = match init {
                 Some(r) => r[c * nu + rr],
                 None => 0.0,
             };
-            for k in 0..nx {
-                s += b[rr * nx + k] * x[c * nx + k];
-            }
-            out[c * nu + rr] = s;
+            *o = dot_from(s, bc, xc);
         }
     }
 }
@@ -200,13 +218,13 @@ pub(super) fn bt_times(
 /// `out = Aᵀ X` (`nx × m`) for `A` `nx × nx` and `X` `nx × m` (the tree's `C_j = Aᵀ[P B, C]`).
 #[inline(always)]
 pub(super) fn at_times(nx: usize, m: usize, a: &[f64], x: &[f64], out: &mut [f64]) {
-    for c in 0..m {
-        for rr in 0..nx {
-            let mut s = 0.0;
-            for k in 0..nx {
-                s += a[rr * nx + k] * x[c * nx + k];
-            }
-            out[c * nx + rr] = s;
+    let a = &a[..nx * nx];
+    for (oc, xc) in out[..nx * m]
+        .chunks_exact_mut(nx)
+        .zip(x[..nx * m].chunks_exact(nx))
+    {
+        for (o, ac) in oc.iter_mut().zip(a.chunks_exact(nx)) {
+            *o = dot_from(0.0, ac, xc);
         }
     }
 }
@@ -224,11 +242,9 @@ pub(super) fn cost_to_go(
     pj: &mut [f64],
 ) {
     for c in 0..nx {
+        let pac = &pa[c * nx..(c + 1) * nx];
         for rr in 0..=c {
-            let mut s = q[c * nx + rr];
-            for k in 0..nx {
-                s += a[rr * nx + k] * pa[c * nx + k];
-            }
+            let mut s = dot_from(q[c * nx + rr], &a[rr * nx..(rr + 1) * nx], pac);
             if let Some((sb, kg)) = gain {
                 for i in 0..nu {
                     s += sb[rr * nu + i] * kg[c * nu + i];
