@@ -46,11 +46,11 @@ impl ChannelGroup {
     pub fn of(channels: impl IntoIterator<Item = Channel>) -> Self {
         let mut group = None;
         for c in channels {
-            let g = match c {
-                Channel::Q1 | Channel::Q2 => ChannelGroup::Angles,
-                Channel::Qd1 | Channel::Qd2 => ChannelGroup::Velocities,
-                Channel::F1 | Channel::F2 => ChannelGroup::Forces,
-            };
+            let g = Self::ALL[1..]
+                .iter()
+                .copied()
+                .find(|g| g.channels().contains(&c))
+                .unwrap_or(ChannelGroup::All);
             match group {
                 None => group = Some(g),
                 Some(h) if h == g => {}
@@ -104,6 +104,14 @@ pub fn peak_goal_n(group: ChannelGroup, duration_s: f64) -> f64 {
 
 /// Largest RMS ratio (faulted / clean, per strap) of a passing fault up to 200 ms.
 pub const RMS_RATIO_GOAL: f64 = 1.5;
+
+/// The RMS ratio judged against [`RMS_RATIO_GOAL`]: the larger over the two straps of the
+/// faulted run's RMS true strap force over the fault-free run's (`[thigh, shank]`, N).
+pub fn rms_ratio(faulted: [f64; 2], fault_free: [f64; 2]) -> f64 {
+    (0..2)
+        .map(|j| faulted[j] / fault_free[j].max(1e-12))
+        .fold(0.0, f64::max)
+}
 
 /// Whether a fault of `duration_s` on `group` met issue 28's goals: no torque-limit violation,
 /// no latch, peak true strap force ≤ [`peak_goal_n`] and, for faults up to 200 ms, the RMS
@@ -292,8 +300,7 @@ pub fn soak_fault_classes(
         if faulted.steps[i] == 0 || reference.steps[i] == 0 {
             continue;
         }
-        let (f, r) = (faulted.rms(i), reference.rms(i));
-        let ratio = (0..2).map(|j| f[j] / r[j].max(1e-12)).fold(0.0, f64::max);
+        let ratio = rms_ratio(faulted.rms(i), reference.rms(i));
         let (peak, peak_at) = faulted.peak[i];
         let latched = latched_at_s.is_some_and(|t| t < e.window_end_s);
         let pass = meets_goals(

@@ -3,7 +3,7 @@
 //! a verdict per cell (peak true strap force, RMS ratio, monitor trips, held steps, latch).
 
 use super::error::RunError;
-use super::fault_goals::{meets_goals, peak_goal_n, spike_magnitude, ChannelGroup};
+use super::fault_goals::{meets_goals, peak_goal_n, rms_ratio, spike_magnitude, ChannelGroup};
 use super::layout::TwoDof;
 use super::run::run_experiment_report;
 use crate::config::Experiment;
@@ -209,9 +209,7 @@ pub fn run_fault_scan(
                 .position(|&q| q == p)
                 .unwrap_or_default();
             let c = &clean[ci];
-            let ratio = (0..2)
-                .map(|i| o.rms[i] / c.rms[i].max(1e-12))
-                .fold(0.0, f64::max);
+            let ratio = rms_ratio(o.rms, c.rms);
             let goal = peak_goal_n(group, dur);
             let pass = meets_goals(group, dur, o.peak, ratio, o.latched, o.violations);
             Ok(FaultCell {

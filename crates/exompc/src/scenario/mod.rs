@@ -24,8 +24,8 @@ pub use build::{
 };
 pub use error::RunError;
 pub use fault_goals::{
-    episodes, meets_goals, peak_goal_n, soak_fault_classes, spike_magnitude, ChannelGroup, Episode,
-    EpisodeStats, SoakFaultClass, EPISODE_AFTER_S, RMS_RATIO_GOAL,
+    episodes, meets_goals, peak_goal_n, rms_ratio, soak_fault_classes, spike_magnitude,
+    ChannelGroup, Episode, EpisodeStats, SoakFaultClass, EPISODE_AFTER_S, RMS_RATIO_GOAL,
 };
 #[cfg(feature = "std")]
 pub use fault_scan::{cell_scenario, fault_scan_markdown, run_fault_scan, FaultCell, FaultGrid};

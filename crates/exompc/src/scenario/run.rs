@@ -180,8 +180,9 @@ pub fn soak_scenario(base: &Experiment, seconds: f64, payload_kg: f64) -> Experi
 }
 
 /// Run the soak scenario of [`soak_scenario`] (2-DOF), feeding every step to `recorders` as
-/// well, then the same scenario without faults for as long as the first run got (its steps
-/// fed to `reference`), against which every injected fault episode is judged
+/// well, then (when it has fault episodes) the same scenario without faults for as long as the
+/// first run got (its steps fed to `reference`; the same length, as the plant's body-mass ramp
+/// spans the run), against which every injected fault episode is judged
 /// ([`soak_fault_classes`]). Memory stays constant apart from the summary's step-time samples
 /// and a few counters per fault episode.
 pub fn run_soak(
@@ -209,7 +210,8 @@ pub fn run_soak(
     clean.faults.events.clear();
     clean.timing.duration_2dof_s = summary.duration_s.max(s.timing.dt);
     let mut fault_free = EpisodeStats::new(&eps);
-    {
+    // Nothing to judge (no fault of non-zero duration): no reference run.
+    if !eps.is_empty() {
         let mut all: Vec<&mut dyn Recorder<2>> = Vec::with_capacity(reference.len() + 1);
         all.push(&mut fault_free);
         for r in reference.iter_mut() {
