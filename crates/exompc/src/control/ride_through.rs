@@ -122,6 +122,8 @@ pub struct EstimatedChannels<const N: usize> {
     pub qd: [bool; N],
     /// Per strap: the force is an estimate.
     pub force: [bool; N],
+    /// The gait period in control steps, when the guard knows it (the lag of its replay).
+    pub period: Option<usize>,
 }
 
 impl<const N: usize> EstimatedChannels<N> {
@@ -249,6 +251,7 @@ impl<const N: usize> ChannelGuard<N> {
             q: [false; N],
             qd: [false; N],
             force: [false; N],
+            period: None,
         };
         let period = period_s
             .filter(|p| p.is_finite() && *p > 0.0)
@@ -447,6 +450,7 @@ impl<const N: usize> ChannelGuard<N> {
                 }
             }
         }
+        estimated.period = period;
         let ready = self.filled > 0 || !any;
         if any {
             self.estimated_steps += 1;
