@@ -382,6 +382,9 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     /// The previous step's measurement had estimated channels: the banks resume at this
     /// step's measurement.
     was_estimating: bool,
+    /// This step's measurement ends estimates handed over as measurements
+    /// ([`EstimatedChannels::resume`]): the banks resume at it.
+    resuming: bool,
     /// Robust extensions (`[controller] method = "robust"`); `None` = the paper's method.
     robust: Option<RobustState<N>>,
     /// The robust method's disturbance bank ([`RobustTuning::disturbance_lead`]): a copy of
@@ -463,6 +466,7 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             estimating: false,
             measured: [true; NY],
             was_estimating: false,
+            resuming: false,
             robust: None,
             dbank: None,
             prev_dforce: vec![zero; s],
@@ -579,7 +583,7 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     fn advance_banks(&mut self, m: &Measurement<N>) -> bool {
         let dt = self.models[0].dt;
         // Back from estimated channels: the filters resume at the measurement like after a gap.
-        let resync = self.was_estimating && !self.estimating;
+        let resync = (self.was_estimating && !self.estimating) || self.resuming;
         let skipped = m.t - self.last_t > 1.5 * dt;
         let gap = !self.started || skipped || resync;
         #[cfg(not(feature = "std"))]
@@ -781,6 +785,7 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     fn mark_estimated(&mut self, estimated: &EstimatedChannels<N>) {
         let force = estimated.force.iter().any(|&e| e);
         self.estimating = estimated.any();
+        self.resuming = estimated.resume;
         for a in 0..N {
             self.measured[a] = !estimated.q[a] && !force;
             self.measured[N + a] = !estimated.qd[a] && !force;
@@ -886,6 +891,7 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
         self.mark_estimated(estimated);
         let out = self.step(m);
         self.estimating = false;
+        self.resuming = false;
         out
     }
 }
