@@ -423,6 +423,9 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     period: Option<usize>,
     /// `d̂` carried by the gait while the forces are estimated (`replay_disturbance`).
     replay: DisturbanceReplay<N>,
+    /// This step's measurement ends estimates handed over as measurements
+    /// ([`EstimatedChannels::resume`]): the banks resume at it.
+    resuming: bool,
     /// Robust extensions (`[controller] method = "robust"`); `None` = the paper's method.
     robust: Option<RobustState<N>>,
     /// The robust method's disturbance bank ([`RobustTuning::disturbance_lead`]): a copy of
@@ -508,6 +511,7 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             forces_estimated: false,
             period: None,
             replay,
+            resuming: false,
             robust: None,
             dbank: None,
             prev_dforce: vec![zero; s],
@@ -624,7 +628,7 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     fn advance_banks(&mut self, m: &Measurement<N>) -> bool {
         let dt = self.models[0].dt;
         // Back from estimated channels: the filters resume at the measurement like after a gap.
-        let resync = self.was_estimating && !self.estimating;
+        let resync = (self.was_estimating && !self.estimating) || self.resuming;
         let skipped = m.t - self.last_t > 1.5 * dt;
         let gap = !self.started || skipped || resync;
         #[cfg(not(feature = "std"))]
@@ -828,6 +832,7 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
         self.forces_estimated = force;
         self.period = estimated.period;
         self.estimating = estimated.any();
+        self.resuming = estimated.resume;
         for a in 0..N {
             self.measured[a] = !estimated.q[a] && !force;
             self.measured[N + a] = !estimated.qd[a] && !force;
@@ -990,6 +995,7 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
         self.estimating = false;
         self.forces_estimated = false;
         self.period = None;
+        self.resuming = false;
         out
     }
 }

@@ -109,6 +109,10 @@ pub struct ChannelGuard<const N: usize> {
     /// acquisition (every angle frozen or non-finite at once), `window − 1` after it was
     /// found frozen (once it moves, the window still averages frozen samples).
     qd_held_off: [u32; N],
+    /// Per joint, while the angle is rejected: its fault began after a filter window of
+    /// accepted angles and its estimate has been the angle its measured velocity implies on
+    /// every step since (so it is anchored to measured angles).
+    q_anchored: [bool; N],
 }
 
 /// Which channels of a measurement stand in for rejected ones and must not update a
@@ -124,6 +128,12 @@ pub struct EstimatedChannels<const N: usize> {
     pub force: [bool; N],
     /// The gait period in control steps, when the guard knows it (the lag of its replay).
     pub period: Option<usize>,
+    /// An angle that stood in for a rejected one as a measurement (implied by its measured
+    /// velocity, [`Repaired::q_from_velocity`]) is measured again, further than its gate from
+    /// the implied angle's extrapolation (up to [`ACCEPT_GATES`] gates, or any distance when
+    /// resynchronised): a jump no leg makes, so a model-based estimator restarts its states
+    /// at this measurement, as after listed estimates, instead of updating on the jump.
+    pub resume: bool,
 }
 
 impl<const N: usize> EstimatedChannels<N> {
@@ -160,6 +170,12 @@ pub struct Repaired<const N: usize> {
     /// Every angle turned frozen or non-finite in this sample (a stalled acquisition): the
     /// velocities were rejected with them.
     pub stalled: bool,
+    /// Per joint: the angle is rejected and its estimate has been, on every step since it was
+    /// last accepted, the angle its measured velocity implies through the filter window
+    /// (listed in `estimated.q`, but anchored to the measured angles by measured velocities, as
+    /// a velocity estimated from its good angle's slope is a measurement of it: a model-based
+    /// estimator may update with it).
+    pub q_from_velocity: [bool; N],
 }
 
 impl<const N: usize> ChannelGuard<N> {
@@ -193,6 +209,7 @@ impl<const N: usize> ChannelGuard<N> {
             after_accept: [[0; N]; 3],
             q_good_for: [0; N],
             qd_held_off: [0; N],
+            q_anchored: [false; N],
             last_t: f64::NAN,
         }
     }
@@ -247,11 +264,13 @@ impl<const N: usize> ChannelGuard<N> {
         let mut any = false;
         let mut definite = false;
         let mut longest: u64 = 0;
+        let mut q_from_velocity = [false; N];
         let mut estimated = EstimatedChannels {
             q: [false; N],
             qd: [false; N],
             force: [false; N],
             period: None,
+            resume: false,
         };
         let period = period_s
             .filter(|p| p.is_finite() && *p > 0.0)
@@ -386,6 +405,10 @@ impl<const N: usize> ChannelGuard<N> {
                 } else {
                     0
                 };
+                // An angle that was implied by its measured velocity, and handed over as a
+                // measurement, comes back off its extrapolation (see `resume`).
+                estimated.resume |=
+                    sig == Q && was_bad && good && self.q_anchored[j] && residual > gate;
                 if sig == F && !was_bad && !good {
                     self.railed[j] = railed;
                 }
@@ -418,6 +441,14 @@ impl<const N: usize> ChannelGuard<N> {
                     longest = longest.max(age);
                 }
                 if sig == Q {
+                    // A new fault of the angle: its velocity can imply it only from a filter
+                    // window of measured angles (not from one accepted between two faults),
+                    // and not for a frozen angle, which may have been frozen for samples
+                    // before it was found so (the frozen test needs the joint to move; a
+                    // latched fallback on a 1-s dropout of one angle railed a strap).
+                    if !good && !was_bad {
+                        self.q_anchored[j] = self.q_good_for[j] as usize >= span && !repeated;
+                    }
                     self.q_good_for[j] = if good {
                         self.q_good_for[j].saturating_add(1)
                     } else {
@@ -433,13 +464,27 @@ impl<const N: usize> ChannelGuard<N> {
                 if self.bad_for[sig][j] > 0 {
                     let q_bad = self.bad_for[Q][j] > 0 || (sig == QD && !self.slope_ok(j));
                     let qd_bad = self.bad_for[QD][j] > 0;
-                    // The model for an angle whose velocity is measured (its filter updates
-                    // on the velocity); with both encoders lost, the gait replay when a
-                    // period is known (an open-loop model drifts away within 100 ms).
+                    // An angle whose velocity has been measured on every step since the
+                    // angle was last accepted: the angle the velocity implies through the
+                    // filter window (what the velocity check holds a clean velocity to; the
+                    // model's prediction drifted 0.07 rad in 200 ms at 3 kg, outside its
+                    // payload scenarios). Else the model; with both encoders lost, the gait
+                    // replay when a period is known (an open-loop model drifts away within
+                    // 100 ms).
                     let replay = q_bad && qd_bad && period.is_some();
-                    out[sig][j] = match (sig, model) {
-                        (Q, Some((q, _))) if !replay => q[j],
-                        (QD, Some((_, qd))) if q_bad && !replay => qd[j],
+                    let implied = if sig == Q && !qd_bad && self.q_anchored[j] {
+                        self.angle_from_velocity(j, out[QD][j])
+                    } else {
+                        None
+                    };
+                    if sig == Q {
+                        self.q_anchored[j] = implied.is_some();
+                        q_from_velocity[j] = implied.is_some();
+                    }
+                    out[sig][j] = match (sig, model, implied) {
+                        (Q, _, Some(q)) => q,
+                        (Q, Some((q, _)), None) if !replay => q[j],
+                        (QD, Some((_, qd)), _) if q_bad && !replay => qd[j],
                         _ => self.estimate(sig, j, &out, period),
                     };
                     match sig {
@@ -478,12 +523,27 @@ impl<const N: usize> ChannelGuard<N> {
             encoders_good,
             ready,
             stalled: stall,
+            q_from_velocity,
         }
     }
 
     /// The angle of joint `j` has been accepted over the whole filter window.
     fn slope_ok(&self, j: usize) -> bool {
         self.q_good_for[j] as usize >= self.window
+    }
+
+    /// The angle of joint `j` that the filtered velocity `qd` implies: the angle `window − 1`
+    /// periods back plus `qd` over that span (a clean filtered velocity is the angle's mean
+    /// slope over the filter window, the velocity check's rule, so the estimate carries the
+    /// filter's lag no further than the window). `None` without that much history or a finite
+    /// velocity.
+    fn angle_from_velocity(&self, j: usize, qd: f64) -> Option<f64> {
+        let span = (self.window - 1).max(1);
+        if !qd.is_finite() || self.filled < span.max(2) {
+            return None;
+        }
+        let q = self.back(Q, span)[j] + span as f64 * self.dt * qd;
+        q.is_finite().then_some(q)
     }
 
     /// The angle's mean slope over the last `span` periods, `out[Q]` being this step's angle.

@@ -1154,8 +1154,16 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         let (desired, mut status, iterations) = if valid {
             // The inner controller keeps estimating while a monitor holds the output, and
             // steps on the estimates of rejected channels.
-            let out = if rep.estimated.any() {
-                self.inner.step_estimated(m, &rep.estimated)
+            // An angle implied by its measured velocity is a measurement of it: the
+            // controller's estimators update with it (`Repaired::q_from_velocity`), and
+            // restart at the measured angle if it comes back off the implied one
+            // (`EstimatedChannels::resume`).
+            let mut inputs = rep.estimated;
+            for (q, v) in inputs.q.iter_mut().zip(&rep.q_from_velocity) {
+                *q &= !*v;
+            }
+            let out = if inputs.any() || inputs.resume {
+                self.inner.step_estimated(m, &inputs)
             } else {
                 self.inner.step(m)
             };
