@@ -6,7 +6,6 @@ use super::nmpc::{classify, horizon_inputs, NmpcCore};
 use super::nmpc_problem::{NmpcProblem, NmpcSettings};
 use super::ocp_tree::{tree_is_structured, TreeSqp};
 use super::prediction::{HorizonInputs, PredictionModel};
-use super::ride_through::ChannelGuard;
 #[cfg(doc)]
 use super::robust::RobustTuning;
 use super::robust::{IntentEstimate, RobustSettings, RobustState};
@@ -339,41 +338,6 @@ pub struct MultiStageOptions {
     pub parallel: bool,
 }
 
-/// The disturbance estimates `d̂ᵢ` of the EKF banks over the last
-/// [`ChannelGuard::HISTORY_S`], per bank (the main one, the robust method's disturbance bank)
-/// and scenario, for the replay of one gait period back while the strap forces are estimated.
-#[derive(Clone, Debug)]
-struct DisturbanceReplay<const N: usize> {
-    /// `ring[b][i * len + k]`: bank `b`, scenario `i`, slot `k`.
-    ring: [Vec<SVector<f64, N>>; 2],
-    len: usize,
-    pos: usize,
-    filled: usize,
-    /// Replay offset per bank and scenario (NaN: not replaying).
-    offset: [Vec<SVector<f64, N>>; 2],
-}
-
-impl<const N: usize> DisturbanceReplay<N> {
-    fn new(scenarios: usize, dt: f64) -> Self {
-        let dt = if dt.is_finite() && dt > 0.0 { dt } else { 0.01 };
-        let len = ((ChannelGuard::<N>::HISTORY_S / dt).ceil() as usize).clamp(8, 1 << 16);
-        let ring = vec![SVector::zeros(); len * scenarios];
-        let offset = vec![SVector::repeat(f64::NAN); scenarios];
-        DisturbanceReplay {
-            ring: [ring.clone(), ring],
-            len,
-            pos: 0,
-            filled: 0,
-            offset: [offset.clone(), offset],
-        }
-    }
-
-    /// `d̂` of bank `b`, scenario `i`, `k` steps back (1: the last recorded).
-    fn back(&self, b: usize, i: usize, k: usize) -> SVector<f64, N> {
-        self.ring[b][i * self.len + (self.pos + self.len - k % self.len) % self.len]
-    }
-}
-
 /// The multi-stage robust NMPC controller of paper §3.2.
 ///
 /// Each step: the EKF bank is advanced with `y = [q, qd]`, `T(k−1)` and the filtered strap
@@ -418,11 +382,6 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     /// The previous step's measurement had estimated channels: the banks resume at this
     /// step's measurement.
     was_estimating: bool,
-    /// This step's strap forces are estimates, and the gait period in steps if known.
-    forces_estimated: bool,
-    period: Option<usize>,
-    /// `d̂` carried by the gait while the forces are estimated (`replay_disturbance`).
-    replay: DisturbanceReplay<N>,
     /// This step's measurement ends estimates handed over as measurements
     /// ([`EstimatedChannels::resume`]): the banks resume at it.
     resuming: bool,
@@ -483,7 +442,6 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             ),
         };
         let s = models.len();
-        let replay = DisturbanceReplay::new(s, models[0].dt);
         let empty = HorizonInputs {
             q_h: zero,
             qd_h: zero,
@@ -508,9 +466,6 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             estimating: false,
             measured: [true; NY],
             was_estimating: false,
-            forces_estimated: false,
-            period: None,
-            replay,
             resuming: false,
             robust: None,
             dbank: None,
@@ -829,8 +784,6 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     /// predict without an update, `d̂` and the probabilities held through the fault).
     fn mark_estimated(&mut self, estimated: &EstimatedChannels<N>) {
         let force = estimated.force.iter().any(|&e| e);
-        self.forces_estimated = force;
-        self.period = estimated.period;
         self.estimating = estimated.any();
         self.resuming = estimated.resume;
         for a in 0..N {
@@ -838,62 +791,10 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             self.measured[N + a] = !estimated.qd[a] && !force;
         }
     }
-
-    /// While the strap forces are estimated (the filters then predict without an update, so
-    /// `d̂ᵢ` would stay where the fault found it) and the gait period `p` is known: every
-    /// bank's `d̂ᵢ` replays the gait one period back, `d̂ᵢ(k) = d̂ᵢ(k − p) + d̂ᵢ(k₀ − 1) −
-    /// d̂ᵢ(k₀ − 1 − p)` (`k₀` the fault's first step). `d̂ᵢ` carries the model's error along the
-    /// gait (beyond the scenarios' payloads it changes by up to 0.7 N·m per step), and the
-    /// held value drove the robot away from the leg (issue 28, docs/RELIABILITY.md §2a).
-    fn replay_disturbance(&mut self) {
-        let r = &mut self.replay;
-        let p = match self.period {
-            Some(p) if self.forces_estimated && p >= 2 && p + 1 < r.filled => p,
-            _ => {
-                for o in r.offset.iter_mut() {
-                    o.fill(SVector::repeat(f64::NAN));
-                }
-                return;
-            }
-        };
-        for b in 0..2 {
-            let bank = match b {
-                0 => &mut self.bank,
-                _ => match self.dbank.as_mut() {
-                    Some(d) => d,
-                    None => continue,
-                },
-            };
-            for i in 0..bank.len() {
-                if !r.offset[b][i].iter().all(|v| v.is_finite()) {
-                    r.offset[b][i] = r.back(b, i, 1) - r.back(b, i, p + 1);
-                }
-                bank.set_disturbance(i, &(r.back(b, i, p) + r.offset[b][i]));
-            }
-        }
-    }
-
-    /// Record this step's `d̂ᵢ` of every bank for `replay_disturbance`; after skipped periods
-    /// the history restarts (it is no longer one sample per period).
-    fn record_disturbance(&mut self, skipped: bool) {
-        let r = &mut self.replay;
-        if skipped {
-            r.filled = 0;
-        }
-        for i in 0..self.bank.len() {
-            r.ring[0][i * r.len + r.pos] = self.bank.disturbance(i);
-            if let Some(d) = self.dbank.as_ref() {
-                r.ring[1][i * r.len + r.pos] = d.disturbance(i);
-            }
-        }
-        r.pos = (r.pos + 1) % r.len;
-        r.filled = (r.filled + 1).min(r.len);
-    }
 }
 
 impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiStage<N, NA, NY> {
-    /// One control step in named steps: `replay_disturbance` (while the forces are
-    /// estimated), `advance_banks` (EKF banks), `record_disturbance`, `start_state`,
+    /// One control step in named steps: `advance_banks` (EKF banks), `start_state`,
     /// `scenario_inputs`, `update_weights`, then the coupled solve (`CoupledCore::first_torque`)
     /// or every scenario's (`solve_scenarios`) blended by eq. 13 (`blend_increments`), and the
     /// hard limits of eqs. 8-9.
@@ -901,10 +802,7 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
         if !m.is_finite() {
             return self.hold(StepStatus::BadMeasurement);
         }
-        let skipped = self.started && m.t - self.last_t > 1.5 * self.models[0].dt;
-        self.replay_disturbance();
         let gap = self.advance_banks(m);
-        self.record_disturbance(skipped);
         let (x0, mi, stretch) = self.start_state(m, gap);
         self.scenario_inputs(m, mi, stretch);
         self.update_weights();
@@ -993,8 +891,6 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
         self.mark_estimated(estimated);
         let out = self.step(m);
         self.estimating = false;
-        self.forces_estimated = false;
-        self.period = None;
         self.resuming = false;
         out
     }

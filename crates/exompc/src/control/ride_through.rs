@@ -126,8 +126,6 @@ pub struct EstimatedChannels<const N: usize> {
     pub qd: [bool; N],
     /// Per strap: the force is an estimate.
     pub force: [bool; N],
-    /// The gait period in control steps, when the guard knows it (the lag of its replay).
-    pub period: Option<usize>,
     /// An angle that stood in for a rejected one as a measurement (implied by its measured
     /// velocity, [`Repaired::q_from_velocity`]) is measured again, further than its gate from
     /// the implied angle's extrapolation (up to [`ACCEPT_GATES`] gates, or any distance when
@@ -269,7 +267,6 @@ impl<const N: usize> ChannelGuard<N> {
             q: [false; N],
             qd: [false; N],
             force: [false; N],
-            period: None,
             resume: false,
         };
         let period = period_s
@@ -495,7 +492,6 @@ impl<const N: usize> ChannelGuard<N> {
                 }
             }
         }
-        estimated.period = period;
         let ready = self.filled > 0 || !any;
         if any {
             self.estimated_steps += 1;
