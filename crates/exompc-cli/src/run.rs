@@ -233,6 +233,13 @@ pub fn describe_safety(sa: &exompc::sim::SafetySummary) -> String {
             sa.sensor_faults, sa.estimated_steps
         );
     }
+    if sa.fallback_stops > 0 {
+        out += &format!(
+            "\n    fallback stops {}: the transparent fallback oscillated and the protective \
+             stop replaced it",
+            sa.fallback_stops
+        );
+    }
     if let Some(t) = sa.latched_at_s {
         out += &format!(
             "\n    latched at {t:.2} s by {} (handover {}): the monitor response kept the torque \

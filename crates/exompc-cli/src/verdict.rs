@@ -84,6 +84,13 @@ fn safety_reasons(s: &SafetySummary, steps: u64, holds_expected: bool) -> Vec<St
             pct(s.monitor_steps, steps)
         ));
     }
+    if s.fallback_stops > 0 {
+        r.push(format!(
+            "the transparent fallback oscillated and was replaced by the protective stop \
+             {} times",
+            s.fallback_stops
+        ));
+    }
     if let Some(t) = s.latched_at_s {
         r.push(format!(
             "latched at {t:.2} s by {} (handover {}): the controller was not handed the torque \
@@ -185,6 +192,7 @@ impl Verdict {
             monitors: Vec::new(),
             events_dropped: r.monitor_events_dropped,
             handovers: r.handovers,
+            fallback_stops: r.fallback_stops,
             latched_at_s: r.latched_at_s,
             latched_by: r.latched_by.clone(),
             latched_for_s: r.latched_for_s,

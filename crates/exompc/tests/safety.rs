@@ -351,6 +351,71 @@ fn supervisor_keeps_the_inner_previous_torque_in_sync() {
     assert!(!sup.is_tripped());
 }
 
+/// `hold` holds the last *safe* torque (issue 28): the torque of the last fully measured step
+/// with no monitor tripped, not the torque of the steps on estimated channels just before the
+/// trip; the supervisor returns to it within the rate limit.
+#[test]
+fn hold_returns_to_the_torque_of_the_last_fully_measured_step() {
+    let s = scenario(Kind::MsDecoupled, &[0.0, 2.0]);
+    let inner = build_controller::<TwoDof, 2>(&s, ControllerKind::MSNMPC).unwrap();
+    let mut settings = SafetySettings::from_scenario(&s);
+    settings.monitors.response = MonitorResponse::Hold;
+    let rate = settings.limits.rate;
+    let mut sup = Supervisor::new(inner, settings);
+    let good = |k: usize| Measurement::<2> {
+        t: 0.01 * k as f64,
+        q: SVector::from([0.1 + 2e-3 * k as f64, 0.2 - 2e-3 * k as f64]),
+        qd: SVector::from([0.2 + 1e-4 * (k % 5) as f64, -0.2 - 1e-4 * (k % 3) as f64]),
+        force: SVector::from([1.0 + 1e-2 * k as f64, -2.0 + 1e-2 * k as f64]),
+    };
+    let mut safe = SVector::zeros();
+    for k in 0..20 {
+        let out = sup.step(&good(k));
+        assert!(
+            !matches!(
+                out.status,
+                StepStatus::BadMeasurement | StepStatus::MonitorTripped
+            ),
+            "{k}: {:?}",
+            out.status
+        );
+        safe = out.torque;
+    }
+    // A NaN thigh velocity for 5 steps: the controller steps on its estimate ...
+    let mut before_trip = safe;
+    for k in 20..25 {
+        let mut m = good(k);
+        m.qd[0] = f64::NAN;
+        let out = sup.step(&m);
+        assert_eq!(out.status, StepStatus::BadMeasurement, "{k}");
+        before_trip = out.torque;
+    }
+    assert!((before_trip - safe).amax() > 1e-3, "{before_trip} {safe}");
+    // ... then a strap-force trip (3 steps beyond the range), held for `clear_after_s`.
+    let mut last = before_trip;
+    let mut reached = None;
+    for k in 25..36 {
+        let mut m = good(k);
+        if k < 28 {
+            m.force[1] = 500.0;
+        }
+        let out = sup.step(&m);
+        assert_eq!(out.status, StepStatus::MonitorTripped, "{k}");
+        assert!((out.torque - last).amax() <= rate + 1e-12);
+        // Every step goes toward the safe torque, and stays once there.
+        assert!(
+            (out.torque - safe).amax() <= (last - safe).amax() + 1e-12,
+            "{k}"
+        );
+        if out.torque == safe && reached.is_none() {
+            reached = Some(k);
+        }
+        last = out.torque;
+    }
+    assert!(reached.is_some(), "{last} {safe}");
+    assert_eq!(last, safe);
+}
+
 fn check_soak(seconds: f64) {
     let r = run_soak(&Experiment::default(), seconds, 2.0, &mut [], &mut []).unwrap();
     let st = &r.stats;

@@ -396,6 +396,13 @@ impl<const N: usize> OscillationDetector<N> {
     }
 }
 
+/// The cut-off of the fallback's oscillation check as a multiple of the gait frequency
+/// (`Supervisor::watch_fallback`; at least `oscillation_cutoff_hz`): above the third harmonic
+/// of a torque that follows a fast gait at its limits (a 1.3-Hz gait at 3 kg, whose fallback
+/// torque the gait-following cut-off of 3 × the gait took for an oscillation, measured on
+/// 2026-12-05, docs/RELIABILITY.md §2).
+pub const FALLBACK_OSCILLATION_GAIT_RATIO: f64 = 5.0;
+
 /// Fastest gait frequency (Hz) the gait-following cut-off follows (`[monitors]
 /// oscillation_cutoff_gait_ratio`): estimates above it count as this, so the cut-off never
 /// exceeds `ratio · GAIT_MAX_HZ` (6 Hz with the default ratio 3).
@@ -571,6 +578,12 @@ pub enum MonitorAction {
     /// The latch was reset ([`Supervisor::reset_latch`]); the controller resumes once no
     /// monitor is tripped (`monitor` is the one that latched, `value` 0).
     Reset,
+    /// The transparent fallback oscillated (its torque above `oscillation_torque_rms_nm`
+    /// above [`FALLBACK_OSCILLATION_GAIT_RATIO`] × the gait frequency, after it had had the
+    /// torque for `oscillation_window_s`): the protective stop (the ramp to zero at
+    /// [`STOP_RAMP_NM_PER_S`]) replaces it until every monitor has cleared (`monitor` is
+    /// [`MonitorKind::TorqueOscillation`], `value` the torque's RMS over the window, N·m).
+    Stop,
 }
 
 /// One logged monitor event.
@@ -605,6 +618,9 @@ pub struct SafetyReport {
     /// (a tracking-error, strap-force or oscillation monitor tripped while none of them was;
     /// several tripping together make one handover; sensor timeouts do not count).
     pub handovers: u64,
+    /// Times the transparent fallback oscillated and the protective stop replaced it
+    /// ([`MonitorAction::Stop`]).
+    pub fallback_stops: u64,
     /// Supervisor time (s) at which it latched (`[monitors] latch_trips`), `None` when it has
     /// not, or when the latch was reset since.
     pub latched_at: Option<f64>,
@@ -648,7 +664,8 @@ pub const REPLAY_HANDBACK_STEPS: u32 = 10;
 ///   `force_max_n ≤ saturation_n`) at the sensor's full scale, and any sensor channel
 ///   without a fresh valid sample (non-finite, implausible, or bit-for-bit repeated) for longer
 ///   than `sensor_timeout_s`. A tripped monitor applies the configured response (`hold` the
-///   last torque, or `ramp_to_zero` at [`STOP_RAMP_NM_PER_S`]; status
+///   last safe torque: the torque of the last fully measured step with no monitor tripped,
+///   reached within the rate limit; or `ramp_to_zero` at [`STOP_RAMP_NM_PER_S`]; status
 ///   [`StepStatus::MonitorTripped`]); it clears after its condition has been absent for
 ///   `clear_after_s`, and the inner controller resumes from the applied torque. Trips and
 ///   clears are logged with their time in a bounded event list ([`SafetyReport`]).
@@ -663,6 +680,12 @@ pub const REPLAY_HANDBACK_STEPS: u32 = 10;
 ///   It applies the configured `response` like the other monitors and clears after
 ///   `oscillation_clear_s` (2 s) without oscillation, so that a limit cycle does not restart
 ///   at once.
+/// * **The fallback's stop.** Once the gait frequency is known and the transparent fallback
+///   has had the torque for `oscillation_window_s`, an applied torque oscillating above
+///   `oscillation_torque_rms_nm` with content above [`FALLBACK_OSCILLATION_GAIT_RATIO`] × the
+///   gait frequency (sustained: [`OSCILLATION_MIN_HALF_CYCLES`] half-cycles) hands the torque
+///   to the protective stop until every monitor has cleared ([`MonitorAction::Stop`],
+///   [`SafetyReport::fallback_stops`]).
 /// * **Latch.** Each time a monitor that sees the controller fail (tracking error, strap force,
 ///   force or torque oscillation; not the sensor timeout, a sensor fault) trips while none of
 ///   them was, the supervisor takes the torque from the controller (a *handover*, counted in
@@ -730,6 +753,18 @@ pub struct Supervisor<const N: usize, C> {
     coasting: bool,
     /// Steps left of the blend from the replay back to the controller.
     handback: u32,
+    /// The torque of the last fully measured step (every channel measured, no monitor
+    /// tripped, no replay): what `hold` holds.
+    last_safe: SVector<f64, N>,
+    /// When the transparent fallback took the torque (`None`: it does not have it).
+    fallback_since: Option<f64>,
+    /// The applied torque's oscillation well above the gait (cut-off
+    /// [`FALLBACK_OSCILLATION_GAIT_RATIO`] × the gait frequency, sustained half-cycles), and
+    /// its cut-off now (Hz): the fallback's own oscillation (`watch_fallback`).
+    fallback_osc: OscillationDetector<N>,
+    fallback_cutoff_hz: f64,
+    /// The fallback oscillated: the protective stop has the torque until the monitors clear.
+    fallback_failed: bool,
 }
 
 impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
@@ -751,6 +786,7 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         // commanded torque is the controller's own, rate-limited output: its RMS alone trips.
         let force_osc = detector(mo.oscillation_force_rms_n);
         let torque_osc = detector(0.0);
+        let fallback_osc = detector(mo.oscillation_torque_rms_nm);
         let angle = StrapAngleEstimate::new(
             &settings.strap_levers_m,
             settings.strap_stiffness,
@@ -807,6 +843,11 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             stall_coast: false,
             coasting: false,
             handback: 0,
+            last_safe: prev,
+            fallback_since: None,
+            fallback_osc,
+            fallback_cutoff_hz: cutoff_hz,
+            fallback_failed: false,
         };
         sup.inner.set_previous_torque(prev);
         sup
@@ -820,6 +861,43 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             .map(|p| (p / self.dt()).round())
             .filter(|&p| p >= 2.0 && p + 2.0 < self.torque_filled as f64)
             .map(|p| p as usize)
+    }
+
+    /// The fallback's own oscillation (issue 28): once the transparent fallback has had the
+    /// torque for `oscillation_window_s` (the window then holds its torques only), a torque
+    /// oscillating above `oscillation_torque_rms_nm` well above the gait (its content above
+    /// [`FALLBACK_OSCILLATION_GAIT_RATIO`] × the gait frequency, swinging across ± that
+    /// threshold at least [`OSCILLATION_MIN_HALF_CYCLES`] times in the window: a fast gait's
+    /// torque at its limits is no oscillation; not before the gait frequency is known) hands
+    /// the torque to the protective stop until no monitor is tripped (`responding`: the
+    /// configured response has the torque).
+    fn watch_fallback(&mut self, responding: bool, now: f64) {
+        let mo = &self.s.monitors;
+        if !responding || mo.response != MonitorResponse::Fallback || self.fallback.is_none() {
+            if !self.is_tripped() && !self.latched {
+                self.fallback_since = None;
+                self.fallback_failed = false;
+            }
+            return;
+        }
+        let since = *self.fallback_since.get_or_insert(now);
+        if !self.fallback_failed
+            && self.gait.frequency(now).is_some()
+            && now - since >= mo.oscillation_window_s - 1e-9
+            && self
+                .fallback_osc
+                .is_oscillating(mo.oscillation_torque_rms_nm, OSCILLATION_MIN_HALF_CYCLES)
+        {
+            self.fallback_failed = true;
+            self.report.fallback_stops += 1;
+            let value = self.fallback_osc.rms_max();
+            self.log(MonitorEvent {
+                t: now,
+                monitor: MonitorKind::TorqueOscillation,
+                action: MonitorAction::Stop,
+                value,
+            });
+        }
     }
 
     /// A gap of `gap_s` in the measurements (periods the runtime did not step the controller,
@@ -1008,6 +1086,17 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             self.force_osc.set_cutoff(cutoff, self.s.dt);
             self.torque_osc.set_cutoff(cutoff, self.s.dt);
         }
+        let fb_cutoff = match self.gait.frequency(now) {
+            Some(f) => mo
+                .oscillation_cutoff_hz
+                .max(FALLBACK_OSCILLATION_GAIT_RATIO * f),
+            None => mo.oscillation_cutoff_hz,
+        };
+        if fb_cutoff != self.fallback_cutoff_hz {
+            self.fallback_cutoff_hz = fb_cutoff;
+            self.fallback_osc.set_cutoff(fb_cutoff, self.s.dt);
+        }
+        self.fallback_osc.push(&self.prev);
         let force_osc = self.force_osc.push(&forces);
         let torque_osc = self.torque_osc.push(&self.prev);
         let values = [track, force, silent, force_osc, torque_osc];
@@ -1145,9 +1234,10 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         // The ramp to zero (`ramp_to_zero`, the protective stop) at `STOP_RAMP_NM_PER_S`.
         let step = STOP_RAMP_NM_PER_S * self.dt();
         let toward_zero = prev - prev.map(|v| v.clamp(-step, step));
+        self.watch_fallback(tripped && !stop, now);
         let response = match (self.s.monitors.response, &self.fallback) {
-            _ if stop => toward_zero,
-            (MonitorResponse::Hold, _) => prev,
+            _ if stop || self.fallback_failed => toward_zero,
+            (MonitorResponse::Hold, _) => self.last_safe,
             (MonitorResponse::Fallback, Some(fb)) => fb.torque(),
             (MonitorResponse::RampToZero | MonitorResponse::Fallback, _) => toward_zero,
         };
@@ -1271,6 +1361,9 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         self.torque_pos = (self.torque_pos + 1) % len;
         self.torque_filled = (self.torque_filled + 1).min(len);
         self.prev = torque;
+        if valid && !rep.any_rejected && !tripped && !self.coasting && self.handback == 0 {
+            self.last_safe = torque;
+        }
         if self.inner.previous_torque() != torque {
             self.inner.set_previous_torque(torque);
         }
@@ -1299,6 +1392,7 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
 
     fn set_previous_torque(&mut self, t: SVector<f64, N>) {
         self.prev = self.s.limits.admissible(&t);
+        self.last_safe = self.prev;
         self.inner.set_previous_torque(self.prev);
     }
 

@@ -145,6 +145,8 @@ pub struct SoakReport {
     /// Handovers (a controller-failure monitor taking the torque; what counts toward the
     /// latch).
     pub handovers: u64,
+    /// Times the oscillating transparent fallback was replaced by the protective stop.
+    pub fallback_stops: u64,
     /// Simulated time (s) at which the supervisor latched its response, `null` if it did not.
     pub latched_at_s: Option<f64>,
     /// The monitor whose trip latched it (`tracking_error`, ...), `null` if it did not.
@@ -231,6 +233,7 @@ pub fn run_soak(
         wall_time_s: start.elapsed().as_secs_f64(),
         monitor_events_dropped: report.events_dropped,
         handovers: summary.safety.handovers,
+        fallback_stops: summary.safety.fallback_stops,
         latched_at_s: summary.safety.latched_at_s,
         latched_by: summary.safety.latched_by,
         latched_for_s: summary.safety.latched_for_s,

@@ -38,6 +38,11 @@ pub struct SafetySummary {
     /// what counts toward the latch.
     #[serde(default)]
     pub handovers: u64,
+    /// Times the transparent fallback oscillated (its torque above
+    /// `oscillation_torque_rms_nm`) and the protective stop replaced it until the monitors
+    /// cleared.
+    #[serde(default)]
+    pub fallback_stops: u64,
     /// Supervisor time (s) at which repeated handovers latched the response
     /// (`[monitors] latch_trips`); `null` when it did not latch.
     #[serde(default)]
@@ -98,6 +103,7 @@ impl SafetySummary {
             monitors,
             events_dropped: r.events_dropped,
             handovers: r.handovers,
+            fallback_stops: r.fallback_stops,
             latched_at_s: r.latched_at,
             latched_by: r.latched_by.map(|k| snake_case(&format!("{k:?}"))),
             latched_for_s: r.latched_for_s,
@@ -138,6 +144,7 @@ mod tests {
             ],
             events_dropped: 0,
             handovers: 2,
+            fallback_stops: 1,
             latched_at: Some(1.2),
             latched_by: Some(MonitorKind::StrapForce),
             latched_for_s: 0.3,
@@ -146,6 +153,7 @@ mod tests {
         };
         let s = SafetySummary::from_report(&r);
         assert_eq!((s.handovers, s.latched_at_s), (2, Some(1.2)));
+        assert_eq!(s.fallback_stops, 1);
         assert_eq!(s.latched_by.as_deref(), Some("strap_force"));
         assert!((s.latched_for_s - 0.3).abs() < 1e-12);
         assert_eq!((s.estimated_steps, s.sensor_faults), (5, 1));
