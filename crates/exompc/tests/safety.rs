@@ -317,13 +317,20 @@ fn stale_sensor_trips_the_timeout_monitor_and_ramps_to_zero() {
     assert_eq!(log.rows.last().unwrap().status, StepStatus::Ok);
 }
 
-#[test]
-fn supervisor_keeps_the_inner_previous_torque_in_sync() {
+/// A supervised 2-DOF MS-NMPC (0 and 2 kg scenarios) with monitor response `response`, and
+/// its torque-rate limit per period (N·m).
+fn supervised_msnmpc(response: MonitorResponse) -> (Supervisor<2, Box<dyn Controller<2>>>, f64) {
     let s = scenario(Kind::MsDecoupled, &[0.0, 2.0]);
     let inner = build_controller::<TwoDof, 2>(&s, ControllerKind::MSNMPC).unwrap();
     let mut settings = SafetySettings::from_scenario(&s);
-    settings.monitors.response = MonitorResponse::RampToZero;
-    let mut sup = Supervisor::new(inner, settings);
+    settings.monitors.response = response;
+    let rate = settings.limits.rate;
+    (Supervisor::new(inner, settings), rate)
+}
+
+#[test]
+fn supervisor_keeps_the_inner_previous_torque_in_sync() {
+    let (mut sup, _) = supervised_msnmpc(MonitorResponse::RampToZero);
     let good = |k: usize| Measurement::<2> {
         t: 0.01 * k as f64,
         q: SVector::from([0.1 + 1e-3 * k as f64, 0.2 - 1e-3 * k as f64]),
@@ -356,12 +363,7 @@ fn supervisor_keeps_the_inner_previous_torque_in_sync() {
 /// trip; the supervisor returns to it within the rate limit.
 #[test]
 fn hold_returns_to_the_torque_of_the_last_fully_measured_step() {
-    let s = scenario(Kind::MsDecoupled, &[0.0, 2.0]);
-    let inner = build_controller::<TwoDof, 2>(&s, ControllerKind::MSNMPC).unwrap();
-    let mut settings = SafetySettings::from_scenario(&s);
-    settings.monitors.response = MonitorResponse::Hold;
-    let rate = settings.limits.rate;
-    let mut sup = Supervisor::new(inner, settings);
+    let (mut sup, rate) = supervised_msnmpc(MonitorResponse::Hold);
     let good = |k: usize| Measurement::<2> {
         t: 0.01 * k as f64,
         q: SVector::from([0.1 + 2e-3 * k as f64, 0.2 - 2e-3 * k as f64]),

@@ -1075,23 +1075,20 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         // The gait-following cut-off (`oscillation_cutoff_gait_ratio`): the human's angles are
         // the encoders' plus the strap-model angle error.
         self.gait.update(&(m.q + dq), now);
-        let cutoff = match self.gait.frequency(now) {
-            Some(f) if mo.oscillation_cutoff_gait_ratio > 0.0 => mo
-                .oscillation_cutoff_hz
-                .max(mo.oscillation_cutoff_gait_ratio * f),
+        // The monitors' cut-off follows the gait at `oscillation_cutoff_gait_ratio`, the
+        // fallback check's at `FALLBACK_OSCILLATION_GAIT_RATIO`.
+        let gait_hz = self.gait.frequency(now);
+        let follow = |ratio: f64| match gait_hz {
+            Some(f) if ratio > 0.0 => mo.oscillation_cutoff_hz.max(ratio * f),
             _ => mo.oscillation_cutoff_hz,
         };
+        let cutoff = follow(mo.oscillation_cutoff_gait_ratio);
         if cutoff != self.cutoff_hz {
             self.cutoff_hz = cutoff;
             self.force_osc.set_cutoff(cutoff, self.s.dt);
             self.torque_osc.set_cutoff(cutoff, self.s.dt);
         }
-        let fb_cutoff = match self.gait.frequency(now) {
-            Some(f) => mo
-                .oscillation_cutoff_hz
-                .max(FALLBACK_OSCILLATION_GAIT_RATIO * f),
-            None => mo.oscillation_cutoff_hz,
-        };
+        let fb_cutoff = follow(FALLBACK_OSCILLATION_GAIT_RATIO);
         if fb_cutoff != self.fallback_cutoff_hz {
             self.fallback_cutoff_hz = fb_cutoff;
             self.fallback_osc.set_cutoff(fb_cutoff, self.s.dt);
