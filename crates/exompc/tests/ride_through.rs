@@ -11,6 +11,7 @@ use exompc::control::{
     EXTRAPOLATION_MAX_HZ, GAIT_MAX_HZ,
 };
 use exompc::estimate::MovingAverage;
+use exompc::model::Straps;
 use exompc::scenario::{run_experiment_report, ChannelGroup, TwoDof};
 use exompc::sim::{Channel, FaultEvent, FaultKind, TraceLog};
 use nalgebra::SVector;
@@ -165,9 +166,9 @@ fn a_velocity_that_moves_again_is_accepted_once_its_window_is_clean() {
 /// A channel rejected for longer than `sensor_timeout_s` (0.5 s) ends in the protective
 /// stop: the torque ramps to zero within the rate limit and stays there while the fault
 /// lasts; when the channel is good again the controller takes over within 0.2 s (no latch;
-/// the handover after the stop may trip a monitor). At 0 kg (at 2 kg the stop itself costs
-/// 125 N of strap force and trips the strap-force and oscillation monitors:
-/// docs/RELIABILITY.md §2).
+/// the handover after the stop may trip a monitor). At 0 kg; at 2 kg the person carries robot
+/// and payload during the stop (strap forces near 40 N) and the controller's return trips the
+/// oscillation monitors (docs/RELIABILITY.md §2; the next test bounds the return).
 #[test]
 fn a_persistent_fault_ends_in_the_protective_stop_and_recovers() {
     let mut s = scenario(ControllerKind::MSNMPC, 0.0, 6.0);
@@ -203,6 +204,37 @@ fn a_persistent_fault_ends_in_the_protective_stop_and_recovers() {
         .find(|r| r.t > 3.5 && r.status == StepStatus::Ok)
         .map(|r| r.t);
     assert!(back.is_some_and(|t| t < 3.7), "back at {back:?}");
+}
+
+/// Back from the protective stop at 2 kg (the same 1.5-s NaN on both angles): during the stop
+/// the robot hung on the person (strap forces near 40 N), and the controller takes over again
+/// at the rate limit. The strap forces then follow the robot's own fast motion; the force gate
+/// judges them less the robot's part (`ChannelGuard::with_straps`), so they stay measured and
+/// the true strap forces over the 0.3 s after the controller is back stay under 70 N (the
+/// issue's bound for faults of up to 1 s; 38 N on 2026-12-05). Before, the gate rejected them as
+/// spikes, and the controller, stepping on their estimates, drove the knee 0.6 rad past the
+/// leg: 127 N.
+#[test]
+fn the_controller_resumes_after_a_protective_stop_on_measured_forces() {
+    let mut s = scenario(ControllerKind::MSNMPC, 2.0, 4.5);
+    s.faults.events = fault(FaultKind::Nan, &ANGLES, 2.0, 1.5, 0.0);
+    let (_, _, _, log) = run(&s);
+    let back = log
+        .rows
+        .iter()
+        .find(|r| r.t > 3.5 && r.status == StepStatus::Ok)
+        .map(|r| r.t)
+        .expect("the controller is not back after the stop");
+    let peak = log
+        .rows
+        .iter()
+        .filter(|r| r.t >= back && r.t <= back + 0.3)
+        .map(|r| r.force_true.amax())
+        .fold(0.0, f64::max);
+    assert!(
+        peak < 70.0,
+        "peak {peak:.1} N in the 0.3 s after the controller was back at {back:.2} s"
+    );
 }
 
 /// A sine gait through the sensors' 5-sample filter: `(q, filtered qd, filtered F)` at step k.
@@ -353,6 +385,81 @@ fn each_fault_kind_is_flagged_within_its_stated_delay() {
             "{what}: flagged after {d} steps, stated {within}"
         );
     }
+}
+
+/// A strap force that follows the robot's own fast motion is no sensor fault: with the strap
+/// model (`ChannelGuard::with_straps`, as the supervisor builds it) the force gate judges the
+/// force less the robot's part of it. The robot (default straps, 2 DOF) leaves the person's
+/// gait with a jerk (its torque stepping at the rate limit: 150 rad/s² within 20 ms, for
+/// 40 ms, then braking), and the strap forces, made by the plant's strap model through the
+/// 5-sample filter, swing by some 100 N: none is rejected, while the guard without the model
+/// rejects them (the controller resuming after a protective stop at 2 kg then stepped on
+/// held forces and drove the robot on into the person: 164.9 N). A 30-N spike on the same
+/// motion is still flagged in the same sample.
+#[test]
+fn a_strap_force_that_follows_the_robots_own_motion_is_not_rejected() {
+    let dt = 0.01;
+    let straps = Straps::two_dof(0.28, 0.16, 937.5, 93.7);
+    let ks_j = straps.j * straps.stiffness;
+    let tau = straps.damping / straps.stiffness;
+    // The robot's departure from the gait (rad, rad/s) at time `t` from its start: the
+    // acceleration ramps to −150 rad/s² in 20 ms, holds, and reverses after 40 ms.
+    let departure = |t: f64| {
+        let (mut e, mut ed, h) = (0.0, 0.0, 1e-5);
+        let n = (t / h).round() as usize;
+        for i in 0..n {
+            let s = i as f64 * h;
+            let a = if s < 0.04 {
+                -150.0 * (s / 0.02).min(1.0)
+            } else if s < 0.08 {
+                150.0 * ((s - 0.04) / 0.02).min(1.0)
+            } else {
+                0.0
+            };
+            e += ed * h + 0.5 * a * h * h;
+            ed += a * h;
+        }
+        (e, ed)
+    };
+    let run = |with_straps: bool, spike_at: Option<usize>| {
+        let mut g = Gait::new();
+        let mut guard = ChannelGuard::<2>::new(dt, 5, [std::f64::consts::PI, 30.0, 70.0]);
+        if with_straps {
+            guard = guard.with_straps(ks_j, tau);
+        }
+        let mut rejected = Vec::new();
+        for k in 0..330 {
+            // The person's own force is the gait's; the robot's departure adds its part.
+            let (q_h, qd_h, f_h) = g.raw(k);
+            let (e, ed) = if k >= 300 {
+                departure((k - 300) as f64 * dt)
+            } else {
+                (0.0, 0.0)
+            };
+            // The robot departs on the knee; the person's leg is the gait.
+            let q_r = q_h + SVector::from([0.0, e]);
+            let qd_r = qd_h + SVector::from([0.0, ed]);
+            let mut f = f_h + straps.force(&(q_h - q_r), &(qd_h - qd_r));
+            if spike_at == Some(k) {
+                f[1] += 30.0;
+            }
+            let m = g.measure(k, (q_r, qd_r, f));
+            guard.repair(&m, Some(1.0), 50, None);
+            if guard.is_rejected(2, 0) || guard.is_rejected(2, 1) {
+                rejected.push(k);
+            }
+        }
+        (rejected, g.f_f.mean())
+    };
+    let (with, _) = run(true, None);
+    assert!(with.is_empty(), "forces rejected at steps {with:?}");
+    let (without, _) = run(false, None);
+    assert!(
+        !without.is_empty(),
+        "the departure must be fast enough to trip the plain force gate"
+    );
+    let (spiked, _) = run(true, Some(304));
+    assert_eq!(spiked.first(), Some(&304), "spike flagged at {spiked:?}");
 }
 
 /// A strap force that rails at full scale and comes back is a real force: the range check

@@ -5,7 +5,7 @@ use super::Measurement;
 #[cfg(not(feature = "std"))]
 use crate::math::Float;
 use alloc::{vec, vec::Vec};
-use nalgebra::SVector;
+use nalgebra::{SMatrix, SVector};
 
 /// Index of the angle, velocity and force signal of a measurement.
 const Q: usize = 0;
@@ -54,7 +54,7 @@ pub const STUCK_SPEED: f64 = 0.05;
 /// its linear extrapolation (a jump no leg can make), a velocity further than
 /// [`VELOCITY_GATE`] from the encoder's mean slope over the filter window (what a clean
 /// filtered velocity equals), a force further than [`FORCE_GATE`] from its linear
-/// extrapolation. A rejected channel is estimated: an angle by integrating its good velocity,
+/// extrapolation moved by the robot's own part of the force ([`ChannelGuard::with_straps`]). A rejected channel is estimated: an angle by integrating its good velocity,
 /// a velocity from its good angle's slope over the filter window (once the window holds
 /// accepted angles only: before that the slope spans the jump from an estimate back to the
 /// measurement, and the velocity counts as one whose angle is lost), and a channel whose partner
@@ -113,6 +113,15 @@ pub struct ChannelGuard<const N: usize> {
     /// accepted angles and its estimate has been the angle its measured velocity implies on
     /// every step since (so it is anchored to measured angles).
     q_anchored: [bool; N],
+    /// Per joint: the angle was rejected as frozen and has repeated that value since.
+    q_frozen: [bool; N],
+    /// The strap model `(ks J, τ = cs/ks)` (docs/MODEL.md §4), when known: the force gate
+    /// then judges the filtered force less the robot's own part of it
+    /// ([`ChannelGuard::with_straps`]).
+    straps: Option<(SMatrix<f64, N, N>, f64)>,
+    /// The robot's part `ks J (q̄ + τ q̇̄)` of the filtered strap forces at the last two
+    /// steps (NaN when unknown).
+    robot_force: [SVector<f64, N>; 2],
 }
 
 /// Which channels of a measurement stand in for rejected ones and must not update a
@@ -208,8 +217,57 @@ impl<const N: usize> ChannelGuard<N> {
             q_good_for: [0; N],
             qd_held_off: [0; N],
             q_anchored: [false; N],
+            q_frozen: [false; N],
             last_t: f64::NAN,
+            straps: None,
+            robot_force: [SVector::repeat(f64::NAN); 2],
         }
+    }
+
+    /// The same guard with the strap model `F = ks J (Δq + τ Δq̇)`, `Δq = q_H − q_R` (paper
+    /// eqs. 3-4): `ks_j` is `ks J`, `tau` is `cs/ks`. The force gate, the acceptance of a
+    /// rejected force and its smoothness test then judge the filtered force less the robot's
+    /// own part of it, `ks J (q̄_R + τ q̇̄_R)` averaged over the filter window (from the
+    /// measured angles), which leaves the person's part `ks J (q̄_H + τ q̇̄_H)`. Without it a
+    /// strap force that followed the robot's own fast motion (the controller resuming after a
+    /// protective stop at 2 kg, its torque stepping at the rate limit) was rejected as a
+    /// spike, and the controller, stepping on the estimate, drove the robot on into the
+    /// person (164.9 N; docs/RELIABILITY.md §2).
+    pub fn with_straps(mut self, ks_j: SMatrix<f64, N, N>, tau: f64) -> Self {
+        let ok = ks_j.iter().all(|v| v.is_finite()) && tau.is_finite() && tau >= 0.0;
+        self.straps = ok.then_some((ks_j, tau));
+        self
+    }
+
+    /// The robot's part of the filtered force of strap `s`, `Σ_{i≤s} (ks J)_{si} (q̄_i + τ
+    /// q̇̄_i)`, with this step's angles `q` (of joints `i ≤ s`) and the window's earlier
+    /// angles from the history; NaN without the strap model, or unless the angles of the
+    /// window and of the sample before it are measured (an estimate's step back to the
+    /// measurement is no motion of the robot).
+    fn robot_force(&self, q: &SVector<f64, N>, s: usize) -> f64 {
+        let Some((ks_j, tau)) = self.straps else {
+            return f64::NAN;
+        };
+        let w = self.window;
+        if self.filled < w + 1 || (0..=s).any(|i| (self.q_good_for[i] as usize) < w + 1) {
+            return f64::NAN;
+        }
+        let dt = self.dt;
+        (0..=s)
+            .map(|i| {
+                let q = |m: usize| if m == 0 { q[i] } else { self.back(Q, m)[i] };
+                let mean = (0..w).map(q).sum::<f64>() / w as f64;
+                // The window's mean velocity: central differences at its inner samples, the
+                // three-point backward difference at the newest (exact for a quadratic, five
+                // times closer than the window's secant for a cubic).
+                let rate = if w >= 3 {
+                    (4.0 * q(0) - 3.0 * q(1) + q(2) - q(w - 1) - q(w)) / (2.0 * w as f64 * dt)
+                } else {
+                    (q(0) - q(1)) / dt
+                };
+                ks_j[(s, i)] * (mean + tau * rate)
+            })
+            .sum()
     }
 
     /// Steps on which some channel was estimated.
@@ -254,6 +312,7 @@ impl<const N: usize> ChannelGuard<N> {
         // restart from this sample, as the EKF bank resumes (`EkfBank::resume_at`).
         if m.t - self.last_t > 1.5 * self.dt {
             self.filled = 0;
+            self.robot_force = [SVector::repeat(f64::NAN); 2];
         }
         self.last_t = m.t;
         let warm = self.filled > self.window + 2;
@@ -263,6 +322,7 @@ impl<const N: usize> ChannelGuard<N> {
         let mut definite = false;
         let mut longest: u64 = 0;
         let mut q_from_velocity = [false; N];
+        let mut robot_force = SVector::<f64, N>::repeat(f64::NAN);
         let mut estimated = EstimatedChannels {
             q: [false; N],
             qd: [false; N],
@@ -318,19 +378,35 @@ impl<const N: usize> ChannelGuard<N> {
                     qd.abs() > STUCK_SPEED
                 };
                 let stuck = warm && repeated && (sig != Q || moving);
+                // A strap force's extrapolation moves with the robot's own part of it (the
+                // second difference of `ks J (q̄ + τ q̇̄)` while the angles of its joints are
+                // measured, [`ChannelGuard::with_straps`]).
+                let robot_d2 = if sig == F {
+                    robot_force[j] = self.robot_force(&out[Q], j);
+                    let d2 = robot_force[j] - 2.0 * self.robot_force[0][j] + self.robot_force[1][j];
+                    if d2.is_finite() {
+                        d2
+                    } else {
+                        0.0
+                    }
+                } else {
+                    0.0
+                };
+                let p = pred[sig][j] - robot_d2;
                 let residual = if !warm {
                     0.0
                 } else if sig == QD && slope_ok {
                     // `out[Q]` is this step's accepted angle.
                     (v - self.slope(&out, j, span)).abs()
                 } else {
-                    (v - pred[sig][j]).abs()
+                    (v - p).abs()
                 };
                 let gate = self.gates[sig].max(ADAPTIVE_GATE_SIGMAS * self.res_ms[sig][j].sqrt());
                 let was_bad = self.bad_for[sig][j] > 0;
                 let smooth_now = in_range
                     && !repeated
-                    && (v - 2.0 * self.raw[sig][0][j] + self.raw[sig][1][j]).abs() < gate;
+                    && (v - 2.0 * self.raw[sig][0][j] + self.raw[sig][1][j] + robot_d2).abs()
+                        < gate;
                 // A force at full scale may be a real force of at least the range: it is
                 // accepted again as soon as it is back in range.
                 let railed = sig == F && v.is_finite() && !in_range;
@@ -363,7 +439,12 @@ impl<const N: usize> ChannelGuard<N> {
                         left
                     };
                 }
-                let good = if !in_range || stuck || held_off {
+                // An angle found frozen stays rejected while it repeats the frozen value, also
+                // where its joint pauses (the stuck test needs motion) and its estimate passes
+                // the value: a frozen encoder accepted at a turn of the hip ended the
+                // protective stop within its fault (tests/latch.rs).
+                let still_frozen = sig == Q && was_bad && self.q_frozen[j] && repeated;
+                let good = if !in_range || stuck || held_off || still_frozen {
                     false
                 } else if (was_bad && (self.railed[j] || !warm))
                     || (!was_bad && (after_rail || after_accept))
@@ -378,7 +459,7 @@ impl<const N: usize> ChannelGuard<N> {
                     let estimate = if sig == QD && slope_ok {
                         v - residual
                     } else {
-                        pred[sig][j]
+                        p
                     };
                     let resync = if sig == F {
                         resync_after.min(force_resync)
@@ -438,6 +519,7 @@ impl<const N: usize> ChannelGuard<N> {
                     longest = longest.max(age);
                 }
                 if sig == Q {
+                    self.q_frozen[j] = !good && in_range && (stuck || still_frozen);
                     // A new fault of the angle: its velocity can imply it only from a filter
                     // window of measured angles (not from one accepted between two faults),
                     // and not for a frozen angle, which may have been frozen for samples
@@ -503,6 +585,7 @@ impl<const N: usize> ChannelGuard<N> {
             }
             self.pos = (self.pos + 1) % len;
             self.filled = (self.filled + 1).min(len);
+            self.robot_force = [robot_force, self.robot_force[0]];
         }
         let encoders_good = (0..N).all(|j| self.bad_for[Q][j] == 0 && self.bad_for[QD][j] == 0);
         Repaired {

@@ -499,6 +499,36 @@ impl<const N: usize> GaitFrequency<N> {
     }
 }
 
+/// The strap model `F = ks J (Δq + τ Δq̇)` of a supervisor of `N` joints (paper eqs. 3-4,
+/// docs/MODEL.md §4): `(ks J, τ = cs/ks)`, `J(s, i) = Ls_i` for `i ≤ s` from the last `N` of
+/// `levers` (hip outwards; a missing or non-positive lever counts as 1 m, a non-positive
+/// stiffness as 1 N/m, a non-positive damping as none).
+fn strap_model<const N: usize>(
+    levers: &[f64],
+    stiffness: f64,
+    damping: f64,
+) -> (SMatrix<f64, N, N>, f64) {
+    let lever = |i: usize| {
+        let j = (levers.len() + i).checked_sub(N);
+        j.and_then(|j| levers.get(j))
+            .copied()
+            .filter(|l| l.is_finite() && *l > 0.0)
+            .unwrap_or(1.0)
+    };
+    let ks = if stiffness.is_finite() && stiffness > 0.0 {
+        stiffness
+    } else {
+        1.0
+    };
+    let j = SMatrix::<f64, N, N>::from_fn(|s, i| if i <= s { ks * lever(i) } else { 0.0 });
+    let tau = if damping.is_finite() && damping > 0.0 {
+        damping / ks
+    } else {
+        0.0
+    };
+    (j, tau)
+}
+
 /// Human-robot angle error `Δq = q_H − q_R` estimated from measured strap forces by inverting
 /// the strap model `F = ks J (Δq + τ Δqd)`, `τ = cs/ks` (paper eqs. 3-4, docs/MODEL.md §4):
 /// `u = (ks J)⁻¹ F` is the error the springs alone would need, and `Δq` follows
@@ -515,25 +545,8 @@ impl<const N: usize> StrapAngleEstimate<N> {
     /// From the strap levers (the last `N` of `levers`, hip outwards; a missing or
     /// non-positive lever counts as 1 m), stiffness, damping and control period `dt`.
     pub fn new(levers: &[f64], stiffness: f64, damping: f64, dt: f64) -> Self {
-        let lever = |i: usize| {
-            let j = (levers.len() + i).checked_sub(N);
-            j.and_then(|j| levers.get(j))
-                .copied()
-                .filter(|l| l.is_finite() && *l > 0.0)
-                .unwrap_or(1.0)
-        };
-        let ks = if stiffness.is_finite() && stiffness > 0.0 {
-            stiffness
-        } else {
-            1.0
-        };
-        let j = SMatrix::<f64, N, N>::from_fn(|s, i| if i <= s { ks * lever(i) } else { 0.0 });
+        let (j, tau) = strap_model::<N>(levers, stiffness, damping);
         let inv = j.try_inverse().unwrap_or_else(SMatrix::zeros);
-        let tau = if damping.is_finite() && damping > 0.0 {
-            damping / ks
-        } else {
-            0.0
-        };
         let alpha = if tau > 0.0 && dt.is_finite() && dt > 0.0 {
             1.0 - (-dt / tau).exp()
         } else {
@@ -787,6 +800,11 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         let force_osc = detector(mo.oscillation_force_rms_n);
         let torque_osc = detector(0.0);
         let fallback_osc = detector(mo.oscillation_torque_rms_nm);
+        let straps = strap_model::<N>(
+            &settings.strap_levers_m,
+            settings.strap_stiffness,
+            settings.strap_damping,
+        );
         let angle = StrapAngleEstimate::new(
             &settings.strap_levers_m,
             settings.strap_stiffness,
@@ -805,7 +823,8 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
                 settings.velocity_max,
                 settings.saturation_n,
             ],
-        );
+        )
+        .with_straps(straps.0, straps.1);
         let mut sup = Supervisor {
             inner,
             s: settings,
