@@ -800,6 +800,14 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         let force_osc = detector(mo.oscillation_force_rms_n);
         let torque_osc = detector(0.0);
         let fallback_osc = detector(mo.oscillation_torque_rms_nm);
+        // The force gate's robot part needs the scenario's own straps, not the stand-ins.
+        let known_straps = settings.strap_levers_m.len() >= N
+            && settings
+                .strap_levers_m
+                .iter()
+                .all(|l| l.is_finite() && *l > 0.0)
+            && settings.strap_stiffness.is_finite()
+            && settings.strap_stiffness > 0.0;
         let straps = strap_model::<N>(
             &settings.strap_levers_m,
             settings.strap_stiffness,
@@ -823,8 +831,12 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
                 settings.velocity_max,
                 settings.saturation_n,
             ],
-        )
-        .with_straps(straps.0, straps.1);
+        );
+        let guard = if known_straps {
+            guard.with_straps(straps.0, straps.1)
+        } else {
+            guard
+        };
         let mut sup = Supervisor {
             inner,
             s: settings,
