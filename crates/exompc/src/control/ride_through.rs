@@ -121,7 +121,7 @@ pub struct ChannelGuard<const N: usize> {
     straps: Option<(SMatrix<f64, N, N>, f64)>,
     /// The robot's part `ks J (q̄ + τ q̇̄)` of the filtered strap forces at the last two
     /// steps (NaN when unknown).
-    robot_force: [SVector<f64, N>; 2],
+    robot_part: [SVector<f64, N>; 2],
 }
 
 /// Which channels of a measurement stand in for rejected ones and must not update a
@@ -220,7 +220,7 @@ impl<const N: usize> ChannelGuard<N> {
             q_frozen: [false; N],
             last_t: f64::NAN,
             straps: None,
-            robot_force: [SVector::repeat(f64::NAN); 2],
+            robot_part: [SVector::repeat(f64::NAN); 2],
         }
     }
 
@@ -239,35 +239,30 @@ impl<const N: usize> ChannelGuard<N> {
         self
     }
 
-    /// The robot's part of the filtered force of strap `s`, `Σ_{i≤s} (ks J)_{si} (q̄_i + τ
-    /// q̇̄_i)`, with this step's angles `q` (of joints `i ≤ s`) and the window's earlier
-    /// angles from the history; NaN without the strap model, or unless the angles of the
-    /// window and of the sample before it are measured (an estimate's step back to the
-    /// measurement is no motion of the robot).
-    fn robot_force(&self, q: &SVector<f64, N>, s: usize) -> f64 {
-        let Some((ks_j, tau)) = self.straps else {
+    /// The robot's motion of joint `i` as the straps feel it through the filter window,
+    /// `q̄_i + τ q̇̄_i`, with this step's angle `q` and the window's earlier angles from the
+    /// history; NaN without the strap model, or unless the angles of the window and of the
+    /// sample before it are measured (an estimate's step back to the measurement is no motion
+    /// of the robot).
+    fn joint_motion(&self, q: f64, i: usize) -> f64 {
+        let Some((_, tau)) = self.straps else {
             return f64::NAN;
         };
         let w = self.window;
-        if self.filled < w + 1 || (0..=s).any(|i| (self.q_good_for[i] as usize) < w + 1) {
+        if self.filled < w + 1 || (self.q_good_for[i] as usize) < w + 1 {
             return f64::NAN;
         }
-        let dt = self.dt;
-        (0..=s)
-            .map(|i| {
-                let q = |m: usize| if m == 0 { q[i] } else { self.back(Q, m)[i] };
-                let mean = (0..w).map(q).sum::<f64>() / w as f64;
-                // The window's mean velocity: central differences at its inner samples, the
-                // three-point backward difference at the newest (exact for a quadratic, five
-                // times closer than the window's secant for a cubic).
-                let rate = if w >= 3 {
-                    (4.0 * q(0) - 3.0 * q(1) + q(2) - q(w - 1) - q(w)) / (2.0 * w as f64 * dt)
-                } else {
-                    (q(0) - q(1)) / dt
-                };
-                ks_j[(s, i)] * (mean + tau * rate)
-            })
-            .sum()
+        let q = |m: usize| if m == 0 { q } else { self.back(Q, m)[i] };
+        let mean = (0..w).map(q).sum::<f64>() / w as f64;
+        // The window's mean velocity: central differences at its inner samples, the
+        // three-point backward difference at the newest (exact for a quadratic, five times
+        // closer than the window's secant for a cubic).
+        let rate = if w >= 3 {
+            (4.0 * q(0) - 3.0 * q(1) + q(2) - q(w - 1) - q(w)) / (2.0 * w as f64 * self.dt)
+        } else {
+            (q(0) - q(1)) / self.dt
+        };
+        mean + tau * rate
     }
 
     /// Steps on which some channel was estimated.
@@ -312,7 +307,7 @@ impl<const N: usize> ChannelGuard<N> {
         // restart from this sample, as the EKF bank resumes (`EkfBank::resume_at`).
         if m.t - self.last_t > 1.5 * self.dt {
             self.filled = 0;
-            self.robot_force = [SVector::repeat(f64::NAN); 2];
+            self.robot_part = [SVector::repeat(f64::NAN); 2];
         }
         self.last_t = m.t;
         let warm = self.filled > self.window + 2;
@@ -322,7 +317,10 @@ impl<const N: usize> ChannelGuard<N> {
         let mut definite = false;
         let mut longest: u64 = 0;
         let mut q_from_velocity = [false; N];
-        let mut robot_force = SVector::<f64, N>::repeat(f64::NAN);
+        // Per joint, the robot's motion as the straps feel it, and per strap, the robot's part
+        // of the filtered force (`joint_motion`; NaN when unknown).
+        let mut motion = SVector::<f64, N>::repeat(f64::NAN);
+        let mut robot_part = SVector::<f64, N>::repeat(f64::NAN);
         let mut estimated = EstimatedChannels {
             q: [false; N],
             qd: [false; N],
@@ -382,8 +380,11 @@ impl<const N: usize> ChannelGuard<N> {
                 // second difference of `ks J (q̄ + τ q̇̄)` while the angles of its joints are
                 // measured, [`ChannelGuard::with_straps`]).
                 let robot_d2 = if sig == F {
-                    robot_force[j] = self.robot_force(&out[Q], j);
-                    let d2 = robot_force[j] - 2.0 * self.robot_force[0][j] + self.robot_force[1][j];
+                    motion[j] = self.joint_motion(out[Q][j], j);
+                    robot_part[j] = self.straps.map_or(f64::NAN, |(ks_j, _)| {
+                        (0..=j).map(|i| ks_j[(j, i)] * motion[i]).sum()
+                    });
+                    let d2 = robot_part[j] - 2.0 * self.robot_part[0][j] + self.robot_part[1][j];
                     if d2.is_finite() {
                         d2
                     } else {
@@ -585,7 +586,7 @@ impl<const N: usize> ChannelGuard<N> {
             }
             self.pos = (self.pos + 1) % len;
             self.filled = (self.filled + 1).min(len);
-            self.robot_force = [robot_force, self.robot_force[0]];
+            self.robot_part = [robot_part, self.robot_part[0]];
         }
         let encoders_good = (0..N).all(|j| self.bad_for[Q][j] == 0 && self.bad_for[QD][j] == 0);
         Repaired {

@@ -502,31 +502,34 @@ impl<const N: usize> GaitFrequency<N> {
 /// The strap model `F = ks J (Δq + τ Δq̇)` of a supervisor of `N` joints (paper eqs. 3-4,
 /// docs/MODEL.md §4): `(ks J, τ = cs/ks)`, `J(s, i) = Ls_i` for `i ≤ s` from the last `N` of
 /// `levers` (hip outwards; a missing or non-positive lever counts as 1 m, a non-positive
-/// stiffness as 1 N/m, a non-positive damping as none).
+/// stiffness as 1 N/m, a non-positive damping as none), and whether every one of those
+/// levers and the stiffness were given (no stand-in).
 fn strap_model<const N: usize>(
     levers: &[f64],
     stiffness: f64,
     damping: f64,
-) -> (SMatrix<f64, N, N>, f64) {
-    let lever = |i: usize| {
+) -> (SMatrix<f64, N, N>, f64, bool) {
+    let given: [Option<f64>; N] = core::array::from_fn(|i| {
         let j = (levers.len() + i).checked_sub(N);
         j.and_then(|j| levers.get(j))
             .copied()
             .filter(|l| l.is_finite() && *l > 0.0)
-            .unwrap_or(1.0)
-    };
-    let ks = if stiffness.is_finite() && stiffness > 0.0 {
-        stiffness
-    } else {
-        1.0
-    };
-    let j = SMatrix::<f64, N, N>::from_fn(|s, i| if i <= s { ks * lever(i) } else { 0.0 });
+    });
+    let stiffness_given = stiffness.is_finite() && stiffness > 0.0;
+    let ks = if stiffness_given { stiffness } else { 1.0 };
+    let j = SMatrix::<f64, N, N>::from_fn(|s, i| {
+        if i <= s {
+            ks * given[i].unwrap_or(1.0)
+        } else {
+            0.0
+        }
+    });
     let tau = if damping.is_finite() && damping > 0.0 {
         damping / ks
     } else {
         0.0
     };
-    (j, tau)
+    (j, tau, stiffness_given && given.iter().all(Option::is_some))
 }
 
 /// Human-robot angle error `Δq = q_H − q_R` estimated from measured strap forces by inverting
@@ -545,7 +548,7 @@ impl<const N: usize> StrapAngleEstimate<N> {
     /// From the strap levers (the last `N` of `levers`, hip outwards; a missing or
     /// non-positive lever counts as 1 m), stiffness, damping and control period `dt`.
     pub fn new(levers: &[f64], stiffness: f64, damping: f64, dt: f64) -> Self {
-        let (j, tau) = strap_model::<N>(levers, stiffness, damping);
+        let (j, tau, _) = strap_model::<N>(levers, stiffness, damping);
         let inv = j.try_inverse().unwrap_or_else(SMatrix::zeros);
         let alpha = if tau > 0.0 && dt.is_finite() && dt > 0.0 {
             1.0 - (-dt / tau).exp()
@@ -800,15 +803,7 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         let force_osc = detector(mo.oscillation_force_rms_n);
         let torque_osc = detector(0.0);
         let fallback_osc = detector(mo.oscillation_torque_rms_nm);
-        // The force gate's robot part needs the scenario's own straps, not the stand-ins.
-        let known_straps = settings.strap_levers_m.len() >= N
-            && settings
-                .strap_levers_m
-                .iter()
-                .all(|l| l.is_finite() && *l > 0.0)
-            && settings.strap_stiffness.is_finite()
-            && settings.strap_stiffness > 0.0;
-        let straps = strap_model::<N>(
+        let (ks_j, tau, known_straps) = strap_model::<N>(
             &settings.strap_levers_m,
             settings.strap_stiffness,
             settings.strap_damping,
@@ -832,8 +827,9 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
                 settings.saturation_n,
             ],
         );
+        // The force gate's robot part needs the scenario's own straps, not the stand-ins.
         let guard = if known_straps {
-            guard.with_straps(straps.0, straps.1)
+            guard.with_straps(ks_j, tau)
         } else {
             guard
         };
