@@ -260,7 +260,7 @@ fn build(s: &Experiment) -> Result<Ctrl, RunError> {
 
 #[cfg(feature = "controller-only")]
 fn build(s: &Experiment) -> Result<Ctrl, RunError> {
-    use exompc::scenario::{initial_torque, supervise};
+    use exompc::scenario::initial_torque;
     #[cfg(feature = "serial-msnmpc")]
     let (kind, builder) = (
         ControllerKind::MSNMPC,
@@ -277,10 +277,17 @@ fn build(s: &Experiment) -> Result<Ctrl, RunError> {
             s.controller.kind
         ));
     }
-    Ok(supervise::<TwoDof, 2>(
-        s,
-        builder(s, initial_torque::<TwoDof, 2>(s))?,
-    ))
+    let inner = builder(s, initial_torque::<TwoDof, 2>(s))?;
+    Ok(supervised(s, inner))
+}
+
+/// The supervisor around the built controller, in a frame of its own: inlined into `build`,
+/// its locals would sit under the builder's for the whole construction (the image's stack
+/// peak, docs/EMBEDDED.md).
+#[cfg(feature = "controller-only")]
+#[inline(never)]
+fn supervised(s: &Experiment, inner: alloc::boxed::Box<dyn Controller<2>>) -> Ctrl {
+    exompc::scenario::supervise::<TwoDof, 2>(s, inner)
 }
 
 fn hex32(text: &str) -> Option<[u8; 32]> {

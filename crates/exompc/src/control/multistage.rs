@@ -6,6 +6,7 @@ use super::nmpc::{classify, horizon_inputs, NmpcCore};
 use super::nmpc_problem::{NmpcProblem, NmpcSettings};
 use super::ocp_tree::{tree_is_structured, TreeSqp};
 use super::prediction::{HorizonInputs, PredictionModel};
+use super::ride_through::ChannelGuard;
 #[cfg(doc)]
 use super::robust::RobustTuning;
 use super::robust::{IntentEstimate, RobustSettings, RobustState};
@@ -338,6 +339,93 @@ pub struct MultiStageOptions {
     pub parallel: bool,
 }
 
+/// Steps of estimated strap forces during which `d̂` is held before its replay begins
+/// (`MultiStage::replay_disturbance`): a force rejected for a few steps (a gate's jolt, the
+/// ramp into a rail) keeps `d̂`.
+const REPLAY_AFTER_STEPS: u32 = 5;
+
+/// Spacing (s) of the slots of the `d̂` history ([`DisturbanceReplay`]); the replay reads
+/// between them by linear interpolation. `d̂` follows the gait (about 1 Hz), so 40 ms slots
+/// keep it to about 1 % of its swing while the history of both banks fits the Cortex-M7's
+/// RAM (docs/EMBEDDED.md).
+const REPLAY_STRIDE_S: f64 = 0.04;
+
+/// The disturbance estimates `d̂ᵢ` of the EKF banks over the last
+/// [`ChannelGuard::HISTORY_S`], per bank (the main one, the robust method's disturbance bank)
+/// and scenario, one slot every [`REPLAY_STRIDE_S`] in `f32`, for the replay of one gait
+/// period back while the strap forces are estimated.
+#[derive(Clone, Debug)]
+struct DisturbanceReplay<const N: usize> {
+    /// `ring[b][i * len + j % len]`: bank `b`, scenario `i`, the `d̂` recorded at step
+    /// `j * stride` of the history (the second bank's ring is allocated with that bank,
+    /// `with_robust`).
+    ring: [Vec<SVector<f32, N>>; 2],
+    len: usize,
+    /// Steps per slot.
+    stride: usize,
+    /// Steps recorded since the history (re)started.
+    count: usize,
+    /// Replay offset per bank and scenario (NaN: not replaying).
+    offset: [Vec<SVector<f64, N>>; 2],
+}
+
+impl<const N: usize> DisturbanceReplay<N> {
+    fn new(scenarios: usize, dt: f64) -> Self {
+        let dt = if dt.is_finite() && dt > 0.0 { dt } else { 0.01 };
+        let stride = ((REPLAY_STRIDE_S / dt).round() as usize).clamp(1, 1 << 10);
+        let steps = ((ChannelGuard::<N>::HISTORY_S / dt).ceil() as usize).clamp(8, 1 << 16);
+        let len = steps.div_ceil(stride) + 1;
+        let ring = vec![SVector::zeros(); len * scenarios];
+        let offset = vec![SVector::repeat(f64::NAN); scenarios];
+        DisturbanceReplay {
+            ring: [ring, Vec::new()],
+            len,
+            stride,
+            count: 0,
+            offset: [offset.clone(), offset],
+        }
+    }
+
+    /// Allocate the second bank's ring (its history starts with the first bank's).
+    fn add_second_bank(&mut self) {
+        self.ring[1] = self.ring[0].clone();
+    }
+
+    /// Whether `d̂` of `k` steps back can be read by [`Self::back`]: within the history and
+    /// older than the last slot (`k > stride`).
+    fn holds(&self, k: usize) -> bool {
+        if k <= self.stride || k > self.count {
+            return false;
+        }
+        let last = (self.count - 1) / self.stride;
+        let first = (last + 1).saturating_sub(self.len);
+        self.count - k >= first * self.stride
+    }
+
+    /// `d̂` of bank `b`, scenario `i`, `k` steps back (1: the last recorded), interpolated
+    /// between its slots; `k` must satisfy [`Self::holds`].
+    fn back(&self, b: usize, i: usize, k: usize) -> SVector<f64, N> {
+        let t = self.count - k;
+        let (j, f) = (
+            t / self.stride,
+            (t % self.stride) as f64 / self.stride as f64,
+        );
+        let slot = |j: usize| self.ring[b][i * self.len + j % self.len].cast::<f64>();
+        if f == 0.0 {
+            slot(j)
+        } else {
+            slot(j) * (1.0 - f) + slot(j + 1) * f
+        }
+    }
+
+    /// Record `d̂` of bank `b`, scenario `i` for this step (kept at the slot steps only).
+    fn record(&mut self, b: usize, i: usize, d: &SVector<f64, N>) {
+        if self.count.is_multiple_of(self.stride) {
+            self.ring[b][i * self.len + (self.count / self.stride) % self.len] = d.cast::<f32>();
+        }
+    }
+}
+
 /// The multi-stage robust NMPC controller of paper §3.2.
 ///
 /// Each step: the EKF bank is advanced with `y = [q, qd]`, `T(k−1)` and the filtered strap
@@ -382,6 +470,13 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     /// The previous step's measurement had estimated channels: the banks resume at this
     /// step's measurement.
     was_estimating: bool,
+    /// This step's strap forces are estimates, and the gait period in steps if known.
+    forces_estimated: bool,
+    /// Consecutive steps with estimated strap forces (the replay waits `REPLAY_AFTER_STEPS`).
+    forces_estimated_for: u32,
+    period: Option<usize>,
+    /// `d̂` carried by the gait while the forces are estimated (`replay_disturbance`).
+    replay: DisturbanceReplay<N>,
     /// This step's measurement ends estimates handed over as measurements
     /// ([`EstimatedChannels::resume`]): the banks resume at it.
     resuming: bool,
@@ -442,6 +537,7 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             ),
         };
         let s = models.len();
+        let replay = DisturbanceReplay::new(s, models[0].dt);
         let empty = HorizonInputs {
             q_h: zero,
             qd_h: zero,
@@ -466,6 +562,10 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             estimating: false,
             measured: [true; NY],
             was_estimating: false,
+            forces_estimated: false,
+            forces_estimated_for: 0,
+            period: None,
+            replay,
             resuming: false,
             robust: None,
             dbank: None,
@@ -493,6 +593,9 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             // The settings passed the paper's bank's checks in `new`, and `q_disturbance` is
             // positive, so this succeeds.
             self.dbank = EkfBank::new(&robots, &ekf, &self.estimator, &zero, &zero).ok();
+            if self.dbank.is_some() {
+                self.replay.add_second_bank();
+            }
         }
         let tuning = &settings.tuning;
         if r.gated() && tuning.inertia_engage_ratio > 0.0 {
@@ -784,6 +887,13 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     /// predict without an update, `d̂` and the probabilities held through the fault).
     fn mark_estimated(&mut self, estimated: &EstimatedChannels<N>) {
         let force = estimated.force.iter().any(|&e| e);
+        self.forces_estimated = force;
+        self.forces_estimated_for = if force {
+            self.forces_estimated_for.saturating_add(1)
+        } else {
+            0
+        };
+        self.period = estimated.period;
         self.estimating = estimated.any();
         self.resuming = estimated.resume;
         for a in 0..N {
@@ -791,10 +901,76 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             self.measured[N + a] = !estimated.qd[a] && !force;
         }
     }
+
+    /// While the strap forces are estimated (the filters then predict without an update, so
+    /// `d̂ᵢ` would stay where the fault found it) for more than [`REPLAY_AFTER_STEPS`] and the
+    /// gait period `p` is known: every bank's `d̂ᵢ` replays the gait one period back,
+    /// `d̂ᵢ(k) = d̂ᵢ(k − p) + d̂ᵢ(k₀ − 1) − d̂ᵢ(k₀ − 1 − p)` (`k₀` the replay's first step).
+    /// `d̂ᵢ` carries the model's error along the gait (beyond the scenarios' payloads it
+    /// changes by up to 0.7 N·m per step), and the held value drove the robot away from the
+    /// leg (issue 28, docs/RELIABILITY.md §2a); over the first steps it is held: a force
+    /// rejected for a few steps (a gate's jolt, the ramp into a rail) is no gait to replay.
+    // Out of line: kept out of `step`'s stack frame (the Cortex-M7 image's stack peak).
+    #[inline(never)]
+    fn replay_disturbance(&mut self) {
+        if !self.forces_estimated {
+            self.forces_estimated_for = 0;
+        }
+        let r = &mut self.replay;
+        let p = match self.period {
+            Some(p)
+                if self.forces_estimated
+                    && self.forces_estimated_for > REPLAY_AFTER_STEPS
+                    && r.holds(p + 1) =>
+            {
+                p
+            }
+            _ => {
+                for o in r.offset.iter_mut() {
+                    o.fill(SVector::repeat(f64::NAN));
+                }
+                return;
+            }
+        };
+        for b in 0..2 {
+            let bank = match b {
+                0 => &mut self.bank,
+                _ => match self.dbank.as_mut() {
+                    Some(d) => d,
+                    None => continue,
+                },
+            };
+            for i in 0..bank.len() {
+                if !r.offset[b][i].iter().all(|v| v.is_finite()) {
+                    r.offset[b][i] = bank.disturbance(i) - r.back(b, i, p + 1);
+                }
+                bank.set_disturbance(i, &(r.back(b, i, p) + r.offset[b][i]));
+            }
+        }
+    }
+
+    /// Record this step's `d̂ᵢ` of every bank for `replay_disturbance`; after skipped periods
+    /// the history restarts (it is no longer one sample per period).
+    // Out of line, as `replay_disturbance`.
+    #[inline(never)]
+    fn record_disturbance(&mut self, skipped: bool) {
+        let r = &mut self.replay;
+        if skipped {
+            r.count = 0;
+        }
+        for i in 0..self.bank.len() {
+            r.record(0, i, &self.bank.disturbance(i));
+            if let Some(d) = self.dbank.as_ref() {
+                r.record(1, i, &d.disturbance(i));
+            }
+        }
+        r.count = r.count.saturating_add(1);
+    }
 }
 
 impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiStage<N, NA, NY> {
-    /// One control step in named steps: `advance_banks` (EKF banks), `start_state`,
+    /// One control step in named steps: `replay_disturbance` (while the forces are
+    /// estimated), `advance_banks` (EKF banks), `record_disturbance`, `start_state`,
     /// `scenario_inputs`, `update_weights`, then the coupled solve (`CoupledCore::first_torque`)
     /// or every scenario's (`solve_scenarios`) blended by eq. 13 (`blend_increments`), and the
     /// hard limits of eqs. 8-9.
@@ -802,7 +978,10 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
         if !m.is_finite() {
             return self.hold(StepStatus::BadMeasurement);
         }
+        let skipped = self.started && m.t - self.last_t > 1.5 * self.models[0].dt;
+        self.replay_disturbance();
         let gap = self.advance_banks(m);
+        self.record_disturbance(skipped);
         let (x0, mi, stretch) = self.start_state(m, gap);
         self.scenario_inputs(m, mi, stretch);
         self.update_weights();
@@ -891,7 +1070,57 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
         self.mark_estimated(estimated);
         let out = self.step(m);
         self.estimating = false;
+        self.forces_estimated = false;
+        self.period = None;
         self.resuming = false;
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The slotted `f32` history reads a gait-like `d̂` (1 Hz and its second harmonic, N·m)
+    /// back to within 1.5 % of its swing at every lag it holds, and says which lags it holds.
+    #[test]
+    fn the_disturbance_history_reads_back_between_its_slots() {
+        let dt = 0.01;
+        let d = |k: usize| {
+            let t = k as f64 * dt;
+            let w = core::f64::consts::TAU;
+            SVector::<f64, 2>::from([
+                8.0 * (w * t).sin() + 2.0 * (2.0 * w * t + 0.3).cos(),
+                -3.0 + 5.0 * (w * t - 1.0).cos(),
+            ])
+        };
+        let mut r = DisturbanceReplay::<2>::new(3, dt);
+        assert_eq!(r.stride, 4);
+        r.add_second_bank();
+        let steps = 1000;
+        for k in 0..steps {
+            for b in 0..2 {
+                for i in 0..3 {
+                    r.record(b, i, &(d(k) * (1.0 + (b + i) as f64)));
+                }
+            }
+            r.count += 1;
+        }
+        let history = (ChannelGuard::<2>::HISTORY_S / dt).round() as usize;
+        assert!(!r.holds(r.stride) && r.holds(r.stride + 1));
+        assert!(r.holds(history) && !r.holds(history + 2 * r.stride));
+        for k in (r.stride + 1)..=history {
+            for (b, i) in [(0, 0), (1, 2)] {
+                let scale = 1.0 + (b + i) as f64;
+                let err = r.back(b, i, k) - d(steps - k) * scale;
+                assert!(
+                    err.amax() <= 0.015 * 10.0 * scale,
+                    "bank {b}, scenario {i}, {k} back: {err:?}"
+                );
+            }
+        }
+        // A restarted history holds nothing until it has recorded past the lag.
+        r.count = 0;
+        assert!(!r.holds(r.stride + 1));
     }
 }

@@ -135,6 +135,8 @@ pub struct EstimatedChannels<const N: usize> {
     pub qd: [bool; N],
     /// Per strap: the force is an estimate.
     pub force: [bool; N],
+    /// The gait period in control steps, when the guard knows it (the lag of its replay).
+    pub period: Option<usize>,
     /// An angle that stood in for a rejected one as a measurement (implied by its measured
     /// velocity, [`Repaired::q_from_velocity`]) is measured again, further than its gate from
     /// the implied angle's extrapolation (up to [`ACCEPT_GATES`] gates, or any distance when
@@ -325,6 +327,7 @@ impl<const N: usize> ChannelGuard<N> {
             q: [false; N],
             qd: [false; N],
             force: [false; N],
+            period: None,
             resume: false,
         };
         let period = period_s
@@ -575,6 +578,7 @@ impl<const N: usize> ChannelGuard<N> {
                 }
             }
         }
+        estimated.period = period;
         let ready = self.filled > 0 || !any;
         if any {
             self.estimated_steps += 1;
@@ -708,25 +712,30 @@ pub struct TorqueExtrapolation<const N: usize> {
 
 impl<const N: usize> TorqueExtrapolation<N> {
     /// Fits the extrapolation to the rings `torques` (applied torques) and `angles` (the
-    /// angles of the same steps), `pos` the next slot to write, `filled` the samples held,
-    /// `dt` the control period; `None` when the history is too short, the angles do not
-    /// oscillate at a gait frequency in [[`EXTRAPOLATION_MIN_HZ`], [`EXTRAPOLATION_MAX_HZ`]], or the
-    /// fit is not finite.
+    /// angles of the same steps; at least [`EXTRAPOLATION_ANGLE_S`] long), `torque_pos` and
+    /// `angle_pos` the next slot to write in each, `filled` the samples held, `dt` the control
+    /// period; `None` when the history is too short, the angles do not oscillate at a gait
+    /// frequency in [[`EXTRAPOLATION_MIN_HZ`], [`EXTRAPOLATION_MAX_HZ`]], or the fit is not
+    /// finite.
     pub fn fit(
         torques: &[SVector<f64, N>],
+        torque_pos: usize,
         angles: &[SVector<f64, N>],
-        pos: usize,
+        angle_pos: usize,
         filled: usize,
         dt: f64,
     ) -> Option<Self> {
-        let len = torques.len().min(angles.len());
-        if len == 0 || !(dt.is_finite() && dt > 0.0) {
+        if torques.is_empty() || angles.is_empty() || !(dt.is_finite() && dt > 0.0) {
             return None;
         }
-        let filled = filled.min(len);
+        let filled = filled.min(torques.len());
         // `i` steps back (1 = the last sample).
-        let back = |ring: &[SVector<f64, N>], i: usize| ring[(pos + len - i % len) % len];
-        let omega = Self::gait_omega(|i| back(angles, i), filled, dt)?;
+        let back = |ring: &[SVector<f64, N>], pos: usize, i: usize| {
+            let len = ring.len();
+            ring[(pos % len + len - i % len) % len]
+        };
+        let back_t = |i: usize| back(torques, torque_pos, i);
+        let omega = Self::gait_omega(|i| back(angles, angle_pos, i), filled.min(angles.len()), dt)?;
         let n = ((EXTRAPOLATION_FIT_S / dt).round() as usize).min(filled);
         if (n as f64) * dt < EXTRAPOLATION_MIN_S - 1e-9 {
             return None;
@@ -743,7 +752,7 @@ impl<const N: usize> TorqueExtrapolation<N> {
         let mut b = [[0.0; N]; 5];
         for i in 1..=n {
             let x = feats(-(i as f64) * dt);
-            let t = back(torques, i);
+            let t = back_t(i);
             for r in 0..5 {
                 for c in 0..5 {
                     a[r][c] += x[r] * x[c];
@@ -763,7 +772,7 @@ impl<const N: usize> TorqueExtrapolation<N> {
             *cj = solve5(a, rhs)?;
         }
         let x = feats(-dt);
-        let last = back(torques, 1);
+        let last = back_t(1);
         let offset = SVector::from_fn(|j, _| {
             last[j] - coef[j].iter().zip(&x).map(|(c, x)| c * x).sum::<f64>()
         });

@@ -1,7 +1,7 @@
 //! Runtime safety supervision around any controller: see [`Supervisor`].
 
 use super::highpass::HighPass;
-use super::ride_through::{ChannelGuard, TorqueExtrapolation};
+use super::ride_through::{ChannelGuard, TorqueExtrapolation, EXTRAPOLATION_ANGLE_S};
 use super::{
     ControlOutput, Controller, EstimatedChannels, FallbackSettings, Measurement, StepStatus,
     TorqueLimits, Transparent,
@@ -754,9 +754,11 @@ pub struct Supervisor<const N: usize, C> {
     /// Applied torques of the last [`ChannelGuard::HISTORY_S`] (ring, allocated once), for
     /// the torque replay while every encoder channel is lost.
     torque_hist: Vec<SVector<f64, N>>,
-    /// The angles the controller stepped on, aligned with `torque_hist` (the gait frequency
-    /// of the torque extrapolation before a gait period is known).
+    /// The angles the controller stepped on over the last [`EXTRAPOLATION_ANGLE_S`] (ring,
+    /// advanced with `torque_hist`): the gait frequency of the torque extrapolation before a
+    /// gait period is known.
     angle_hist: Vec<SVector<f64, N>>,
+    angle_pos: usize,
     torque_pos: usize,
     torque_filled: usize,
     /// The torque extrapolation while every encoder channel is lost before the gait period
@@ -818,6 +820,8 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         let cutoff_hz = settings.monitors.oscillation_cutoff_hz;
         let hist_len = ((ChannelGuard::<N>::HISTORY_S / settings.dt.max(1e-6)).ceil() as usize)
             .clamp(8, 1 << 16);
+        let angle_len = ((EXTRAPOLATION_ANGLE_S / settings.dt.max(1e-6)).ceil() as usize + 2)
+            .clamp(8, hist_len);
         let guard = ChannelGuard::new(
             settings.dt,
             settings.filter_window,
@@ -862,7 +866,8 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
                 ..Default::default()
             },
             torque_hist: vec![SVector::zeros(); hist_len],
-            angle_hist: vec![SVector::zeros(); hist_len],
+            angle_hist: vec![SVector::zeros(); angle_len],
+            angle_pos: 0,
             torque_pos: 0,
             torque_filled: 0,
             extrapolation: None,
@@ -948,6 +953,10 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             self.torque_hist[self.torque_pos] = t;
             self.torque_pos = (self.torque_pos + 1) % len;
             self.torque_filled = (self.torque_filled + 1).min(len);
+            // No angles were measured in the gap: the last one stands in.
+            let alen = self.angle_hist.len();
+            self.angle_hist[self.angle_pos] = self.angle_hist[(self.angle_pos + alen - 1) % alen];
+            self.angle_pos = (self.angle_pos + 1) % alen;
         }
     }
 
@@ -1322,8 +1331,9 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         if replay_period.is_none() && coast && !self.coasting && !gap {
             self.extrapolation = TorqueExtrapolation::fit(
                 &self.torque_hist,
-                &self.angle_hist,
                 self.torque_pos,
+                &self.angle_hist,
+                self.angle_pos,
                 self.torque_filled,
                 self.dt(),
             );
@@ -1381,8 +1391,9 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         let torque = self.s.limits.clamp(&prev, &desired);
         let len = self.torque_hist.len();
         self.torque_hist[self.torque_pos] = torque;
-        self.angle_hist[self.torque_pos] = m.q;
         self.torque_pos = (self.torque_pos + 1) % len;
+        self.angle_hist[self.angle_pos] = m.q;
+        self.angle_pos = (self.angle_pos + 1) % self.angle_hist.len();
         self.torque_filled = (self.torque_filled + 1).min(len);
         self.prev = torque;
         if valid && !rep.any_rejected && !tripped && !self.coasting && self.handback == 0 {

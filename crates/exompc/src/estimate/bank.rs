@@ -199,6 +199,14 @@ impl<const N: usize, const NA: usize, const NY: usize> EkfBank<N, NA, NY> {
         self.filters.iter_mut().for_each(|f| f.resume_at(q, qd));
     }
 
+    /// Overwrite scenario `i`'s disturbance estimate ([`ScenarioEkf::set_disturbance`]); an
+    /// index out of range is ignored.
+    pub fn set_disturbance(&mut self, i: usize, d: &SVector<f64, N>) {
+        if let Some(f) = self.filters.get_mut(i) {
+            f.set_disturbance(d);
+        }
+    }
+
     /// One period for every scenario (arguments as in [`ScenarioEkf::step`]), then the
     /// probability update of eqs. 10-11.
     ///

@@ -161,6 +161,21 @@ impl<const N: usize, const NA: usize, const NY: usize> ScenarioEkf<N, NA, NY> {
         self.last = None;
     }
 
+    /// Overwrite the disturbance estimate `d̂` (N·m), keeping the joint states and the
+    /// covariance: `d̂` carried by the gait while its measurement input (the strap force) is
+    /// an estimate (`control/multistage.rs`). A non-finite `d` is ignored.
+    pub fn set_disturbance(&mut self, d: &SVector<f64, N>) {
+        if !d.iter().all(|v| v.is_finite()) {
+            return;
+        }
+        let mut x = *self.ekf.state();
+        for i in 0..N {
+            x[2 * N + i] = d[i];
+        }
+        let p = *self.ekf.covariance();
+        self.ekf.set(x, p);
+    }
+
     /// The scenario's robot model.
     pub fn model(&self) -> &RobotModel<N> {
         &self.model
