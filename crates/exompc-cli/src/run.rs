@@ -235,8 +235,8 @@ pub fn describe_safety(sa: &exompc::sim::SafetySummary) -> String {
     }
     if sa.fallback_stops > 0 {
         out += &format!(
-            "\n    fallback stops {}: the transparent fallback oscillated and the protective \
-             stop replaced it",
+            "\n    fallback stops {}: the transparent fallback failed (oscillated or diverged) and \
+             the protective stop replaced it",
             sa.fallback_stops
         );
     }

@@ -86,8 +86,8 @@ fn safety_reasons(s: &SafetySummary, steps: u64, holds_expected: bool) -> Vec<St
     }
     if s.fallback_stops > 0 {
         r.push(format!(
-            "the transparent fallback oscillated and was replaced by the protective stop \
-             {} times",
+            "the transparent fallback failed (oscillated or diverged) and was replaced by the \
+             protective stop {} times",
             s.fallback_stops
         ));
     }

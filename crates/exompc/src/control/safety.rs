@@ -234,6 +234,11 @@ pub enum MonitorKind {
     ForceOscillation,
     /// Torque RMS above the cutoff over the window `> oscillation_torque_rms_nm`.
     TorqueOscillation,
+    /// The transparent fallback's demanded torque moved by more than
+    /// [`FALLBACK_DEMAND_JUMP`] × the rate limit in one period, to beyond
+    /// [`FALLBACK_DEMAND_BEYOND`] × the torque limit (in [`MonitorAction::Stop`] events only:
+    /// a check of the fallback, not a monitor of the controller).
+    FallbackDemand,
 }
 
 const MONITORS: [MonitorKind; 5] = [
@@ -247,6 +252,20 @@ const MONITORS: [MonitorKind; 5] = [
 /// A strap force reading full scale this long (s) trips the sensor-timeout monitor, with the
 /// configured response (the limit of such readings before issue 28).
 pub const RAILED_TIMEOUT_S: f64 = 0.05;
+
+/// A transparent fallback whose demanded torque moves by more than this many times the rate
+/// limit `ΔT_max` in one period, to beyond [`FALLBACK_DEMAND_BEYOND`] × the torque limit, is
+/// diverging (issue 28): the actuator cannot follow such a demand, and it comes from the
+/// fallback's estimate of the human motion (differentiated twice) feeding on the robot's own
+/// acceleration. Measured on 2026-12-05: the fallback's demand moves by at most 3.4 × on the
+/// hard cells at 3 kg (`tests/response_paths.rs`); in the envelope's 1.3-Hz gait at 3 kg
+/// (beyond the actuator) by up to 6.7 ×, to at most 1.3 × the limit; where it diverged after a
+/// 1-s spike of both forces at 0 kg, by 4.6 ×, to 1.75 × (docs/RELIABILITY.md §2).
+pub const FALLBACK_DEMAND_JUMP: f64 = 4.0;
+
+/// The torque-limit multiple a diverging fallback's demand lands beyond
+/// ([`FALLBACK_DEMAND_JUMP`]).
+pub const FALLBACK_DEMAND_BEYOND: f64 = 1.5;
 
 /// Indices of the oscillation monitors in [`MONITORS`].
 const OSCILLATION: [usize; 2] = [3, 4];
@@ -594,11 +613,13 @@ pub enum MonitorAction {
     /// The latch was reset ([`Supervisor::reset_latch`]); the controller resumes once no
     /// monitor is tripped (`monitor` is the one that latched, `value` 0).
     Reset,
-    /// The transparent fallback oscillated (its torque above `oscillation_torque_rms_nm`
-    /// above [`FALLBACK_OSCILLATION_GAIT_RATIO`] × the gait frequency, after it had had the
-    /// torque for `oscillation_window_s`): the protective stop (the ramp to zero at
-    /// [`STOP_RAMP_NM_PER_S`]) replaces it until every monitor has cleared (`monitor` is
-    /// [`MonitorKind::TorqueOscillation`], `value` the torque's RMS over the window, N·m).
+    /// The transparent fallback failed: the protective stop (the ramp to zero at
+    /// [`STOP_RAMP_NM_PER_S`]) replaces it until every monitor has cleared. It oscillated
+    /// (its torque above `oscillation_torque_rms_nm` above [`FALLBACK_OSCILLATION_GAIT_RATIO`]
+    /// × the gait frequency, after it had had the torque for `oscillation_window_s`; `monitor`
+    /// is [`MonitorKind::TorqueOscillation`], `value` the torque's RMS over the window, N·m),
+    /// or its demand diverged (`monitor` is [`MonitorKind::FallbackDemand`], `value` the
+    /// demand's move over one period, N·m).
     Stop,
 }
 
@@ -634,8 +655,8 @@ pub struct SafetyReport {
     /// (a tracking-error, strap-force or oscillation monitor tripped while none of them was;
     /// several tripping together make one handover; sensor timeouts do not count).
     pub handovers: u64,
-    /// Times the transparent fallback oscillated and the protective stop replaced it
-    /// ([`MonitorAction::Stop`]).
+    /// Times the transparent fallback failed (oscillated or diverged) and the protective stop
+    /// replaced it ([`MonitorAction::Stop`]).
     pub fallback_stops: u64,
     /// Supervisor time (s) at which it latched (`[monitors] latch_trips`), `None` when it has
     /// not, or when the latch was reset since.
@@ -765,6 +786,12 @@ pub struct Supervisor<const N: usize, C> {
     /// is known (`None`: hold the torque), and the steps since it began.
     extrapolation: Option<TorqueExtrapolation<N>>,
     extrapolated_steps: u32,
+    /// The transparent fallback's demanded torque of the previous step while it had the
+    /// torque (the divergence check of `watch_fallback`).
+    fallback_demand: Option<SVector<f64, N>>,
+    /// The previous step fed the fallback a measurement (it restarts when fed again after
+    /// steps without one).
+    fallback_fed: bool,
     /// The current coast began with a stalled acquisition ([`Repaired::stalled`](super::Repaired::stalled)).
     stall_coast: bool,
     /// The torque replay had the torque on the previous step.
@@ -781,7 +808,7 @@ pub struct Supervisor<const N: usize, C> {
     /// its cut-off now (Hz): the fallback's own oscillation (`watch_fallback`).
     fallback_osc: OscillationDetector<N>,
     fallback_cutoff_hz: f64,
-    /// The fallback oscillated: the protective stop has the torque until the monitors clear.
+    /// The fallback failed: the protective stop has the torque until the monitors clear.
     fallback_failed: bool,
 }
 
@@ -868,6 +895,8 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             torque_hist: vec![SVector::zeros(); hist_len],
             angle_hist: vec![SVector::zeros(); angle_len],
             angle_pos: 0,
+            fallback_demand: None,
+            fallback_fed: false,
             torque_pos: 0,
             torque_filled: 0,
             extrapolation: None,
@@ -895,17 +924,23 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             .map(|p| p as usize)
     }
 
-    /// The fallback's own oscillation (issue 28): once the transparent fallback has had the
-    /// torque for `oscillation_window_s` (the window then holds its torques only), a torque
-    /// oscillating above `oscillation_torque_rms_nm` well above the gait (its content above
-    /// [`FALLBACK_OSCILLATION_GAIT_RATIO`] × the gait frequency, swinging across ± that
-    /// threshold at least [`OSCILLATION_MIN_HALF_CYCLES`] times in the window: a fast gait's
-    /// torque at its limits is no oscillation; not before the gait frequency is known) hands
-    /// the torque to the protective stop until no monitor is tripped (`responding`: the
-    /// configured response has the torque).
-    fn watch_fallback(&mut self, responding: bool, now: f64) {
+    /// The fallback's own failure (issue 28), with the torque `responding` (the configured
+    /// response has it) and `demand` its demanded torque this step:
+    /// - it diverges: its demand moves by more than [`FALLBACK_DEMAND_JUMP`] × the rate limit
+    ///   in one period, to beyond [`FALLBACK_DEMAND_BEYOND`] × the torque limit (from its
+    ///   second step with the torque on);
+    /// - it oscillates: once it has had the torque for `oscillation_window_s` (the window then
+    ///   holds its torques only), its torque oscillates above `oscillation_torque_rms_nm` well
+    ///   above the gait (its content above [`FALLBACK_OSCILLATION_GAIT_RATIO`] × the gait
+    ///   frequency, swinging across ± that threshold at least [`OSCILLATION_MIN_HALF_CYCLES`]
+    ///   times in the window: a fast gait's torque at its limits is no oscillation; not before
+    ///   the gait frequency is known).
+    ///
+    /// Either hands the torque to the protective stop until no monitor is tripped.
+    fn watch_fallback(&mut self, responding: bool, demand: Option<SVector<f64, N>>, now: f64) {
         let mo = &self.s.monitors;
         if !responding || mo.response != MonitorResponse::Fallback || self.fallback.is_none() {
+            self.fallback_demand = None;
             if !self.is_tripped() && !self.latched {
                 self.fallback_since = None;
                 self.fallback_failed = false;
@@ -913,19 +948,33 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             return;
         }
         let since = *self.fallback_since.get_or_insert(now);
-        if !self.fallback_failed
-            && self.gait.frequency(now).is_some()
+        let jump = match (self.fallback_demand, demand) {
+            (Some(p), Some(d)) => (d - p).amax(),
+            _ => 0.0,
+        };
+        self.fallback_demand = demand;
+        if self.fallback_failed {
+            return;
+        }
+        let beyond = demand.is_some_and(|d| d.amax() > FALLBACK_DEMAND_BEYOND * self.s.limits.max);
+        let failure = if beyond && jump > FALLBACK_DEMAND_JUMP * self.s.limits.rate {
+            Some((MonitorKind::FallbackDemand, jump))
+        } else if self.gait.frequency(now).is_some()
             && now - since >= mo.oscillation_window_s - 1e-9
             && self
                 .fallback_osc
                 .is_oscillating(mo.oscillation_torque_rms_nm, OSCILLATION_MIN_HALF_CYCLES)
         {
+            Some((MonitorKind::TorqueOscillation, self.fallback_osc.rms_max()))
+        } else {
+            None
+        };
+        if let Some((monitor, value)) = failure {
             self.fallback_failed = true;
             self.report.fallback_stops += 1;
-            let value = self.fallback_osc.rms_max();
             self.log(MonitorEvent {
                 t: now,
-                monitor: MonitorKind::TorqueOscillation,
+                monitor,
                 action: MonitorAction::Stop,
                 value,
             });
@@ -1247,12 +1296,22 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             self.last_t = m.t;
         }
         if let Some(fb) = self.fallback.as_mut() {
-            if gap {
+            // Only measured angles (or the angle a measured velocity implies): the fallback
+            // differentiates them twice, and an estimate's step where the measurement returns
+            // would be an acceleration no leg made.
+            let angles_measured = (rep.estimated.q.iter())
+                .zip(&rep.q_from_velocity)
+                .all(|(&e, &v)| !e || v);
+            let feed = (valid && angles_measured) || (railed && rep.encoders_good);
+            // After a gap, or steps it was not fed (encoders lost), its finite differences and
+            // fits would span the missing samples as if they were one period.
+            if gap || (feed && !self.fallback_fed) {
                 fb.restart();
             }
+            self.fallback_fed = feed;
             if valid && !rep.any_rejected {
                 fb.observe(m, &prev);
-            } else if valid {
+            } else if valid && angles_measured {
                 // Estimated channels: the payload estimate stays frozen.
                 fb.observe_encoders(m, &prev);
             } else if railed && rep.encoders_good {
@@ -1267,11 +1326,12 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         // The ramp to zero (`ramp_to_zero`, the protective stop) at `STOP_RAMP_NM_PER_S`.
         let step = STOP_RAMP_NM_PER_S * self.dt();
         let toward_zero = prev - prev.map(|v| v.clamp(-step, step));
-        self.watch_fallback(tripped && !stop, now);
-        let response = match (self.s.monitors.response, &self.fallback) {
+        let demand = self.fallback.as_ref().map(|fb| fb.torque());
+        self.watch_fallback(tripped && !stop, demand, now);
+        let response = match (self.s.monitors.response, demand) {
             _ if stop || self.fallback_failed => toward_zero,
             (MonitorResponse::Hold, _) => self.last_safe,
-            (MonitorResponse::Fallback, Some(fb)) => fb.torque(),
+            (MonitorResponse::Fallback, Some(d)) => d,
             (MonitorResponse::RampToZero | MonitorResponse::Fallback, _) => toward_zero,
         };
         let (desired, mut status, iterations) = if valid {

@@ -38,9 +38,9 @@ pub struct SafetySummary {
     /// what counts toward the latch.
     #[serde(default)]
     pub handovers: u64,
-    /// Times the transparent fallback oscillated (its torque above
-    /// `oscillation_torque_rms_nm`) and the protective stop replaced it until the monitors
-    /// cleared.
+    /// Times the transparent fallback failed (its torque oscillated above
+    /// `oscillation_torque_rms_nm`, or its demand diverged) and the protective stop replaced
+    /// it until the monitors cleared.
     #[serde(default)]
     pub fallback_stops: u64,
     /// Supervisor time (s) at which repeated handovers latched the response
