@@ -418,6 +418,30 @@ impl<const N: usize> DisturbanceReplay<N> {
         }
     }
 
+    /// The replayed `d̂` of bank `b`, scenario `i` at this step: one period `p` back plus the
+    /// offset `current − d̂(p + 1 steps back)` fixed at the replay's first step (`current` the
+    /// bank's `d̂` there), so that the replay starts where `d̂` is; `p + 1` must satisfy
+    /// [`Self::holds`].
+    fn replayed(
+        &mut self,
+        b: usize,
+        i: usize,
+        current: &SVector<f64, N>,
+        p: usize,
+    ) -> SVector<f64, N> {
+        if !self.offset[b][i].iter().all(|v| v.is_finite()) {
+            self.offset[b][i] = current - self.back(b, i, p + 1);
+        }
+        self.back(b, i, p) + self.offset[b][i]
+    }
+
+    /// Record this step's `d` of bank `b`, scenario `i`, or with `continue_p` the history's
+    /// own value `p` steps back (the gait continued, while the forces are estimated).
+    fn record_step(&mut self, b: usize, i: usize, d: &SVector<f64, N>, continue_p: Option<usize>) {
+        let v = continue_p.map_or(*d, |p| self.back(b, i, p));
+        self.record(b, i, &v);
+    }
+
     /// Record `d̂` of bank `b`, scenario `i` for this step (kept at the slot steps only).
     fn record(&mut self, b: usize, i: usize, d: &SVector<f64, N>) {
         if self.count.is_multiple_of(self.stride) {
@@ -941,27 +965,30 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
                 },
             };
             for i in 0..bank.len() {
-                if !r.offset[b][i].iter().all(|v| v.is_finite()) {
-                    r.offset[b][i] = bank.disturbance(i) - r.back(b, i, p + 1);
-                }
-                bank.set_disturbance(i, &(r.back(b, i, p) + r.offset[b][i]));
+                let d = r.replayed(b, i, &bank.disturbance(i), p);
+                bank.set_disturbance(i, &d);
             }
         }
     }
 
-    /// Record this step's `d̂ᵢ` of every bank for `replay_disturbance`; after skipped periods
-    /// the history restarts (it is no longer one sample per period).
+    /// Record this step's `d̂ᵢ` of every bank for `replay_disturbance`. While the forces are
+    /// estimated and the history holds one gait period `p`, the history continues the gait
+    /// instead: it records its own value of `p` steps back, so the replay reads the gait
+    /// before the fault however long the fault lasts (recording the replayed `d̂ᵢ`, which
+    /// carries the replay's offset, would add that offset again every period), and the steps
+    /// `d̂ᵢ` is held before the replay begins are no plateau in it.
     // Out of line, as `replay_disturbance`.
     #[inline(never)]
-    fn record_disturbance(&mut self, skipped: bool) {
+    fn record_disturbance(&mut self) {
         let r = &mut self.replay;
-        if skipped {
-            r.count = 0;
-        }
+        let p = match self.period {
+            Some(p) if self.forces_estimated && r.holds(p) => Some(p),
+            _ => None,
+        };
         for i in 0..self.bank.len() {
-            r.record(0, i, &self.bank.disturbance(i));
-            if let Some(d) = self.dbank.as_ref() {
-                r.record(1, i, &d.disturbance(i));
+            r.record_step(0, i, &self.bank.disturbance(i), p);
+            if let Some(db) = self.dbank.as_ref() {
+                r.record_step(1, i, &db.disturbance(i), p);
             }
         }
         r.count = r.count.saturating_add(1);
@@ -978,10 +1005,13 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
         if !m.is_finite() {
             return self.hold(StepStatus::BadMeasurement);
         }
-        let skipped = self.started && m.t - self.last_t > 1.5 * self.models[0].dt;
+        // After skipped periods the history restarts (it is no longer one sample per period).
+        if self.started && m.t - self.last_t > 1.5 * self.models[0].dt {
+            self.replay.count = 0;
+        }
         self.replay_disturbance();
         let gap = self.advance_banks(m);
-        self.record_disturbance(skipped);
+        self.record_disturbance();
         let (x0, mi, stretch) = self.start_state(m, gap);
         self.scenario_inputs(m, mi, stretch);
         self.update_weights();
@@ -1122,5 +1152,39 @@ mod tests {
         // A restarted history holds nothing until it has recorded past the lag.
         r.count = 0;
         assert!(!r.holds(r.stride + 1));
+    }
+
+    /// The replay over a fault of several gait periods repeats the gait before the fault with
+    /// one offset: `d̂(k) − d̂(k − p)` stays near zero from the second period on. Recording the
+    /// replayed `d̂` instead of the continued gait added the offset again every period (2 N·m
+    /// here, the `d̂` held 2 N·m off the gait when the replay began).
+    #[test]
+    fn the_replay_repeats_the_gait_without_drift() {
+        let dt = 0.01;
+        let p = 100;
+        let gait = |k: usize| {
+            let t = k as f64 * dt;
+            SVector::<f64, 2>::from([6.0 * (core::f64::consts::TAU * t).sin(), 1.0])
+        };
+        let mut r = DisturbanceReplay::<2>::new(1, dt);
+        for k in 0..400 {
+            r.record_step(0, 0, &gait(k), None);
+            r.count += 1;
+        }
+        let mut current = gait(399) + SVector::from([2.0, 2.0]);
+        let mut out = Vec::new();
+        for _ in 0..350 {
+            assert!(r.holds(p + 1));
+            current = r.replayed(0, 0, &current, p);
+            out.push(current);
+            r.record_step(0, 0, &current, Some(p));
+            r.count += 1;
+        }
+        for k in p..out.len() {
+            let drift = (out[k] - out[k - p]).amax();
+            assert!(drift <= 0.05, "{k} steps into the replay: {drift}");
+        }
+        // It starts where d̂ was: one step of the gait away.
+        assert!((out[0] - (gait(399) + SVector::from([2.0, 2.0]))).amax() <= 0.5);
     }
 }

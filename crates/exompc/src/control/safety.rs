@@ -1304,9 +1304,15 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
                 .all(|(&e, &v)| !e || v);
             let feed = (valid && angles_measured) || (railed && rep.encoders_good);
             // After a gap, or steps it was not fed (encoders lost), its finite differences and
-            // fits would span the missing samples as if they were one period.
-            if gap || (feed && !self.fallback_fed) {
+            // fits would span the missing samples as if they were one period; an angle that
+            // stood in for a rejected one and is measured again off it is such a step too.
+            let restart = gap || (feed && (!self.fallback_fed || rep.estimated.resume));
+            if restart {
                 fb.restart();
+            }
+            // The divergence check compares consecutive fed steps only.
+            if restart || !feed {
+                self.fallback_demand = None;
             }
             self.fallback_fed = feed;
             if valid && !rep.any_rejected {
