@@ -123,6 +123,19 @@ struct Felt {
     limit_violations: u64,
 }
 
+/// The persistent fault of docs/RELIABILITY.md §2 on the default cell at `payload_kg`: a NaN
+/// on both angles for 1.5 s from 2 s (the stop from 2.5 s), a 6-s run.
+fn angle_nan_default_cell(payload_kg: f64) -> Experiment {
+    let mut s = Experiment::default();
+    s.uncertainty.payload_kg = payload_kg;
+    s.timing.duration_2dof_s = 6.0;
+    s.faults.events = vec![
+        event(FaultKind::Nan, Channel::Q1, 2.0, 1.5),
+        event(FaultKind::Nan, Channel::Q2, 2.0, 1.5),
+    ];
+    s
+}
+
 fn feel(s: &Experiment, from: f64) -> Felt {
     let mut log = TraceLog::<2>::default();
     let (sum, rep) = run_experiment_report::<TwoDof, 2>(s, &mut [&mut log]).unwrap();
@@ -197,14 +210,7 @@ fn table() {
     // The persistent fault of docs/RELIABILITY.md §2 on the default cell: a NaN on both
     // angles for 1.5 s from 2 s (the stop from 2.5 s).
     for payload in [0.0, 2.0, 3.0] {
-        let mut s = Experiment::default();
-        s.uncertainty.payload_kg = payload;
-        s.timing.duration_2dof_s = 6.0;
-        s.faults.events = vec![
-            event(FaultKind::Nan, Channel::Q1, 2.0, 1.5),
-            event(FaultKind::Nan, Channel::Q2, 2.0, 1.5),
-        ];
-        let f = feel(&s, 2.45);
+        let f = feel(&angle_nan_default_cell(payload), 2.45);
         println!(
             "default, {payload} kg, 1.5-s NaN on the angles: peak {:.1} N, jump {:.2} N, RMS {:.2} N, {:?}, trips {}",
             f.peak, f.jump, f.rms, f.class, f.trips
@@ -319,14 +325,7 @@ fn a_diverging_fallback_hands_the_torque_to_the_protective_stop() {
 /// 56.6 N, RMS of the larger strap 17.76 → 12.58 N, `growing` → `stable`.
 #[test]
 fn the_fallback_restarts_after_steps_without_measured_angles() {
-    let mut s = Experiment::default();
-    s.uncertainty.payload_kg = 2.0;
-    s.timing.duration_2dof_s = 6.0;
-    s.faults.events = vec![
-        event(FaultKind::Nan, Channel::Q1, 2.0, 1.5),
-        event(FaultKind::Nan, Channel::Q2, 2.0, 1.5),
-    ];
-    let f = feel(&s, 2.45);
+    let f = feel(&angle_nan_default_cell(2.0), 2.45);
     assert_eq!(f.limit_violations, 0, "{f:?}");
     assert!(!f.latched, "{f:?}");
     assert!(f.rms <= 14.0, "{f:?}");

@@ -708,10 +708,9 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     /// filters' joint states at the measurement instead. Returns whether this step follows
     /// such a gap.
     fn advance_banks(&mut self, m: &Measurement<N>) -> bool {
-        let dt = self.models[0].dt;
         // Back from estimated channels: the filters resume at the measurement like after a gap.
         let resync = (self.was_estimating && !self.estimating) || self.resuming;
-        let skipped = m.t - self.last_t > 1.5 * dt;
+        let skipped = self.skipped_periods(m);
         let gap = !self.started || skipped || resync;
         #[cfg(not(feature = "std"))]
         let ekf_start = crate::clock::Instant::now();
@@ -736,6 +735,11 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
         self.last_t = m.t;
         self.was_estimating = self.estimating;
         gap
+    }
+
+    /// Periods were skipped before `m` (e.g. a supervisor rejected bad data).
+    fn skipped_periods(&self, m: &Measurement<N>) -> bool {
+        self.started && m.t - self.last_t > 1.5 * self.models[0].dt
     }
 
     /// The banks' predict-and-update with `y = [q, qd]`: every row, or with estimated
@@ -1006,7 +1010,7 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
             return self.hold(StepStatus::BadMeasurement);
         }
         // After skipped periods the history restarts (it is no longer one sample per period).
-        if self.started && m.t - self.last_t > 1.5 * self.models[0].dt {
+        if self.skipped_periods(m) {
             self.replay.count = 0;
         }
         self.replay_disturbance();

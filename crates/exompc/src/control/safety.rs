@@ -999,14 +999,21 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             let t = p.map_or(self.prev, |p| {
                 self.torque_hist[(self.torque_pos + len - p) % len]
             });
-            self.torque_hist[self.torque_pos] = t;
-            self.torque_pos = (self.torque_pos + 1) % len;
-            self.torque_filled = (self.torque_filled + 1).min(len);
             // No angles were measured in the gap: the last one stands in.
             let alen = self.angle_hist.len();
-            self.angle_hist[self.angle_pos] = self.angle_hist[(self.angle_pos + alen - 1) % alen];
-            self.angle_pos = (self.angle_pos + 1) % alen;
+            let q = self.angle_hist[(self.angle_pos + alen - 1) % alen];
+            self.push_history(t, q);
         }
+    }
+
+    /// One step of the torque and angle histories: the applied `torque` and the angles `q`.
+    fn push_history(&mut self, torque: SVector<f64, N>, q: SVector<f64, N>) {
+        let len = self.torque_hist.len();
+        self.torque_hist[self.torque_pos] = torque;
+        self.torque_pos = (self.torque_pos + 1) % len;
+        self.torque_filled = (self.torque_filled + 1).min(len);
+        self.angle_hist[self.angle_pos] = q;
+        self.angle_pos = (self.angle_pos + 1) % self.angle_hist.len();
     }
 
     /// Use `fallback` for the `fallback` monitor response (without one, that response ramps
@@ -1302,7 +1309,18 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             let angles_measured = (rep.estimated.q.iter())
                 .zip(&rep.q_from_velocity)
                 .all(|(&e, &v)| !e || v);
-            let feed = (valid && angles_measured) || (railed && rep.encoders_good);
+            // The measurement it observes, and whether its forces are measured (estimated
+            // channels or a railed force: the payload estimate stays frozen).
+            let input = if valid && !rep.any_rejected {
+                Some((m, true))
+            } else if valid && angles_measured {
+                Some((m, false))
+            } else if railed && rep.encoders_good {
+                Some((raw, false))
+            } else {
+                None
+            };
+            let feed = input.is_some();
             // After a gap, or steps it was not fed (encoders lost), its finite differences and
             // fits would span the missing samples as if they were one period; an angle that
             // stood in for a rejected one and is measured again off it is such a step too.
@@ -1315,13 +1333,10 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
                 self.fallback_demand = None;
             }
             self.fallback_fed = feed;
-            if valid && !rep.any_rejected {
-                fb.observe(m, &prev);
-            } else if valid && angles_measured {
-                // Estimated channels: the payload estimate stays frozen.
-                fb.observe_encoders(m, &prev);
-            } else if railed && rep.encoders_good {
-                fb.observe_encoders(raw, &prev);
+            match input {
+                Some((x, true)) => fb.observe(x, &prev),
+                Some((x, false)) => fb.observe_encoders(x, &prev),
+                None => {}
             }
         }
         // A channel rejected for longer than `sensor_timeout_s` is the protective stop: the
@@ -1455,12 +1470,7 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             desired
         };
         let torque = self.s.limits.clamp(&prev, &desired);
-        let len = self.torque_hist.len();
-        self.torque_hist[self.torque_pos] = torque;
-        self.torque_pos = (self.torque_pos + 1) % len;
-        self.angle_hist[self.angle_pos] = m.q;
-        self.angle_pos = (self.angle_pos + 1) % self.angle_hist.len();
-        self.torque_filled = (self.torque_filled + 1).min(len);
+        self.push_history(torque, m.q);
         self.prev = torque;
         if valid && !rep.any_rejected && !tripped && !self.coasting && self.handback == 0 {
             self.last_safe = torque;
