@@ -796,3 +796,91 @@ fn an_angle_spike_at_3_kg_is_ridden_through() {
         assert_eq!(rep.latched_at, None, "{dur} s");
     }
 }
+
+/// Both angles invalid (NaN) in the same sample while the velocities are measured: no stalled
+/// acquisition (that needs a frozen angle), the velocities stay accepted and imply the angles
+/// (within 0.01 rad for 200 ms). Before, NaN angles counted as a stall: the velocities were
+/// rejected with them and every encoder was lost (a 60-ms NaN of both angles at 3.25 s, 3 kg:
+/// 22.1 N, `a_nan_of_both_angles_at_3_kg_is_ridden_through`).
+#[test]
+fn invalid_angles_with_measured_velocities_are_no_stall() {
+    let mut g = Gait::new();
+    let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
+    for k in 0..330 {
+        let clean = g.raw(k);
+        let mut raw = clean;
+        let faulty = (300..320).contains(&k);
+        if faulty {
+            raw.0 = SVector::repeat(f64::NAN);
+        }
+        let m = g.measure(k, raw);
+        let rep = guard.repair(&m, Some(1.0), 50, None);
+        assert!(!rep.stalled, "step {k}");
+        for j in 0..2 {
+            assert!(
+                !guard.is_rejected(1, j),
+                "velocity {j} rejected at step {k}"
+            );
+            if faulty {
+                assert!(rep.q_from_velocity[j], "angle {j} at step {k}");
+                let err = (rep.m.q[j] - clean.0[j]).abs();
+                assert!(err <= 0.01, "angle {j} at step {k}: {err:.4} rad off");
+            }
+        }
+    }
+}
+
+/// A force replayed over more than one gait period repeats the gait before the fault with one
+/// offset, so its error stays bounded however long the fault: the force drifts by 0.5 N a
+/// period, the replay starts 0.5 N above the period before (matching the force through the
+/// first period), and from the second period on it repeats the first (`F̂(k) − F̂(k − p)`
+/// ≈ 0). Replaying the replayed values with the offset added again extrapolated the drift
+/// period after period: 0.5 N more each period.
+#[test]
+fn a_replay_over_several_periods_adds_its_offset_once() {
+    let mut g = Gait::new();
+    let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
+    let mut truth = MovingAverage::<2>::new(5);
+    let mut est = Vec::new();
+    for k in 0..560 {
+        let mut raw = g.raw(k);
+        raw.2.add_scalar_mut(0.005 * k as f64);
+        let true_f = truth.push(raw.2);
+        if (300..550).contains(&k) {
+            raw.2 = SVector::repeat(f64::NAN);
+        }
+        let m = g.measure(k, raw);
+        let rep = guard.repair(&m, Some(1.0), 50, None);
+        if (300..550).contains(&k) {
+            assert!(rep.estimated.force.iter().all(|&e| e), "step {k}");
+            if k < 400 {
+                let err = (rep.m.force - true_f).amax();
+                assert!(err <= 0.05, "step {k}: {err:.3} N off the force");
+            }
+            est.push(rep.m.force);
+        }
+    }
+    for k in 100..est.len() {
+        let drift = (est[k] - est[k - 100]).amax();
+        assert!(drift <= 0.01, "{k} steps into the replay: {drift:.3} N");
+    }
+}
+
+/// Issue 28, one group at 3 kg: a 60-ms NaN of both angles at 3.25 s (a cell of the fine
+/// phase scan) is ridden through on the angles the measured velocities imply: peak true strap
+/// force ≤ 12 N, RMS ≤ 1.5× clean, no monitor trip or latch (before, as a stalled acquisition
+/// with every encoder lost and the torque replayed: 22.1 N).
+#[test]
+fn a_nan_of_both_angles_at_3_kg_is_ridden_through() {
+    let clean = scenario(ControllerKind::MSNMPC, 3.0, 10.0);
+    let (_, rms0, _, _) = run(&clean);
+    let mut faulty = clean.clone();
+    faulty.faults.events = fault(FaultKind::Nan, &ANGLES, 3.25, 0.06, 0.0);
+    let (peak, rms, rep, _) = run(&faulty);
+    assert!(peak <= 12.0, "peak {peak:.1} N");
+    for i in 0..2 {
+        assert!(rms[i] <= 1.5 * rms0[i], "RMS {rms:?} vs {rms0:?}");
+    }
+    assert_eq!(rep.monitor_trips, 0, "{:?}", rep.events);
+    assert_eq!(rep.latched_at, None);
+}

@@ -85,6 +85,9 @@ pub struct ChannelGuard<const N: usize> {
     bad_for: [[u64; N]; 3],
     /// Replay offset per signal and joint (NaN: not replaying).
     offset: [SVector<f64, N>; 3],
+    /// Per signal and joint: consecutive steps the estimate has been the replay (from `p`
+    /// on, the value a period back is itself a replayed one and carries the offset).
+    replayed_for: [[u32; N]; 3],
     /// Consecutive fresh, smooth raw samples of a rejected channel.
     smooth: [[u32; N]; 3],
     /// Rejected channels: steps on which some channel was estimated, fault episodes.
@@ -176,8 +179,8 @@ pub struct Repaired<const N: usize> {
     pub encoders_good: bool,
     /// The estimate is usable (at least one measurement has been accepted).
     pub ready: bool,
-    /// Every angle turned frozen or non-finite in this sample (a stalled acquisition): the
-    /// velocities were rejected with them.
+    /// Every angle turned frozen or invalid in this sample, at least one frozen (a stalled
+    /// acquisition): the velocities were rejected with them.
     pub stalled: bool,
     /// Per joint: the angle is rejected and its estimate has been, on every step since it was
     /// last accepted, the angle its measured velocity implies through the filter window
@@ -208,6 +211,7 @@ impl<const N: usize> ChannelGuard<N> {
             raw: [[SVector::repeat(f64::NAN); 2]; 3],
             bad_for: [[0; N]; 3],
             offset: [SVector::repeat(f64::NAN); 3],
+            replayed_for: [[0; N]; 3],
             smooth: [[0; N]; 3],
             estimated_steps: 0,
             episodes: 0,
@@ -340,11 +344,16 @@ impl<const N: usize> ChannelGuard<N> {
             core::array::from_fn(|s| self.back(s, 1) * 2.0 - self.back(s, 2));
         let span = (self.window - 1).max(1);
         let force_resync = (FORCE_RESYNC_S / self.dt).ceil().max(1.0) as u64;
-        // Every angle frozen or non-finite in the same sample: the acquisition stalled, and
-        // the filtered velocities of the same encoders still move on the samples before the
-        // stall for `window − 1` samples: they are rejected with the angles.
-        let stall = warm
-            && (0..N).all(|j| {
+        // Every angle frozen or out of range in the same sample, at least one frozen: the
+        // acquisition stalled (it delivers no new samples), and the filtered velocities of the
+        // same encoders still move on the samples before the stall for `window − 1` samples:
+        // they are rejected with the angles. Angles that are all non-finite or out of range
+        // are invalid readings, not a stall: the velocities, fresh, are judged on their own
+        // and imply the angles (rejecting them too made a 60-ms NaN of both angles at 3 kg
+        // the loss of every encoder: 22.1 N).
+        let mut frozen = false;
+        let stall =
+            warm && (0..N).all(|j| {
                 let v = vals[Q][j];
                 let in_range = v.is_finite() && v.abs() <= self.bounds[Q];
                 let qd = if self.bad_for[QD][j] == 0 && vals[QD][j].is_finite() {
@@ -352,10 +361,12 @@ impl<const N: usize> ChannelGuard<N> {
                 } else {
                     self.back(QD, 1)[j]
                 };
-                self.bad_for[Q][j] == 0
-                    && (!in_range
-                        || (v.to_bits() == self.raw[Q][0][j].to_bits() && qd.abs() > STUCK_SPEED))
-            });
+                let is_frozen = in_range
+                    && v.to_bits() == self.raw[Q][0][j].to_bits()
+                    && qd.abs() > STUCK_SPEED;
+                frozen |= is_frozen;
+                self.bad_for[Q][j] == 0 && (!in_range || is_frozen)
+            }) && frozen;
         for j in 0..N {
             // Angle first: the velocity check needs the angle's verdict.
             for sig in [Q, QD, F] {
@@ -508,6 +519,7 @@ impl<const N: usize> ChannelGuard<N> {
                     }
                     self.bad_for[sig][j] = 0;
                     self.offset[sig][j] = f64::NAN;
+                    self.replayed_for[sig][j] = 0;
                 } else {
                     if !was_bad {
                         self.episodes += 1;
@@ -564,12 +576,18 @@ impl<const N: usize> ChannelGuard<N> {
                         self.q_anchored[j] = implied.is_some();
                         q_from_velocity[j] = implied.is_some();
                     }
+                    let replays_before = self.replayed_for[sig][j];
                     out[sig][j] = match (sig, model, implied) {
                         (Q, _, Some(q)) => q,
                         (Q, Some((q, _)), None) if !replay => q[j],
                         (QD, Some((_, qd)), _) if q_bad && !replay => qd[j],
                         _ => self.estimate(sig, j, &out, period),
                     };
+                    // Not the replay on this step: the next replay starts with a new offset.
+                    if self.replayed_for[sig][j] == replays_before {
+                        self.replayed_for[sig][j] = 0;
+                        self.offset[sig][j] = f64::NAN;
+                    }
                     match sig {
                         Q => estimated.q[j] = true,
                         QD => estimated.qd[j] = q_bad,
@@ -658,12 +676,22 @@ impl<const N: usize> ChannelGuard<N> {
             _ => {}
         }
         if let Some(p) = period {
-            // Replay the gait one period back, with the offset it had when the fault began.
+            // Replay the gait one period back, with the offset it had when the fault began;
+            // from the second period on, the value a period back is a replayed one and
+            // already carries it.
             let then = self.back(sig, p)[j];
             if !self.offset[sig][j].is_finite() {
                 self.offset[sig][j] = prev - self.back(sig, p + 1)[j];
+                self.replayed_for[sig][j] = 0;
             }
-            return then + self.offset[sig][j];
+            let replayed = &mut self.replayed_for[sig][j];
+            let carried = *replayed as usize >= p;
+            *replayed = replayed.wrapping_add(1).max(1);
+            return if carried {
+                then
+            } else {
+                then + self.offset[sig][j]
+            };
         }
         match sig {
             Q => prev + self.dt * self.back(QD, 1)[j],
