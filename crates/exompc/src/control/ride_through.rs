@@ -37,6 +37,12 @@ pub const ADAPTIVE_GATE_SIGMAS: f64 = 6.0;
 pub const RESIDUAL_TAU_S: f64 = 1.0;
 /// A faulted channel is accepted again when it is within this many gates of its estimate.
 pub const ACCEPT_GATES: f64 = 4.0;
+/// A faulted velocity whose angle has been good over the filter window is accepted again
+/// within this many gates of the angle's mean slope over the window (its estimate, a
+/// measurement of the same quantity that does not drift: with [`ACCEPT_GATES`] the ramp back
+/// of a frozen filtered velocity was accepted 0.17 rad/s off and the controller pushed on it).
+/// Chosen by measurement (docs/RELIABILITY.md §2).
+pub const SLOPE_ACCEPT_GATES: f64 = 1.5;
 /// A velocity whose angle is measured, or a strap force, may stay rejected this many times
 /// longer than an angle before the protective stop: its estimate stays anchored to measured
 /// channels (measured on the 1-s fault grid, docs/RELIABILITY.md §2).
@@ -59,9 +65,10 @@ pub const STUCK_SPEED: f64 = 0.05;
 /// accepted angles only: before that the slope spans the jump from an estimate back to the
 /// measurement, and the velocity counts as one whose angle is lost), and a channel whose partner
 /// is lost too (or a force) by replaying the gait one period back (the gait frequency of the
-/// supervisor) with the offset it had when the fault began, or, without a known period, by
+/// supervisor) with the offset it had when the replay began (added once), or, without a known period, by
 /// holding (an angle: integrating the estimated velocity). A rejected channel is accepted again
-/// once a fresh sample lies within [`ACCEPT_GATES`] gates of its estimate (a filtered
+/// once a fresh sample lies within [`ACCEPT_GATES`] gates of its estimate
+/// ([`SLOPE_ACCEPT_GATES`] for a velocity estimated from its good angle's slope; a filtered
 /// velocity or force also moving like its estimate, within one gate), or, after
 /// `resync_after` steps, once three fresh samples are smooth (the estimate then jumps to it:
 /// the supervisor's rate limit bounds the torque step). The two samples after a re-acceptance
@@ -109,7 +116,7 @@ pub struct ChannelGuard<const N: usize> {
     q_good_for: [u32; N],
     /// Per joint: samples left during which the velocity is not accepted again, because its
     /// filter window may still hold faulty samples: a filter window after a stalled
-    /// acquisition (every angle frozen or non-finite at once), `window − 1` after it was
+    /// acquisition (every angle frozen or invalid at once, one frozen), `window − 1` after it was
     /// found frozen (once it moves, the window still averages frozen samples).
     qd_held_off: [u32; N],
     /// Per joint, while the angle is rejected: its fault began after a filter window of
@@ -408,14 +415,15 @@ impl<const N: usize> ChannelGuard<N> {
                     0.0
                 };
                 let p = pred[sig][j] - robot_d2;
-                let residual = if !warm {
-                    0.0
-                } else if sig == QD && slope_ok {
-                    // `out[Q]` is this step's accepted angle.
-                    (v - self.slope(&out, j, span)).abs()
+                // A velocity's estimate while its angle has been good over the window: the
+                // angle's mean slope (`out[Q]` is this step's accepted angle); else the linear
+                // extrapolation.
+                let estimate = if sig == QD && slope_ok {
+                    self.slope(&out, j, span)
                 } else {
-                    (v - p).abs()
+                    p
                 };
+                let residual = if warm { (v - estimate).abs() } else { 0.0 };
                 let gate = self.gates[sig].max(ADAPTIVE_GATE_SIGMAS * self.res_ms[sig][j].sqrt());
                 let was_bad = self.bad_for[sig][j] > 0;
                 let smooth_now = in_range
@@ -471,11 +479,6 @@ impl<const N: usize> ChannelGuard<N> {
                     // channel is rejected and the history is empty).
                     true
                 } else if was_bad {
-                    let estimate = if sig == QD && slope_ok {
-                        v - residual
-                    } else {
-                        p
-                    };
                     let resync = if sig == F {
                         resync_after.min(force_resync)
                     } else {
@@ -488,7 +491,14 @@ impl<const N: usize> ChannelGuard<N> {
                     let moves_along = sig == Q
                         || !last.is_finite()
                         || (v - last - (estimate - self.back(sig, 1)[j])).abs() < gate;
-                    ((v - estimate).abs() < ACCEPT_GATES * gate && moves_along)
+                    // A velocity estimated from its good angle's slope is a measurement of
+                    // the same quantity, not an estimate drifting through the fault.
+                    let accept_gates = if sig == QD && slope_ok {
+                        SLOPE_ACCEPT_GATES
+                    } else {
+                        ACCEPT_GATES
+                    };
+                    ((v - estimate).abs() < accept_gates * gate && moves_along)
                         || (self.bad_for[sig][j] >= resync && self.smooth[sig][j] >= 2)
                 } else {
                     residual <= gate
@@ -576,15 +586,15 @@ impl<const N: usize> ChannelGuard<N> {
                         self.q_anchored[j] = implied.is_some();
                         q_from_velocity[j] = implied.is_some();
                     }
-                    let replays_before = self.replayed_for[sig][j];
-                    out[sig][j] = match (sig, model, implied) {
-                        (Q, _, Some(q)) => q,
-                        (Q, Some((q, _)), None) if !replay => q[j],
-                        (QD, Some((_, qd)), _) if q_bad && !replay => qd[j],
+                    let (value, replayed) = match (sig, model, implied) {
+                        (Q, _, Some(q)) => (q, false),
+                        (Q, Some((q, _)), None) if !replay => (q[j], false),
+                        (QD, Some((_, qd)), _) if q_bad && !replay => (qd[j], false),
                         _ => self.estimate(sig, j, &out, period),
                     };
+                    out[sig][j] = value;
                     // Not the replay on this step: the next replay starts with a new offset.
-                    if self.replayed_for[sig][j] == replays_before {
+                    if !replayed {
                         self.replayed_for[sig][j] = 0;
                         self.offset[sig][j] = f64::NAN;
                     }
@@ -654,31 +664,31 @@ impl<const N: usize> ChannelGuard<N> {
     }
 
     /// The estimate of a rejected channel `sig` of joint `j` (`out` holds this step's values
-    /// of the signals already decided).
+    /// of the signals already decided), and whether it is the gait replay.
     fn estimate(
         &mut self,
         sig: usize,
         j: usize,
         out: &[SVector<f64, N>; 3],
         period: Option<usize>,
-    ) -> f64 {
+    ) -> (f64, bool) {
         if self.filled < 2 {
-            return 0.0;
+            return (0.0, false);
         }
         let prev = self.back(sig, 1)[j];
         match sig {
             Q if self.bad_for[QD][j] == 0 && out[QD][j].is_finite() => {
-                return prev + self.dt * out[QD][j];
+                return (prev + self.dt * out[QD][j], false);
             }
             QD if self.slope_ok(j) => {
-                return self.slope(out, j, (self.window - 1).max(1));
+                return (self.slope(out, j, (self.window - 1).max(1)), false);
             }
             _ => {}
         }
         if let Some(p) = period {
-            // Replay the gait one period back, with the offset it had when the fault began;
-            // from the second period on, the value a period back is a replayed one and
-            // already carries it.
+            // Replay the gait one period back, with the offset it had when this replay
+            // began; from the second period on, the value a period back is a replayed one
+            // and already carries it.
             let then = self.back(sig, p)[j];
             if !self.offset[sig][j].is_finite() {
                 self.offset[sig][j] = prev - self.back(sig, p + 1)[j];
@@ -686,16 +696,17 @@ impl<const N: usize> ChannelGuard<N> {
             }
             let replayed = &mut self.replayed_for[sig][j];
             let carried = *replayed as usize >= p;
-            *replayed = replayed.wrapping_add(1).max(1);
-            return if carried {
+            *replayed = replayed.saturating_add(1);
+            let value = if carried {
                 then
             } else {
                 then + self.offset[sig][j]
             };
+            return (value, true);
         }
         match sig {
-            Q => prev + self.dt * self.back(QD, 1)[j],
-            _ => prev,
+            Q => (prev + self.dt * self.back(QD, 1)[j], false),
+            _ => (prev, false),
         }
     }
 }

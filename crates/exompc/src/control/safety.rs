@@ -1392,10 +1392,11 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         // from the leg (issue 28, docs/RELIABILITY.md §2).
         let all_lost =
             valid && rep.estimated.q.iter().all(|&e| e) && rep.estimated.qd.iter().all(|&e| e);
-        // A coast that began with a stalled acquisition (every angle frozen or non-finite at
-        // once) before the gait period is known ends when the velocities come back while the
-        // angles are still lost: only the angles failed, and the controller on the model's
-        // angles and the measured velocities follows the leg better than the extrapolation.
+        // A coast that began with a stalled acquisition (every angle frozen or invalid, one
+        // frozen, at once) before the gait period is known ends when the velocities come back
+        // while the angles are still lost: only the angles failed, and the controller on the
+        // model's angles and the measured velocities follows the leg better than the
+        // extrapolation.
         let angles_only =
             rep.estimated.q.iter().all(|&e| e) && !rep.estimated.qd.iter().any(|&e| e);
         let angles_fault = self.stall_coast && angles_only && period.is_none();
