@@ -53,26 +53,26 @@ pub const STUCK_SPEED: f64 = 0.05;
 
 /// Per-channel sensor-fault detection and the estimate that replaces a rejected channel.
 ///
-/// Each channel (angle, filtered velocity, filtered strap force of each joint) is rejected
-/// when its sample is non-finite or out of range (in the same sample), repeated bit for bit
-/// (a frozen sensor: an angle only while the joint moves faster than [`STUCK_SPEED`]), or
-/// outside its innovation gate: an angle further than `max(`[`JUMP_ACCEL`]`·dt², 0.01)` from
-/// its linear extrapolation (a jump no leg can make), a velocity further than
-/// [`VELOCITY_GATE`] from the encoder's mean slope over the filter window (what a clean
-/// filtered velocity equals), a force further than [`FORCE_GATE`] from its linear
-/// extrapolation moved by the robot's own part of the force ([`ChannelGuard::with_straps`]). A rejected channel is estimated: an angle by integrating its good velocity,
-/// a velocity from its good angle's slope over the filter window (once the window holds
-/// accepted angles only: before that the slope spans the jump from an estimate back to the
-/// measurement, and the velocity counts as one whose angle is lost), and a channel whose partner
-/// is lost too (or a force) by replaying the gait one period back (the gait frequency of the
-/// supervisor) with the offset it had when the replay began (added once), or, without a known period, by
-/// holding (an angle: integrating the estimated velocity). A rejected channel is accepted again
-/// once a fresh sample lies within [`ACCEPT_GATES`] gates of its estimate
+/// Each channel (angle, filtered velocity, filtered strap force of each joint) is rejected when its
+/// sample is non-finite or out of range (in the same sample), repeated bit for bit (a frozen
+/// sensor: an angle only while the joint moves faster than [`STUCK_SPEED`]), or outside its
+/// innovation gate: an angle further than `max(`[`JUMP_ACCEL`]`·dt², 0.01)` from its linear
+/// extrapolation (a jump no leg can make), a velocity further than [`VELOCITY_GATE`] from the
+/// encoder's mean slope over the filter window (what a clean filtered velocity equals), a force
+/// further than [`FORCE_GATE`] from its linear extrapolation moved by the robot's own part of the
+/// force ([`ChannelGuard::with_straps`]). A rejected channel is estimated: an angle by integrating
+/// its good velocity, a velocity from its good angle's slope over the filter window (once the
+/// window holds accepted angles only: before that the slope spans the jump from an estimate back to
+/// the measurement, and the velocity counts as one whose angle is lost), and a channel whose
+/// partner is lost too (or a force) by replaying the gait one period back (the gait frequency of
+/// the supervisor) with the offset it had when the replay began (added once), or, without a known
+/// period, by holding (an angle: integrating the estimated velocity). A rejected channel is
+/// accepted again once a fresh sample lies within [`ACCEPT_GATES`] gates of its estimate
 /// ([`SLOPE_ACCEPT_GATES`] for a velocity estimated from its good angle's slope; a filtered
-/// velocity or force also moving like its estimate, within one gate), or, after
-/// `resync_after` steps, once three fresh samples are smooth (the estimate then jumps to it:
-/// the supervisor's rate limit bounds the torque step). The two samples after a re-acceptance
-/// are not gated: the extrapolation still runs through the estimate.
+/// velocity or force also moving like its estimate, within one gate), or, after `resync_after`
+/// steps, once three fresh samples are smooth (the estimate then jumps to it: the supervisor's rate
+/// limit bounds the torque step). The two samples after a re-acceptance are not gated: the
+/// extrapolation still runs through the estimate.
 #[derive(Clone, Debug)]
 pub struct ChannelGuard<const N: usize> {
     dt: f64,
@@ -116,8 +116,8 @@ pub struct ChannelGuard<const N: usize> {
     q_good_for: [u32; N],
     /// Per joint: samples left during which the velocity is not accepted again, because its
     /// filter window may still hold faulty samples: a filter window after a stalled
-    /// acquisition (every angle frozen or invalid at once, one frozen), `window − 1` after it was
-    /// found frozen (once it moves, the window still averages frozen samples).
+    /// acquisition (every angle frozen or invalid at once, one frozen), `window − 1` after it
+    /// was found frozen (once it moves, the window still averages frozen samples).
     qd_held_off: [u32; N],
     /// Per joint, while the angle is rejected: its fault began after a filter window of
     /// accepted angles and its estimate has been the angle its measured velocity implies on
@@ -358,22 +358,21 @@ impl<const N: usize> ChannelGuard<N> {
         // are invalid readings, not a stall: the velocities, fresh, are judged on their own
         // and imply the angles (rejecting them too made a 60-ms NaN of both angles at 3 kg
         // the loss of every encoder: 22.1 N).
-        let mut frozen = false;
-        let stall =
-            warm && (0..N).all(|j| {
-                let v = vals[Q][j];
-                let in_range = v.is_finite() && v.abs() <= self.bounds[Q];
-                let qd = if self.bad_for[QD][j] == 0 && vals[QD][j].is_finite() {
-                    vals[QD][j]
-                } else {
-                    self.back(QD, 1)[j]
-                };
-                let is_frozen = in_range
-                    && v.to_bits() == self.raw[Q][0][j].to_bits()
-                    && qd.abs() > STUCK_SPEED;
-                frozen |= is_frozen;
-                self.bad_for[Q][j] == 0 && (!in_range || is_frozen)
-            }) && frozen;
+        let angle_in_range =
+            |j: usize| vals[Q][j].is_finite() && vals[Q][j].abs() <= self.bounds[Q];
+        let angle_frozen = |j: usize| {
+            let qd = if self.bad_for[QD][j] == 0 && vals[QD][j].is_finite() {
+                vals[QD][j]
+            } else {
+                self.back(QD, 1)[j]
+            };
+            angle_in_range(j)
+                && vals[Q][j].to_bits() == self.raw[Q][0][j].to_bits()
+                && qd.abs() > STUCK_SPEED
+        };
+        let stall = warm
+            && (0..N).all(|j| self.bad_for[Q][j] == 0 && (!angle_in_range(j) || angle_frozen(j)))
+            && (0..N).any(angle_frozen);
         for j in 0..N {
             // Angle first: the velocity check needs the angle's verdict.
             for sig in [Q, QD, F] {
