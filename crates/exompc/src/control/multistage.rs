@@ -367,6 +367,10 @@ struct DisturbanceReplay<const N: usize> {
     count: usize,
     /// Replay offset per bank and scenario (NaN: not replaying).
     offset: [Vec<SVector<f64, N>>; 2],
+    /// The gait period (steps) of the replay (0: not replaying).
+    period: usize,
+    /// The replay restarted on a new period (its offsets continue the replayed `d̂`).
+    restarted: bool,
 }
 
 impl<const N: usize> DisturbanceReplay<N> {
@@ -383,6 +387,8 @@ impl<const N: usize> DisturbanceReplay<N> {
             stride,
             count: 0,
             offset: [offset.clone(), offset],
+            period: 0,
+            restarted: false,
         }
     }
 
@@ -418,19 +424,51 @@ impl<const N: usize> DisturbanceReplay<N> {
         }
     }
 
-    /// The replayed `d̂` of bank `b`, scenario `i` at this step: one period `p` back plus the
-    /// offset `current − d̂(p + 1 steps back)` fixed at the replay's first step (`current` the
-    /// bank's `d̂` there), so that the replay starts where `d̂` is; `p + 1` must satisfy
-    /// [`Self::holds`].
+    /// Begin or continue the replay with the gait period `p` (steps): a new period within a
+    /// replay restarts it (the offsets are taken again, continuous with the replayed `d̂`:
+    /// the old offset against the new lag made the replay step).
+    fn set_period(&mut self, p: usize) {
+        if self.period != p {
+            for o in self.offset.iter_mut() {
+                o.fill(SVector::repeat(f64::NAN));
+            }
+            self.restarted = self.period != 0;
+            self.period = p;
+        }
+    }
+
+    /// End the replay (the forces are measured again, or the period is unknown).
+    fn stop(&mut self) {
+        for o in self.offset.iter_mut() {
+            o.fill(SVector::repeat(f64::NAN));
+        }
+        self.period = 0;
+        self.restarted = false;
+    }
+
+    /// The replayed `d̂` of bank `b`, scenario `i` at this step: one period `p` (set by
+    /// [`Self::set_period`]) back plus the offset fixed at the replay's first step,
+    /// `current − d̂(p + held steps back)`, `current` the bank's `d̂` there, held since the
+    /// forces were last measured `held` steps back: the replay continues the gait from the
+    /// fault's start (anchoring it at `p + 1` steps back instead carried the gait's change
+    /// over the held steps through the whole replay). After a new period within the replay the
+    /// offset is `current − d̂(p + 1 steps back)`, continuous with the replay. `p + 1` must
+    /// satisfy [`Self::holds`].
     fn replayed(
         &mut self,
         b: usize,
         i: usize,
         current: &SVector<f64, N>,
-        p: usize,
+        held: usize,
     ) -> SVector<f64, N> {
+        let p = self.period;
         if !self.offset[b][i].iter().all(|v| v.is_finite()) {
-            self.offset[b][i] = current - self.back(b, i, p + 1);
+            let k = if !self.restarted && self.holds(p + held) {
+                p + held
+            } else {
+                p + 1
+            };
+            self.offset[b][i] = current - self.back(b, i, k);
         }
         self.back(b, i, p) + self.offset[b][i]
     }
@@ -945,6 +983,7 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             self.forces_estimated_for = 0;
         }
         let r = &mut self.replay;
+        let held = self.forces_estimated_for as usize;
         let p = match self.period {
             Some(p)
                 if self.forces_estimated
@@ -954,12 +993,11 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
                 p
             }
             _ => {
-                for o in r.offset.iter_mut() {
-                    o.fill(SVector::repeat(f64::NAN));
-                }
+                r.stop();
                 return;
             }
         };
+        r.set_period(p);
         for b in 0..2 {
             let bank = match b {
                 0 => &mut self.bank,
@@ -969,7 +1007,7 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
                 },
             };
             for i in 0..bank.len() {
-                let d = r.replayed(b, i, &bank.disturbance(i), p);
+                let d = r.replayed(b, i, &bank.disturbance(i), held);
                 bank.set_disturbance(i, &d);
             }
         }
@@ -1177,9 +1215,10 @@ mod tests {
         }
         let mut current = gait(399) + SVector::from([2.0, 2.0]);
         let mut out = Vec::new();
+        r.set_period(p);
         for _ in 0..350 {
             assert!(r.holds(p + 1));
-            current = r.replayed(0, 0, &current, p);
+            current = r.replayed(0, 0, &current, 1);
             out.push(current);
             r.record_step(0, 0, &current, Some(p));
             r.count += 1;
@@ -1190,5 +1229,66 @@ mod tests {
         }
         // It starts where d̂ was: one step of the gait away.
         assert!((out[0] - (gait(399) + SVector::from([2.0, 2.0]))).amax() <= 0.5);
+    }
+
+    /// `d̂` held over the first steps of a force fault, then replayed: the replay continues
+    /// the gait from the fault's start (the held value less `d̂` one period before it), not
+    /// from the held value against the gait of the step before the replay, which carried the
+    /// gait's change over the held steps through the whole replay.
+    #[test]
+    fn the_replay_after_a_hold_continues_the_gait_from_the_faults_start() {
+        let dt = 0.01;
+        let p = 100;
+        let gait = |k: usize| {
+            let t = k as f64 * dt;
+            SVector::<f64, 2>::from([6.0 * (core::f64::consts::TAU * t).sin(), 0.5])
+        };
+        let mut r = DisturbanceReplay::<2>::new(1, dt);
+        for k in 0..400 {
+            r.record_step(0, 0, &gait(k), None);
+            r.count += 1;
+        }
+        // The forces are lost from step 400: `d̂` stays at gait(399) while it is held.
+        let held_value = gait(399);
+        let held = REPLAY_AFTER_STEPS as usize;
+        for _ in 0..held {
+            r.record_step(0, 0, &held_value, Some(p));
+            r.count += 1;
+        }
+        r.set_period(p);
+        let k = 400 + held;
+        let d = r.replayed(0, 0, &held_value, held + 1);
+        // The gait at step k (periodic, so one period back is exact to the history's slots).
+        assert!((d - gait(k)).amax() <= 0.15, "{d} against {}", gait(k));
+    }
+
+    /// A new gait-period estimate within a replay restarts it where it is: no step.
+    #[test]
+    fn a_new_period_within_the_replay_does_not_step_it() {
+        let dt = 0.01;
+        let gait = |k: usize| {
+            let t = k as f64 * dt;
+            SVector::<f64, 2>::from([6.0 * (core::f64::consts::TAU * t).sin(), 1.0])
+        };
+        let mut r = DisturbanceReplay::<2>::new(1, dt);
+        for k in 0..400 {
+            r.record_step(0, 0, &gait(k), None);
+            r.count += 1;
+        }
+        let mut current = gait(399);
+        let mut largest: f64 = 0.0;
+        for step in 0..80 {
+            // The period estimate changes from 100 to 94 steps 45 steps into the replay,
+            // where the gait moves fast.
+            let p = if step < 45 { 100 } else { 94 };
+            r.set_period(p);
+            let next = r.replayed(0, 0, &current, 1);
+            largest = largest.max((next - current).amax());
+            current = next;
+            r.record_step(0, 0, &current, Some(p));
+            r.count += 1;
+        }
+        // The gait moves by at most 6·2π·0.01 ≈ 0.38 per step.
+        assert!(largest <= 0.45, "the replay stepped by {largest}");
     }
 }

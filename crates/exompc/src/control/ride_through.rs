@@ -132,6 +132,8 @@ pub struct ChannelGuard<const N: usize> {
     /// The robot's part `ks J (q̄ + τ q̇̄)` of the filtered strap forces at the last two
     /// steps (NaN when unknown).
     robot_part: [SVector<f64, N>; 2],
+    /// The gait period (steps) of the last step's replays.
+    replay_period: Option<usize>,
 }
 
 /// Which channels of a measurement stand in for rejected ones and must not update a
@@ -234,6 +236,7 @@ impl<const N: usize> ChannelGuard<N> {
             last_t: f64::NAN,
             straps: None,
             robot_part: [SVector::repeat(f64::NAN); 2],
+            replay_period: None,
         }
     }
 
@@ -345,6 +348,17 @@ impl<const N: usize> ChannelGuard<N> {
             .filter(|p| p.is_finite() && *p > 0.0)
             .map(|p| (p / self.dt).round() as usize)
             .filter(|&p| p >= 2 && p + 2 < self.filled.min(self.hist[0].len()));
+        // A new gait-period estimate within a replay restarts it, continuous with the
+        // estimate it replaces: the old offset against the new lag made the replay step (a
+        // 200-ms force spike at 3 kg: the period went from 107 to 101 steps within the fault
+        // and the estimated forces stepped by 3 N).
+        if period != self.replay_period {
+            for (o, r) in self.offset.iter_mut().zip(self.replayed_for.iter_mut()) {
+                *o = SVector::repeat(f64::NAN);
+                *r = [0; N];
+            }
+        }
+        self.replay_period = period;
         // Linear extrapolations of the estimates, and the mean slope of the angle over the
         // filter window (what a clean filtered velocity equals).
         let pred: [SVector<f64, N>; 3] =
