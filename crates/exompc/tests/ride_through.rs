@@ -8,7 +8,8 @@
 use exompc::config::{ControllerKind, Experiment};
 use exompc::control::{
     ChannelGuard, Measurement, MonitorAction, MonitorKind, StepStatus, TorqueExtrapolation,
-    EXTRAPOLATION_MAX_HZ, GAIT_MAX_HZ, SLOPE_ACCEPT_GATES, VELOCITY_GATE,
+    EXTRAPOLATION_MAX_HZ, FORCE_BIAS_RATE, FORCE_RESYNC_S, GAIT_MAX_HZ, SLOPE_ACCEPT_GATES,
+    VELOCITY_GATE,
 };
 use exompc::estimate::MovingAverage;
 use exompc::model::Straps;
@@ -913,6 +914,78 @@ fn a_new_gait_period_within_a_replay_does_not_step_it() {
         est_step <= 1.2 * true_step,
         "the estimate stepped by {est_step:.3} N, the force by at most {true_step:.3} N"
     );
+}
+
+/// A strap force believed on smoothness alone after [`FORCE_RESYNC_S`] (a 30-N offset on both
+/// forces that lasts) starts at the estimate that stood in for it and moves to the
+/// measurement at [`FORCE_BIAS_RATE`], then follows the measurement.
+#[test]
+fn a_force_believed_on_smoothness_alone_is_taken_in_at_the_bias_rate() {
+    let mut g = Gait::new();
+    let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
+    let mut truth = MovingAverage::<2>::new(5);
+    let (mut prev_true, mut prev_out) = (None::<SVector<f64, 2>>, None::<SVector<f64, 2>>);
+    let mut true_step: f64 = 0.0;
+    let mut believed_at = None;
+    for k in 0..500 {
+        let mut raw = g.raw(k);
+        let true_f = truth.push(raw.2);
+        if let Some(p) = prev_true {
+            true_step = true_step.max((true_f - p).amax());
+        }
+        prev_true = Some(true_f);
+        if k >= 300 {
+            raw.2.add_scalar_mut(30.0);
+        }
+        let m = g.measure(k, raw);
+        let rep = guard.repair(&m, Some(1.0), 1000, None);
+        if k >= 300 {
+            let measured = !rep.estimated.force.iter().any(|&e| e);
+            if measured && believed_at.is_none() {
+                believed_at = Some(k);
+            }
+            if let Some(p) = prev_out {
+                let step = (rep.m.force - p).amax();
+                let bound = FORCE_BIAS_RATE * 0.01 + true_step + 0.05;
+                assert!(
+                    step <= bound,
+                    "step {k}: the force moved {step:.2} N (≤ {bound:.2})"
+                );
+            }
+            if let Some(b) = believed_at {
+                // 30 N at the bias rate, and a few samples of margin.
+                if k >= b + (30.0 / (FORCE_BIAS_RATE * 0.01)) as usize + 5 {
+                    let err = (rep.m.force - m.force).amax();
+                    assert!(err <= 1e-9, "step {k}: {err:.3} N off the measurement");
+                }
+            }
+            prev_out = Some(rep.m.force);
+        }
+    }
+    let b = believed_at.expect("the offset force is believed");
+    let after = (b - 300) as f64 * 0.01;
+    assert!(
+        after >= FORCE_RESYNC_S - 0.011 && after <= FORCE_RESYNC_S + 0.1,
+        "believed after {after:.2} s"
+    );
+}
+
+/// Issue 28, faults of 1 s: a 30-N spike of both forces for 1 s from 1 s at 1 kg (the first
+/// gait period) stays within the 70-N goal with no latch (before the force's jump was taken in
+/// at [`FORCE_BIAS_RATE`], the offset believed after 0.3 s stepped the controller: 189.0 N).
+#[test]
+fn a_one_second_force_spike_in_the_first_gait_period_stays_within_70_n() {
+    let mut s = scenario(ControllerKind::MSNMPC, 1.0, 4.0);
+    s.faults.events = fault(
+        FaultKind::Spike,
+        &[Channel::F1, Channel::F2],
+        1.0,
+        1.0,
+        30.0,
+    );
+    let (peak, _, rep, _) = run(&s);
+    assert!(peak <= 70.0, "peak {peak:.1} N");
+    assert_eq!(rep.latched_at, None);
 }
 
 /// Issue 28, every sensor at 2 kg: a stuck or dropped-out sensor set for 200 ms at 5.25 s (a

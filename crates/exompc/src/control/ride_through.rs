@@ -29,6 +29,11 @@ pub const FORCE_GATE: f64 = 2.0;
 /// samples after a re-acceptance, no longer hides the real forces after a 200-ms link outage
 /// (test `link_outages_are_ridden_through`: 19.8 N either way; docs/RELIABILITY.md §2a).
 pub const FORCE_RESYNC_S: f64 = 0.3;
+/// Rate (N/s) at which a strap force believed on smoothness alone ([`FORCE_RESYNC_S`]) moves
+/// from the estimate that stood in for it to the measurement: the jump is taken in over
+/// `|jump| / FORCE_BIAS_RATE`, so a sensor offset believed after a long fault does not step
+/// the controller's force (docs/RELIABILITY.md §2).
+pub const FORCE_BIAS_RATE: f64 = 100.0;
 /// Each gate widens to this many times the RMS of the channel's recent residuals (accepted
 /// samples, time constant [`RESIDUAL_TAU_S`]) when that is larger: a fast or forceful gait's
 /// own innovations are not faults (the fixed gates are for the default gait).
@@ -134,6 +139,9 @@ pub struct ChannelGuard<const N: usize> {
     robot_part: [SVector<f64, N>; 2],
     /// The gait period (steps) of the last step's replays.
     replay_period: Option<usize>,
+    /// Per strap: the bias added to a force believed on smoothness alone, fading to zero at
+    /// [`FORCE_BIAS_RATE`].
+    force_bias: SVector<f64, N>,
 }
 
 /// Which channels of a measurement stand in for rejected ones and must not update a
@@ -237,6 +245,7 @@ impl<const N: usize> ChannelGuard<N> {
             straps: None,
             robot_part: [SVector::repeat(f64::NAN); 2],
             replay_period: None,
+            force_bias: SVector::zeros(),
         }
     }
 
@@ -323,6 +332,7 @@ impl<const N: usize> ChannelGuard<N> {
         // restart from this sample, as the EKF bank resumes (`EkfBank::resume_at`).
         if m.t - self.last_t > 1.5 * self.dt {
             self.filled = 0;
+            self.force_bias = SVector::zeros();
             self.robot_part = [SVector::repeat(f64::NAN); 2];
         }
         self.last_t = m.t;
@@ -436,7 +446,10 @@ impl<const N: usize> ChannelGuard<N> {
                 } else {
                     p
                 };
-                let residual = if warm { (v - estimate).abs() } else { 0.0 };
+                // A strap force believed on smoothness alone carries the bias that kept it at
+                // its estimate (`force_bias`, fading at [`FORCE_BIAS_RATE`]).
+                let vb = if sig == F { v + self.force_bias[j] } else { v };
+                let residual = if warm { (vb - estimate).abs() } else { 0.0 };
                 let gate = self.gates[sig].max(ADAPTIVE_GATE_SIGMAS * self.res_ms[sig][j].sqrt());
                 let was_bad = self.bad_for[sig][j] > 0;
                 let smooth_now = in_range
@@ -456,6 +469,7 @@ impl<const N: usize> ChannelGuard<N> {
                         .any(|r| r[j].is_finite() && r[j].abs() >= self.bounds[F]);
                 definite |= !in_range || stuck;
                 let after_accept = !was_bad && self.after_accept[sig][j] > 0;
+                let mut resynced = false;
                 // A velocity rejected with a stalled acquisition stays rejected for a filter
                 // window: by then a stalled velocity has frozen (and is rejected as such), a
                 // good one is accepted again. A frozen filtered velocity (a stuck or
@@ -511,8 +525,10 @@ impl<const N: usize> ChannelGuard<N> {
                     } else {
                         ACCEPT_GATES
                     };
-                    ((v - estimate).abs() < accept_gates * gate && moves_along)
-                        || (self.bad_for[sig][j] >= resync && self.smooth[sig][j] >= 2)
+                    let agrees = (vb - estimate).abs() < accept_gates * gate && moves_along;
+                    resynced =
+                        !agrees && self.bad_for[sig][j] >= resync && self.smooth[sig][j] >= 2;
+                    agrees || resynced
                 } else {
                     residual <= gate
                 };
@@ -527,6 +543,23 @@ impl<const N: usize> ChannelGuard<N> {
                     sig == Q && was_bad && good && self.q_anchored[j] && residual > gate;
                 if sig == F && !was_bad && !good {
                     self.railed[j] = railed;
+                }
+                if sig == F {
+                    if good && resynced {
+                        // Believed on smoothness alone, the force starts at its estimate and
+                        // its jump is taken in at `FORCE_BIAS_RATE`.
+                        self.force_bias[j] = estimate - v;
+                    }
+                    if good {
+                        out[F][j] = v + self.force_bias[j];
+                    }
+                    let fade = FORCE_BIAS_RATE * self.dt;
+                    let b = self.force_bias[j];
+                    self.force_bias[j] = if b.is_finite() {
+                        b - b.clamp(-fade, fade)
+                    } else {
+                        0.0
+                    };
                 }
                 if good {
                     if was_bad {
