@@ -965,7 +965,7 @@ fn a_force_believed_on_smoothness_alone_is_taken_in_at_the_bias_rate() {
     let b = believed_at.expect("the offset force is believed");
     let after = (b - 300) as f64 * 0.01;
     assert!(
-        after >= FORCE_RESYNC_S - 0.011 && after <= FORCE_RESYNC_S + 0.1,
+        (FORCE_RESYNC_S - 0.011..=FORCE_RESYNC_S + 0.1).contains(&after),
         "believed after {after:.2} s"
     );
 }
