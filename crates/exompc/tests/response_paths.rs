@@ -241,80 +241,97 @@ fn every_response_path_is_stable_on_the_hard_cells() {
     }
 }
 
-/// The transparent fallback is itself watched (issue 28): a 30-N spike on both strap forces
-/// for 1 s at 0 kg (believed once it outlasts `FORCE_RESYNC_S`) makes the controller
-/// oscillate and the fallback takes the torque; when the spike ends, its estimate of the
-/// human motion feeds on the robot's own acceleration and its demand diverges (by 45.8 N·m in
-/// one period at 4.04 s, to 52.4 N·m). The divergence hands the torque to the protective stop,
-/// which ramps it to zero at `STOP_RAMP_NM_PER_S` and keeps it there until every monitor has
-/// cleared; the controller then has the torque again. Measured on 2026-12-05: the stop at
-/// 4.04 s, peak true strap force 52.9 N over the run (at 3.35 s, before the fallback), RMS
-/// 6.75 / 6.03 N. Before the divergence check the fallback swung across ±20 N·m until its
-/// oscillation check stopped it at about 4.3 s: 124.7 N, RMS 13.2 / 14.5 N.
+/// The transparent fallback is itself watched (issue 28): when its demand jumps by more than
+/// `FALLBACK_DEMAND_JUMP` × the rate limit in one period, to beyond `FALLBACK_DEMAND_BEYOND` ×
+/// the torque limit, the torque goes to the protective stop, which ramps it to zero at
+/// `STOP_RAMP_NM_PER_S` and keeps it there until every monitor has cleared; the controller
+/// then has the torque again. Driven open loop (`build_supervised`, the default scenario at
+/// 0 kg with `response = "fallback"`): a 1-Hz gait through the sensors' moving average, and a
+/// shank force railed at full scale for 0.5 s from 3.2 s (the strap-force and sensor-timeout
+/// monitors hand the torque to the fallback). The angles do not answer the applied torque,
+/// so the fallback's estimate of the human motion from the robot's dynamics swings: its
+/// demand jumps by 40.3 N·m at 3.33 s and the stop takes the torque (measured on 2026-12-05).
+/// In closed loop this happened after a 1-s spike of both forces at 0 kg believed at once
+/// after `FORCE_RESYNC_S` (a jump of 45.8 N·m to 52.4 N·m when the spike ended); with the
+/// force's jump taken in at `FORCE_BIAS_RATE` no fault of the scans reaches the fallback's
+/// divergence (docs/RELIABILITY.md §2a).
 #[test]
 fn a_diverging_fallback_hands_the_torque_to_the_protective_stop() {
-    use exompc::control::{StepStatus, FALLBACK_DEMAND_JUMP, STOP_RAMP_NM_PER_S};
+    use exompc::config::ControllerKind;
+    use exompc::control::{
+        Controller, Measurement, SafetySettings, StepStatus, FALLBACK_DEMAND_JUMP,
+        STOP_RAMP_NM_PER_S,
+    };
+    use exompc::estimate::MovingAverage;
+    use exompc::scenario::build_supervised;
+    use nalgebra::SVector;
     let mut s = Experiment::default();
     s.uncertainty.payload_kg = 0.0;
-    s.timing.duration_2dof_s = 10.0;
-    s.faults.events = vec![
-        FaultEvent {
-            magnitude: 30.0,
-            ..event(FaultKind::Spike, Channel::F1, 3.0, 1.0)
-        },
-        FaultEvent {
-            magnitude: 30.0,
-            ..event(FaultKind::Spike, Channel::F2, 3.0, 1.0)
-        },
-    ];
-    s.validate().unwrap();
-    let mut log = TraceLog::<2>::default();
-    let (sum, rep) = run_experiment_report::<TwoDof, 2>(&s, &mut [&mut log]).unwrap();
-    assert_eq!(sum.limit_violations, 0);
+    s.monitors.response = MonitorResponse::Fallback;
+    let rate = SafetySettings::from_scenario(&s).limits.rate;
+    let dt = s.timing.dt;
+    let mut sup = build_supervised::<TwoDof, 2>(&s, ControllerKind::MSNMPC).unwrap();
+    let w = std::f64::consts::TAU;
+    // Raw samples through the sensors' 5-sample moving average (the filtered velocity then
+    // equals the angle's mean slope, what the channel guard holds a clean velocity to).
+    let raw = |k: usize| {
+        let t = k as f64 * dt;
+        (
+            SVector::from([0.3 * (w * t).sin(), -0.6 + 0.4 * (w * t + 1.0).sin()]),
+            SVector::from([0.3 * w * (w * t).cos(), 0.4 * w * (w * t + 1.0).cos()]),
+            SVector::from([2.0 * (w * t).sin(), 3.0 * (w * t + 0.5).sin()]),
+        )
+    };
+    let (mut qd_f, mut f_f) = (MovingAverage::<2>::new(5), MovingAverage::<2>::new(5));
+    let mut outs = Vec::new();
+    for k in 0..700 {
+        let (q, qd, mut f) = raw(k);
+        if (320..370).contains(&k) {
+            f[1] = 70.0;
+        }
+        let m = Measurement::<2> {
+            t: k as f64 * dt,
+            q,
+            qd: qd_f.push(qd),
+            force: f_f.push(f),
+        };
+        outs.push(sup.step(&m));
+    }
+    let rep = sup.report();
     let stop = rep
         .events
         .iter()
         .find(|e| e.action == MonitorAction::Stop)
         .unwrap_or_else(|| panic!("no fallback stop: {:?}", rep.events));
-    assert_eq!(stop.monitor, MonitorKind::FallbackDemand);
-    assert!(
-        stop.value > FALLBACK_DEMAND_JUMP * s.controller.torque_rate_max * s.timing.dt,
-        "{stop:?}"
+    assert_eq!(
+        stop.monitor,
+        MonitorKind::FallbackDemand,
+        "{:?}",
+        rep.events
     );
-    assert!(stop.t < 4.1, "{stop:?}");
+    assert!(stop.value > FALLBACK_DEMAND_JUMP * rate, "{stop:?}");
+    assert!((3.25..3.45).contains(&stop.t), "{stop:?}");
     assert_eq!(rep.fallback_stops, 1);
-    assert_eq!(sum.safety.fallback_stops, 1);
     assert_eq!(rep.latched_at, None);
     // From the stop until the monitors clear: the torque goes to zero at the stop ramp,
     // never away from it.
-    let step = STOP_RAMP_NM_PER_S * s.timing.dt + 1e-9;
-    let k0 = log.rows.iter().position(|r| r.t >= stop.t - 1e-9).unwrap();
-    let mut k = k0;
-    while k + 1 < log.rows.len() && log.rows[k + 1].status == StepStatus::MonitorTripped {
-        let (a, b) = (log.rows[k].torque_robot, log.rows[k + 1].torque_robot);
+    let step = STOP_RAMP_NM_PER_S * dt + 1e-9;
+    let mut k = (stop.t / dt).round() as usize;
+    while k + 1 < outs.len() && outs[k + 1].status == StepStatus::MonitorTripped {
+        let (a, b) = (outs[k].torque, outs[k + 1].torque);
         for j in 0..2 {
             assert!(
                 b[j].abs() <= a[j].abs() + 1e-12,
-                "t {}: {a} -> {b}",
-                log.rows[k + 1].t
+                "step {}: {a} -> {b}",
+                k + 1
             );
-            assert!(
-                (b[j] - a[j]).abs() <= step,
-                "t {}: {a} -> {b}",
-                log.rows[k + 1].t
-            );
+            assert!((b[j] - a[j]).abs() <= step, "step {}: {a} -> {b}", k + 1);
         }
         k += 1;
     }
     // The stop ends when every monitor has cleared: the controller has the torque again.
-    assert!(k + 1 < log.rows.len(), "the controller did not resume");
-    // Issue 28's goal for faults up to 1 s: peak true strap force ≤ 70 N over the run.
-    let peak = log
-        .rows
-        .iter()
-        .map(|r| r.force_true.amax())
-        .fold(0.0, f64::max);
-    assert!(peak <= 70.0, "{peak}");
+    assert!(k + 1 < outs.len(), "the controller did not resume");
+    assert_eq!(sup.previous_torque(), outs.last().unwrap().torque);
 }
 
 /// The fallback restarts its estimates when it is fed again after steps without measured

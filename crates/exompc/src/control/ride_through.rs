@@ -526,9 +526,10 @@ impl<const N: usize> ChannelGuard<N> {
                         ACCEPT_GATES
                     };
                     let agrees = (vb - estimate).abs() < accept_gates * gate && moves_along;
-                    resynced =
+                    let resync_now =
                         !agrees && self.bad_for[sig][j] >= resync && self.smooth[sig][j] >= 2;
-                    agrees || resynced
+                    resynced = resync_now && moves_along;
+                    agrees || resync_now
                 } else {
                     residual <= gate
                 };
