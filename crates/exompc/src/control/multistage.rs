@@ -1196,23 +1196,31 @@ mod tests {
         assert!(!r.holds(r.stride + 1));
     }
 
+    /// A 1-Hz gait of `d̂` (amplitude 6 on the first joint, `c` on the second) at 10 ms.
+    fn sine_gait(k: usize, c: f64) -> SVector<f64, 2> {
+        let t = k as f64 * 0.01;
+        SVector::<f64, 2>::from([6.0 * (core::f64::consts::TAU * t).sin(), c])
+    }
+
+    /// A replay history holding the first 400 steps of `sine_gait(·, c)`.
+    fn recorded_gait(c: f64) -> DisturbanceReplay<2> {
+        let mut r = DisturbanceReplay::<2>::new(1, 0.01);
+        for k in 0..400 {
+            r.record_step(0, 0, &sine_gait(k, c), None);
+            r.count += 1;
+        }
+        r
+    }
+
     /// The replay over a fault of several gait periods repeats the gait before the fault with
     /// one offset: `d̂(k) − d̂(k − p)` stays near zero from the second period on. Recording the
     /// replayed `d̂` instead of the continued gait added the offset again every period (2 N·m
     /// here, the `d̂` held 2 N·m off the gait when the replay began).
     #[test]
     fn the_replay_repeats_the_gait_without_drift() {
-        let dt = 0.01;
         let p = 100;
-        let gait = |k: usize| {
-            let t = k as f64 * dt;
-            SVector::<f64, 2>::from([6.0 * (core::f64::consts::TAU * t).sin(), 1.0])
-        };
-        let mut r = DisturbanceReplay::<2>::new(1, dt);
-        for k in 0..400 {
-            r.record_step(0, 0, &gait(k), None);
-            r.count += 1;
-        }
+        let gait = |k: usize| sine_gait(k, 1.0);
+        let mut r = recorded_gait(1.0);
         let mut current = gait(399) + SVector::from([2.0, 2.0]);
         let mut out = Vec::new();
         r.set_period(p);
@@ -1237,17 +1245,9 @@ mod tests {
     /// gait's change over the held steps through the whole replay.
     #[test]
     fn the_replay_after_a_hold_continues_the_gait_from_the_faults_start() {
-        let dt = 0.01;
         let p = 100;
-        let gait = |k: usize| {
-            let t = k as f64 * dt;
-            SVector::<f64, 2>::from([6.0 * (core::f64::consts::TAU * t).sin(), 0.5])
-        };
-        let mut r = DisturbanceReplay::<2>::new(1, dt);
-        for k in 0..400 {
-            r.record_step(0, 0, &gait(k), None);
-            r.count += 1;
-        }
+        let gait = |k: usize| sine_gait(k, 0.5);
+        let mut r = recorded_gait(0.5);
         // The forces are lost from step 400: `d̂` stays at gait(399) while it is held.
         let held_value = gait(399);
         let held = REPLAY_AFTER_STEPS as usize;
@@ -1265,16 +1265,8 @@ mod tests {
     /// A new gait-period estimate within a replay restarts it where it is: no step.
     #[test]
     fn a_new_period_within_the_replay_does_not_step_it() {
-        let dt = 0.01;
-        let gait = |k: usize| {
-            let t = k as f64 * dt;
-            SVector::<f64, 2>::from([6.0 * (core::f64::consts::TAU * t).sin(), 1.0])
-        };
-        let mut r = DisturbanceReplay::<2>::new(1, dt);
-        for k in 0..400 {
-            r.record_step(0, 0, &gait(k), None);
-            r.count += 1;
-        }
+        let gait = |k: usize| sine_gait(k, 1.0);
+        let mut r = recorded_gait(1.0);
         let mut current = gait(399);
         let mut largest: f64 = 0.0;
         for step in 0..80 {
