@@ -70,14 +70,16 @@ pub const STUCK_SPEED: f64 = 0.05;
 /// window holds accepted angles only: before that the slope spans the jump from an estimate back to
 /// the measurement, and the velocity counts as one whose angle is lost), and a channel whose
 /// partner is lost too (or a force) by replaying the gait one period back (the gait frequency of
-/// the supervisor) with the offset it had when the replay began (added once), or, without a known
-/// period, by holding (an angle: integrating the estimated velocity). A rejected channel is
+/// the supervisor) with the offset it had when the replay began (added once; a new period estimate
+/// restarts the replay where it is), or, without a known period, by holding (an angle:
+/// integrating the estimated velocity). A rejected channel is
 /// accepted again once a fresh sample lies within [`ACCEPT_GATES`] gates of its estimate
 /// ([`SLOPE_ACCEPT_GATES`] for a velocity estimated from its good angle's slope; a filtered
 /// velocity or force also moving like its estimate, within one gate), or, after `resync_after`
 /// steps, once three fresh samples are smooth (the estimate then jumps to it: the supervisor's rate
-/// limit bounds the torque step). The two samples after a re-acceptance are not gated: the
-/// extrapolation still runs through the estimate.
+/// limit bounds the torque step; a strap force that moves along its estimate, an offset, moves
+/// from it to the measurement at [`FORCE_BIAS_RATE`]). The two samples after a re-acceptance are
+/// not gated: the extrapolation still runs through the estimate.
 #[derive(Clone, Debug)]
 pub struct ChannelGuard<const N: usize> {
     dt: f64,
@@ -547,8 +549,9 @@ impl<const N: usize> ChannelGuard<N> {
                 }
                 if sig == F {
                     if good && resynced {
-                        // Believed on smoothness alone, the force starts at its estimate and
-                        // its jump is taken in at `FORCE_BIAS_RATE`.
+                        // Believed on smoothness alone while it moves along its estimate (an
+                        // offset), the force starts at its estimate and its jump is taken in at
+                        // `FORCE_BIAS_RATE`; a force that moves otherwise is believed at once.
                         self.force_bias[j] = estimate - v;
                     }
                     if good {
