@@ -7,9 +7,9 @@
 
 use exompc::config::{ControllerKind, Experiment};
 use exompc::control::{
-    ChannelGuard, Measurement, MonitorAction, MonitorKind, StepStatus, TorqueExtrapolation,
-    EXTRAPOLATION_MAX_HZ, FORCE_BIAS_RATE, FORCE_RESYNC_S, GAIT_MAX_HZ, SLOPE_ACCEPT_GATES,
-    VELOCITY_GATE,
+    ChannelGuard, Measurement, MonitorAction, MonitorKind, Repaired, StepStatus,
+    TorqueExtrapolation, EXTRAPOLATION_MAX_HZ, FORCE_BIAS_RATE, FORCE_RESYNC_S, GAIT_MAX_HZ,
+    SLOPE_ACCEPT_GATES, VELOCITY_GATE,
 };
 use exompc::estimate::MovingAverage;
 use exompc::model::Straps;
@@ -831,6 +831,54 @@ fn invalid_angles_with_measured_velocities_are_no_stall() {
     }
 }
 
+/// One sample of a channel guard's run on the test gait: the true filtered strap force, the
+/// measurement handed to the guard and its repair.
+struct ForceSample {
+    true_f: SVector<f64, 2>,
+    m: Measurement<2>,
+    rep: Repaired<2>,
+}
+
+/// A channel guard over `steps` samples of the test gait, each raw strap force `k` changed by
+/// `world(k, &mut force)` (the true force) and then by `fault(k, &mut force)` (the sensor's
+/// fault), the gait period `period(k)` (s) and resynchronisation after `resync_after` steps.
+fn force_fault_run(
+    steps: usize,
+    world: impl Fn(usize, &mut SVector<f64, 2>),
+    fault: impl Fn(usize, &mut SVector<f64, 2>),
+    period: impl Fn(usize) -> f64,
+    resync_after: u64,
+) -> Vec<ForceSample> {
+    let mut g = Gait::new();
+    let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
+    let mut truth = MovingAverage::<2>::new(5);
+    (0..steps)
+        .map(|k| {
+            let mut raw = g.raw(k);
+            world(k, &mut raw.2);
+            let true_f = truth.push(raw.2);
+            fault(k, &mut raw.2);
+            let m = g.measure(k, raw);
+            let rep = guard.repair(&m, Some(period(k)), resync_after, None);
+            ForceSample { true_f, m, rep }
+        })
+        .collect()
+}
+
+/// The largest step `|x(k) − x(k − 1)|` of each prefix of `xs` (0 for the first).
+fn largest_steps(xs: impl Iterator<Item = SVector<f64, 2>>) -> Vec<f64> {
+    let mut prev = None::<SVector<f64, 2>>;
+    let mut largest: f64 = 0.0;
+    xs.map(|x| {
+        if let Some(p) = prev {
+            largest = largest.max((x - p).amax());
+        }
+        prev = Some(x);
+        largest
+    })
+    .collect()
+}
+
 /// A force replayed over more than one gait period repeats the gait before the fault with one
 /// offset, the one it had when the replay began: the replay does not extrapolate the change of
 /// the period before the fault. The force drifts by 0.5 N a period; the replay starts 0.5 N
@@ -840,27 +888,25 @@ fn invalid_angles_with_measured_velocities_are_no_stall() {
 /// drift). Adding the offset again every period extrapolated it: 0.5 N more each period.
 #[test]
 fn a_replay_over_several_periods_adds_its_offset_once() {
-    let mut g = Gait::new();
-    let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
-    let mut truth = MovingAverage::<2>::new(5);
-    let mut est = Vec::new();
-    for k in 0..560 {
-        let mut raw = g.raw(k);
-        raw.2.add_scalar_mut(0.005 * k as f64);
-        let true_f = truth.push(raw.2);
-        if (300..550).contains(&k) {
-            raw.2 = SVector::repeat(f64::NAN);
-        }
-        let m = g.measure(k, raw);
-        let rep = guard.repair(&m, Some(1.0), 50, None);
-        if (300..550).contains(&k) {
-            assert!(rep.estimated.force.iter().all(|&e| e), "step {k}");
-            if k < 400 {
-                let err = (rep.m.force - true_f).amax();
-                assert!(err <= 0.05, "step {k}: {err:.3} N off the force");
+    let run = force_fault_run(
+        560,
+        |k, f| f.add_scalar_mut(0.005 * k as f64),
+        |k, f| {
+            if (300..550).contains(&k) {
+                *f = SVector::repeat(f64::NAN);
             }
-            est.push(rep.m.force);
+        },
+        |_| 1.0,
+        50,
+    );
+    let mut est = Vec::new();
+    for (k, s) in run.iter().enumerate().take(550).skip(300) {
+        assert!(s.rep.estimated.force.iter().all(|&e| e), "step {k}");
+        if k < 400 {
+            let err = (s.rep.m.force - s.true_f).amax();
+            assert!(err <= 0.05, "step {k}: {err:.3} N off the force");
         }
+        est.push(s.rep.m.force);
     }
     for k in 100..est.len() {
         let drift = (est[k] - est[k - 100]).amax();
@@ -875,33 +921,25 @@ fn a_replay_over_several_periods_adds_its_offset_once() {
 /// within the fault and the estimated forces step by 3 N.
 #[test]
 fn a_new_gait_period_within_a_replay_does_not_step_it() {
-    let mut g = Gait::new();
-    let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
-    let mut truth = MovingAverage::<2>::new(5);
-    let (mut prev_true, mut prev_est) = (None::<SVector<f64, 2>>, None::<SVector<f64, 2>>);
-    let (mut true_step, mut est_step): (f64, f64) = (0.0, 0.0);
-    for k in 0..400 {
-        let mut raw = g.raw(k);
-        let true_f = truth.push(raw.2);
-        if let Some(p) = prev_true {
-            true_step = true_step.max((true_f - p).amax());
-        }
-        prev_true = Some(true_f);
-        if (300..360).contains(&k) {
-            raw.2 = SVector::repeat(f64::NAN);
-        }
-        let m = g.measure(k, raw);
-        // The gait-frequency estimate moves from 1 s to 0.94 s 20 steps into the fault.
-        let period = if k < 320 { 1.0 } else { 0.94 };
-        let rep = guard.repair(&m, Some(period), 50, None);
-        if (300..360).contains(&k) {
-            assert!(rep.estimated.force.iter().all(|&e| e), "step {k}");
-            if let Some(p) = prev_est {
-                est_step = est_step.max((rep.m.force - p).amax());
+    let run = force_fault_run(
+        400,
+        |_, _| {},
+        |k, f| {
+            if (300..360).contains(&k) {
+                *f = SVector::repeat(f64::NAN);
             }
-            prev_est = Some(rep.m.force);
-        }
+        },
+        // The gait-frequency estimate moves from 1 s to 0.94 s 20 steps into the fault.
+        |k| if k < 320 { 1.0 } else { 0.94 },
+        50,
+    );
+    for (k, s) in run.iter().enumerate().take(360).skip(300) {
+        assert!(s.rep.estimated.force.iter().all(|&e| e), "step {k}");
     }
+    let true_step = *largest_steps(run.iter().map(|s| s.true_f)).last().unwrap();
+    let est_step = *largest_steps(run[300..360].iter().map(|s| s.rep.m.force))
+        .last()
+        .unwrap();
     assert!(
         est_step <= 1.2 * true_step,
         "the estimate stepped by {est_step:.3} N, the force by at most {true_step:.3} N"
@@ -913,45 +951,39 @@ fn a_new_gait_period_within_a_replay_does_not_step_it() {
 /// measurement at [`FORCE_BIAS_RATE`], then follows the measurement.
 #[test]
 fn a_force_believed_on_smoothness_alone_is_taken_in_at_the_bias_rate() {
-    let mut g = Gait::new();
-    let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
-    let mut truth = MovingAverage::<2>::new(5);
-    let (mut prev_true, mut prev_out) = (None::<SVector<f64, 2>>, None::<SVector<f64, 2>>);
-    let mut true_step: f64 = 0.0;
+    let run = force_fault_run(
+        500,
+        |_, _| {},
+        |k, f| {
+            if k >= 300 {
+                f.add_scalar_mut(30.0);
+            }
+        },
+        |_| 1.0,
+        1000,
+    );
+    // The true force's largest step up to each sample.
+    let true_step = largest_steps(run.iter().map(|s| s.true_f));
     let mut believed_at = None;
-    for k in 0..500 {
-        let mut raw = g.raw(k);
-        let true_f = truth.push(raw.2);
-        if let Some(p) = prev_true {
-            true_step = true_step.max((true_f - p).amax());
+    for (k, s) in run.iter().enumerate().skip(300) {
+        let measured = !s.rep.estimated.force.iter().any(|&e| e);
+        if measured && believed_at.is_none() {
+            believed_at = Some(k);
         }
-        prev_true = Some(true_f);
-        if k >= 300 {
-            raw.2.add_scalar_mut(30.0);
+        if k > 300 {
+            let step = (s.rep.m.force - run[k - 1].rep.m.force).amax();
+            let bound = FORCE_BIAS_RATE * 0.01 + true_step[k] + 0.05;
+            assert!(
+                step <= bound,
+                "step {k}: the force moved {step:.2} N (≤ {bound:.2})"
+            );
         }
-        let m = g.measure(k, raw);
-        let rep = guard.repair(&m, Some(1.0), 1000, None);
-        if k >= 300 {
-            let measured = !rep.estimated.force.iter().any(|&e| e);
-            if measured && believed_at.is_none() {
-                believed_at = Some(k);
+        if let Some(b) = believed_at {
+            // 30 N at the bias rate, and a few samples of margin.
+            if k >= b + (30.0 / (FORCE_BIAS_RATE * 0.01)) as usize + 5 {
+                let err = (s.rep.m.force - s.m.force).amax();
+                assert!(err <= 1e-9, "step {k}: {err:.3} N off the measurement");
             }
-            if let Some(p) = prev_out {
-                let step = (rep.m.force - p).amax();
-                let bound = FORCE_BIAS_RATE * 0.01 + true_step + 0.05;
-                assert!(
-                    step <= bound,
-                    "step {k}: the force moved {step:.2} N (≤ {bound:.2})"
-                );
-            }
-            if let Some(b) = believed_at {
-                // 30 N at the bias rate, and a few samples of margin.
-                if k >= b + (30.0 / (FORCE_BIAS_RATE * 0.01)) as usize + 5 {
-                    let err = (rep.m.force - m.force).amax();
-                    assert!(err <= 1e-9, "step {k}: {err:.3} N off the measurement");
-                }
-            }
-            prev_out = Some(rep.m.force);
         }
     }
     let b = believed_at.expect("the offset force is believed");
