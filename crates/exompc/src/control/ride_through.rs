@@ -100,7 +100,8 @@ pub struct ChannelGuard<const N: usize> {
     /// Replay offset per signal and joint (NaN: not replaying).
     offset: [SVector<f64, N>; 3],
     /// Per signal and joint: consecutive steps the estimate has been the replay (from `p`
-    /// on, the value a period back is itself a replayed one and carries the offset).
+    /// on, the value a period back is itself a replayed one and carries the offset); reset
+    /// where a replay takes its offset, so meaningful while the offset is finite.
     replayed_for: [[u32; N]; 3],
     /// Consecutive fresh, smooth raw samples of a rejected channel.
     smooth: [[u32; N]; 3],
@@ -365,10 +366,7 @@ impl<const N: usize> ChannelGuard<N> {
         // 200-ms force spike at 3 kg: the period went from 107 to 101 steps within the fault
         // and the estimated forces stepped by 3 N).
         if period != self.replay_period {
-            for (o, r) in self.offset.iter_mut().zip(self.replayed_for.iter_mut()) {
-                *o = SVector::repeat(f64::NAN);
-                *r = [0; N];
-            }
+            self.offset = [SVector::repeat(f64::NAN); 3];
         }
         self.replay_period = period;
         // Linear extrapolations of the estimates, and the mean slope of the angle over the
@@ -548,7 +546,7 @@ impl<const N: usize> ChannelGuard<N> {
                     self.railed[j] = railed;
                 }
                 if sig == F {
-                    if good && resynced {
+                    if good && resynced && (estimate - v).is_finite() {
                         // Believed on smoothness alone while it moves along its estimate (an
                         // offset), the force starts at its estimate and its jump is taken in at
                         // `FORCE_BIAS_RATE`; a force that moves otherwise is believed at once.
@@ -558,12 +556,7 @@ impl<const N: usize> ChannelGuard<N> {
                         out[F][j] = v + self.force_bias[j];
                     }
                     let fade = FORCE_BIAS_RATE * self.dt;
-                    let b = self.force_bias[j];
-                    self.force_bias[j] = if b.is_finite() {
-                        b - b.clamp(-fade, fade)
-                    } else {
-                        0.0
-                    };
+                    self.force_bias[j] -= self.force_bias[j].clamp(-fade, fade);
                 }
                 if good {
                     if was_bad {
@@ -579,7 +572,6 @@ impl<const N: usize> ChannelGuard<N> {
                     }
                     self.bad_for[sig][j] = 0;
                     self.offset[sig][j] = f64::NAN;
-                    self.replayed_for[sig][j] = 0;
                 } else {
                     if !was_bad {
                         self.episodes += 1;
@@ -645,7 +637,6 @@ impl<const N: usize> ChannelGuard<N> {
                     out[sig][j] = value;
                     // Not the replay on this step: the next replay starts with a new offset.
                     if !replayed {
-                        self.replayed_for[sig][j] = 0;
                         self.offset[sig][j] = f64::NAN;
                     }
                     match sig {
