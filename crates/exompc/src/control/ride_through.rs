@@ -78,8 +78,10 @@ pub const STUCK_SPEED: f64 = 0.05;
 /// velocity or force also moving like its estimate, within one gate), or, after `resync_after`
 /// steps, once three fresh samples are smooth (the estimate then jumps to it: the supervisor's rate
 /// limit bounds the torque step; a strap force that moves along its estimate, an offset, moves
-/// from it to the measurement at [`FORCE_BIAS_RATE`]). The two samples after a re-acceptance are
-/// not gated: the extrapolation still runs through the estimate.
+/// from it to the measurement at [`FORCE_BIAS_RATE`]; a velocity estimated from its good angle's
+/// slope, a measurement of the same quantity, is never accepted on smoothness alone). The two
+/// samples after a re-acceptance are not gated: the extrapolation still runs through the
+/// estimate.
 #[derive(Clone, Debug)]
 pub struct ChannelGuard<const N: usize> {
     dt: f64,
@@ -526,8 +528,14 @@ impl<const N: usize> ChannelGuard<N> {
                         ACCEPT_GATES
                     };
                     let agrees = (vb - estimate).abs() < accept_gates * gate && moves_along;
-                    let resync_now =
-                        !agrees && self.bad_for[sig][j] >= resync && self.smooth[sig][j] >= 2;
+                    // A velocity estimated from its good angle's slope is not believed on
+                    // smoothness alone: the slope measures the same quantity, so a smooth
+                    // velocity that disagrees with it is an offset (a 1-s 0.5-rad/s spike,
+                    // believed after `resync_after`, gave 29-39 N at 0-3 kg).
+                    let resync_now = !agrees
+                        && self.bad_for[sig][j] >= resync
+                        && self.smooth[sig][j] >= 2
+                        && !(sig == QD && slope_ok);
                     resynced = resync_now && moves_along;
                     agrees || resync_now
                 } else {
