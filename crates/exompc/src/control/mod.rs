@@ -73,7 +73,7 @@ pub use safety::{
     OscillationDetector, SafetyReport, SafetySettings, StrapAngleEstimate, Supervisor,
     FALLBACK_DEMAND_BEYOND, FALLBACK_DEMAND_JUMP, FALLBACK_OSCILLATION_GAIT_RATIO, GAIT_BAND_RAD,
     GAIT_MAX_HZ, GAIT_MEAN_TAU_S, OSCILLATION_MIN_HALF_CYCLES, REPLAY_HANDBACK_STEPS,
-    STOP_RAMP_NM_PER_S,
+    STOP_HANDBACK_STEPS, STOP_RAMP_NM_PER_S,
 };
 
 use nalgebra::SVector;

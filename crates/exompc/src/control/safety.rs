@@ -93,7 +93,8 @@ pub struct Monitors {
     /// frozen or outside its innovation gate, see [`ChannelGuard`]) for longer than this trips
     /// the `sensor_timeout` monitor, whose response is always the protective stop (torque
     /// ramped to zero at [`STOP_RAMP_NM_PER_S`] and held until every channel has been good for
-    /// 0.1 s). Shorter faults are ridden through on the channel's estimate. Default 0.5.
+    /// 0.1 s, then handed back to the controller over [`STOP_HANDBACK_STEPS`]). Shorter faults
+    /// are ridden through on the channel's estimate. Default 0.5.
     pub sensor_timeout_s: f64,
     /// Response when tripped (`"hold"`, `"ramp_to_zero"` or `"fallback"`, the transparent
     /// fallback controller). Default `"fallback"`.
@@ -683,6 +684,25 @@ pub const STOP_RAMP_NM_PER_S: f64 = 100.0;
 /// encoder channel lost) to the controller's, linearly (0.1 s at 10 ms).
 pub const REPLAY_HANDBACK_STEPS: u32 = 10;
 
+/// Steps over which the torque goes back from the protective stop's (where its ramp to zero
+/// was) to the controller's when the stop ends, linearly (0.1 s at 10 ms). Handed the torque
+/// at once, the controller asked for up to the torque limit on its first steps, with the
+/// robot lagging the person it had not held (a 1-s NaN of both angles at 2.5 s, 3 kg:
+/// 84.7 N; docs/RELIABILITY.md §2).
+pub const STOP_HANDBACK_STEPS: u32 = 10;
+
+/// The blend of a handback from `from` to `to` with `left` of `steps` steps left: linear in
+/// the step, `to` once none is left.
+fn handback_blend<const N: usize>(
+    from: SVector<f64, N>,
+    to: SVector<f64, N>,
+    left: u32,
+    steps: u32,
+) -> SVector<f64, N> {
+    let a = 1.0 - f64::from(left) / f64::from(steps + 1);
+    from + (to - from) * a
+}
+
 /// Runtime safety supervision (exoskeleton-firmware style): measurement plausibility checks
 /// with a safe fallback, and the `[monitors]` of the scenario, wrapped around any controller.
 ///
@@ -798,6 +818,12 @@ pub struct Supervisor<const N: usize, C> {
     coasting: bool,
     /// Steps left of the blend from the replay back to the controller.
     handback: u32,
+    /// The protective stop had the torque on the previous step.
+    stopped: bool,
+    /// Steps left of the blend from the end of the protective stop back to the controller,
+    /// and the torque it starts from.
+    stop_handback: u32,
+    stop_handback_from: SVector<f64, N>,
     /// The torque of the last fully measured step (every channel measured, no monitor
     /// tripped, no replay): what `hold` holds.
     last_safe: SVector<f64, N>,
@@ -904,6 +930,9 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             stall_coast: false,
             coasting: false,
             handback: 0,
+            stopped: false,
+            stop_handback: 0,
+            stop_handback_from: SVector::zeros(),
             last_safe: prev,
             fallback_since: None,
             fallback_osc,
@@ -1447,9 +1476,9 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             }
             Some(r) if self.handback > 0 && valid => {
                 self.coasting = false;
-                let a = 1.0 - f64::from(self.handback) / f64::from(REPLAY_HANDBACK_STEPS + 1);
+                let blend = handback_blend(r, desired, self.handback, REPLAY_HANDBACK_STEPS);
                 self.handback -= 1;
-                r + (desired - r) * a
+                blend
             }
             _ => {
                 self.coasting = false;
@@ -1460,6 +1489,28 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         if !self.coasting && self.handback == 0 {
             self.extrapolation = None;
         }
+        // When the protective stop ends the torque goes back to the controller's over
+        // `STOP_HANDBACK_STEPS`, from where the stop left it.
+        if self.stopped && !tripped {
+            self.stop_handback = STOP_HANDBACK_STEPS;
+            self.stop_handback_from = prev;
+        }
+        self.stopped = tripped && (stop || self.fallback_failed);
+        let desired = if tripped {
+            self.stop_handback = 0;
+            desired
+        } else if self.stop_handback > 0 {
+            let blend = handback_blend(
+                self.stop_handback_from,
+                desired,
+                self.stop_handback,
+                STOP_HANDBACK_STEPS,
+            );
+            self.stop_handback -= 1;
+            blend
+        } else {
+            desired
+        };
         let desired = if tripped {
             self.report.monitor_steps += 1;
             if self.latched && !self.is_tripped() {
@@ -1473,7 +1524,8 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         let torque = self.s.limits.clamp(&prev, &desired);
         self.push_history(torque, m.q);
         self.prev = torque;
-        if valid && !rep.any_rejected && !tripped && !self.coasting && self.handback == 0 {
+        let handing_back = self.handback > 0 || self.stop_handback > 0;
+        if valid && !rep.any_rejected && !tripped && !self.coasting && !handing_back {
             self.last_safe = torque;
         }
         if self.inner.previous_torque() != torque {
