@@ -531,7 +531,7 @@ impl<const N: usize> ChannelGuard<N> {
                     // A velocity estimated from its good angle's slope is not believed on
                     // smoothness alone: the slope measures the same quantity, so a smooth
                     // velocity that disagrees with it is an offset (a 1-s 0.5-rad/s spike,
-                    // believed after `resync_after`, gave 29-39 N at 0-3 kg).
+                    // believed after `resync_after`, gave 29-46 N at 0-3 kg).
                     let resync_now = !agrees
                         && self.bad_for[sig][j] >= resync
                         && self.smooth[sig][j] >= 2
