@@ -492,13 +492,15 @@ fn a_force_back_from_full_scale_is_not_rejected() {
 }
 
 /// Spikes on the filtered channels (issue 28): a 60-ms, 30-N spike on both strap forces and
-/// a 0.5-rad/s spike on both velocities (60 and 200 ms) at 2 kg (msnmpc) stay within the
-/// goals of one channel group (peak true strap force ≤ 12 N, RMS ≤ 1.5× clean) without a
+/// a 0.5-rad/s spike on both velocities (60 ms, 200 ms and 1 s) at 2 kg (msnmpc) stay within
+/// the goals of one channel group (peak true strap force ≤ 12 N, RMS ≤ 1.5× clean) without a
 /// monitor trip. The moving average spreads a spike over `filter_window` more samples, whose
 /// ramp back crosses the estimate: a channel is accepted back only when it also moves like
 /// its estimate (before: 78 N for the force spike, 15-20 N for velocity spikes). A 200-ms
 /// force spike is ridden through since `FORCE_RESYNC_S` is 0.3 s (with 0.1 s: 43.7 N;
-/// docs/RELIABILITY.md §2a).
+/// docs/RELIABILITY.md §2a). A velocity whose angle is measured is judged against the angle's
+/// slope only and never believed on smoothness alone (the 1-s spike believed after
+/// `sensor_timeout_s`: 29.4 N; 29.3 N in the 1-s grid's 10-s run).
 #[test]
 fn spikes_on_filtered_channels_are_ridden_through() {
     const FORCES: [Channel; 2] = [Channel::F1, Channel::F2];
@@ -506,7 +508,7 @@ fn spikes_on_filtered_channels_are_ridden_through() {
     let (_, rms0, _, _) = run(&clean);
     for (chans, mag, durs) in [
         (&FORCES, 30.0, &[0.06, 0.2][..]),
-        (&VELOCITIES, 0.5, &[0.06, 0.2]),
+        (&VELOCITIES, 0.5, &[0.06, 0.2, 1.0]),
     ] {
         for &dur in durs {
             let mut faulty = clean.clone();
@@ -522,27 +524,6 @@ fn spikes_on_filtered_channels_are_ridden_through() {
             assert_eq!(rep.latched_at, None);
         }
     }
-}
-
-/// A 1-s 0.5-rad/s spike of both velocities at 2 kg (the 1-s scan's cell at 3 s) is ridden
-/// through like the shorter ones: a velocity whose angle is measured is judged against the
-/// angle's slope only and never believed on smoothness alone (before: believed after
-/// `sensor_timeout_s`, 29.4 N in this 6-s run and 29.3 N in the 1-s grid's 10-s run,
-/// docs/RELIABILITY.md §2a).
-#[test]
-fn a_one_second_velocity_spike_is_not_believed_against_its_angles_slope() {
-    let clean = scenario(ControllerKind::MSNMPC, 2.0, 6.0);
-    let (_, rms0, _, _) = run(&clean);
-    let mut faulty = clean.clone();
-    faulty.faults.events = fault(FaultKind::Spike, &VELOCITIES, 3.0, 1.0, 0.5);
-    let (peak, rms, rep, _) = run(&faulty);
-    assert!(peak <= 12.0, "peak {peak:.1} N");
-    for i in 0..2 {
-        assert!(rms[i] <= 1.5 * rms0[i], "RMS {rms:?} vs {rms0:?}");
-    }
-    assert!(rep.sensor_faults > 0, "nothing detected");
-    assert_eq!(rep.monitor_trips, 0, "{:?}", rep.events);
-    assert_eq!(rep.latched_at, None);
 }
 
 /// A 1-s NaN of both angles at 2.5 s, 3 kg (the 1-s scan's cell, 10-s msnmpc run) ends in the
