@@ -168,8 +168,8 @@ fn a_velocity_that_moves_again_is_accepted_once_its_window_is_clean() {
 /// stop: the torque ramps to zero within the rate limit and stays there while the fault
 /// lasts; when the channel is good again the controller takes over within 0.2 s (no latch;
 /// the handover after the stop may trip a monitor). At 0 kg; at 2 kg the person carries robot
-/// and payload during the stop (strap forces near 40 N) and the controller's return trips the
-/// oscillation monitors (docs/RELIABILITY.md §2; the next test bounds the return).
+/// and payload during the stop (strap forces near 40 N; docs/RELIABILITY.md §2; the next test
+/// bounds the return).
 #[test]
 fn a_persistent_fault_ends_in_the_protective_stop_and_recovers() {
     let mut s = scenario(ControllerKind::MSNMPC, 0.0, 6.0);
@@ -208,11 +208,12 @@ fn a_persistent_fault_ends_in_the_protective_stop_and_recovers() {
 }
 
 /// Back from the protective stop at 2 kg (the same 1.5-s NaN on both angles): during the stop
-/// the robot hung on the person (strap forces near 40 N), and the controller takes over again
-/// at the rate limit. The strap forces then follow the robot's own fast motion; the force gate
-/// judges them less the robot's part (`ChannelGuard::with_straps`), so they stay measured and
-/// the true strap forces over the 0.3 s after the controller is back stay under 70 N (the
-/// issue's bound for faults of up to 1 s; 38 N on 2026-12-05). Before, the gate rejected them as
+/// the robot hung on the person (strap forces near 40 N), and the torque goes back to the
+/// controller's over `STOP_HANDBACK_STEPS`. The strap forces then follow the robot's own fast
+/// motion; the force gate judges them less the robot's part (`ChannelGuard::with_straps`), so
+/// they stay measured and the true strap forces over the 0.3 s after the controller is back
+/// stay under 70 N (the bound for faults of up to 1 s; 40.0 N on 2026-12-05, 56.6 N
+/// with the torque handed back at once). Before the robot's part, the gate rejected them as
 /// spikes, and the controller, stepping on their estimates, drove the knee 0.6 rad past the
 /// leg: 127 N.
 #[test]
