@@ -472,3 +472,139 @@ fn soak_60_s_with_faults() {
 fn soak_1_h_with_faults() {
     check_soak(3600.0);
 }
+
+/// A controller that asks for a torque that is a function of time (0.7 Hz, off the gait's
+/// 1 Hz) and plans it for the later periods (within the limits from its previous torque).
+struct Scheduled {
+    last_t: f64,
+    dt: f64,
+    prev: SVector<f64, 2>,
+    limits: exompc::control::TorqueLimits,
+}
+
+impl Scheduled {
+    fn at(t: f64) -> SVector<f64, 2> {
+        let w = 2.0 * std::f64::consts::PI * 0.7;
+        SVector::<f64, 2>::new(6.0 * (w * t).sin(), -4.0 * (w * t).cos())
+    }
+}
+
+impl Controller<2> for Scheduled {
+    fn step(&mut self, m: &Measurement<2>) -> exompc::control::ControlOutput<2> {
+        self.last_t = m.t;
+        self.prev = self.limits.clamp(&self.prev, &Self::at(m.t));
+        exompc::control::ControlOutput {
+            torque: self.prev,
+            status: StepStatus::Ok,
+            iterations: 0,
+        }
+    }
+    fn name(&self) -> &'static str {
+        "scheduled"
+    }
+    fn previous_torque(&self) -> SVector<f64, 2> {
+        self.prev
+    }
+    fn set_previous_torque(&mut self, t: SVector<f64, 2>) {
+        self.prev = self.limits.admissible(&t);
+    }
+    fn planned_torques(&self, out: &mut [SVector<f64, 2>]) -> usize {
+        let mut p = self.prev;
+        for (i, o) in out.iter_mut().enumerate() {
+            p = self
+                .limits
+                .clamp(&p, &Self::at(self.last_t + (i + 1) as f64 * self.dt));
+            *o = p;
+        }
+        out.len()
+    }
+}
+
+/// The supervisor's planned torques (what a robot plays while no command arrives) are the
+/// torques it would output on the next periods: also through a handback, after the
+/// protective stop (a 1-s NaN of both angles) and after the replay of one gait period back
+/// (a 0.2-s NaN of every encoder channel once the gait period is known), where the output
+/// blends into the controller's, and within that replay. Before, the plan was the
+/// controller's own, and a link lost in the handback skipped it.
+#[test]
+fn the_plan_follows_the_handbacks() {
+    let s = Experiment::default();
+    let settings = SafetySettings::from_scenario(&s);
+    let dt = settings.dt;
+    let inner = Scheduled {
+        last_t: 0.0,
+        dt,
+        prev: SVector::zeros(),
+        limits: limits(&s),
+    };
+    let mut sup = Supervisor::new(inner, settings);
+    // A 1-Hz gait seen by the sensors, small varying strap forces.
+    let m = |k: usize, nan_q: bool, nan_qd: bool| {
+        let t = k as f64 * dt;
+        let w = 2.0 * std::f64::consts::PI;
+        let q = SVector::<f64, 2>::new(0.3 * (w * t).sin(), -0.6 + 0.4 * (w * t).cos());
+        let qd = SVector::<f64, 2>::new(0.3 * w * (w * t).cos(), -0.4 * w * (w * t).sin());
+        Measurement::<2> {
+            t,
+            q: if nan_q { q.map(|_| f64::NAN) } else { q },
+            qd: if nan_qd { qd.map(|_| f64::NAN) } else { qd },
+            force: SVector::<f64, 2>::new(1.0 + 0.2 * (w * t).sin(), 0.5 * (w * t).cos()),
+        }
+    };
+    let mut plan = [SVector::<f64, 2>::zeros(); 12];
+    // (fault from step, to step, velocities lost too, what ends it)
+    let mut k = 0;
+    for (from, to, qd_too, what) in [
+        (300, 400, false, "protective stop"),
+        (700, 720, true, "replay"),
+    ] {
+        let mut tripped = false;
+        let mut checked = 0;
+        while k < to + 200 {
+            let fault = k >= from && k < to;
+            let out = sup.step(&m(k, fault, fault && qd_too));
+            k += 1;
+            tripped |= out.status == StepStatus::MonitorTripped;
+            let done = if qd_too {
+                k > to
+            } else {
+                tripped && out.status != StepStatus::MonitorTripped
+            };
+            if done && checked == 0 {
+                let n = sup.planned_torques(&mut plan);
+                assert_eq!(n, plan.len(), "{what}");
+                for (i, p) in plan.iter().enumerate() {
+                    let o = sup.step(&m(k, false, false));
+                    k += 1;
+                    assert!(
+                        (o.torque - p).amax() < 1e-12,
+                        "{what}: period {i} after the plan, output {:?} against plan {:?}",
+                        o.torque,
+                        p
+                    );
+                }
+                checked = 1;
+            }
+        }
+        assert_eq!(checked, 1, "{what}: the handback was not reached");
+        assert_eq!(tripped, !qd_too, "{what}: {:?}", sup.safety_report());
+    }
+    // Within a loss of every encoder channel: the replay, while the channels stay lost.
+    for _ in 0..10 {
+        sup.step(&m(k, true, true));
+        k += 1;
+    }
+    let n = sup.planned_torques(&mut plan);
+    assert_eq!(n, plan.len(), "coast");
+    for (i, p) in plan.iter().enumerate() {
+        let o = sup.step(&m(k, true, true));
+        k += 1;
+        assert_eq!(o.status, StepStatus::BadMeasurement);
+        assert!(
+            (o.torque - p).amax() < 1e-12,
+            "coast: period {i} after the plan, output {:?} against plan {:?}",
+            o.torque,
+            p
+        );
+    }
+}

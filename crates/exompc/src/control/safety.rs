@@ -816,8 +816,10 @@ pub struct Supervisor<const N: usize, C> {
     stall_coast: bool,
     /// The torque replay had the torque on the previous step.
     coasting: bool,
-    /// Steps left of the blend from the replay back to the controller.
+    /// Steps left of the blend from the replay back to the controller, and the replay's lag
+    /// (steps) on the last step.
     handback: u32,
+    replay_lag_now: Option<usize>,
     /// The protective stop had the torque on the previous step.
     stopped: bool,
     /// Steps left of the blend from the end of the protective stop back to the controller,
@@ -930,6 +932,7 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             stall_coast: false,
             coasting: false,
             handback: 0,
+            replay_lag_now: None,
             stopped: false,
             stop_handback: 0,
             stop_handback_from: SVector::zeros(),
@@ -1434,6 +1437,7 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             self.stall_coast = rep.stalled;
         }
         let replay_period = self.replay_lag(period);
+        self.replay_lag_now = replay_period;
         let len = self.torque_hist.len();
         // Before the gait period is known (the first gait period), the replay extrapolates
         // the applied torque at the gait frequency of the recent angles
@@ -1564,16 +1568,51 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         Some(&self.report)
     }
 
-    /// The inner controller's plan while it drives the output (none while a monitor response
-    /// or the latch does), clamped to the limits from the last output.
+    /// The torques the output would take on the next periods, for a robot to play while no
+    /// command arrives: none while a monitor response or the latch has the torque; while
+    /// every encoder channel is lost, the replay of one gait period back (or the torque
+    /// extrapolation) as far as it is known; else the inner controller's plan, through the
+    /// rest of a handback (from the replay, or from the end of the protective stop) as `step`
+    /// blends it; each clamped to the limits from the one before.
     fn planned_torques(&self, out: &mut [SVector<f64, N>]) -> usize {
         if self.engaged || self.latched || self.is_tripped() {
             return 0;
         }
         let n = self.inner.planned_torques(out);
+        let len = self.torque_hist.len();
+        // The replay's torque `i` periods after the next one, where known.
+        let replay = |i: usize| match self.replay_lag_now {
+            Some(lag) => {
+                (i < lag).then(|| self.torque_hist[(self.torque_pos + i + len - lag) % len])
+            }
+            None => match &self.extrapolation {
+                Some(x) => Some(x.at(self.extrapolated_steps.saturating_add(i as u32), self.dt())),
+                None => Some(self.prev),
+            },
+        };
+        let n = if self.coasting { out.len() } else { n };
         let mut p = self.prev;
-        for o in out.iter_mut().take(n) {
-            *o = self.s.limits.clamp(&p, o);
+        for (i, o) in out.iter_mut().take(n).enumerate() {
+            let ahead = u32::try_from(i).unwrap_or(u32::MAX);
+            let d = if self.coasting {
+                match replay(i) {
+                    Some(r) => r,
+                    None => return i,
+                }
+            } else {
+                let mut d = *o;
+                // Period k+1+i of a handback with `left − i` steps left.
+                let left = self.handback.saturating_sub(ahead);
+                if let (true, Some(r)) = (left > 0, replay(i)) {
+                    d = handback_blend(r, d, left, REPLAY_HANDBACK_STEPS);
+                }
+                let left = self.stop_handback.saturating_sub(ahead);
+                if left > 0 {
+                    d = handback_blend(self.stop_handback_from, d, left, STOP_HANDBACK_STEPS);
+                }
+                d
+            };
+            *o = self.s.limits.clamp(&p, &d);
             p = *o;
         }
         n
