@@ -1569,49 +1569,38 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
     }
 
     /// The torques the output would take on the next periods, for a robot to play while no
-    /// command arrives: none while a monitor response or the latch has the torque; while
-    /// every encoder channel is lost, the replay of one gait period back (or the torque
-    /// extrapolation) as far as it is known; else the inner controller's plan, through the
-    /// rest of a handback (from the replay, or from the end of the protective stop) as `step`
+    /// command arrives: none while a monitor response, the latch or the replay of one gait
+    /// period back has the torque (through a gap the robot then replays the torque it applied
+    /// one gait period earlier); else the inner controller's plan, through the rest
+    /// of a handback (from the replay, or from the end of the protective stop) as `step`
     /// blends it; each clamped to the limits from the one before.
     fn planned_torques(&self, out: &mut [SVector<f64, N>]) -> usize {
-        if self.engaged || self.latched || self.is_tripped() {
+        if self.engaged || self.latched || self.is_tripped() || self.coasting {
             return 0;
         }
         let n = self.inner.planned_torques(out);
         let len = self.torque_hist.len();
-        // The replay's torque `i` periods after the next one, where known.
-        let replay = |i: usize| match self.replay_lag_now {
-            Some(lag) => {
-                (i < lag).then(|| self.torque_hist[(self.torque_pos + i + len - lag) % len])
-            }
-            None => match &self.extrapolation {
-                Some(x) => Some(x.at(self.extrapolated_steps.saturating_add(i as u32), self.dt())),
-                None => Some(self.prev),
-            },
-        };
-        let n = if self.coasting { out.len() } else { n };
         let mut p = self.prev;
         for (i, o) in out.iter_mut().take(n).enumerate() {
             let ahead = u32::try_from(i).unwrap_or(u32::MAX);
-            let d = if self.coasting {
-                match replay(i) {
-                    Some(r) => r,
-                    None => return i,
+            // Period k+1+i of a handback with `left − i` steps left.
+            let left = self.handback.saturating_sub(ahead);
+            let replay = match self.replay_lag_now {
+                Some(lag) if i < lag => {
+                    Some(self.torque_hist[(self.torque_pos + i + len - lag) % len])
                 }
-            } else {
-                let mut d = *o;
-                // Period k+1+i of a handback with `left − i` steps left.
-                let left = self.handback.saturating_sub(ahead);
-                if let (true, Some(r)) = (left > 0, replay(i)) {
-                    d = handback_blend(r, d, left, REPLAY_HANDBACK_STEPS);
-                }
-                let left = self.stop_handback.saturating_sub(ahead);
-                if left > 0 {
-                    d = handback_blend(self.stop_handback_from, d, left, STOP_HANDBACK_STEPS);
-                }
-                d
+                Some(_) => None,
+                None => (self.extrapolation.as_ref())
+                    .map(|x| x.at(self.extrapolated_steps.saturating_add(ahead), self.dt())),
             };
+            let mut d = *o;
+            if let (true, Some(r)) = (left > 0, replay) {
+                d = handback_blend(r, d, left, REPLAY_HANDBACK_STEPS);
+            }
+            let left = self.stop_handback.saturating_sub(ahead);
+            if left > 0 {
+                d = handback_blend(self.stop_handback_from, d, left, STOP_HANDBACK_STEPS);
+            }
             *o = self.s.limits.clamp(&p, &d);
             p = *o;
         }
