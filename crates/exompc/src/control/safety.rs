@@ -1013,6 +1013,13 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         }
     }
 
+    /// The torque applied `lag` periods before the period `ahead` periods after the next one
+    /// (`ahead < lag`: one already in the history): the replay of one gait period back.
+    fn torque_back(&self, lag: usize, ahead: usize) -> SVector<f64, N> {
+        let len = self.torque_hist.len();
+        self.torque_hist[(self.torque_pos + ahead + len - lag % len) % len]
+    }
+
     /// A gap of `gap_s` in the measurements (periods the runtime did not step the controller,
     /// e.g. a link outage): the torque history moves on by the missing periods, filled with
     /// the replay of one gait period back (what the robot plays out during the gap) or,
@@ -1028,9 +1035,7 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         }
         let p = self.replay_lag(period_s);
         for _ in 0..missing as usize {
-            let t = p.map_or(self.prev, |p| {
-                self.torque_hist[(self.torque_pos + len - p) % len]
-            });
+            let t = p.map_or(self.prev, |p| self.torque_back(p, 0));
             // No angles were measured in the gap: the last one stands in.
             let alen = self.angle_hist.len();
             let q = self.angle_hist[(self.angle_pos + alen - 1) % alen];
@@ -1438,7 +1443,6 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         }
         let replay_period = self.replay_lag(period);
         self.replay_lag_now = replay_period;
-        let len = self.torque_hist.len();
         // Before the gait period is known (the first gait period), the replay extrapolates
         // the applied torque at the gait frequency of the recent angles
         // ([`TorqueExtrapolation`], fitted when the coast begins), or holds it when no fit is
@@ -1455,7 +1459,7 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             self.extrapolated_steps = 0;
         }
         let replay = match replay_period {
-            Some(p) => Some(self.torque_hist[(self.torque_pos + len - p) % len]),
+            Some(p) => Some(self.torque_back(p, 0)),
             None => match &self.extrapolation {
                 Some(x) if !gap => {
                     let r = x.at(self.extrapolated_steps, self.dt());
@@ -1579,16 +1583,13 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             return 0;
         }
         let n = self.inner.planned_torques(out);
-        let len = self.torque_hist.len();
         let mut p = self.prev;
         for (i, o) in out.iter_mut().take(n).enumerate() {
             let ahead = u32::try_from(i).unwrap_or(u32::MAX);
             // Period k+1+i of a handback with `left − i` steps left.
             let left = self.handback.saturating_sub(ahead);
             let replay = match self.replay_lag_now {
-                Some(lag) if i < lag => {
-                    Some(self.torque_hist[(self.torque_pos + i + len - lag) % len])
-                }
+                Some(lag) if i < lag => Some(self.torque_back(lag, i)),
                 Some(_) => None,
                 None => (self.extrapolation.as_ref())
                     .map(|x| x.at(self.extrapolated_steps.saturating_add(ahead), self.dt())),
