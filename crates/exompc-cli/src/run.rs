@@ -240,6 +240,13 @@ pub fn describe_safety(sa: &exompc::sim::SafetySummary) -> String {
             sa.fallback_stops
         );
     }
+    if sa.escalations > 0 {
+        out += &format!(
+            "\n    escalations {}: the configured response handed the torque to the transparent \
+             fallback (its cause persisted)",
+            sa.escalations
+        );
+    }
     if let Some(t) = sa.latched_at_s {
         out += &format!(
             "\n    latched at {t:.2} s by {} (handover {}): the monitor response kept the torque \

@@ -152,8 +152,13 @@ pub(crate) fn run(a: SoakArgs) -> Result<(), CliError> {
         s.solver_failures, s.bad_measurement_steps, report.monitor_trips, s.monitor_steps
     );
     println!(
-        "  sensor faults {} (estimated steps {})   handovers {}   fallback stops {}",
-        report.sensor_faults, report.estimated_steps, report.handovers, report.fallback_stops
+        "  sensor faults {} (estimated steps {})   handovers {}   fallback stops {}   \
+         escalations {}",
+        report.sensor_faults,
+        report.estimated_steps,
+        report.handovers,
+        report.fallback_stops,
+        report.escalations
     );
     match report.latched_at_s {
         Some(t) => println!(

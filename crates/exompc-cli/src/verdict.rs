@@ -91,6 +91,13 @@ fn safety_reasons(s: &SafetySummary, steps: u64, holds_expected: bool) -> Vec<St
             s.fallback_stops
         ));
     }
+    if s.escalations > 0 {
+        r.push(format!(
+            "the configured response handed the torque to the transparent fallback {} times \
+             (its cause persisted)",
+            s.escalations
+        ));
+    }
     if let Some(t) = s.latched_at_s {
         r.push(format!(
             "latched at {t:.2} s by {} (handover {}): the controller was not handed the torque \
@@ -193,6 +200,7 @@ impl Verdict {
             events_dropped: r.monitor_events_dropped,
             handovers: r.handovers,
             fallback_stops: r.fallback_stops,
+            escalations: r.escalations,
             latched_at_s: r.latched_at_s,
             latched_by: r.latched_by.clone(),
             latched_for_s: r.latched_for_s,

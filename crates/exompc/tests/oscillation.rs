@@ -156,7 +156,7 @@ fn rms_after_trip(s: &Experiment) -> (f64, [f64; 2]) {
 
 /// Issue acceptance: the response to the provoked limit cycle brings the RMS strap force of
 /// the 2 s after the trip below 10 N (the `fallback` response, default: 1.95 / 3.65 N thigh /
-/// shank; `ramp_to_zero` 32.4 / 48.6 N, `hold` 31.6 / 62.2 N).
+/// shank; `ramp_to_zero` 2.47 / 4.36 N, `hold` 2.77 / 4.75 N, see below).
 #[test]
 fn provoked_limit_cycle_response_brings_the_force_below_10_n() {
     let (t, rms) = rms_after_trip(&provoked());
@@ -168,23 +168,34 @@ fn provoked_limit_cycle_response_brings_the_force_below_10_n() {
     }
 }
 
-/// The transparent fallback (the default response) against ramping to zero on the provoked
-/// limit cycle: the monitor trips within 1 s, the fallback's payload estimate finds the 2 kg,
-/// and the RMS strap forces of the 2 s after the trip are at most a fifth of `ramp_to_zero`'s
-/// (measured 1.95 / 3.65 N against 32.4 / 48.6 N).
+/// The transparent fallback (the default response) on the provoked limit cycle, and `hold`
+/// and `ramp_to_zero`, which hand the torque to it once the oscillation has persisted for
+/// `RESPONSE_ESCALATE_S`: the monitor trips within 1 s, the fallback's payload estimate finds
+/// the 2 kg, and the RMS strap forces of the 2 s after the trip stay below 10 N on every
+/// response, the fallback's the smallest (measured on 2026-12-05: fallback 1.95 / 3.65 N,
+/// `ramp_to_zero` 2.47 / 4.36 N, `hold` 2.77 / 4.75 N; 32.5 / 48.8 N and 31.7 / 62.0 N while
+/// they kept the torque until the monitor cleared).
 #[test]
 fn fallback_response_calms_the_provoked_limit_cycle() {
     let fb = provoked();
     assert_eq!(fb.monitors.response, MonitorResponse::Fallback);
     let mut rz = provoked();
     rz.monitors.response = MonitorResponse::RampToZero;
-    let ((t_fb, fb_rms), (_, rz_rms)) = rayon::join(|| rms_after_trip(&fb), || rms_after_trip(&rz));
+    let mut hold = provoked();
+    hold.monitors.response = MonitorResponse::Hold;
+    let runs: Vec<_> = [&fb, &rz, &hold]
+        .par_iter()
+        .map(|s| rms_after_trip(s))
+        .collect();
+    let (t_fb, fb_rms) = runs[0];
     assert!(t_fb <= 1.0, "first oscillation trip at {t_fb} s");
-    for i in 0..2 {
-        assert!(
-            fb_rms[i] < 0.2 * rz_rms[i],
-            "strap {i}: fallback {fb_rms:?} N vs ramp_to_zero {rz_rms:?} N"
-        );
+    for (name, (_, rms)) in ["ramp_to_zero", "hold"].iter().zip(&runs[1..]) {
+        for i in 0..2 {
+            assert!(
+                fb_rms[i] <= rms[i] && rms[i] < 10.0,
+                "strap {i}: fallback {fb_rms:?} N vs {name} {rms:?} N"
+            );
+        }
     }
     // The fallback's payload estimate, replaying the run's measurements and applied torques.
     let mut log = TraceLog::<2>::default();

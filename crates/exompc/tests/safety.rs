@@ -418,6 +418,62 @@ fn hold_returns_to_the_torque_of_the_last_fully_measured_step() {
     assert_eq!(last, safe);
 }
 
+/// `hold` hands the torque to the transparent fallback when the trip's cause persists for
+/// `RESPONSE_ESCALATE_S` (issue 28 item 3; docs/RELIABILITY.md §2b): a strap force beyond
+/// the range for 10 steps escalates exactly `RESPONSE_ESCALATE_S` after the trip, once
+/// (logged and counted), and the controller has the torque again once the monitor clears;
+/// one for 2 steps (gone before `RESPONSE_ESCALATE_S`, the monitor only in its
+/// `clear_after_s` hold-off) stays with `hold`.
+#[test]
+fn hold_escalates_to_the_fallback_only_while_its_cause_persists() {
+    use exompc::control::RESPONSE_ESCALATE_S;
+    let mut s = scenario(Kind::MsDecoupled, &[0.0, 2.0]);
+    s.monitors.response = MonitorResponse::Hold;
+    let good = |k: usize| Measurement::<2> {
+        t: 0.01 * k as f64,
+        q: SVector::from([0.1 + 2e-3 * k as f64, 0.2 - 2e-3 * k as f64]),
+        qd: SVector::from([0.2 + 1e-4 * (k % 5) as f64, -0.2 - 1e-4 * (k % 3) as f64]),
+        force: SVector::from([1.0 + 1e-2 * k as f64, -2.0 + 1e-2 * k as f64]),
+    };
+    for (bad_steps, escalates) in [(2, false), (10, true)] {
+        let mut sup = build_supervised::<TwoDof, 2>(&s, ControllerKind::MSNMPC).unwrap();
+        assert!(sup.fallback().is_some());
+        let mut last = StepStatus::Ok;
+        for k in 0..80 {
+            let mut m = good(k);
+            if (25..25 + bad_steps).contains(&k) {
+                m.force[1] = 500.0;
+            }
+            last = sup.step(&m).status;
+        }
+        let rep = sup.report();
+        let trip = rep
+            .events
+            .iter()
+            .find(|e| e.action == MonitorAction::Trip)
+            .unwrap_or_else(|| panic!("no trip: {:?}", rep.events));
+        let esc: Vec<_> = rep
+            .events
+            .iter()
+            .filter(|e| e.action == MonitorAction::Escalate)
+            .collect();
+        assert_eq!(rep.escalations, esc.len() as u64);
+        if escalates {
+            assert_eq!(esc.len(), 1, "{:?}", rep.events);
+            assert_eq!(esc[0].monitor, MonitorKind::StrapForce);
+            assert!(
+                (esc[0].t - trip.t - RESPONSE_ESCALATE_S).abs() < 1e-9,
+                "{:?}",
+                rep.events
+            );
+        } else {
+            assert!(esc.is_empty(), "{:?}", rep.events);
+        }
+        assert!(!sup.is_tripped(), "{:?}", rep.events);
+        assert_ne!(last, StepStatus::MonitorTripped);
+    }
+}
+
 fn check_soak(seconds: f64) {
     let r = run_soak(&Experiment::default(), seconds, 2.0, &mut [], &mut []).unwrap();
     let st = &r.stats;

@@ -470,7 +470,7 @@ pub const KEYS: &[KeyDoc] = &[
     k("monitors.tracking_error_max_rad", "rad", POS, REL2, "Trip when the human-robot angle error estimated from the strap forces exceeds this."),
     k("monitors.force_max_n", "N", POS, REL2, "Trip when a measured strap force exceeds this."),
     k("monitors.sensor_timeout_s", "s", POS, REL2, "Persistent-fault limit: a sensor channel rejected (non-finite, out of range, frozen or outside its innovation gate) for longer than this ends in the protective stop (torque ramped to zero at the rate limit, held until every channel is good again); shorter faults are ridden through on the channel's estimate."),
-    k("monitors.response", "", Allowed::Choice(&["hold", "ramp_to_zero", "fallback"]), REL2, "What a tripped monitor does: hold the last safe torque, ramp to zero at the rate limit, or hand over to the transparent fallback controller (gravity, friction, inertia and payload compensated)."),
+    k("monitors.response", "", Allowed::Choice(&["hold", "ramp_to_zero", "fallback"]), REL2, "What a tripped monitor does: hold the last safe torque, ramp to zero at the rate limit, or hand over to the transparent fallback controller (gravity, friction, inertia and payload compensated); hold and ramp_to_zero hand over to the fallback once the trip's cause has persisted for 0.02 s."),
     k("monitors.oscillation_force_rms_n", "N", POS, REL2, "Oscillation monitor: trip when a strap force's RMS above the cut-off exceeds this."),
     k("monitors.oscillation_torque_rms_nm", "N·m", POS, REL2, "Oscillation monitor: the same on the commanded joint torques."),
     k("monitors.oscillation_cutoff_hz", "Hz", POS, REL2, "Oscillation monitor high-pass cut-off (taken just below Nyquist if above it)."),

@@ -64,9 +64,12 @@ impl SafetySettings {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum MonitorResponse {
-    /// Hold the last safe torque.
+    /// Hold the last safe torque; for at most [`RESPONSE_ESCALATE_S`] while the trip's cause
+    /// persists, then the transparent fallback (when the supervisor has one).
     Hold,
-    /// Ramp the torque to zero at [`STOP_RAMP_NM_PER_S`] (within the rate limit).
+    /// Ramp the torque to zero at [`STOP_RAMP_NM_PER_S`] (within the rate limit); for at most
+    /// [`RESPONSE_ESCALATE_S`] while the trip's cause persists, then the transparent fallback
+    /// (when the supervisor has one).
     RampToZero,
     /// Switch to the transparent fallback controller ([`Transparent`]: the robot's own
     /// gravity, friction, most of its inertia and the estimated payload compensated, no intent
@@ -97,7 +100,8 @@ pub struct Monitors {
     /// are ridden through on the channel's estimate. Default 0.5.
     pub sensor_timeout_s: f64,
     /// Response when tripped (`"hold"`, `"ramp_to_zero"` or `"fallback"`, the transparent
-    /// fallback controller). Default `"fallback"`.
+    /// fallback controller; `hold` and `ramp_to_zero` hand over to the fallback once the
+    /// trip's cause has persisted for [`RESPONSE_ESCALATE_S`]). Default `"fallback"`.
     pub response: MonitorResponse,
     /// Oscillation monitor: trip when the RMS of a measured strap force's content above
     /// `oscillation_cutoff_hz` over the last `oscillation_window_s` exceeds this (N), > 0.
@@ -622,6 +626,11 @@ pub enum MonitorAction {
     /// or its demand diverged (`monitor` is [`MonitorKind::FallbackDemand`], `value` the
     /// demand's move over one period, N·m).
     Stop,
+    /// The configured `hold` or `ramp_to_zero` had the torque for [`RESPONSE_ESCALATE_S`]
+    /// while the trip's cause persisted (or while latched): the transparent fallback takes it
+    /// until every monitor has cleared (`monitor` is the tripped one whose condition
+    /// persists, the first in [`MonitorKind`] order; `value` the response's time so far, s).
+    Escalate,
 }
 
 /// One logged monitor event.
@@ -659,6 +668,9 @@ pub struct SafetyReport {
     /// Times the transparent fallback failed (oscillated or diverged) and the protective stop
     /// replaced it ([`MonitorAction::Stop`]).
     pub fallback_stops: u64,
+    /// Times the configured `hold` or `ramp_to_zero` handed the torque to the transparent
+    /// fallback after [`RESPONSE_ESCALATE_S`] ([`MonitorAction::Escalate`]).
+    pub escalations: u64,
     /// Supervisor time (s) at which it latched (`[monitors] latch_trips`), `None` when it has
     /// not, or when the latch was reset since.
     pub latched_at: Option<f64>,
@@ -690,6 +702,18 @@ pub const REPLAY_HANDBACK_STEPS: u32 = 10;
 /// robot lagging the person it had not held (a 1-s NaN of both angles at 2.5 s, 3 kg:
 /// 84.7 N; docs/RELIABILITY.md §2).
 pub const STOP_HANDBACK_STEPS: u32 = 10;
+
+/// How long (s) the configured `hold` or `ramp_to_zero` keeps the torque while the trip's
+/// cause persists (a monitor's condition still present, or the latch) before the transparent
+/// fallback takes it ([`MonitorAction::Escalate`]). On a moving leg a held torque stops
+/// fitting within a few periods and a zero torque hands robot and payload to the person, and
+/// the strap force either leaves at full scale keeps the strap-force monitor tripped: on the
+/// hard cells at 3 kg (docs/RELIABILITY.md §2b) `hold` peaked at 214 N and `ramp_to_zero` at
+/// 164 N for the rest of the run. Measured there (escalation after 0.02 / 0.03 / 0.04 / 0.1 /
+/// 0.2 s): 0.02 s keeps every `hold` and `ramp_to_zero` run at or below 67 N and 1.5× the
+/// clean RMS; from 0.04 s on some run was left to the protective stop after the fallback,
+/// started on a leg already pushed away, diverged (up to 166 N).
+pub const RESPONSE_ESCALATE_S: f64 = 0.02;
 
 /// The blend of a handback from `from` to `to` with `left` of `steps` steps left: linear in
 /// the step, `to` once none is left.
@@ -838,6 +862,10 @@ pub struct Supervisor<const N: usize, C> {
     fallback_cutoff_hz: f64,
     /// The fallback failed: the protective stop has the torque until the monitors clear.
     fallback_failed: bool,
+    /// When the configured `hold` or `ramp_to_zero` took the torque (`None`: it does not
+    /// have it), and whether it has handed it to the fallback ([`RESPONSE_ESCALATE_S`]).
+    response_since: Option<f64>,
+    escalated: bool,
 }
 
 impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
@@ -941,6 +969,8 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             fallback_osc,
             fallback_cutoff_hz: cutoff_hz,
             fallback_failed: false,
+            response_since: None,
+            escalated: false,
         };
         sup.inner.set_previous_torque(prev);
         sup
@@ -954,6 +984,41 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             .map(|p| (p / self.dt()).round())
             .filter(|&p| p >= 2.0 && p + 2.0 < self.torque_filled as f64)
             .map(|p| p as usize)
+    }
+
+    /// The configured `hold` or `ramp_to_zero` (`responding`: a monitor's response has the
+    /// torque, not the protective stop, and a fallback could take it) hands the torque to the
+    /// transparent fallback once it has had it for [`RESPONSE_ESCALATE_S`] while the trip's
+    /// cause persists: a tripped monitor's condition still present (not only its
+    /// `clear_after_s` hold-off), or the latch. Logged as [`MonitorAction::Escalate`]; the
+    /// fallback keeps the torque until every monitor has cleared.
+    fn escalate(&mut self, responding: bool, now: f64) {
+        if !responding || self.s.monitors.response == MonitorResponse::Fallback {
+            if !responding {
+                self.response_since = None;
+                self.escalated = false;
+            }
+            return;
+        }
+        let since = *self.response_since.get_or_insert(now);
+        if self.escalated || now - since < RESPONSE_ESCALATE_S - 1e-9 {
+            return;
+        }
+        let persisting =
+            (0..MONITORS.len()).find(|&i| self.tripped[i] && self.ok_since[i].is_none());
+        let cause = match (persisting, self.latched) {
+            (Some(i), _) => MONITORS[i],
+            (None, true) => self.report.latched_by.unwrap_or(MONITORS[0]),
+            (None, false) => return,
+        };
+        self.escalated = true;
+        self.report.escalations += 1;
+        self.log(MonitorEvent {
+            t: now,
+            monitor: cause,
+            action: MonitorAction::Escalate,
+            value: now - since,
+        });
     }
 
     /// The fallback's own failure (issue 28), with the torque `responding` (the configured
@@ -971,7 +1036,7 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
     /// Either hands the torque to the protective stop until no monitor is tripped.
     fn watch_fallback(&mut self, responding: bool, demand: Option<SVector<f64, N>>, now: f64) {
         let mo = &self.s.monitors;
-        if !responding || mo.response != MonitorResponse::Fallback || self.fallback.is_none() {
+        if !responding || self.fallback.is_none() {
             self.fallback_demand = None;
             if !self.is_tripped() && !self.latched {
                 self.fallback_since = None;
@@ -1385,9 +1450,13 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         let step = STOP_RAMP_NM_PER_S * self.dt();
         let toward_zero = prev - prev.map(|v| v.clamp(-step, step));
         let demand = self.fallback.as_ref().map(|fb| fb.torque());
-        self.watch_fallback(tripped && !stop, demand, now);
-        let response = match (self.s.monitors.response, demand) {
+        self.escalate(tripped && !stop && demand.is_some(), now);
+        let configured = self.s.monitors.response;
+        let fallback_has_it = configured == MonitorResponse::Fallback || self.escalated;
+        self.watch_fallback(tripped && !stop && fallback_has_it, demand, now);
+        let response = match (configured, demand) {
             _ if stop || self.fallback_failed => toward_zero,
+            (_, Some(d)) if self.escalated => d,
             (MonitorResponse::Hold, _) => self.last_safe,
             (MonitorResponse::Fallback, Some(d)) => d,
             (MonitorResponse::RampToZero | MonitorResponse::Fallback, _) => toward_zero,

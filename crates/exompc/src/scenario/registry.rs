@@ -12,7 +12,7 @@ use super::build::{build_multistage, build_nmpc, build_pd, fallback, initial_tor
 use super::error::RunError;
 use super::info::ControllerInfo;
 use super::layout::{Dof, OneDof, TwoDof};
-use crate::config::{ConfigError, ControllerKind, Experiment, MonitorResponse};
+use crate::config::{ConfigError, ControllerKind, Experiment};
 use crate::control::{Controller, SafetySettings, Supervisor};
 use alloc::{boxed::Box, format, string::String, vec::Vec};
 #[cfg(feature = "std")]
@@ -155,18 +155,15 @@ pub fn build_supervised<D: Dof<N>, const N: usize>(
     Ok(supervise::<D, N>(s, build_controller::<D, N>(s, kind)?))
 }
 
-/// `ctrl` under the supervisor of scenario `s` (its safety settings, and the transparent
-/// fallback when `monitors.response = "fallback"`), as [`build_supervised`] builds it; for a
+/// `ctrl` under the supervisor of scenario `s` (its safety settings and the transparent
+/// fallback: the `fallback` response, and what `hold` and `ramp_to_zero` hand over to once
+/// the trip's cause persists, `control::RESPONSE_ESCALATE_S`), as [`build_supervised`]
+/// builds it; for a
 /// build that names its controller's builder directly instead of going through the registry
 /// (the firmware's controller-only image links one controller only).
 pub fn supervise<D: Dof<N>, const N: usize>(
     s: &Experiment,
     ctrl: Box<dyn Controller<N>>,
 ) -> Supervisor<N, Box<dyn Controller<N>>> {
-    let sup = Supervisor::new(ctrl, SafetySettings::from_scenario(s));
-    if s.monitors.response == MonitorResponse::Fallback {
-        sup.with_fallback(fallback::<D, N>(s))
-    } else {
-        sup
-    }
+    Supervisor::new(ctrl, SafetySettings::from_scenario(s)).with_fallback(fallback::<D, N>(s))
 }

@@ -147,6 +147,9 @@ pub struct SoakReport {
     pub handovers: u64,
     /// Times the oscillating transparent fallback was replaced by the protective stop.
     pub fallback_stops: u64,
+    /// Times the configured `hold` or `ramp_to_zero` handed the torque to the transparent
+    /// fallback because the trip's cause persisted.
+    pub escalations: u64,
     /// Simulated time (s) at which the supervisor latched its response, `null` if it did not.
     pub latched_at_s: Option<f64>,
     /// The monitor whose trip latched it (`tracking_error`, ...), `null` if it did not.
@@ -234,6 +237,7 @@ pub fn run_soak(
         monitor_events_dropped: report.events_dropped,
         handovers: summary.safety.handovers,
         fallback_stops: summary.safety.fallback_stops,
+        escalations: summary.safety.escalations,
         latched_at_s: summary.safety.latched_at_s,
         latched_by: summary.safety.latched_by,
         latched_for_s: summary.safety.latched_for_s,

@@ -43,6 +43,10 @@ pub struct SafetySummary {
     /// it until the monitors cleared.
     #[serde(default)]
     pub fallback_stops: u64,
+    /// Times the configured `hold` or `ramp_to_zero` handed the torque to the transparent
+    /// fallback because the trip's cause persisted (`control::RESPONSE_ESCALATE_S`).
+    #[serde(default)]
+    pub escalations: u64,
     /// Supervisor time (s) at which repeated handovers latched the response
     /// (`[monitors] latch_trips`); `null` when it did not latch.
     #[serde(default)]
@@ -104,6 +108,7 @@ impl SafetySummary {
             events_dropped: r.events_dropped,
             handovers: r.handovers,
             fallback_stops: r.fallback_stops,
+            escalations: r.escalations,
             latched_at_s: r.latched_at,
             latched_by: r.latched_by.map(|k| snake_case(&format!("{k:?}"))),
             latched_for_s: r.latched_for_s,
@@ -145,6 +150,7 @@ mod tests {
             events_dropped: 0,
             handovers: 2,
             fallback_stops: 1,
+            escalations: 1,
             latched_at: Some(1.2),
             latched_by: Some(MonitorKind::StrapForce),
             latched_for_s: 0.3,
@@ -154,6 +160,7 @@ mod tests {
         let s = SafetySummary::from_report(&r);
         assert_eq!((s.handovers, s.latched_at_s), (2, Some(1.2)));
         assert_eq!(s.fallback_stops, 1);
+        assert_eq!(s.escalations, 1);
         assert_eq!(s.latched_by.as_deref(), Some("strap_force"));
         assert!((s.latched_for_s - 0.3).abs() < 1e-12);
         assert_eq!((s.estimated_steps, s.sensor_faults), (5, 1));
