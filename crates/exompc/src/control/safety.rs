@@ -628,8 +628,8 @@ pub enum MonitorAction {
     Stop,
     /// The configured `hold` or `ramp_to_zero` had the torque for [`RESPONSE_ESCALATE_S`]
     /// while the trip's cause persisted (or while latched): the transparent fallback takes it
-    /// until every monitor has cleared (`monitor` is the tripped one whose condition
-    /// persists, the first in [`MonitorKind`] order; `value` the response's time so far, s).
+    /// until every monitor has cleared (`monitor` is a tripped monitor whose condition
+    /// persists, or the one that latched; `value` the response's time so far, s).
     Escalate,
 }
 
@@ -706,8 +706,8 @@ pub const STOP_HANDBACK_STEPS: u32 = 10;
 /// How long (s) the configured `hold` or `ramp_to_zero` keeps the torque while the trip's
 /// cause persists (a monitor's condition still present, or the latch) before the transparent
 /// fallback takes it ([`MonitorAction::Escalate`]). On a moving leg a held torque stops
-/// fitting within a few periods and a zero torque hands robot and payload to the person, and
-/// the strap force either leaves at full scale keeps the strap-force monitor tripped: on the
+/// fitting within a few periods and a zero torque hands robot and payload to the person;
+/// either left the strap force at full scale, which kept the strap-force monitor tripped: on the
 /// hard cells at 3 kg (docs/RELIABILITY.md §2b) `hold` peaked at 214 N and `ramp_to_zero` at
 /// 164 N for the rest of the run. Measured there (escalation after 0.02 / 0.03 / 0.04 / 0.1 /
 /// 0.2 s): 0.02 s keeps every `hold` and `ramp_to_zero` run at or below 67 N and 1.5× the
@@ -747,7 +747,9 @@ fn handback_blend<const N: usize>(
 ///   than `sensor_timeout_s`. A tripped monitor applies the configured response (`hold` the
 ///   last safe torque: the torque of the last fully measured step with no monitor tripped,
 ///   reached within the rate limit; or `ramp_to_zero` at [`STOP_RAMP_NM_PER_S`]; status
-///   [`StepStatus::MonitorTripped`]); it clears after its condition has been absent for
+///   [`StepStatus::MonitorTripped`]; `hold` and `ramp_to_zero` hand the torque to the
+///   transparent fallback once the trip's cause has persisted for [`RESPONSE_ESCALATE_S`],
+///   [`MonitorAction::Escalate`]); it clears after its condition has been absent for
 ///   `clear_after_s`, and the inner controller resumes from the applied torque. Trips and
 ///   clears are logged with their time in a bounded event list ([`SafetyReport`]).
 /// * **Oscillation.** The measured strap forces and the commanded torques each pass a
@@ -1021,8 +1023,9 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         });
     }
 
-    /// The fallback's own failure (issue 28), with the torque `responding` (the configured
-    /// response has it) and `demand` its demanded torque this step:
+    /// The fallback's own failure (issue 28), with `responding` whether it has the torque (the
+    /// configured `fallback` response, or `hold` / `ramp_to_zero` escalated to it) and
+    /// `demand` its demanded torque this step:
     /// - it diverges: its demand moves by more than [`FALLBACK_DEMAND_JUMP`] × the rate limit
     ///   in one period, to beyond [`FALLBACK_DEMAND_BEYOND`] × the torque limit (from its
     ///   second step with the torque on);
