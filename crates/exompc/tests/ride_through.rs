@@ -1052,6 +1052,17 @@ fn a_nan_of_both_angles_at_3_kg_is_ridden_through() {
     one_group_cell_meets_the_goal(3.0, FaultKind::Nan, &ANGLES, 3.25, 0.06);
 }
 
+/// Issue 28, every encoder lost: the torque blends from the applied one into the replay of
+/// one gait period back over `REPLAY_BLEND_IN_STEPS` instead of stepping there at the rate
+/// limit. Two cells of the fine phase scan meet one group's goal with it: a 60-ms stuck pair
+/// of angles (a stall: every encoder lost) at 3.25 s, 1 kg, and at 2.25 s, 3 kg (12.1 and
+/// 13.1 N before; measured on 2026-12-05).
+#[test]
+fn the_torque_blends_into_its_replay() {
+    one_group_cell_meets_the_goal(1.0, FaultKind::Stuck, &ANGLES, 3.25, 0.06);
+    one_group_cell_meets_the_goal(3.0, FaultKind::Stuck, &ANGLES, 2.25, 0.06);
+}
+
 /// The issue's goal for one channel group on the 10-s MS-NMPC run at `payload` kg with a
 /// fault `kind` on `channels` from `start` s for `dur` s: peak true strap force ≤ 12 N, RMS
 /// ≤ 1.5× the clean run's, no monitor trip, no latch.

@@ -703,6 +703,18 @@ pub const REPLAY_HANDBACK_STEPS: u32 = 10;
 /// 84.7 N; docs/RELIABILITY.md §2).
 pub const STOP_HANDBACK_STEPS: u32 = 10;
 
+/// Steps over which the torque blends from the applied one into the replay of the torque one
+/// gait period back when every encoder channel is lost (0.05 s at 10 ms): the gait is not
+/// exactly periodic, and the replay's first value differs from the applied torque by up to
+/// several N·m, which the rate limit (10 N·m a period) let through in one step. Measured on
+/// 2026-12-05 (docs/RELIABILITY.md §2, the scans of §2a): 3 / 5 / 8 steps took the fine phase
+/// scan from 2310 to 2318 / 2319 / 2317 of 2432 (stuck or dropped angles, 1 and 3 kg) and the
+/// wider scan from 372 to 373 of 384; 8 steps lost a cell of the 1-s scan; a blend over 5
+/// steps also into the torque's extrapolation of the first gait period lost three angle
+/// cells at 1.75 s (8.4-10.4 → 27.1-37.2 N), so that one starts at the applied torque as it
+/// was ([`TorqueExtrapolation`]).
+pub const REPLAY_BLEND_IN_STEPS: u32 = 5;
+
 /// How long (s) the configured `hold` or `ramp_to_zero` keeps the torque while the trip's
 /// cause persists (a monitor's condition still present, or the latch) before the transparent
 /// fallback takes it ([`MonitorAction::Escalate`]). On a moving leg a held torque stops
@@ -842,6 +854,10 @@ pub struct Supervisor<const N: usize, C> {
     stall_coast: bool,
     /// The torque replay had the torque on the previous step.
     coasting: bool,
+    /// Steps left of the blend into the torque replay of one gait period back, and the
+    /// applied torque it starts from ([`REPLAY_BLEND_IN_STEPS`]).
+    blend_in: u32,
+    blend_in_from: SVector<f64, N>,
     /// Steps left of the blend from the replay back to the controller, and the replay's lag
     /// (steps) on the last step.
     handback: u32,
@@ -961,6 +977,8 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             extrapolated_steps: 0,
             stall_coast: false,
             coasting: false,
+            blend_in: 0,
+            blend_in_from: SVector::zeros(),
             handback: 0,
             replay_lag_now: None,
             stopped: false,
@@ -1548,6 +1566,24 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         if gap && valid && replay_period.is_some() {
             self.handback = REPLAY_HANDBACK_STEPS;
         }
+        // Into the replay of one gait period back the torque blends from the applied one over
+        // `REPLAY_BLEND_IN_STEPS` (through a handback that begins within them too).
+        if coast && !self.coasting && replay_period.is_some() {
+            self.blend_in = REPLAY_BLEND_IN_STEPS;
+            self.blend_in_from = prev;
+        }
+        let replay = match replay {
+            Some(r) if self.blend_in > 0 && !gap && (coast || self.handback > 0) => {
+                let b = handback_blend(self.blend_in_from, r, self.blend_in, REPLAY_BLEND_IN_STEPS);
+                self.blend_in -= 1;
+                Some(b)
+            }
+            _ if !coast && self.handback == 0 => {
+                self.blend_in = 0;
+                replay
+            }
+            other => other,
+        };
         let desired = match replay {
             Some(r) if coast && !gap => {
                 self.coasting = true;
