@@ -139,8 +139,9 @@ fn default_scenario_trips_no_monitor() {
     }
 }
 
-/// RMS strap forces (thigh, shank) of the 2 s after the first oscillation trip, and its time.
-fn rms_after_trip(s: &Experiment) -> (f64, [f64; 2]) {
+/// RMS strap forces (thigh, shank) of the 2 s after the first oscillation trip, its time, and
+/// the run's escalations of `hold` / `ramp_to_zero` to the fallback.
+fn rms_after_trip(s: &Experiment) -> (f64, [f64; 2], u64) {
     let (_, rep, log) = run(s);
     let t = first_oscillation_trip(&rep).expect("no oscillation trip");
     let after: Vec<_> = log
@@ -151,7 +152,7 @@ fn rms_after_trip(s: &Experiment) -> (f64, [f64; 2]) {
     let rms = |i: usize| {
         (after.iter().map(|r| r.force_true[i].powi(2)).sum::<f64>() / after.len() as f64).sqrt()
     };
-    (t, [rms(0), rms(1)])
+    (t, [rms(0), rms(1)], rep.escalations)
 }
 
 /// Issue acceptance: the response to the provoked limit cycle brings the RMS strap force of
@@ -159,7 +160,7 @@ fn rms_after_trip(s: &Experiment) -> (f64, [f64; 2]) {
 /// shank; `ramp_to_zero` 2.47 / 4.36 N, `hold` 2.77 / 4.75 N, see below).
 #[test]
 fn provoked_limit_cycle_response_brings_the_force_below_10_n() {
-    let (t, rms) = rms_after_trip(&provoked());
+    let (t, rms, _) = rms_after_trip(&provoked());
     for (i, r) in rms.iter().enumerate() {
         assert!(
             *r < 10.0,
@@ -169,7 +170,7 @@ fn provoked_limit_cycle_response_brings_the_force_below_10_n() {
 }
 
 /// The transparent fallback (the default response) on the provoked limit cycle, and `hold`
-/// and `ramp_to_zero`, which hand the torque to it once the oscillation has persisted for
+/// and `ramp_to_zero`, which hand the torque to it when the oscillation is present after
 /// `RESPONSE_ESCALATE_S`: the monitor trips within 1 s, the fallback's payload estimate finds
 /// the 2 kg, and the RMS strap forces of the 2 s after the trip stay below 10 N on every
 /// response, the fallback's the smallest (measured on 2026-12-05: fallback 1.95 / 3.65 N,
@@ -187,9 +188,11 @@ fn fallback_response_calms_the_provoked_limit_cycle() {
         .par_iter()
         .map(|s| rms_after_trip(s))
         .collect();
-    let (t_fb, fb_rms) = runs[0];
+    let (t_fb, fb_rms, fb_esc) = runs[0];
     assert!(t_fb <= 1.0, "first oscillation trip at {t_fb} s");
-    for (name, (_, rms)) in ["ramp_to_zero", "hold"].iter().zip(&runs[1..]) {
+    assert_eq!(fb_esc, 0);
+    for (name, (_, rms, esc)) in ["ramp_to_zero", "hold"].iter().zip(&runs[1..]) {
+        assert!(*esc > 0, "{name}: no hand-over to the fallback");
         for i in 0..2 {
             assert!(
                 fb_rms[i] <= rms[i] && rms[i] < 10.0,

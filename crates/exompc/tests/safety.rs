@@ -418,10 +418,11 @@ fn hold_returns_to_the_torque_of_the_last_fully_measured_step() {
     assert_eq!(last, safe);
 }
 
-/// `hold` hands the torque to the transparent fallback when the trip's cause persists for
+/// `hold` hands the torque to the transparent fallback when the trip's cause is present after
 /// `RESPONSE_ESCALATE_S` (issue 28 item 3; docs/RELIABILITY.md §2b): a strap force beyond
 /// the range for 10 steps escalates exactly `RESPONSE_ESCALATE_S` after the trip, once
-/// (logged and counted), and the controller has the torque again once the monitor clears;
+/// (logged and counted), the torque is then the fallback's demand within the rate limit, and
+/// the controller has the torque again once the monitor clears;
 /// one for 2 steps (gone before `RESPONSE_ESCALATE_S`, the monitor only in its
 /// `clear_after_s` hold-off) stays with `hold`.
 #[test]
@@ -438,14 +439,25 @@ fn hold_escalates_to_the_fallback_only_while_its_cause_persists() {
     for (bad_steps, escalates) in [(2, false), (10, true)] {
         let mut sup = build_supervised::<TwoDof, 2>(&s, ControllerKind::MSNMPC).unwrap();
         assert!(sup.fallback().is_some());
+        let limits = SafetySettings::from_scenario(&s).limits;
         let mut last = StepStatus::Ok;
+        let mut followed = 0;
         for k in 0..80 {
             let mut m = good(k);
             if (25..25 + bad_steps).contains(&k) {
                 m.force[1] = 500.0;
             }
-            last = sup.step(&m).status;
+            let prev = sup.previous_torque();
+            let out = sup.step(&m);
+            last = out.status;
+            // From the escalation on, while tripped: the fallback's demand of this step.
+            if sup.report().escalations > 0 && out.status == StepStatus::MonitorTripped {
+                let demand = sup.fallback().unwrap().torque();
+                assert_eq!(out.torque, limits.clamp(&prev, &demand), "{k}");
+                followed += 1;
+            }
         }
+        assert_eq!(followed > 0, escalates);
         let rep = sup.report();
         let trip = rep
             .events
@@ -576,11 +588,67 @@ impl Controller<2> for Scheduled {
     }
 }
 
+/// An escalation is made once per trip: `hold` on a strap force beyond the range (2-4.2 s)
+/// hands the torque to the fallback after `RESPONSE_ESCALATE_S`; a 0.8-s NaN of both angles
+/// within it (2.5-3.3 s) makes the fallback fail (the protective stop), and from then until
+/// the monitors clear neither `hold` nor a second escalation takes the torque: it stays at the
+/// stop's zero (found in review: the stop cleared the escalation, `hold` took the torque back
+/// at 3.3 s and a second escalation was counted while the stop kept the torque).
+#[test]
+fn an_escalation_is_made_once_per_trip() {
+    use exompc::control::RESPONSE_ESCALATE_S;
+    let mut s = Experiment::default();
+    s.monitors.response = MonitorResponse::Hold;
+    let settings = SafetySettings::from_scenario(&s);
+    let dt = settings.dt;
+    let inner = Scheduled {
+        last_t: 0.0,
+        dt,
+        prev: SVector::zeros(),
+        limits: limits(&s),
+    };
+    let mut sup =
+        Supervisor::new(inner, settings).with_fallback(exompc::scenario::fallback::<TwoDof, 2>(&s));
+    let w = 2.0 * std::f64::consts::PI;
+    for k in 0..500usize {
+        let t = k as f64 * dt;
+        let nan_q = (250..330).contains(&k);
+        let q = SVector::<f64, 2>::new(0.3 * (w * t).sin(), -0.6 + 0.4 * (w * t).cos());
+        let qd = SVector::<f64, 2>::new(0.3 * w * (w * t).cos(), -0.4 * w * (w * t).sin());
+        let mut force = SVector::<f64, 2>::new(1.0 + 0.2 * (w * t).sin(), 0.5 * (w * t).cos());
+        if (200..420).contains(&k) {
+            force[1] = 500.0;
+        }
+        let m = Measurement::<2> {
+            t,
+            q: if nan_q { q.map(|_| f64::NAN) } else { q },
+            qd,
+            force,
+        };
+        let out = sup.step(&m);
+        if (330..420).contains(&k) {
+            assert_eq!(out.status, StepStatus::MonitorTripped, "{k}");
+            assert_eq!(out.torque, SVector::<f64, 2>::zeros(), "{k}");
+        }
+    }
+    let rep = sup.report();
+    let esc: Vec<_> = (rep.events.iter())
+        .filter(|e| e.action == MonitorAction::Escalate)
+        .collect();
+    assert_eq!(esc.len(), 1, "{:?}", rep.events);
+    assert!(
+        (esc[0].t - 2.0 - RESPONSE_ESCALATE_S).abs() < 1e-9,
+        "{esc:?}"
+    );
+    assert_eq!((rep.escalations, rep.fallback_stops), (1, 1));
+}
+
 /// The supervisor's planned torques (what a robot plays while no command arrives) are the
 /// torques it would output on the next periods: also through a handback, after the
 /// protective stop (a 1-s NaN of both angles) and after the replay of one gait period back
-/// (a 0.2-s NaN of every encoder channel once the gait period is known), where the output
-/// blends into the controller's; and no plan within that replay (through a gap the robot
+/// (a 0.2-s NaN of every encoder channel once the gait period is known, and 1- and 2-step
+/// ones, shorter than the blend into the replay), where the output blends into the
+/// controller's; and no plan within that replay (through a gap the robot
 /// replays the torque it applied one gait period earlier). Before, the plan was
 /// the controller's own: a link lost in a handback skipped it, and one lost within the
 /// replay played the controller's plan.
@@ -615,6 +683,10 @@ fn the_plan_follows_the_handbacks() {
     for (from, to, qd_too, what) in [
         (300, 400, false, "protective stop"),
         (700, 720, true, "replay"),
+        // Shorter than the blend into the replay (`REPLAY_BLEND_IN_STEPS`): the handback
+        // begins within it.
+        (1000, 1002, true, "2-step replay"),
+        (1300, 1301, true, "1-step replay"),
     ] {
         let mut tripped = false;
         let mut checked = 0;

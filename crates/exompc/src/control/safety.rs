@@ -64,12 +64,12 @@ impl SafetySettings {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum MonitorResponse {
-    /// Hold the last safe torque; for at most [`RESPONSE_ESCALATE_S`] while the trip's cause
-    /// persists, then the transparent fallback (when the supervisor has one).
+    /// Hold the last safe torque; after [`RESPONSE_ESCALATE_S`] with the trip's cause present,
+    /// the transparent fallback (when the supervisor has one).
     Hold,
-    /// Ramp the torque to zero at [`STOP_RAMP_NM_PER_S`] (within the rate limit); for at most
-    /// [`RESPONSE_ESCALATE_S`] while the trip's cause persists, then the transparent fallback
-    /// (when the supervisor has one).
+    /// Ramp the torque to zero at [`STOP_RAMP_NM_PER_S`] (within the rate limit); after
+    /// [`RESPONSE_ESCALATE_S`] with the trip's cause present, the transparent fallback (when
+    /// the supervisor has one).
     RampToZero,
     /// Switch to the transparent fallback controller ([`Transparent`]: the robot's own
     /// gravity, friction, most of its inertia and the estimated payload compensated, no intent
@@ -100,8 +100,9 @@ pub struct Monitors {
     /// are ridden through on the channel's estimate. Default 0.5.
     pub sensor_timeout_s: f64,
     /// Response when tripped (`"hold"`, `"ramp_to_zero"` or `"fallback"`, the transparent
-    /// fallback controller; `hold` and `ramp_to_zero` hand over to the fallback once the
-    /// trip's cause has persisted for [`RESPONSE_ESCALATE_S`]). Default `"fallback"`.
+    /// fallback controller; `hold` and `ramp_to_zero` hand over to the fallback when they have
+    /// had the torque for [`RESPONSE_ESCALATE_S`] and the trip's cause is present). Default
+    /// `"fallback"`.
     pub response: MonitorResponse,
     /// Oscillation monitor: trip when the RMS of a measured strap force's content above
     /// `oscillation_cutoff_hz` over the last `oscillation_window_s` exceeds this (N), > 0.
@@ -140,7 +141,8 @@ pub struct Monitors {
     pub latch_trips: usize,
     /// The window of `latch_trips` (s), in (0, 1e6]. Default 60.
     pub latch_window_s: f64,
-    /// `[monitors.fallback]`: the transparent fallback controller of `response = "fallback"`.
+    /// `[monitors.fallback]`: the transparent fallback controller of `response = "fallback"`
+    /// (and what `hold` and `ramp_to_zero` hand over to, [`RESPONSE_ESCALATE_S`]).
     pub fallback: FallbackSettings,
 }
 
@@ -626,8 +628,8 @@ pub enum MonitorAction {
     /// or its demand diverged (`monitor` is [`MonitorKind::FallbackDemand`], `value` the
     /// demand's move over one period, N·m).
     Stop,
-    /// The configured `hold` or `ramp_to_zero` had the torque for [`RESPONSE_ESCALATE_S`]
-    /// while the trip's cause persisted (or while latched): the transparent fallback takes it
+    /// The configured `hold` or `ramp_to_zero` had had the torque for [`RESPONSE_ESCALATE_S`]
+    /// and the trip's cause was present (or the latch): the transparent fallback takes it
     /// until every monitor has cleared (`monitor` is a tripped monitor whose condition
     /// persists, or the one that latched; `value` the response's time so far, s).
     Escalate,
@@ -715,9 +717,10 @@ pub const STOP_HANDBACK_STEPS: u32 = 10;
 /// was ([`TorqueExtrapolation`]).
 pub const REPLAY_BLEND_IN_STEPS: u32 = 5;
 
-/// How long (s) the configured `hold` or `ramp_to_zero` keeps the torque while the trip's
-/// cause persists (a monitor's condition still present, or the latch) before the transparent
-/// fallback takes it ([`MonitorAction::Escalate`]). On a moving leg a held torque stops
+/// How long (s) the configured `hold` or `ramp_to_zero` keeps the torque before the
+/// transparent fallback takes it, if the trip's cause is then present (a tripped monitor's
+/// condition, still or again before the monitors have cleared, or the latch;
+/// [`MonitorAction::Escalate`]). On a moving leg a held torque stops
 /// fitting within a few periods and a zero torque hands robot and payload to the person;
 /// either left the strap force at full scale, which kept the strap-force monitor tripped: on the
 /// hard cells at 3 kg (docs/RELIABILITY.md §2b) `hold` peaked at 214 N and `ramp_to_zero` at
@@ -760,8 +763,9 @@ fn handback_blend<const N: usize>(
 ///   last safe torque: the torque of the last fully measured step with no monitor tripped,
 ///   reached within the rate limit; or `ramp_to_zero` at [`STOP_RAMP_NM_PER_S`]; status
 ///   [`StepStatus::MonitorTripped`]; `hold` and `ramp_to_zero` hand the torque to the
-///   transparent fallback once the trip's cause has persisted for [`RESPONSE_ESCALATE_S`],
-///   [`MonitorAction::Escalate`]); it clears after its condition has been absent for
+///   transparent fallback when they have had it for [`RESPONSE_ESCALATE_S`] and the trip's
+///   cause is present, [`MonitorAction::Escalate`]); it clears after its condition has been
+///   absent for
 ///   `clear_after_s`, and the inner controller resumes from the applied torque. Trips and
 ///   clears are logged with their time in a bounded event list ([`SafetyReport`]).
 /// * **Oscillation.** The measured strap forces and the commanded torques each pass a
@@ -1006,22 +1010,30 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             .map(|p| p as usize)
     }
 
-    /// The configured `hold` or `ramp_to_zero` (`responding`: a monitor's response has the
-    /// torque, not the protective stop, and a fallback could take it) hands the torque to the
-    /// transparent fallback once it has had it for [`RESPONSE_ESCALATE_S`] while the trip's
-    /// cause persists: a tripped monitor's condition still present (not only its
-    /// `clear_after_s` hold-off), or the latch. Logged as [`MonitorAction::Escalate`]; the
-    /// fallback keeps the torque until every monitor has cleared.
-    fn escalate(&mut self, responding: bool, now: f64) {
-        if !responding || self.s.monitors.response == MonitorResponse::Fallback {
-            if !responding {
-                self.response_since = None;
-                self.escalated = false;
-            }
+    /// The configured `hold` or `ramp_to_zero` hands the torque to the transparent fallback
+    /// once it has had it for [`RESPONSE_ESCALATE_S`] and the trip's cause is present: a
+    /// tripped monitor's condition (still, or again before the monitors have cleared; not
+    /// only its `clear_after_s` hold-off), or the latch. `tripped`: a monitor or the latch
+    /// has the torque; `stop`: the protective stop has it (the escalation, once made, is kept
+    /// through it); `fallback_ready`: the fallback has a demand. Logged as
+    /// [`MonitorAction::Escalate`]; the fallback keeps the torque until every monitor has
+    /// cleared (or, if it fails, the protective stop does: no new escalation then).
+    fn escalate(&mut self, tripped: bool, stop: bool, fallback_ready: bool, now: f64) {
+        if !tripped {
+            self.response_since = None;
+            self.escalated = false;
+            return;
+        }
+        if self.s.monitors.response == MonitorResponse::Fallback
+            || self.escalated
+            || stop
+            || self.fallback_failed
+            || !fallback_ready
+        {
             return;
         }
         let since = *self.response_since.get_or_insert(now);
-        if self.escalated || now - since < RESPONSE_ESCALATE_S - 1e-9 {
+        if now - since < RESPONSE_ESCALATE_S - 1e-9 {
             return;
         }
         let persisting =
@@ -1139,9 +1151,10 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         self.angle_pos = (self.angle_pos + 1) % self.angle_hist.len();
     }
 
-    /// Use `fallback` for the `fallback` monitor response (without one, that response ramps
-    /// the torque to zero). It observes every valid measurement, so its payload estimate is
-    /// ready when a monitor trips.
+    /// Use `fallback` for the `fallback` monitor response, and as what `hold` and
+    /// `ramp_to_zero` hand over to ([`RESPONSE_ESCALATE_S`]); without one, the `fallback`
+    /// response ramps the torque to zero and the others never hand over. It observes every
+    /// valid measurement, so its payload estimate is ready when a monitor trips.
     pub fn with_fallback(mut self, fallback: Transparent<N>) -> Self {
         self.fallback = Some(fallback);
         self
@@ -1471,7 +1484,7 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         let step = STOP_RAMP_NM_PER_S * self.dt();
         let toward_zero = prev - prev.map(|v| v.clamp(-step, step));
         let demand = self.fallback.as_ref().map(|fb| fb.torque());
-        self.escalate(tripped && !stop && demand.is_some(), now);
+        self.escalate(tripped, stop, demand.is_some(), now);
         let configured = self.s.monitors.response;
         let fallback_has_it = configured == MonitorResponse::Fallback || self.escalated;
         self.watch_fallback(tripped && !stop && fallback_has_it, demand, now);
@@ -1568,8 +1581,12 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         }
         // Into the replay of one gait period back the torque blends from the applied one over
         // `REPLAY_BLEND_IN_STEPS` (through a handback that begins within them too).
-        if coast && !self.coasting && replay_period.is_some() {
-            self.blend_in = REPLAY_BLEND_IN_STEPS;
+        if coast && !self.coasting {
+            self.blend_in = if replay_period.is_some() {
+                REPLAY_BLEND_IN_STEPS
+            } else {
+                0
+            };
             self.blend_in_from = prev;
         }
         let replay = match replay {
@@ -1703,7 +1720,12 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
                     .map(|x| x.at(self.extrapolated_steps.saturating_add(ahead), self.dt())),
             };
             let mut d = *o;
-            if let (true, Some(r)) = (left > 0, replay) {
+            if let (true, Some(mut r)) = (left > 0, replay) {
+                // The blend into the replay, if the handback began within it.
+                let blend_in = self.blend_in.saturating_sub(ahead);
+                if blend_in > 0 {
+                    r = handback_blend(self.blend_in_from, r, blend_in, REPLAY_BLEND_IN_STEPS);
+                }
                 d = handback_blend(r, d, left, REPLAY_HANDBACK_STEPS);
             }
             let left = self.stop_handback.saturating_sub(ahead);

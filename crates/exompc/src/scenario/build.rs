@@ -125,7 +125,8 @@ pub fn build_nmpc<D: Dof<N>, const N: usize>(
     )?))
 }
 
-/// The transparent fallback controller of scenario `s` (the supervisor's `fallback` response):
+/// The transparent fallback controller of scenario `s` (the supervisor's `fallback` response,
+/// and what `hold` and `ramp_to_zero` hand over to):
 /// the bare robot and the robot with 1 kg at `robot.payload_position_m`, the straps, and the
 /// known measurement filter window.
 pub fn fallback<D: Dof<N>, const N: usize>(s: &Experiment) -> Transparent<N> {

@@ -156,8 +156,8 @@ pub fn build_supervised<D: Dof<N>, const N: usize>(
 }
 
 /// `ctrl` under the supervisor of scenario `s` (its safety settings and the transparent
-/// fallback: the `fallback` response, and what `hold` and `ramp_to_zero` hand over to once
-/// the trip's cause persists, `control::RESPONSE_ESCALATE_S`), as [`build_supervised`]
+/// fallback: the `fallback` response, and what `hold` and `ramp_to_zero` hand over to when
+/// the trip's cause is present after `control::RESPONSE_ESCALATE_S`), as [`build_supervised`]
 /// builds it; for a
 /// build that names its controller's builder directly instead of going through the registry
 /// (the firmware's controller-only image links one controller only).
