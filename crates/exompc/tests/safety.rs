@@ -588,6 +588,21 @@ impl Controller<2> for Scheduled {
     }
 }
 
+/// Step `k` of a 1-Hz gait seen by the sensors (period `dt`), small varying strap forces;
+/// the angles and velocities NaN when asked.
+fn gait_sample(k: usize, dt: f64, nan_q: bool, nan_qd: bool) -> Measurement<2> {
+    let t = k as f64 * dt;
+    let w = 2.0 * std::f64::consts::PI;
+    let q = SVector::<f64, 2>::new(0.3 * (w * t).sin(), -0.6 + 0.4 * (w * t).cos());
+    let qd = SVector::<f64, 2>::new(0.3 * w * (w * t).cos(), -0.4 * w * (w * t).sin());
+    Measurement::<2> {
+        t,
+        q: if nan_q { q.map(|_| f64::NAN) } else { q },
+        qd: if nan_qd { qd.map(|_| f64::NAN) } else { qd },
+        force: SVector::<f64, 2>::new(1.0 + 0.2 * (w * t).sin(), 0.5 * (w * t).cos()),
+    }
+}
+
 /// An escalation is made once per trip: `hold` on a strap force beyond the range (2-4.2 s)
 /// hands the torque to the fallback after `RESPONSE_ESCALATE_S`; a 0.8-s NaN of both angles
 /// within it (2.5-3.3 s) makes the fallback fail (the protective stop), and from then until
@@ -609,22 +624,11 @@ fn an_escalation_is_made_once_per_trip() {
     };
     let mut sup =
         Supervisor::new(inner, settings).with_fallback(exompc::scenario::fallback::<TwoDof, 2>(&s));
-    let w = 2.0 * std::f64::consts::PI;
     for k in 0..500usize {
-        let t = k as f64 * dt;
-        let nan_q = (250..330).contains(&k);
-        let q = SVector::<f64, 2>::new(0.3 * (w * t).sin(), -0.6 + 0.4 * (w * t).cos());
-        let qd = SVector::<f64, 2>::new(0.3 * w * (w * t).cos(), -0.4 * w * (w * t).sin());
-        let mut force = SVector::<f64, 2>::new(1.0 + 0.2 * (w * t).sin(), 0.5 * (w * t).cos());
+        let mut m = gait_sample(k, dt, (250..330).contains(&k), false);
         if (200..420).contains(&k) {
-            force[1] = 500.0;
+            m.force[1] = 500.0;
         }
-        let m = Measurement::<2> {
-            t,
-            q: if nan_q { q.map(|_| f64::NAN) } else { q },
-            qd,
-            force,
-        };
         let out = sup.step(&m);
         if (330..420).contains(&k) {
             assert_eq!(out.status, StepStatus::MonitorTripped, "{k}");
@@ -664,19 +668,7 @@ fn the_plan_follows_the_handbacks() {
         limits: limits(&s),
     };
     let mut sup = Supervisor::new(inner, settings);
-    // A 1-Hz gait seen by the sensors, small varying strap forces.
-    let m = |k: usize, nan_q: bool, nan_qd: bool| {
-        let t = k as f64 * dt;
-        let w = 2.0 * std::f64::consts::PI;
-        let q = SVector::<f64, 2>::new(0.3 * (w * t).sin(), -0.6 + 0.4 * (w * t).cos());
-        let qd = SVector::<f64, 2>::new(0.3 * w * (w * t).cos(), -0.4 * w * (w * t).sin());
-        Measurement::<2> {
-            t,
-            q: if nan_q { q.map(|_| f64::NAN) } else { q },
-            qd: if nan_qd { qd.map(|_| f64::NAN) } else { qd },
-            force: SVector::<f64, 2>::new(1.0 + 0.2 * (w * t).sin(), 0.5 * (w * t).cos()),
-        }
-    };
+    let m = |k: usize, nan_q: bool, nan_qd: bool| gait_sample(k, dt, nan_q, nan_qd);
     let mut plan = [SVector::<f64, 2>::zeros(); 12];
     // (fault from step, to step, velocities lost too, what ends it)
     let mut k = 0;
