@@ -851,8 +851,8 @@ pub struct Supervisor<const N: usize, C> {
     /// The transparent fallback's demanded torque of the previous step while it had the
     /// torque (the divergence check of `watch_fallback`).
     fallback_demand: Option<SVector<f64, N>>,
-    /// The previous step fed the fallback a measurement (it restarts when fed again after
-    /// steps without one).
+    /// This step (after `repair`: the previous one, before) fed the fallback a measurement:
+    /// it demands a torque only then, and restarts when fed again after steps without one.
     fallback_fed: bool,
     /// The current coast began with a stalled acquisition ([`Repaired::stalled`](super::Repaired::stalled)).
     stall_coast: bool,
@@ -1483,7 +1483,13 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         // The ramp to zero (`ramp_to_zero`, the protective stop) at `STOP_RAMP_NM_PER_S`.
         let step = STOP_RAMP_NM_PER_S * self.dt();
         let toward_zero = prev - prev.map(|v| v.clamp(-step, step));
-        let demand = self.fallback.as_ref().map(|fb| fb.torque());
+        // The fallback demands a torque only on a step it was fed: unfed (its angles
+        // estimated), its last demand is stale: held, it kept 25 N·m on the hip for 0.3 s
+        // while the leg moved on (every sensor's 1-s spike at 1 s, 2 kg: 75.7 N). Without a
+        // demand the response ramps to zero until the fallback is fed again.
+        let demand = (self.fallback.as_ref())
+            .filter(|_| self.fallback_fed)
+            .map(|fb| fb.torque());
         self.escalate(tripped, stop, demand.is_some(), now);
         let configured = self.s.monitors.response;
         let fallback_has_it = configured == MonitorResponse::Fallback || self.escalated;
