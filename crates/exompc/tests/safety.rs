@@ -647,6 +647,87 @@ fn an_escalation_is_made_once_per_trip() {
     assert_eq!((rep.escalations, rep.fallback_stops), (1, 1));
 }
 
+/// The transparent fallback demands a torque only on a step it was fed: on steps whose angles
+/// and velocities are lost (NaN, 2.04-2.08 s) while it has the torque (a strap force beyond
+/// the range from 2 s), the torque ramps to zero at `STOP_RAMP_NM_PER_S`, with the configured
+/// `fallback` and with `hold` escalated to it; and `hold` whose fallback is not fed when its
+/// response begins and when its escalation is due (losses 1.98-2.06 s) escalates on the
+/// fallback's first fed step, the escalation's `value` the response's time so far. Found in
+/// review: the escalated `hold` went back to its held torque on the unfed steps, and the
+/// escalation's clock started only when the fallback was fed (before that, the stale demand
+/// was applied).
+#[test]
+fn an_unfed_fallback_hands_the_torque_to_the_ramp_to_zero() {
+    use exompc::control::{RESPONSE_ESCALATE_S, STOP_RAMP_NM_PER_S};
+    for (response, early) in [
+        (MonitorResponse::Fallback, false),
+        (MonitorResponse::Hold, false),
+        (MonitorResponse::Hold, true),
+    ] {
+        let mut s = Experiment::default();
+        s.monitors.response = response;
+        let settings = SafetySettings::from_scenario(&s);
+        let dt = settings.dt;
+        let inner = Scheduled {
+            last_t: 0.0,
+            dt,
+            prev: SVector::zeros(),
+            limits: limits(&s),
+        };
+        let mut sup = Supervisor::new(inner, settings)
+            .with_fallback(exompc::scenario::fallback::<TwoDof, 2>(&s));
+        let step = STOP_RAMP_NM_PER_S * dt;
+        let mut prev = SVector::<f64, 2>::zeros();
+        let mut ramped = 0;
+        for k in 0..300usize {
+            let window = if early { 198..206 } else { 204..208 };
+            let lost = window.contains(&k);
+            let mut m = gait_sample(k, dt, lost, lost);
+            if (200..280).contains(&k) {
+                m.force[1] = 500.0;
+            }
+            let out = sup.step(&m);
+            if lost && !early {
+                assert_eq!(out.status, StepStatus::MonitorTripped, "{response:?} {k}");
+                let want = prev - prev.map(|v| v.clamp(-step, step));
+                assert!(
+                    (out.torque - want).amax() < 1e-12,
+                    "{response:?} {k}: {:?} against {want:?}",
+                    out.torque
+                );
+                ramped += usize::from(prev.amax() > step);
+            }
+            prev = out.torque;
+        }
+        if !early {
+            assert!(
+                ramped >= 3,
+                "{response:?}: the torque was near zero already"
+            );
+        }
+        let rep = sup.report();
+        let esc: Vec<_> = (rep.events.iter())
+            .filter(|e| e.action == MonitorAction::Escalate)
+            .collect();
+        match (response, early) {
+            (MonitorResponse::Fallback, _) => assert!(esc.is_empty(), "{esc:?}"),
+            (_, false) => {
+                assert_eq!(esc.len(), 1, "{esc:?}");
+                assert!(
+                    (esc[0].t - 2.0 - RESPONSE_ESCALATE_S).abs() < 1e-9,
+                    "{esc:?}"
+                );
+            }
+            (_, true) => {
+                // Fed again at 2.06 s: escalated there, 0.06 s into the response.
+                assert_eq!(esc.len(), 1, "{esc:?}");
+                assert!((esc[0].t - 2.06).abs() < 1e-9, "{esc:?}");
+                assert!((esc[0].value - 0.06).abs() < 1e-9, "{esc:?}");
+            }
+        }
+    }
+}
+
 /// The supervisor's planned torques (what a robot plays while no command arrives) are the
 /// torques it would output on the next periods: also through a handback, after the
 /// protective stop (a 1-s NaN of both angles) and after the replay of one gait period back

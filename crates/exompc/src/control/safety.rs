@@ -851,8 +851,8 @@ pub struct Supervisor<const N: usize, C> {
     /// The transparent fallback's demanded torque of the previous step while it had the
     /// torque (the divergence check of `watch_fallback`).
     fallback_demand: Option<SVector<f64, N>>,
-    /// This step (after `repair`: the previous one, before) fed the fallback a measurement:
-    /// it demands a torque only then, and restarts when fed again after steps without one.
+    /// The previous step fed the fallback a measurement (it restarts when fed again after
+    /// steps without one).
     fallback_fed: bool,
     /// The current coast began with a stalled acquisition ([`Repaired::stalled`](super::Repaired::stalled)).
     stall_coast: bool,
@@ -1015,7 +1015,9 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
     /// tripped monitor's condition (still, or again before the monitors have cleared; not
     /// only its `clear_after_s` hold-off), or the latch. `tripped`: a monitor or the latch
     /// has the torque; `stop`: the protective stop has it (the escalation, once made, is kept
-    /// through it); `fallback_ready`: the fallback has a demand. Logged as
+    /// through it); `fallback_ready`: the fallback has a demand this step (it was fed; the
+    /// escalation is made on the first such step `RESPONSE_ESCALATE_S` or more into the
+    /// response). Logged as
     /// [`MonitorAction::Escalate`]; the fallback keeps the torque until every monitor has
     /// cleared (or, if it fails, the protective stop does: no new escalation then).
     fn escalate(&mut self, tripped: bool, stop: bool, fallback_ready: bool, now: f64) {
@@ -1028,12 +1030,11 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             || self.escalated
             || stop
             || self.fallback_failed
-            || !fallback_ready
         {
             return;
         }
         let since = *self.response_since.get_or_insert(now);
-        if now - since < RESPONSE_ESCALATE_S - 1e-9 {
+        if !fallback_ready || now - since < RESPONSE_ESCALATE_S - 1e-9 {
             return;
         }
         let persisting =
@@ -1438,6 +1439,9 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         if m.t.is_finite() {
             self.last_t = m.t;
         }
+        // The fallback's demand this step: only on a step it was fed (unfed, its last demand
+        // is stale; docs/RELIABILITY.md §2).
+        let mut demand = None;
         if let Some(fb) = self.fallback.as_mut() {
             // Only measured angles (or the angle a measured velocity implies): the fallback
             // differentiates them twice, and an estimate's step where the measurement returns
@@ -1474,6 +1478,7 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
                 Some((x, false)) => fb.observe_encoders(x, &prev),
                 None => {}
             }
+            demand = feed.then(|| fb.torque());
         }
         // A channel rejected for longer than `sensor_timeout_s` is the protective stop: the
         // torque ramps to zero at the rate limit and stays there until every channel has been
@@ -1483,20 +1488,14 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         // The ramp to zero (`ramp_to_zero`, the protective stop) at `STOP_RAMP_NM_PER_S`.
         let step = STOP_RAMP_NM_PER_S * self.dt();
         let toward_zero = prev - prev.map(|v| v.clamp(-step, step));
-        // The fallback demands a torque only on a step it was fed: unfed (its angles
-        // estimated), its last demand is stale: held, it kept 25 N·m on the hip for 0.3 s
-        // while the leg moved on (every sensor's 1-s spike at 1 s, 2 kg: 75.7 N). Without a
-        // demand the response ramps to zero until the fallback is fed again.
-        let demand = (self.fallback.as_ref())
-            .filter(|_| self.fallback_fed)
-            .map(|fb| fb.torque());
         self.escalate(tripped, stop, demand.is_some(), now);
         let configured = self.s.monitors.response;
         let fallback_has_it = configured == MonitorResponse::Fallback || self.escalated;
         self.watch_fallback(tripped && !stop && fallback_has_it, demand, now);
         let response = match (configured, demand) {
             _ if stop || self.fallback_failed => toward_zero,
-            (_, Some(d)) if self.escalated => d,
+            // Without a demand (the fallback not fed) the ramp to zero until it is fed again.
+            _ if self.escalated => demand.unwrap_or(toward_zero),
             (MonitorResponse::Hold, _) => self.last_safe,
             (MonitorResponse::Fallback, Some(d)) => d,
             (MonitorResponse::RampToZero | MonitorResponse::Fallback, _) => toward_zero,
