@@ -603,6 +603,23 @@ fn gait_sample(k: usize, dt: f64, nan_q: bool, nan_qd: bool) -> Measurement<2> {
     }
 }
 
+/// A supervisor with the scenario's fallback around [`Scheduled`] (the default scenario with
+/// `response`), and its period.
+fn scheduled_supervisor(response: MonitorResponse) -> (Supervisor<2, Scheduled>, f64) {
+    let mut s = Experiment::default();
+    s.monitors.response = response;
+    let settings = SafetySettings::from_scenario(&s);
+    let dt = settings.dt;
+    let inner = Scheduled {
+        last_t: 0.0,
+        dt,
+        prev: SVector::zeros(),
+        limits: limits(&s),
+    };
+    let fallback = exompc::scenario::fallback::<TwoDof, 2>(&s);
+    (Supervisor::new(inner, settings).with_fallback(fallback), dt)
+}
+
 /// An escalation is made once per trip: `hold` on a strap force beyond the range (2-4.2 s)
 /// hands the torque to the fallback after `RESPONSE_ESCALATE_S`; a 0.8-s NaN of both angles
 /// within it (2.5-3.3 s) makes the fallback fail (the protective stop), and from then until
@@ -612,18 +629,7 @@ fn gait_sample(k: usize, dt: f64, nan_q: bool, nan_qd: bool) -> Measurement<2> {
 #[test]
 fn an_escalation_is_made_once_per_trip() {
     use exompc::control::RESPONSE_ESCALATE_S;
-    let mut s = Experiment::default();
-    s.monitors.response = MonitorResponse::Hold;
-    let settings = SafetySettings::from_scenario(&s);
-    let dt = settings.dt;
-    let inner = Scheduled {
-        last_t: 0.0,
-        dt,
-        prev: SVector::zeros(),
-        limits: limits(&s),
-    };
-    let mut sup =
-        Supervisor::new(inner, settings).with_fallback(exompc::scenario::fallback::<TwoDof, 2>(&s));
+    let (mut sup, dt) = scheduled_supervisor(MonitorResponse::Hold);
     for k in 0..500usize {
         let mut m = gait_sample(k, dt, (250..330).contains(&k), false);
         if (200..420).contains(&k) {
@@ -664,18 +670,7 @@ fn an_unfed_fallback_hands_the_torque_to_the_ramp_to_zero() {
         (MonitorResponse::Hold, false),
         (MonitorResponse::Hold, true),
     ] {
-        let mut s = Experiment::default();
-        s.monitors.response = response;
-        let settings = SafetySettings::from_scenario(&s);
-        let dt = settings.dt;
-        let inner = Scheduled {
-            last_t: 0.0,
-            dt,
-            prev: SVector::zeros(),
-            limits: limits(&s),
-        };
-        let mut sup = Supervisor::new(inner, settings)
-            .with_fallback(exompc::scenario::fallback::<TwoDof, 2>(&s));
+        let (mut sup, dt) = scheduled_supervisor(response);
         let step = STOP_RAMP_NM_PER_S * dt;
         let mut prev = SVector::<f64, 2>::zeros();
         let mut ramped = 0;
