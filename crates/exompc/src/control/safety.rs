@@ -1492,13 +1492,15 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         let configured = self.s.monitors.response;
         let fallback_has_it = configured == MonitorResponse::Fallback || self.escalated;
         self.watch_fallback(tripped && !stop && fallback_has_it, demand, now);
-        let response = match (configured, demand) {
-            _ if stop || self.fallback_failed => toward_zero,
+        let response = if stop || self.fallback_failed {
+            toward_zero
+        } else if fallback_has_it {
             // Without a demand (the fallback not fed) the ramp to zero until it is fed again.
-            _ if self.escalated => demand.unwrap_or(toward_zero),
-            (MonitorResponse::Hold, _) => self.last_safe,
-            (MonitorResponse::Fallback, Some(d)) => d,
-            (MonitorResponse::RampToZero | MonitorResponse::Fallback, _) => toward_zero,
+            demand.unwrap_or(toward_zero)
+        } else if configured == MonitorResponse::Hold {
+            self.last_safe
+        } else {
+            toward_zero
         };
         let (desired, mut status, iterations) = if valid {
             // The inner controller keeps estimating while a monitor holds the output, and
