@@ -603,9 +603,12 @@ fn gait_sample(k: usize, dt: f64, nan_q: bool, nan_qd: bool) -> Measurement<2> {
     }
 }
 
-/// A supervisor with the scenario's fallback around [`Scheduled`] (the default scenario with
-/// `response`), and its period.
-fn scheduled_supervisor(response: MonitorResponse) -> (Supervisor<2, Scheduled>, f64) {
+/// A supervisor around [`Scheduled`] for the default scenario with `response`, with the
+/// scenario's fallback if `with_fallback`, and its period.
+fn scheduled_supervisor(
+    response: MonitorResponse,
+    with_fallback: bool,
+) -> (Supervisor<2, Scheduled>, f64) {
     let mut s = Experiment::default();
     s.monitors.response = response;
     let settings = SafetySettings::from_scenario(&s);
@@ -616,8 +619,15 @@ fn scheduled_supervisor(response: MonitorResponse) -> (Supervisor<2, Scheduled>,
         prev: SVector::zeros(),
         limits: limits(&s),
     };
-    let fallback = exompc::scenario::fallback::<TwoDof, 2>(&s);
-    (Supervisor::new(inner, settings).with_fallback(fallback), dt)
+    let sup = Supervisor::new(inner, settings);
+    if with_fallback {
+        (
+            sup.with_fallback(exompc::scenario::fallback::<TwoDof, 2>(&s)),
+            dt,
+        )
+    } else {
+        (sup, dt)
+    }
 }
 
 /// An escalation is made once per trip: `hold` on a strap force beyond the range (2-4.2 s)
@@ -629,7 +639,7 @@ fn scheduled_supervisor(response: MonitorResponse) -> (Supervisor<2, Scheduled>,
 #[test]
 fn an_escalation_is_made_once_per_trip() {
     use exompc::control::RESPONSE_ESCALATE_S;
-    let (mut sup, dt) = scheduled_supervisor(MonitorResponse::Hold);
+    let (mut sup, dt) = scheduled_supervisor(MonitorResponse::Hold, true);
     for k in 0..500usize {
         let mut m = gait_sample(k, dt, (250..330).contains(&k), false);
         if (200..420).contains(&k) {
@@ -670,7 +680,7 @@ fn an_unfed_fallback_hands_the_torque_to_the_ramp_to_zero() {
         (MonitorResponse::Hold, false),
         (MonitorResponse::Hold, true),
     ] {
-        let (mut sup, dt) = scheduled_supervisor(response);
+        let (mut sup, dt) = scheduled_supervisor(response, true);
         let step = STOP_RAMP_NM_PER_S * dt;
         let mut prev = SVector::<f64, 2>::zeros();
         let mut ramped = 0;
@@ -734,16 +744,7 @@ fn an_unfed_fallback_hands_the_torque_to_the_ramp_to_zero() {
 /// replay played the controller's plan.
 #[test]
 fn the_plan_follows_the_handbacks() {
-    let s = Experiment::default();
-    let settings = SafetySettings::from_scenario(&s);
-    let dt = settings.dt;
-    let inner = Scheduled {
-        last_t: 0.0,
-        dt,
-        prev: SVector::zeros(),
-        limits: limits(&s),
-    };
-    let mut sup = Supervisor::new(inner, settings);
+    let (mut sup, dt) = scheduled_supervisor(Experiment::default().monitors.response, false);
     let m = |k: usize, nan_q: bool, nan_qd: bool| gait_sample(k, dt, nan_q, nan_qd);
     let mut plan = [SVector::<f64, 2>::zeros(); 12];
     // (fault from step, to step, velocities lost too, what ends it)
