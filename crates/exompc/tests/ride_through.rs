@@ -727,14 +727,16 @@ fn a_stuck_encoder_pair_at_3_kg_is_ridden_through() {
 /// estimated (after `REPLAY_AFTER_STEPS`) the EKF banks' `d̂` replays the gait one period back
 /// instead of holding where the fault found it. A 200-ms dropout of both forces at 4.25 s and
 /// at 5.3 s (cells of the fine and the wider phase scans, docs/RELIABILITY.md §2a), without a
-/// monitor trip or latch; measured on 2026-12-05 with `d̂` held: 35.7 N, RMS 1.43× clean at
-/// 4.25 s, 23.5 N, 1.24× at 5.3 s; replayed: 26.5 N, 1.16× and 20.4 N, 1.11×.
+/// monitor trip or latch. Measured on 2026-12-05 with `d̂` held over the whole fault: 35.7 N,
+/// RMS 1.43× clean at 4.25 s, 23.5 N, 1.24× at 5.3 s; replayed after five held steps: 23.4 N,
+/// 1.11× and 14.4 N, 1.06×; the filters updated over those five steps (the replay continuing
+/// from their `d̂`): 16.2 N, 1.07× and 10.6 N, 1.03×.
 #[test]
 fn a_force_dropout_beyond_the_scenario_payloads_is_ridden_through() {
     let clean = scenario(ControllerKind::MSNMPC, 3.0, 10.0);
     let (_, rms0, _, _) = run(&clean);
     // (start s, peak bound N, RMS bound × clean)
-    for (start, max_peak, max_ratio) in [(4.25, 30.0, 1.25), (5.3, 25.0, 1.2)] {
+    for (start, max_peak, max_ratio) in [(4.25, 20.0, 1.1), (5.3, 12.0, 1.05)] {
         let mut faulty = clean.clone();
         faulty.faults.events = fault(
             FaultKind::Dropout,
@@ -753,6 +755,39 @@ fn a_force_dropout_beyond_the_scenario_payloads_is_ridden_through() {
         }
         assert_eq!(rep.monitor_trips, 0, "{start} s");
         assert_eq!(rep.latched_at, None, "{start} s");
+    }
+}
+
+/// Issue 28, the forces at 3 kg: over the first `REPLAY_AFTER_STEPS` steps of estimated
+/// strap forces the EKF banks still update with the measured angles and velocities, so `d̂`
+/// keeps following the model's error along the gait (held over those steps, the torque
+/// stalled at once while the leg moved on). Cells of the fine phase scan
+/// (docs/RELIABILITY.md §2a) within the one-group goal (12 N): measured on 2026-12-05 with
+/// `d̂` held over those steps: a 60-ms NaN at 4.75 s 16.5 N, a 200-ms 30-N spike at 3.5 s
+/// 27.5 N and at 4.5 s 30.7 N, a 200-ms stuck force at 5.5 s 16.1 N (RMS 1.03-1.17× clean);
+/// updated: 10.2, 8.9, 8.9, 10.4 N (RMS ≤ 1.01×).
+#[test]
+fn short_force_faults_beyond_the_scenario_payloads_stay_within_the_goal() {
+    let clean = scenario(ControllerKind::MSNMPC, 3.0, 10.0);
+    let (_, rms0, _, _) = run(&clean);
+    let cells = [
+        (FaultKind::Nan, 4.75, 0.06),
+        (FaultKind::Spike, 3.5, 0.2),
+        (FaultKind::Spike, 4.5, 0.2),
+        (FaultKind::Stuck, 5.5, 0.2),
+    ];
+    for (kind, start, dur) in cells {
+        let mut faulty = clean.clone();
+        faulty.faults.events = fault(kind, &[Channel::F1, Channel::F2], start, dur, 30.0);
+        let (peak, rms, rep, _) = run(&faulty);
+        assert!(peak <= 12.0, "{kind:?} at {start} s: peak {peak:.1} N");
+        for i in 0..2 {
+            assert!(
+                rms[i] <= 1.05 * rms0[i],
+                "{kind:?} at {start} s: RMS {rms:?} vs {rms0:?}"
+            );
+        }
+        assert_eq!(rep.latched_at, None, "{kind:?} at {start} s");
     }
 }
 
