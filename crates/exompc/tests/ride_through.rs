@@ -7,7 +7,7 @@
 
 use exompc::config::{ControllerKind, Experiment};
 use exompc::control::{
-    ChannelGuard, Measurement, MonitorAction, MonitorKind, Repaired, StepStatus,
+    ChannelGuard, EstimatedChannels, Measurement, MonitorAction, MonitorKind, Repaired, StepStatus,
     TorqueExtrapolation, EXTRAPOLATION_MAX_HZ, FORCE_BIAS_RATE, FORCE_RESYNC_S, GAIT_MAX_HZ,
     SLOPE_ACCEPT_GATES, VELOCITY_GATE,
 };
@@ -15,6 +15,7 @@ use exompc::estimate::MovingAverage;
 use exompc::model::Straps;
 use exompc::scenario::{cell_scenario, run_experiment_report, ChannelGroup, TwoDof};
 use exompc::sim::{Channel, FaultEvent, FaultKind, TraceLog};
+use exompc::Controller;
 use nalgebra::SVector;
 
 fn scenario(kind: ControllerKind, payload: f64, seconds: f64) -> Experiment {
@@ -755,6 +756,49 @@ fn a_force_dropout_beyond_the_scenario_payloads_is_ridden_through() {
         }
         assert_eq!(rep.monitor_trips, 0, "{start} s");
         assert_eq!(rep.latched_at, None, "{start} s");
+    }
+}
+
+/// Issue 28: while the strap forces are estimated the MS-NMPC's EKF banks update with the
+/// measured angles and velocities over the first `REPLAY_AFTER_STEPS` (5) steps, so each
+/// scenario's `d̂` moves on each of them, and from the sixth on predict without an update, so
+/// `d̂` stays where it is (no gait period given: no replay). Before, `d̂` stayed where the
+/// fault found it from the first step.
+#[test]
+fn the_filters_update_over_the_first_steps_of_estimated_forces() {
+    let s = scenario(ControllerKind::MSNMPC, 3.0, 10.0);
+    let mut c = exompc::build_controller::<TwoDof, 2>(&s, ControllerKind::MSNMPC).unwrap();
+    let w = std::f64::consts::TAU;
+    let m = |k: usize| {
+        let t = k as f64 * 0.01;
+        Measurement {
+            t,
+            q: SVector::from([0.4 * (w * t).sin(), 0.3 * (1.0 - (w * t).cos())]),
+            qd: SVector::from([0.4 * w * (w * t).cos(), 0.3 * w * (w * t).sin()]),
+            force: SVector::from([5.0 * (w * t + 0.5).sin(), 4.0 * (w * t + 1.0).sin()]),
+        }
+    };
+    for k in 0..150 {
+        c.step(&m(k));
+    }
+    let estimated = EstimatedChannels {
+        q: [false; 2],
+        qd: [false; 2],
+        force: [true; 2],
+        period: None,
+        resume: false,
+    };
+    let mut prev = c.disturbance(0).unwrap();
+    for step in 1..=10 {
+        c.step_estimated(&m(149 + step), &estimated);
+        let d = c.disturbance(0).unwrap();
+        let moved = (d - prev).amax();
+        if step <= 5 {
+            assert!(moved > 1e-9, "step {step} of the fault: d̂ did not move");
+        } else {
+            assert_eq!(moved, 0.0, "step {step} of the fault: d̂ moved by {moved}");
+        }
+        prev = d;
     }
 }
 

@@ -373,6 +373,8 @@ struct DisturbanceReplay<const N: usize> {
     offset: [Vec<SVector<f64, N>>; 2],
     /// The gait period (steps) of the replay (0: not replaying).
     period: usize,
+    /// The replay restarted on a new period (its offsets continue the replayed `d̂`).
+    restarted: bool,
 }
 
 impl<const N: usize> DisturbanceReplay<N> {
@@ -390,6 +392,7 @@ impl<const N: usize> DisturbanceReplay<N> {
             count: 0,
             offset: [offset.clone(), offset],
             period: 0,
+            restarted: false,
         }
     }
 
@@ -433,6 +436,7 @@ impl<const N: usize> DisturbanceReplay<N> {
             for o in self.offset.iter_mut() {
                 o.fill(SVector::repeat(f64::NAN));
             }
+            self.restarted = self.period != 0;
             self.period = p;
         }
     }
@@ -443,17 +447,32 @@ impl<const N: usize> DisturbanceReplay<N> {
             o.fill(SVector::repeat(f64::NAN));
         }
         self.period = 0;
+        self.restarted = false;
     }
 
     /// The replayed `d̂` of bank `b`, scenario `i` at this step: one period `p` (set by
-    /// [`Self::set_period`]) back plus the offset fixed at the replay's first step (or at a
-    /// new period within it), `current − d̂(p + 1 steps back)`, `current` the bank's `d̂`
-    /// there: the replay continues from the filters' last estimate. `p + 1` must satisfy
-    /// [`Self::holds`].
-    fn replayed(&mut self, b: usize, i: usize, current: &SVector<f64, N>) -> SVector<f64, N> {
+    /// [`Self::set_period`]) back plus the offset fixed at the replay's first step,
+    /// `current − d̂(p + since steps back)`, `current` the bank's `d̂` there, unchanged since
+    /// the filters' last update `since` steps back: the replay continues the gait from that
+    /// update (anchored at `p + 1` steps back, a replay that began after steps without a
+    /// known period carried the gait's change over them through the whole replay). After a
+    /// new period within the replay the offset is `current − d̂(p + 1 steps back)`,
+    /// continuous with the replay. `p + 1` must satisfy [`Self::holds`].
+    fn replayed(
+        &mut self,
+        b: usize,
+        i: usize,
+        current: &SVector<f64, N>,
+        since: usize,
+    ) -> SVector<f64, N> {
         let p = self.period;
         if !self.offset[b][i].iter().all(|v| v.is_finite()) {
-            self.offset[b][i] = current - self.back(b, i, p + 1);
+            let k = if !self.restarted && self.holds(p + since) {
+                p + since
+            } else {
+                p + 1
+            };
+            self.offset[b][i] = current - self.back(b, i, k);
         }
         self.back(b, i, p) + self.offset[b][i]
     }
@@ -510,8 +529,8 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     started: bool,
     /// Time of the last measurement the EKF bank used.
     last_t: f64,
-    /// This step's measurement has estimated encoder channels ([`Controller::step_estimated`]):
-    /// the EKF banks update with the measured rows of `y = [q, qd]` only (`measured`).
+    /// This step's measurement has estimated channels ([`Controller::step_estimated`]): the
+    /// EKF banks update with the rows of `y = [q, qd]` in `measured` only.
     estimating: bool,
     measured: [bool; NY],
     /// The previous step's measurement had estimated channels: the banks resume at this
@@ -519,7 +538,8 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     was_estimating: bool,
     /// This step's strap forces are estimates, and the gait period in steps if known.
     forces_estimated: bool,
-    /// Consecutive steps with estimated strap forces (the replay waits `REPLAY_AFTER_STEPS`).
+    /// Consecutive steps with estimated strap forces (the filters update over the first
+    /// `REPLAY_AFTER_STEPS` of them, then the replay begins).
     forces_estimated_for: u32,
     period: Option<usize>,
     /// `d̂` carried by the gait while the forces are estimated (`replay_disturbance`).
@@ -959,8 +979,8 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     /// While the strap forces are estimated for more than [`REPLAY_AFTER_STEPS`] (the filters
     /// then predict without an update, so `d̂ᵢ` would stay where it is) and the gait period
     /// `p` is known: every bank's `d̂ᵢ` replays the gait one period back,
-    /// `d̂ᵢ(k) = d̂ᵢ(k − p) + d̂ᵢ(k₀ − 1) − d̂ᵢ(k₀ − 1 − p)` (`k₀` the replay's first step,
-    /// `d̂ᵢ(k₀ − 1)` the filters' last update). `d̂ᵢ` carries the model's error along the gait
+    /// `d̂ᵢ(k) = d̂ᵢ(k − p) + d̂ᵢ(k_u) − d̂ᵢ(k_u − p)` (`k_u` the step of the filters' last
+    /// update: the step before the replay's first, unless the period was unknown then). `d̂ᵢ` carries the model's error along the gait
     /// (beyond the scenarios' payloads it changes by up to 0.7 N·m per step), and the held
     /// value drove the robot away from the leg (issue 28, docs/RELIABILITY.md §2a).
     // Out of line: kept out of `step`'s stack frame (the Cortex-M7 image's stack peak).
@@ -970,6 +990,8 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             self.forces_estimated_for = 0;
         }
         let r = &mut self.replay;
+        // Steps since the filters' last update (the replay's anchor).
+        let since = self.forces_estimated_for.saturating_sub(REPLAY_AFTER_STEPS) as usize;
         let p = match self.period {
             Some(p)
                 if self.forces_estimated
@@ -993,7 +1015,7 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
                 },
             };
             for i in 0..bank.len() {
-                let d = r.replayed(b, i, &bank.disturbance(i));
+                let d = r.replayed(b, i, &bank.disturbance(i), since);
                 bank.set_disturbance(i, &d);
             }
         }
@@ -1211,7 +1233,7 @@ mod tests {
         r.set_period(p);
         for _ in 0..350 {
             assert!(r.holds(p + 1));
-            current = r.replayed(0, 0, &current);
+            current = r.replayed(0, 0, &current, 1);
             out.push(current);
             r.record_step(0, 0, &current, Some(p));
             r.count += 1;
@@ -1225,30 +1247,43 @@ mod tests {
     }
 
     /// The filters update over the first steps of a force fault (their `d̂` follows the gait,
-    /// here 0.3 off it; the history records the gait continued), then the replay begins where
-    /// they left `d̂`: one step of the gait on, no step. Anchored at the fault's start (the
-    /// rule while `d̂` was held over those steps) it stepped by the gait's change over them
-    /// (1.9 here).
+    /// here 0.3 off it; the history records the gait continued), then the replay continues
+    /// the gait from their last update: at once (one step of the gait on, no step), or, when
+    /// the period became known only 4 steps later (`d̂` held and recorded meanwhile), where
+    /// the gait is by then. Anchored at the fault's start (the rule while `d̂` was held over
+    /// the first steps) it stepped by the gait's change over them (1.9 here); anchored one
+    /// period and one step back, the late replay stayed at the held value, 1.4 off.
     #[test]
-    fn the_replay_begins_where_the_filters_left_d_hat() {
+    fn the_replay_continues_the_gait_from_the_filters_last_update() {
         let p = 100;
         let updated = |k: usize| sine_gait(k, 0.5) + SVector::from([0.3, 0.3]);
-        let mut r = recorded_gait(0.5);
-        // The forces are lost from step 400.
-        let first = 400 + REPLAY_AFTER_STEPS as usize;
-        for k in 400..first {
-            r.record_step(0, 0, &updated(k), Some(p));
-            r.count += 1;
-        }
-        r.set_period(p);
-        let mut current = updated(first - 1);
-        for k in first..first + 50 {
-            current = r.replayed(0, 0, &current);
-            // Within the history slots' interpolation (40 ms of a 6-N·m, 1-Hz gait).
-            let err = (current - updated(k)).amax();
-            assert!(err <= 0.15, "step {k}: {current} against {}", updated(k));
-            r.record_step(0, 0, &current, Some(p));
-            r.count += 1;
+        for late in [0usize, 4] {
+            let mut r = recorded_gait(0.5);
+            // The forces are lost from step 400.
+            let last = 400 + REPLAY_AFTER_STEPS as usize - 1;
+            for k in 400..=last {
+                r.record_step(0, 0, &updated(k), Some(p));
+                r.count += 1;
+            }
+            // No period known for `late` steps: `d̂` held, recorded as it is.
+            for _ in 0..late {
+                r.record_step(0, 0, &updated(last), None);
+                r.count += 1;
+            }
+            r.set_period(p);
+            let mut current = updated(last);
+            for k in last + 1 + late..last + 50 {
+                current = r.replayed(0, 0, &current, k - last);
+                // Within the history slots' interpolation (40 ms of a 6-N·m, 1-Hz gait).
+                let err = (current - updated(k)).amax();
+                assert!(
+                    err <= 0.15,
+                    "{late} late, step {k}: {current} against {}",
+                    updated(k)
+                );
+                r.record_step(0, 0, &current, Some(p));
+                r.count += 1;
+            }
         }
     }
 
@@ -1264,7 +1299,7 @@ mod tests {
             // where the gait moves fast.
             let p = if step < 45 { 100 } else { 94 };
             r.set_period(p);
-            let next = r.replayed(0, 0, &current);
+            let next = r.replayed(0, 0, &current, 1);
             largest = largest.max((next - current).amax());
             current = next;
             r.record_step(0, 0, &current, Some(p));
