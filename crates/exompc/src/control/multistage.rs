@@ -980,9 +980,10 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     /// then predict without an update, so `d̂ᵢ` would stay where it is) and the gait period
     /// `p` is known: every bank's `d̂ᵢ` replays the gait one period back,
     /// `d̂ᵢ(k) = d̂ᵢ(k − p) + d̂ᵢ(k_u) − d̂ᵢ(k_u − p)` (`k_u` the step of the filters' last
-    /// update: the step before the replay's first, unless the period was unknown then). `d̂ᵢ` carries the model's error along the gait
-    /// (beyond the scenarios' payloads it changes by up to 0.7 N·m per step), and the held
-    /// value drove the robot away from the leg (issue 28, docs/RELIABILITY.md §2a).
+    /// update: the step before the replay's first, unless the period was unknown then).
+    /// `d̂ᵢ` carries the model's error along the gait (beyond the scenarios' payloads it
+    /// changes by up to 0.7 N·m per step), and the held value drove the robot away from the
+    /// leg (issue 28, docs/RELIABILITY.md §2a).
     // Out of line: kept out of `step`'s stack frame (the Cortex-M7 image's stack peak).
     #[inline(never)]
     fn replay_disturbance(&mut self) {
@@ -1247,7 +1248,7 @@ mod tests {
     }
 
     /// The filters update over the first steps of a force fault (their `d̂` follows the gait,
-    /// here 0.3 off it; the history records the gait continued), then the replay continues
+    /// here 0.3 off it), then the replay continues
     /// the gait from their last update: at once (one step of the gait on, no step), or, when
     /// the period became known only 4 steps later (`d̂` held and recorded meanwhile), where
     /// the gait is by then. Anchored at the fault's start (the rule while `d̂` was held over
@@ -1259,10 +1260,12 @@ mod tests {
         let updated = |k: usize| sine_gait(k, 0.5) + SVector::from([0.3, 0.3]);
         for late in [0usize, 4] {
             let mut r = recorded_gait(0.5);
-            // The forces are lost from step 400.
+            // The forces are lost from step 400; while the period is known the history records
+            // the gait continued, else the filters' `d̂`.
             let last = 400 + REPLAY_AFTER_STEPS as usize - 1;
+            let known = (late == 0).then_some(p);
             for k in 400..=last {
-                r.record_step(0, 0, &updated(k), Some(p));
+                r.record_step(0, 0, &updated(k), known);
                 r.count += 1;
             }
             // No period known for `late` steps: `d̂` held, recorded as it is.
