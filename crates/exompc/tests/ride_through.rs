@@ -734,28 +734,31 @@ fn a_stuck_encoder_pair_at_3_kg_is_ridden_through() {
 /// from their `d̂`): 16.2 N, 1.07× and 10.6 N, 1.03×.
 #[test]
 fn a_force_dropout_beyond_the_scenario_payloads_is_ridden_through() {
+    force_faults_at_3_kg(&[
+        (FaultKind::Dropout, 4.25, 0.2, 20.0, 1.1),
+        (FaultKind::Dropout, 5.3, 0.2, 12.0, 1.05),
+    ]);
+}
+
+/// 10-s MS-NMPC runs at 3 kg with a fault of both strap forces (30-N spikes), one per cell
+/// `(kind, start s, duration s, peak bound N, RMS bound × the clean run's per strap)`: each
+/// within its bounds, without a monitor trip or latch.
+fn force_faults_at_3_kg(cells: &[(FaultKind, f64, f64, f64, f64)]) {
     let clean = scenario(ControllerKind::MSNMPC, 3.0, 10.0);
     let (_, rms0, _, _) = run(&clean);
-    // (start s, peak bound N, RMS bound × clean)
-    for (start, max_peak, max_ratio) in [(4.25, 20.0, 1.1), (5.3, 12.0, 1.05)] {
+    for &(kind, start, dur, max_peak, max_ratio) in cells {
         let mut faulty = clean.clone();
-        faulty.faults.events = fault(
-            FaultKind::Dropout,
-            &[Channel::F1, Channel::F2],
-            start,
-            0.2,
-            0.0,
-        );
+        faulty.faults.events = fault(kind, &[Channel::F1, Channel::F2], start, dur, 30.0);
         let (peak, rms, rep, _) = run(&faulty);
-        assert!(peak <= max_peak, "{start} s: peak {peak:.1} N");
+        assert!(peak <= max_peak, "{kind:?} at {start} s: peak {peak:.1} N");
         for i in 0..2 {
             assert!(
                 rms[i] <= max_ratio * rms0[i],
-                "{start} s: RMS {rms:?} vs {rms0:?}"
+                "{kind:?} at {start} s: RMS {rms:?} vs {rms0:?}"
             );
         }
-        assert_eq!(rep.monitor_trips, 0, "{start} s");
-        assert_eq!(rep.latched_at, None, "{start} s");
+        assert_eq!(rep.monitor_trips, 0, "{kind:?} at {start} s");
+        assert_eq!(rep.latched_at, None, "{kind:?} at {start} s");
     }
 }
 
@@ -812,27 +815,12 @@ fn the_filters_update_over_the_first_steps_of_estimated_forces() {
 /// updated: 10.2, 8.9, 8.9, 10.4 N (RMS ≤ 1.01×).
 #[test]
 fn short_force_faults_beyond_the_scenario_payloads_stay_within_the_goal() {
-    let clean = scenario(ControllerKind::MSNMPC, 3.0, 10.0);
-    let (_, rms0, _, _) = run(&clean);
-    let cells = [
-        (FaultKind::Nan, 4.75, 0.06),
-        (FaultKind::Spike, 3.5, 0.2),
-        (FaultKind::Spike, 4.5, 0.2),
-        (FaultKind::Stuck, 5.5, 0.2),
-    ];
-    for (kind, start, dur) in cells {
-        let mut faulty = clean.clone();
-        faulty.faults.events = fault(kind, &[Channel::F1, Channel::F2], start, dur, 30.0);
-        let (peak, rms, rep, _) = run(&faulty);
-        assert!(peak <= 12.0, "{kind:?} at {start} s: peak {peak:.1} N");
-        for i in 0..2 {
-            assert!(
-                rms[i] <= 1.05 * rms0[i],
-                "{kind:?} at {start} s: RMS {rms:?} vs {rms0:?}"
-            );
-        }
-        assert_eq!(rep.latched_at, None, "{kind:?} at {start} s");
-    }
+    force_faults_at_3_kg(&[
+        (FaultKind::Nan, 4.75, 0.06, 12.0, 1.05),
+        (FaultKind::Spike, 3.5, 0.2, 12.0, 1.05),
+        (FaultKind::Spike, 4.5, 0.2, 12.0, 1.05),
+        (FaultKind::Stuck, 5.5, 0.2, 12.0, 1.05),
+    ]);
 }
 
 /// An angle spike while the velocity stays measured: the rejected angle is the one the
