@@ -620,14 +620,12 @@ fn scheduled_supervisor(
         limits: limits(&s),
     };
     let sup = Supervisor::new(inner, settings);
-    if with_fallback {
-        (
-            sup.with_fallback(exompc::scenario::fallback::<TwoDof, 2>(&s)),
-            dt,
-        )
+    let sup = if with_fallback {
+        sup.with_fallback(exompc::scenario::fallback::<TwoDof, 2>(&s))
     } else {
-        (sup, dt)
-    }
+        sup
+    };
+    (sup, dt)
 }
 
 /// An escalation is made once per trip: `hold` on a strap force beyond the range (2-4.2 s)
