@@ -125,6 +125,75 @@ fn ekf_equals_linear_kalman_filter_on_linear_model() {
     }
 }
 
+/// `predict_holding` / `update_holding` (a state held out of the filter, as the MS-NMPC holds
+/// `d̂` while it replays the gait) against the Schmidt–Kalman "consider" filter written with
+/// dynamic matrices: `Q` without the held state's rows and columns, the gain's held row zeroed,
+/// the Joseph-form covariance. The held state and its variance never move; with nothing held
+/// the two calls are `predict` and `update`.
+#[test]
+fn ekf_holding_a_state_equals_the_consider_filter() {
+    let dt = 0.1;
+    let f = SMatrix::<f64, 3, 3>::new(1.0, dt, 0.5 * dt * dt, 0.0, 1.0, dt, 0.0, 0.0, 1.0);
+    let h = SMatrix::<f64, 2, 3>::new(1.0, 0.0, 0.0, 0.0, 1.0, 0.5);
+    let g = SMatrix::<f64, 3, 3>::new(0.3, 0.1, 0.0, 0.0, 0.2, 0.05, 0.1, 0.0, 0.4);
+    let q = g * g.transpose() * 0.1;
+    let r = SMatrix::<f64, 2, 2>::new(0.5, 0.1, 0.1, 0.3);
+    let x0 = SVector::<f64, 3>::new(0.2, -0.1, 0.05);
+    let p0 = SMatrix::<f64, 3, 3>::new(1.0, 0.1, 0.2, 0.1, 0.5, 0.05, 0.2, 0.05, 0.4);
+    let held = [false, false, true];
+
+    let mut ekf = Ekf::<3, 2>::new(x0, p0, q, r);
+    let (fd, hd, rd) = (to_d(&f), to_d(&h), to_d(&r));
+    let mut qd = to_d(&q);
+    for i in 0..3 {
+        qd[(2, i)] = 0.0;
+        qd[(i, 2)] = 0.0;
+    }
+    let mut x = to_d(&x0);
+    let mut p = to_d(&p0);
+    let mut rng = Rng::new(11);
+    let mut truth = SVector::<f64, 3>::new(0.0, 0.3, -0.2);
+    for _ in 0..100 {
+        truth = f * truth + SVector::from_fn(|_, _| rng.uniform(-0.05, 0.05));
+        let y = h * truth + SVector::<f64, 2>::from_fn(|_, _| rng.uniform(-0.3, 0.3));
+
+        let xn = f * ekf.state();
+        ekf.predict_holding(&xn, &f, &held).unwrap();
+        let y_pred = h * ekf.state();
+        ekf.update_holding(&y, &y_pred, &h, &held).unwrap();
+
+        // The consider filter.
+        x = &fd * &x;
+        p = &fd * &p * fd.transpose() + &qd;
+        let v = to_d(&y) - &hd * &x;
+        let sm = &hd * &p * hd.transpose() + &rd;
+        let mut k = &p * hd.transpose() * sm.try_inverse().unwrap();
+        k.row_mut(2).fill(0.0);
+        x = &x + &k * &v;
+        let ikh = DMatrix::identity(3, 3) - &k * &hd;
+        p = &ikh * &p * ikh.transpose() + &k * &rd * k.transpose();
+
+        assert!(max_rel_err(&to_d(ekf.state()), &x) < 1e-12);
+        assert!(max_rel_err(&to_d(ekf.covariance()), &p) < 1e-12);
+        assert_eq!(ekf.state()[2], x0[2], "the held state moved");
+        assert!((ekf.covariance()[(2, 2)] - p0[(2, 2)]).abs() < 1e-15);
+    }
+
+    // Nothing held: the plain calls.
+    let (mut a, mut b) = (
+        Ekf::<3, 2>::new(x0, p0, q, r),
+        Ekf::<3, 2>::new(x0, p0, q, r),
+    );
+    let y = SVector::<f64, 2>::new(0.4, -0.2);
+    a.predict(&(f * x0), &f).unwrap();
+    b.predict_holding(&(f * x0), &f, &[false; 3]).unwrap();
+    let yp = h * a.state();
+    a.update(&y, &yp, &h).unwrap();
+    b.update_holding(&y, &yp, &h, &[false; 3]).unwrap();
+    assert_eq!(a.state(), b.state());
+    assert_eq!(a.covariance(), b.covariance());
+}
+
 #[test]
 fn ekf_rejects_bad_steps_and_stays_unchanged() {
     let mut ekf = Ekf::<2, 1>::new(

@@ -541,6 +541,19 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     /// Consecutive steps with estimated strap forces (the filters update over the first
     /// `REPLAY_AFTER_STEPS` of them, then the replay begins).
     forces_estimated_for: u32,
+    /// The rows of `y` measured this step, whatever the force fault's step count (the rows
+    /// the banks update with while `d̂` is replayed).
+    measured_rows: [bool; NY],
+    /// This step the banks update their joint states with the measured rows and hold `d̂`
+    /// (the replay sets it): `replay_disturbance` while the replay continues the filters'
+    /// last update.
+    hold_disturbance: bool,
+    /// This force fault has had a step on which the filters predicted without an update (no
+    /// replay yet): their joint states have drifted, and the replay then also predicts only.
+    went_blind: bool,
+    /// The previous step held `d̂` with every row of `y` measured: its joint states followed
+    /// the measurement, so the banks do not restart them when the forces are measured again.
+    held_last: bool,
     period: Option<usize>,
     /// `d̂` carried by the gait while the forces are estimated (`replay_disturbance`).
     replay: DisturbanceReplay<N>,
@@ -631,6 +644,10 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             was_estimating: false,
             forces_estimated: false,
             forces_estimated_for: 0,
+            measured_rows: [true; NY],
+            hold_disturbance: false,
+            went_blind: false,
+            held_last: false,
             period: None,
             replay,
             resuming: false,
@@ -751,8 +768,11 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     /// filters' joint states at the measurement instead. Returns whether this step follows
     /// such a gap.
     fn advance_banks(&mut self, m: &Measurement<N>) -> bool {
-        // Back from estimated channels: the filters resume at the measurement like after a gap.
-        let resync = (self.was_estimating && !self.estimating) || self.resuming;
+        // Back from estimated channels: the filters resume at the measurement like after a gap,
+        // unless their joint states followed it while `d̂` was replayed.
+        let followed = self.held_last;
+        self.held_last = self.hold_disturbance && self.measured.iter().all(|&m| m);
+        let resync = (self.was_estimating && !self.estimating && !followed) || self.resuming;
         let skipped = self.skipped_periods(m);
         let gap = !self.started || skipped || resync;
         #[cfg(not(feature = "std"))]
@@ -797,12 +817,14 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
         let (models, prev) = (&self.models, &self.prev);
         let (forces, dforces) = (&self.prev_force, &self.prev_dforce);
         if self.estimating {
-            let measured = &self.measured;
-            let _ = self.bank.step_masked_per_scenario(&y, measured, prev, |i| {
-                models[i].straps.torque(&forces[i])
-            });
+            let (measured, hold) = (&self.measured, self.hold_disturbance);
+            let _ = self
+                .bank
+                .step_masked_per_scenario(&y, measured, hold, prev, |i| {
+                    models[i].straps.torque(&forces[i])
+                });
             if let Some(b) = self.dbank.as_mut() {
-                let _ = b.step_masked_per_scenario(&y, measured, prev, |i| {
+                let _ = b.step_masked_per_scenario(&y, measured, hold, prev, |i| {
                     models[i].straps.torque(&dforces[i])
                 });
             }
@@ -956,8 +978,9 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     /// Which rows of `y = [q, qd]` the filters update with while channels are estimated: the
     /// measured ones, and while a strap force (the filters' input) is estimated, those over
     /// its first [`REPLAY_AFTER_STEPS`] steps only; after them an estimate drifting from the
-    /// force would move `d̂`, so no row (the filters predict without an update, `d̂` replayed
-    /// or held). The probabilities are kept throughout.
+    /// force would move `d̂`, so no row (the filters predict without an update, `d̂` held),
+    /// unless `replay_disturbance` carries `d̂` and the measured rows update the joint states
+    /// alone. The probabilities are kept throughout.
     fn mark_estimated(&mut self, estimated: &EstimatedChannels<N>) {
         let force = estimated.force.iter().any(|&e| e);
         self.forces_estimated = force;
@@ -971,24 +994,33 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
         self.resuming = estimated.resume;
         let blind = force && self.forces_estimated_for > REPLAY_AFTER_STEPS;
         for a in 0..N {
-            self.measured[a] = !estimated.q[a] && !blind;
-            self.measured[N + a] = !estimated.qd[a] && !blind;
+            self.measured_rows[a] = !estimated.q[a];
+            self.measured_rows[N + a] = !estimated.qd[a];
+        }
+        for (m, &r) in self.measured.iter_mut().zip(&self.measured_rows) {
+            *m = r && !blind;
         }
     }
 
     /// While the strap forces are estimated for more than [`REPLAY_AFTER_STEPS`] (the filters
-    /// then predict without an update, so `d̂ᵢ` would stay where it is) and the gait period
-    /// `p` is known: every bank's `d̂ᵢ` replays the gait one period back,
+    /// would update `d̂ᵢ` from an estimate) and the gait period `p` is known: every bank's
+    /// `d̂ᵢ` replays the gait one period back,
     /// `d̂ᵢ(k) = d̂ᵢ(k − p) + d̂ᵢ(k_u) − d̂ᵢ(k_u − p)` (`k_u` the step of the filters' last
     /// update: the step before the replay's first, unless the period was unknown then).
     /// `d̂ᵢ` carries the model's error along the gait (beyond the scenarios' payloads it
     /// changes by up to 0.7 N·m per step), and the held value drove the robot away from the
-    /// leg (issue 28, docs/RELIABILITY.md §2a).
+    /// leg (issue 28, docs/RELIABILITY.md §2a). While the replay continues the filters' last
+    /// update (no step of this fault predicted without one), the banks hold `d̂ᵢ` and update
+    /// their joint states with the measured rows: the NMPC starts from the filters' velocity,
+    /// and predicted alone it drifted by 0.1-0.2 rad/s within a 200-ms fault at 3 kg. Without
+    /// a replay the filters predict only: with a held `d̂ᵢ` the measured rows would pull the
+    /// joint states along the gait's disturbance instead (measured, docs/RELIABILITY.md §2).
     // Out of line: kept out of `step`'s stack frame (the Cortex-M7 image's stack peak).
     #[inline(never)]
     fn replay_disturbance(&mut self) {
         if !self.forces_estimated {
             self.forces_estimated_for = 0;
+            self.went_blind = false;
         }
         let r = &mut self.replay;
         // Steps since the filters' last update (the replay's anchor).
@@ -1002,11 +1034,18 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
                 p
             }
             _ => {
+                if self.forces_estimated && self.forces_estimated_for > REPLAY_AFTER_STEPS {
+                    self.went_blind = true;
+                }
                 r.stop();
                 return;
             }
         };
         r.set_period(p);
+        if !self.went_blind && self.measured_rows.iter().any(|&m| m) {
+            self.hold_disturbance = true;
+            self.measured = self.measured_rows;
+        }
         for b in 0..2 {
             let bank = match b {
                 0 => &mut self.bank,
@@ -1150,6 +1189,7 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
         self.mark_estimated(estimated);
         let out = self.step(m);
         self.estimating = false;
+        self.hold_disturbance = false;
         self.forces_estimated = false;
         self.period = None;
         self.resuming = false;

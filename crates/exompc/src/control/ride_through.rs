@@ -55,6 +55,19 @@ pub const ANCHORED_LIMIT_FACTOR: u64 = 4;
 /// An encoder angle repeated bit for bit while the joint moves faster than this (rad/s) is
 /// stuck.
 pub const STUCK_SPEED: f64 = 0.05;
+/// Samples of the angles over which the replay's lag is matched: the lag within
+/// [`PERIOD_MATCH_SPAN`] of the supervisor's gait period at which the last this many angles
+/// best equal (least squares) the angles that lag back. The supervisor's period is the time
+/// between the last two upward crossings, one cycle old: while the gait's frequency changes
+/// it was 107 steps where the angles repeat after 101, and the replayed strap forces fell
+/// 1 N behind within 0.1 s (docs/RELIABILITY.md §2).
+pub const PERIOD_MATCH_STEPS: usize = 20;
+/// Fraction of the supervisor's gait period within which the replay's lag is matched
+/// ([`PERIOD_MATCH_STEPS`]).
+pub const PERIOD_MATCH_SPAN: f64 = 0.15;
+/// Steps between matches of the replay's lag while every channel is good (while one is
+/// rejected, and when the supervisor's period changes, it is matched at every step).
+pub const PERIOD_MATCH_EVERY: u32 = 10;
 
 /// Per-channel sensor-fault detection and the estimate that replaces a rejected channel.
 ///
@@ -147,6 +160,10 @@ pub struct ChannelGuard<const N: usize> {
     /// Per strap: the bias added to a force believed on smoothness alone, fading to zero at
     /// [`FORCE_BIAS_RATE`].
     force_bias: SVector<f64, N>,
+    /// The supervisor's gait period (steps) and the replay lag matched to it
+    /// ([`PERIOD_MATCH_STEPS`]), and the steps since that match.
+    matched: Option<(usize, usize)>,
+    match_age: u32,
 }
 
 /// Which channels of a measurement stand in for rejected ones and must not update a
@@ -251,6 +268,8 @@ impl<const N: usize> ChannelGuard<N> {
             robot_part: [SVector::repeat(f64::NAN); 2],
             replay_period: None,
             force_bias: SVector::zeros(),
+            matched: None,
+            match_age: 0,
         }
     }
 
@@ -315,6 +334,38 @@ impl<const N: usize> ChannelGuard<N> {
         self.bad_for[signal][joint] > 0
     }
 
+    /// The replay's lag for the supervisor's gait period `p0` (steps): the lag within
+    /// [`PERIOD_MATCH_SPAN`] of `p0` at which the last [`PERIOD_MATCH_STEPS`] angles best
+    /// match those one lag back, `argmin_p Σ_j |q(k−j) − q(k−j−p)|²` (the first of equals;
+    /// `p0` when the history is too short). Matched every [`PERIOD_MATCH_EVERY`] steps, and at
+    /// every step while a channel is rejected or when `p0` changes.
+    fn replay_lag(&mut self, p0: usize) -> usize {
+        let busy = self.bad_for.iter().flatten().any(|&b| b > 0);
+        if let Some((c, p)) = self.matched {
+            if c == p0 && !busy && self.match_age < PERIOD_MATCH_EVERY {
+                self.match_age += 1;
+                return p;
+            }
+        }
+        let w = PERIOD_MATCH_STEPS;
+        let avail = self.filled.min(self.hist[Q].len());
+        let lo = ((p0 as f64) * (1.0 - PERIOD_MATCH_SPAN)).floor().max(2.0) as usize;
+        let hi = (((p0 as f64) * (1.0 + PERIOD_MATCH_SPAN)).ceil() as usize)
+            .min(avail.saturating_sub(w + 3));
+        let mut best = (f64::INFINITY, p0);
+        for p in lo..=hi {
+            let cost: f64 = (1..=w)
+                .map(|j| (self.back(Q, j) - self.back(Q, j + p)).norm_squared())
+                .sum();
+            if cost < best.0 {
+                best = (cost, p);
+            }
+        }
+        self.matched = Some((p0, best.1));
+        self.match_age = 0;
+        best.1
+    }
+
     fn back(&self, sig: usize, steps: usize) -> SVector<f64, N> {
         let len = self.hist[sig].len();
         self.hist[sig][(self.pos + len - steps % len) % len]
@@ -337,6 +388,7 @@ impl<const N: usize> ChannelGuard<N> {
         // restart from this sample, as the EKF bank resumes (`EkfBank::resume_at`).
         if m.t - self.last_t > 1.5 * self.dt {
             self.filled = 0;
+            self.matched = None;
             self.force_bias = SVector::zeros();
             self.robot_part = [SVector::repeat(f64::NAN); 2];
         }
@@ -362,7 +414,8 @@ impl<const N: usize> ChannelGuard<N> {
         let period = period_s
             .filter(|p| p.is_finite() && *p > 0.0)
             .map(|p| (p / self.dt).round() as usize)
-            .filter(|&p| p >= 2 && p + 2 < self.filled.min(self.hist[0].len()));
+            .filter(|&p| p >= 2 && p + 2 < self.filled.min(self.hist[0].len()))
+            .map(|p| self.replay_lag(p));
         // A new gait-period estimate within a replay restarts it, continuous with the
         // estimate it replaces: the old offset against the new lag made the replay step (a
         // 200-ms force spike at 3 kg: the period went from 107 to 101 steps within the fault

@@ -258,19 +258,20 @@ impl<const N: usize, const NA: usize, const NY: usize> EkfBank<N, NA, NY> {
     }
 
     /// One period with some measured channels missing (a sensor fault): every filter updates
-    /// with the measured rows only ([`ScenarioEkf::step_masked`], scenario `i`'s strap torque
-    /// `t_int_prev(i)`); the probabilities are kept. A failed filter is left unchanged and the
-    /// first error returned.
+    /// with the measured rows only, holding its disturbance when `hold_disturbance`
+    /// ([`ScenarioEkf::step_masked`], scenario `i`'s strap torque `t_int_prev(i)`); the
+    /// probabilities are kept. A failed filter is left unchanged and the first error returned.
     pub fn step_masked_per_scenario(
         &mut self,
         y: &SVector<f64, NY>,
         measured: &[bool; NY],
+        hold_disturbance: bool,
         u_prev: &SVector<f64, N>,
         t_int_prev: impl Fn(usize) -> SVector<f64, N>,
     ) -> Result<(), EkfError> {
         let mut first_err = None;
         for (i, f) in self.filters.iter_mut().enumerate() {
-            if let Err(e) = f.step_masked(y, measured, u_prev, &t_int_prev(i)) {
+            if let Err(e) = f.step_masked(y, measured, hold_disturbance, u_prev, &t_int_prev(i)) {
                 first_err.get_or_insert(e);
             }
         }

@@ -139,10 +139,29 @@ impl<const NX: usize, const NY: usize> Ekf<NX, NY> {
         x_next: &SVector<f64, NX>,
         f_jac: &SMatrix<f64, NX, NX>,
     ) -> Result<(), EkfError> {
+        self.predict_holding(x_next, f_jac, &[false; NX])
+    }
+
+    /// [`predict`](Self::predict) with the process noise of the states whose `held` entry is
+    /// true left out (their rows and columns of `Q` taken as zero): a state the caller sets
+    /// from outside the filter, whose uncertainty should not grow meanwhile.
+    pub fn predict_holding(
+        &mut self,
+        x_next: &SVector<f64, NX>,
+        f_jac: &SMatrix<f64, NX, NX>,
+        held: &[bool; NX],
+    ) -> Result<(), EkfError> {
         if !finite(x_next) || !finite(f_jac) {
             return Err(EkfError::NonFiniteInput);
         }
-        let p = symmetrise(&(f_jac * self.p * f_jac.transpose() + self.q));
+        let q = SMatrix::<f64, NX, NX>::from_fn(|i, j| {
+            if held[i] || held[j] {
+                0.0
+            } else {
+                self.q[(i, j)]
+            }
+        });
+        let p = symmetrise(&(f_jac * self.p * f_jac.transpose() + q));
         if !finite(&p) {
             return Err(EkfError::NonFiniteResult);
         }
@@ -208,7 +227,26 @@ impl<const NX: usize, const NY: usize> Ekf<NX, NY> {
         y_pred: &SVector<f64, NY>,
         h_jac: &SMatrix<f64, NY, NX>,
     ) -> Result<InnovationStats<NY>, EkfError> {
-        let (stats, k) = self.innovation(y, y_pred, h_jac)?;
+        self.update_holding(y, y_pred, h_jac, &[false; NX])
+    }
+
+    /// [`update`](Self::update) with the states whose `held` entry is true left out of the
+    /// correction (the Schmidt–Kalman "consider" update): their rows of `K` are zeroed, so `x̂`
+    /// keeps them and the other states take the gain of the full update; `P` follows by the
+    /// same Joseph form, which holds for any gain (a held state's own variance is unchanged).
+    pub fn update_holding(
+        &mut self,
+        y: &SVector<f64, NY>,
+        y_pred: &SVector<f64, NY>,
+        h_jac: &SMatrix<f64, NY, NX>,
+        held: &[bool; NX],
+    ) -> Result<InnovationStats<NY>, EkfError> {
+        let (stats, mut k) = self.innovation(y, y_pred, h_jac)?;
+        for (r, &h) in held.iter().enumerate() {
+            if h {
+                k.row_mut(r).fill(0.0);
+            }
+        }
         let x = self.x + k * stats.v;
         let ikh = SMatrix::<f64, NX, NX>::identity() - k * h_jac;
         let p = symmetrise(&(ikh * self.p * ikh.transpose() + k * self.r * k.transpose()));

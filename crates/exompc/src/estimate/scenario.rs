@@ -328,19 +328,29 @@ impl<const N: usize, const NA: usize, const NY: usize> ScenarioEkf<N, NA, NY> {
     /// One filter period when some measured channels are missing (a sensor fault): the time
     /// update of [`step`](Self::step), then the measurement update with the rows of `y` whose
     /// `measured` entry is true only (the other rows of `H` zeroed, their innovation 0, so they
-    /// move neither `x̂` nor `P`); with no row measured, the time update alone. The innovation
-    /// statistics of the last full update are kept (they weigh the scenarios' probabilities,
-    /// which the caller keeps through a fault). On failure the filter is left as it was.
+    /// move neither `x̂` nor `P`); with no row measured, the time update alone. With
+    /// `hold_disturbance` the disturbance `d` is held: the caller sets `d̂`
+    /// ([`set_disturbance`](Self::set_disturbance)), the update leaves it out
+    /// ([`Ekf::update_holding`]) and its random walk is paused ([`Ekf::predict_holding`]), so
+    /// the joint states follow the measured rows and `d`'s variance stays where it was. The
+    /// innovation statistics of the last full update are kept (they weigh the scenarios'
+    /// probabilities, which the caller keeps through a fault). On failure the filter is left as
+    /// it was.
     pub fn step_masked(
         &mut self,
         y: &SVector<f64, NY>,
         measured: &[bool; NY],
+        hold_disturbance: bool,
         u_prev: &SVector<f64, N>,
         t_int_prev: &SVector<f64, N>,
     ) -> Result<(), EkfError> {
         let (xp, f) = self.predict_with_jacobian(self.ekf.state(), u_prev, t_int_prev);
+        let mut held = [false; NA];
+        if hold_disturbance {
+            held[2 * N..].fill(true);
+        }
         let mut ekf = self.ekf;
-        ekf.predict(&xp, &f)?;
+        ekf.predict_holding(&xp, &f, &held)?;
         if measured.iter().any(|&m| m) {
             let mut h = self.h;
             let mut ym = SVector::<f64, NY>::zeros();
@@ -352,7 +362,7 @@ impl<const N: usize, const NA: usize, const NY: usize> ScenarioEkf<N, NA, NY> {
                 }
             }
             let y_pred = h * ekf.state();
-            ekf.update(&ym, &y_pred, &h)?;
+            ekf.update_holding(&ym, &y_pred, &h, &held)?;
         }
         self.ekf = ekf;
         Ok(())
