@@ -154,14 +154,19 @@ impl<const NX: usize, const NY: usize> Ekf<NX, NY> {
         if !finite(x_next) || !finite(f_jac) {
             return Err(EkfError::NonFiniteInput);
         }
-        let q = SMatrix::<f64, NX, NX>::from_fn(|i, j| {
-            if held[i] || held[j] {
-                0.0
-            } else {
-                self.q[(i, j)]
-            }
-        });
-        let p = symmetrise(&(f_jac * self.p * f_jac.transpose() + q));
+        let fpf = f_jac * self.p * f_jac.transpose();
+        let p = if held.iter().any(|&h| h) {
+            let q = SMatrix::<f64, NX, NX>::from_fn(|i, j| {
+                if held[i] || held[j] {
+                    0.0
+                } else {
+                    self.q[(i, j)]
+                }
+            });
+            symmetrise(&(fpf + q))
+        } else {
+            symmetrise(&(fpf + self.q))
+        };
         if !finite(&p) {
             return Err(EkfError::NonFiniteResult);
         }
