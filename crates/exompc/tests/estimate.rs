@@ -68,16 +68,27 @@ impl LinearKf {
     }
 }
 
-#[test]
-fn ekf_equals_linear_kalman_filter_on_linear_model() {
+/// The linear test model: constant acceleration, two mixed measurements; `(F, H, Q, R, x0)`.
+#[allow(clippy::type_complexity)]
+fn linear_model() -> (
+    SMatrix<f64, 3, 3>,
+    SMatrix<f64, 2, 3>,
+    SMatrix<f64, 3, 3>,
+    SMatrix<f64, 2, 2>,
+    SVector<f64, 3>,
+) {
     let dt = 0.1;
-    // Constant-acceleration model, two mixed measurements.
     let f = SMatrix::<f64, 3, 3>::new(1.0, dt, 0.5 * dt * dt, 0.0, 1.0, dt, 0.0, 0.0, 1.0);
     let h = SMatrix::<f64, 2, 3>::new(1.0, 0.0, 0.0, 0.0, 1.0, 0.5);
     let g = SMatrix::<f64, 3, 3>::new(0.3, 0.1, 0.0, 0.0, 0.2, 0.05, 0.1, 0.0, 0.4);
     let q = g * g.transpose() * 0.1;
     let r = SMatrix::<f64, 2, 2>::new(0.5, 0.1, 0.1, 0.3);
-    let x0 = SVector::<f64, 3>::new(0.2, -0.1, 0.05);
+    (f, h, q, r, SVector::<f64, 3>::new(0.2, -0.1, 0.05))
+}
+
+#[test]
+fn ekf_equals_linear_kalman_filter_on_linear_model() {
+    let (f, h, q, r, x0) = linear_model();
     let p0 = SMatrix::<f64, 3, 3>::from_diagonal(&SVector::from([1.0, 0.5, 0.2]));
 
     let mut ekf = Ekf::<3, 2>::new(x0, p0, q, r);
@@ -132,13 +143,7 @@ fn ekf_equals_linear_kalman_filter_on_linear_model() {
 /// the two calls are `predict` and `update`.
 #[test]
 fn ekf_holding_a_state_equals_the_consider_filter() {
-    let dt = 0.1;
-    let f = SMatrix::<f64, 3, 3>::new(1.0, dt, 0.5 * dt * dt, 0.0, 1.0, dt, 0.0, 0.0, 1.0);
-    let h = SMatrix::<f64, 2, 3>::new(1.0, 0.0, 0.0, 0.0, 1.0, 0.5);
-    let g = SMatrix::<f64, 3, 3>::new(0.3, 0.1, 0.0, 0.0, 0.2, 0.05, 0.1, 0.0, 0.4);
-    let q = g * g.transpose() * 0.1;
-    let r = SMatrix::<f64, 2, 2>::new(0.5, 0.1, 0.1, 0.3);
-    let x0 = SVector::<f64, 3>::new(0.2, -0.1, 0.05);
+    let (f, h, q, r, x0) = linear_model();
     let p0 = SMatrix::<f64, 3, 3>::new(1.0, 0.1, 0.2, 0.1, 0.5, 0.05, 0.2, 0.05, 0.4);
     let held = [false, false, true];
 
