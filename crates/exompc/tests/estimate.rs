@@ -172,11 +172,25 @@ fn ekf_holding_a_state_equals_the_consider_filter() {
         p = &fd * &p * fd.transpose() + &qd;
         let v = to_d(&y) - &hd * &x;
         let sm = &hd * &p * hd.transpose() + &rd;
-        let mut k = &p * hd.transpose() * sm.try_inverse().unwrap();
+        let mut k = &p * hd.transpose() * sm.clone().try_inverse().unwrap();
         k.row_mut(2).fill(0.0);
         x = &x + &k * &v;
+        // Its covariance in closed form: P_xx − K_x S K_xᵀ, P_xd − K_x (H P)_d, P_dd.
+        let kx = k.rows(0, 2).into_owned();
+        let hp = &hd * &p;
+        let mut closed = p.clone();
+        closed
+            .view_mut((0, 0), (2, 2))
+            .copy_from(&(p.view((0, 0), (2, 2)) - &kx * &sm * kx.transpose()));
+        let xd = p.view((0, 2), (2, 1)) - &kx * hp.column(2);
+        closed.view_mut((0, 2), (2, 1)).copy_from(&xd);
+        closed.view_mut((2, 0), (1, 2)).copy_from(&xd.transpose());
         let ikh = DMatrix::identity(3, 3) - &k * &hd;
         p = &ikh * &p * ikh.transpose() + &k * &rd * k.transpose();
+        assert!(
+            max_rel_err(&p, &closed) < 1e-10,
+            "Joseph form vs closed form"
+        );
 
         assert!(max_rel_err(&to_d(ekf.state()), &x) < 1e-12);
         assert!(max_rel_err(&to_d(ekf.covariance()), &p) < 1e-12);

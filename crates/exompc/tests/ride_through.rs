@@ -743,7 +743,7 @@ fn a_force_dropout_beyond_the_scenario_payloads_is_ridden_through() {
     );
 }
 
-/// 10-s MS-NMPC runs at 3 kg with a fault of both strap forces (30-N spikes), one per cell
+/// 10-s MS-NMPC runs at `payload` kg with a fault of both strap forces (30-N spikes), one per cell
 /// `(kind, start s, duration s, peak bound N, RMS bound × the clean run's per strap)`: each
 /// within its bounds, without a monitor trip or latch.
 fn force_faults(payload: f64, cells: &[(FaultKind, f64, f64, f64, f64)]) {
@@ -866,21 +866,31 @@ fn a_force_sensor_lost_for_a_second_is_ridden_through() {
 }
 
 /// The replay's lag is matched on the angles (`PERIOD_MATCH_STEPS`): on a gait whose frequency
-/// rises (here 0.9 → 1.1 Hz over 4 s, the angles at 3 s repeating after 98 steps), a
+/// rises (here 0.9 → 1.1 Hz over 4 s, the angles at 3 s repeating after 98 steps), with every
+/// channel good (the lag matched every `PERIOD_MATCH_EVERY` steps, cached between), a
 /// supervisor's period one cycle old (1.07 s) gives the lag at which the angles repeat, within
-/// one step of the exact one, and a period of the right length is kept.
+/// one step of the exact one, and a period of the right length is kept. While the history is
+/// too short for the whole search range (after the first steps, and again after a gap in the
+/// data, which restarts it) the lag is the supervisor's period.
 #[test]
 fn the_replay_lag_is_matched_on_the_angles() {
     // phase of a linear chirp f(t) = 0.9 + 0.05 t Hz
     let phase = |t: f64| std::f64::consts::TAU * (0.9 * t + 0.025 * t * t);
+    let q = |t: f64| SVector::<f64, 2>::from([0.3 * phase(t).sin(), 0.5 * (1.0 - phase(t).cos())]);
+    // Clean channels: the filtered velocity is the angle's slope over the 5-sample window.
     let m = |k: usize| {
         let t = k as f64 * 0.01;
         Measurement {
             t,
-            q: SVector::from([0.3 * phase(t).sin(), 0.5 * (1.0 - phase(t).cos())]),
-            qd: SVector::zeros(),
-            force: SVector::zeros(),
+            q: q(t),
+            qd: (q(t) - q(t - 0.04)) / 0.04,
+            force: SVector::from([2.0 * phase(t).sin(), 3.0 * phase(t).cos()]),
         }
+    };
+    let lag_at = |guard: &mut ChannelGuard<2>, k: usize, period_s: f64| {
+        let rep = guard.repair(&m(k), Some(period_s), 50, None);
+        assert!(!rep.any_rejected, "step {k}: a clean channel was rejected");
+        rep.estimated.period
     };
     // The exact lag at 3 s: phase(t) − phase(t − p) = 2π.
     let t = 3.0;
@@ -892,19 +902,29 @@ fn the_replay_lag_is_matched_on_the_angles() {
         })
         .unwrap();
     for period_s in [1.07, exact as f64 * 0.01] {
+        let p0 = (period_s / 0.01).round() as usize;
         let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
         let mut lag = None;
         for k in 0..=300 {
-            lag = guard
-                .repair(&m(k), Some(period_s), 50, None)
-                .estimated
-                .period;
+            lag = lag_at(&mut guard, k, period_s);
+            if k == p0 + 10 {
+                assert_eq!(
+                    lag,
+                    Some(p0),
+                    "history of {k} steps: the supervisor's period"
+                );
+            }
         }
-        let lag = lag.expect("a lag");
+        let matched = lag.expect("a lag");
         assert!(
-            lag.abs_diff(exact) <= 1,
-            "period {period_s} s: lag {lag} steps, the angles repeat after {exact}"
+            matched.abs_diff(exact) <= 1,
+            "period {period_s} s: lag {matched} steps, the angles repeat after {exact}"
         );
+        // A gap of 50 ms restarts the history.
+        for k in 306..=306 + p0 + 10 {
+            lag = lag_at(&mut guard, k, period_s);
+        }
+        assert_eq!(lag, Some(p0), "after the gap: the supervisor's period");
     }
 }
 

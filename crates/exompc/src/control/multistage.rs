@@ -549,7 +549,8 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     /// last update.
     hold_disturbance: bool,
     /// This force fault has had a step on which the filters predicted without an update (no
-    /// replay yet): their joint states have drifted, and the replay then also predicts only.
+    /// replay, or no row of `y` measured): their joint states have drifted, and the rest of
+    /// the fault also predicts only.
     went_blind: bool,
     /// The previous step held `d̂` with every row of `y` measured: its joint states followed
     /// the measurement, so the banks do not restart them when the forces are measured again.
@@ -765,13 +766,16 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     /// Step 1: advance the EKF bank (and the robust method's disturbance bank) with
     /// `y = [q, qd]`, `T(k−1)` and each scenario's strap torque of step `k−1` (eqs. 10-11);
     /// on the first step, after skipped periods or back from estimated channels, restart the
-    /// filters' joint states at the measurement instead. Returns whether this step follows
-    /// such a gap.
+    /// filters' joint states at the measurement instead (not back from a step on which every
+    /// filter updated its joint states with every row while holding `d̂`: they followed the
+    /// measurement). Returns whether this step follows such a gap (which also restarts the
+    /// robust method's histories and the strap observer, `start_state`).
     fn advance_banks(&mut self, m: &Measurement<N>) -> bool {
         // Back from estimated channels: the filters resume at the measurement like after a gap,
         // unless their joint states followed it while `d̂` was replayed.
         let followed = self.held_last;
-        self.held_last = self.hold_disturbance && self.measured.iter().all(|&m| m);
+        let holding = self.hold_disturbance && self.measured.iter().all(|&m| m);
+        self.held_last = false;
         let resync = (self.was_estimating && !self.estimating && !followed) || self.resuming;
         let skipped = self.skipped_periods(m);
         let gap = !self.started || skipped || resync;
@@ -791,7 +795,8 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
                 b.resume_at(&m.q, &m.qd);
             }
         } else {
-            self.update_banks(m);
+            let updated = self.update_banks(m);
+            self.held_last = holding && updated;
         }
         #[cfg(not(feature = "std"))]
         crate::clock::account(crate::clock::Part::EkfBank, ekf_start.elapsed());
@@ -808,7 +813,8 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     /// The banks' predict-and-update with `y = [q, qd]`: every row, or with estimated
     /// channels ([`Controller::step_estimated`]) the measured rows only (the probabilities
     /// kept). A failed filter keeps its state and the probabilities; the controller goes on.
-    fn update_banks(&mut self, m: &Measurement<N>) {
+    /// Returns whether every filter of both banks updated.
+    fn update_banks(&mut self, m: &Measurement<N>) -> bool {
         let mut y = SVector::<f64, NY>::zeros();
         for a in 0..N {
             y[a] = m.q[a];
@@ -818,23 +824,25 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
         let (forces, dforces) = (&self.prev_force, &self.prev_dforce);
         if self.estimating {
             let (measured, hold) = (&self.measured, self.hold_disturbance);
-            let _ = self
+            let main = self
                 .bank
                 .step_masked_per_scenario(&y, measured, hold, prev, |i| {
                     models[i].straps.torque(&forces[i])
                 });
-            if let Some(b) = self.dbank.as_mut() {
-                let _ = b.step_masked_per_scenario(&y, measured, hold, prev, |i| {
+            let second = self.dbank.as_mut().map_or(Ok(()), |b| {
+                b.step_masked_per_scenario(&y, measured, hold, prev, |i| {
                     models[i].straps.torque(&dforces[i])
-                });
-            }
+                })
+            });
+            main.is_ok() && second.is_ok()
         } else {
-            let _ = self
+            let main = self
                 .bank
                 .step_per_scenario(&y, prev, |i| models[i].straps.torque(&forces[i]));
-            if let Some(b) = self.dbank.as_mut() {
-                let _ = b.step_per_scenario(&y, prev, |i| models[i].straps.torque(&dforces[i]));
-            }
+            let second = self.dbank.as_mut().map_or(Ok(()), |b| {
+                b.step_per_scenario(&y, prev, |i| models[i].straps.torque(&dforces[i]))
+            });
+            main.is_ok() && second.is_ok()
         }
     }
 
@@ -999,6 +1007,9 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
         }
         for (m, &r) in self.measured.iter_mut().zip(&self.measured_rows) {
             *m = r && !blind;
+        }
+        if force && !self.measured_rows.iter().any(|&m| m) {
+            self.went_blind = true;
         }
     }
 

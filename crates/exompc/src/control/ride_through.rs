@@ -337,12 +337,13 @@ impl<const N: usize> ChannelGuard<N> {
     /// The replay's lag for the supervisor's gait period `p0` (steps): the lag within
     /// [`PERIOD_MATCH_SPAN`] of `p0` at which the last [`PERIOD_MATCH_STEPS`] angles best
     /// match those one lag back, `argmin_p Σ_j |q(k−j) − q(k−j−p)|²` (the first of equals;
-    /// `p0` when the history is too short). Matched every [`PERIOD_MATCH_EVERY`] steps, and at
-    /// every step while a channel is rejected or when `p0` changes.
+    /// `p0`, not kept, while the history is shorter than the whole range needs). Matched every
+    /// [`PERIOD_MATCH_EVERY`] calls, and at every call while a channel is rejected or when `p0`
+    /// changes.
     fn replay_lag(&mut self, p0: usize) -> usize {
         let busy = self.bad_for.iter().flatten().any(|&b| b > 0);
         if let Some((c, p)) = self.matched {
-            if c == p0 && !busy && self.match_age < PERIOD_MATCH_EVERY {
+            if c == p0 && !busy && self.match_age + 1 < PERIOD_MATCH_EVERY {
                 self.match_age += 1;
                 return p;
             }
@@ -350,8 +351,11 @@ impl<const N: usize> ChannelGuard<N> {
         let w = PERIOD_MATCH_STEPS;
         let avail = self.filled.min(self.hist[Q].len());
         let lo = ((p0 as f64) * (1.0 - PERIOD_MATCH_SPAN)).floor().max(2.0) as usize;
-        let hi = (((p0 as f64) * (1.0 + PERIOD_MATCH_SPAN)).ceil() as usize)
-            .min(avail.saturating_sub(w + 3));
+        let hi = ((p0 as f64) * (1.0 + PERIOD_MATCH_SPAN)).ceil() as usize;
+        if hi + w + 3 > avail {
+            // A range cut short would drop `p0` and the lags above it.
+            return p0;
+        }
         let mut best = (f64::INFINITY, p0);
         for p in lo..=hi {
             let cost: f64 = (1..=w)

@@ -365,6 +365,10 @@ impl<const N: usize, const NA: usize, const NY: usize> ScenarioEkf<N, NA, NY> {
             ekf.update_holding(&ym, &y_pred, &h, &held)?;
         }
         self.ekf = ekf;
+        if measured.iter().all(|&m| m) {
+            // The a-posteriori residual of a full update (the paper innovation's `e(k−1)`).
+            self.residual = y - self.h * self.ekf.state();
+        }
         Ok(())
     }
 
