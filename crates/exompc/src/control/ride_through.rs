@@ -82,8 +82,8 @@ pub const PERIOD_MATCH_EVERY: u32 = 10;
 /// its good velocity, a velocity from its good angle's slope over the filter window (once the
 /// window holds accepted angles only: before that the slope spans the jump from an estimate back to
 /// the measurement, and the velocity counts as one whose angle is lost), and a channel whose
-/// partner is lost too (or a force) by replaying the gait one period back (the gait frequency of
-/// the supervisor) with the offset it had when the replay began (added once; a new period estimate
+/// partner is lost too (or a force) by replaying the gait one period back (the supervisor's gait
+/// period, the lag matched on the angles near it: [`PERIOD_MATCH_STEPS`]) with the offset it had when the replay began (added once; a new period estimate
 /// restarts the replay where it is), or, without a known period, by holding (an angle:
 /// integrating the estimated velocity). A rejected channel is
 /// accepted again once a fresh sample lies within [`ACCEPT_GATES`] gates of its estimate
