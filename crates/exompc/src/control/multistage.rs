@@ -530,8 +530,9 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     /// Time of the last measurement the EKF bank used.
     last_t: f64,
     /// This step's measurement has estimated channels ([`Controller::step_estimated`]): the
-    /// EKF banks update with the rows of `y = [q, qd]` in `measured` only.
+    /// EKF banks update with the rows of `y = [q, qd]` of `update_rows` only.
     estimating: bool,
+    /// The rows of `y` measured this step (not estimates).
     measured: [bool; NY],
     /// The previous step's measurement had estimated channels: the banks resume at this
     /// step's measurement.
@@ -541,9 +542,6 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     /// Consecutive steps with estimated strap forces (the filters update over the first
     /// `REPLAY_AFTER_STEPS` of them, then the replay begins).
     forces_estimated_for: u32,
-    /// The rows of `y` measured this step, whatever the force fault's step count (the rows
-    /// the banks update with while `d̂` is replayed).
-    measured_rows: [bool; NY],
     /// This step the banks update their joint states with the measured rows and hold `d̂`
     /// (the replay sets it): `replay_disturbance` while the replay continues the filters'
     /// last update.
@@ -645,7 +643,6 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             was_estimating: false,
             forces_estimated: false,
             forces_estimated_for: 0,
-            measured_rows: [true; NY],
             hold_disturbance: false,
             went_blind: false,
             held_last: false,
@@ -823,7 +820,8 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
         let (models, prev) = (&self.models, &self.prev);
         let (forces, dforces) = (&self.prev_force, &self.prev_dforce);
         if self.estimating {
-            let (measured, hold) = (&self.measured, self.hold_disturbance);
+            let rows = self.update_rows();
+            let (measured, hold) = (&rows, self.hold_disturbance);
             let main = self
                 .bank
                 .step_masked_per_scenario(&y, measured, hold, prev, |i| {
@@ -983,12 +981,12 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
         }
     }
 
-    /// Which rows of `y = [q, qd]` the filters update with while channels are estimated: the
-    /// measured ones, and while a strap force (the filters' input) is estimated, those over
-    /// its first [`REPLAY_AFTER_STEPS`] steps only; after them an estimate drifting from the
-    /// force would move `d̂`, so no row (the filters predict without an update, `d̂` held),
-    /// unless `replay_disturbance` carries `d̂` and the measured rows update the joint states
-    /// alone. The probabilities are kept throughout.
+    /// Record which channels of this step are estimates. The filters update with the measured
+    /// rows of `y = [q, qd]` (`update_rows`), and while a strap force (the filters' input) is
+    /// estimated, with those over its first [`REPLAY_AFTER_STEPS`] steps only; after them an
+    /// estimate drifting from the force would move `d̂`, so no row (the filters predict
+    /// without an update, `d̂` held), unless `replay_disturbance` carries `d̂` and the measured
+    /// rows update the joint states alone. The probabilities are kept throughout.
     fn mark_estimated(&mut self, estimated: &EstimatedChannels<N>) {
         let force = estimated.force.iter().any(|&e| e);
         self.forces_estimated = force;
@@ -1000,17 +998,23 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
         self.period = estimated.period;
         self.estimating = estimated.any();
         self.resuming = estimated.resume;
-        let blind = force && self.forces_estimated_for > REPLAY_AFTER_STEPS;
         for a in 0..N {
-            self.measured_rows[a] = !estimated.q[a];
-            self.measured_rows[N + a] = !estimated.qd[a];
+            self.measured[a] = !estimated.q[a];
+            self.measured[N + a] = !estimated.qd[a];
         }
-        for (m, &r) in self.measured.iter_mut().zip(&self.measured_rows) {
-            *m = r && !blind;
-        }
-        if force && !self.measured_rows.iter().any(|&m| m) {
+        if force && !self.measured.iter().any(|&m| m) {
             self.went_blind = true;
         }
+    }
+
+    /// The rows of `y` the banks update with this step (`mark_estimated`): the measured ones,
+    /// none after the first [`REPLAY_AFTER_STEPS`] steps of estimated forces unless `d̂` is
+    /// held for the replay.
+    fn update_rows(&self) -> [bool; NY] {
+        let blind = self.forces_estimated
+            && self.forces_estimated_for > REPLAY_AFTER_STEPS
+            && !self.hold_disturbance;
+        self.measured.map(|m| m && !blind)
     }
 
     /// While the strap forces are estimated for more than [`REPLAY_AFTER_STEPS`] (the filters
@@ -1053,9 +1057,8 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             }
         };
         r.set_period(p);
-        if !self.went_blind && self.measured_rows.iter().any(|&m| m) {
+        if !self.went_blind && self.measured.iter().any(|&m| m) {
             self.hold_disturbance = true;
-            self.measured = self.measured_rows;
         }
         for b in 0..2 {
             let bank = match b {
