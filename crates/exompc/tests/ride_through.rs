@@ -8,8 +8,8 @@
 use exompc::config::{ControllerKind, Experiment};
 use exompc::control::{
     ChannelGuard, EstimatedChannels, Measurement, MonitorAction, MonitorKind, Repaired, StepStatus,
-    TorqueExtrapolation, EXTRAPOLATION_MAX_HZ, FORCE_BIAS_RATE, FORCE_RESYNC_S, GAIT_MAX_HZ,
-    SLOPE_ACCEPT_GATES, VELOCITY_GATE,
+    TorqueExtrapolation, EXTRAPOLATION_FADE_STEPS, EXTRAPOLATION_MAX_HZ, FORCE_BIAS_RATE,
+    FORCE_FIT_S, FORCE_RESYNC_S, GAIT_MAX_HZ, SLOPE_ACCEPT_GATES, VELOCITY_GATE,
 };
 use exompc::estimate::MovingAverage;
 use exompc::model::Straps;
@@ -657,6 +657,33 @@ fn torque_extrapolation_continues_a_periodic_torque() {
     let still = vec![SVector::<f64, 2>::from([0.1, -0.5]); len];
     assert!(TorqueExtrapolation::<2>::fit(&tq, n, &still, n, n, dt).is_none());
     assert!(TorqueExtrapolation::<2>::fit(&tq, 25, &an, 25, 25, dt).is_none());
+    // A series fitted at its frequency to samples that leave its recent ones out (here
+    // corrupted), started at a given last value: its continuation, with the last value's
+    // offset (1 N·m) fading out over `EXTRAPOLATION_FADE_STEPS`, within the samples' range.
+    let now = 150;
+    let back =
+        |i: usize| torque((now - i) as f64 * dt) + SVector::repeat(if i < 5 { 50.0 } else { 0.0 });
+    let samples = || (5..=120).map(|i| (i, back(i)));
+    let last = torque((now - 1) as f64 * dt) + SVector::repeat(1.0);
+    let x = TorqueExtrapolation::<2>::fit_series(samples(), w, dt, last).expect("a fit");
+    assert_eq!(x.omega(), w);
+    let (lo, hi) = samples().fold(
+        (
+            SVector::repeat(f64::INFINITY),
+            SVector::repeat(f64::NEG_INFINITY),
+        ),
+        |(lo, hi): (SVector<f64, 2>, SVector<f64, 2>), (_, v)| (lo.inf(&v), hi.sup(&v)),
+    );
+    for i in 0..20u32 {
+        let fade = (1.0 - f64::from(i + 1) / f64::from(EXTRAPOLATION_FADE_STEPS)).max(0.0);
+        let want = (torque((now as f64 + f64::from(i)) * dt) + SVector::repeat(fade))
+            .sup(&lo)
+            .inf(&hi);
+        let err = (x.at(i, dt) - want).amax();
+        assert!(err <= 1e-6, "{i} steps on: {err:.2e} off");
+    }
+    let few = (5..=8).map(|i| (i, back(i)));
+    assert!(TorqueExtrapolation::<2>::fit_series(few, w, dt, last).is_none());
 }
 
 /// A stalled acquisition (every raw sample frozen at once, a dropout or stuck fault of every
@@ -792,6 +819,7 @@ fn the_filters_update_over_the_first_steps_of_estimated_forces() {
         qd: [false; 2],
         force: [true; 2],
         period: None,
+        gait_omega: None,
         resume: false,
     };
     let mut prev = c.disturbance(0).unwrap();
@@ -806,6 +834,98 @@ fn the_filters_update_over_the_first_steps_of_estimated_forces() {
         }
         prev = d;
     }
+}
+
+/// Issue 28, strap forces estimated before the gait period is known: while the guard
+/// continues them at the gait frequency (`EstimatedChannels::gait_omega`) the MS-NMPC
+/// continues each scenario's `d̂` at that frequency too, instead of holding it from the
+/// sixth step. On a periodic gait at 3 kg (the model's error moving `d̂` along the gait), the
+/// continued `d̂` stays closer to that of the same controller with the forces measured than
+/// the held one does, over 0.25 s (0.71 against 3.02 N·m). Held after it, and then replayed
+/// once the period is known, `d̂` goes on from where it is (0.32 N·m per step at most;
+/// 4.04 N·m when the replay started from the filters' last update before the continuation).
+#[test]
+fn the_disturbance_is_continued_with_the_forces() {
+    let s = scenario(ControllerKind::MSNMPC, 3.0, 10.0);
+    let build = || exompc::build_controller::<TwoDof, 2>(&s, ControllerKind::MSNMPC).unwrap();
+    let w = std::f64::consts::TAU * 0.9;
+    let m = |k: usize| {
+        let t = k as f64 * 0.01;
+        Measurement {
+            t,
+            q: SVector::from([0.4 * (w * t).sin(), 0.3 * (1.0 - (w * t).cos())]),
+            qd: SVector::from([0.4 * w * (w * t).cos(), 0.3 * w * (w * t).sin()]),
+            force: SVector::from([5.0 * (w * t + 0.5).sin(), 4.0 * (w * t + 1.0).sin()]),
+        }
+    };
+    let (mut clean, mut held, mut continued) = (build(), build(), build());
+    let start = 200;
+    for k in 0..start {
+        for c in [&mut clean, &mut held, &mut continued] {
+            c.step(&m(k));
+        }
+    }
+    let estimated = |omega: Option<f64>| EstimatedChannels {
+        q: [false; 2],
+        qd: [false; 2],
+        force: [true; 2],
+        period: None,
+        gait_omega: omega,
+        resume: false,
+    };
+    let (mut err_held, mut err_continued) = (0.0f64, 0.0f64);
+    for k in start..start + 25 {
+        clean.step(&m(k));
+        held.step_estimated(&m(k), &estimated(None));
+        continued.step_estimated(&m(k), &estimated(Some(w)));
+        for i in 0..3 {
+            let d = clean.disturbance(i).unwrap();
+            err_held = err_held.max((held.disturbance(i).unwrap() - d).amax());
+            err_continued = err_continued.max((continued.disturbance(i).unwrap() - d).amax());
+        }
+    }
+    assert!(
+        err_continued < 0.5 * err_held,
+        "continued {err_continued:.3} N·m off, held {err_held:.3} N·m off"
+    );
+    // The continuation over (no frequency given: `d̂` held), then the period known: the
+    // replay starts from the current `d̂`, not from the filters' last update before the
+    // continuation (which would step it by the gait's change since).
+    let held_at = continued.disturbance(0).unwrap();
+    for k in start + 25..start + 30 {
+        continued.step_estimated(&m(k), &estimated(None));
+        let moved = (continued.disturbance(0).unwrap() - held_at).amax();
+        assert_eq!(moved, 0.0, "step {k}: the held d̂ moved by {moved}");
+    }
+    let p = (1.0 / 0.9 / 0.01f64).round() as usize;
+    let mut replayed = estimated(None);
+    replayed.period = Some(p);
+    let mut prev = held_at;
+    let mut largest = 0.0f64;
+    for k in start + 30..start + 40 {
+        continued.step_estimated(&m(k), &replayed);
+        let d = continued.disturbance(0).unwrap();
+        largest = largest.max((d - prev).amax());
+        prev = d;
+    }
+    assert!(largest <= 1.0, "the replay stepped d̂ by {largest:.3} N·m");
+}
+
+/// Issue 28, strap-force faults at 3 kg in the first gait period, cells of the fine and
+/// wider scans (docs/RELIABILITY.md §2a): a 200-ms NaN and a 200-ms stuck force at 1.5 s and
+/// a 200-ms dropout at 1 s stay ≤ 12 N and ≤ 1.05× clean with no trip. Measured on
+/// 2026-12-06 with `d̂` held after the first five steps (the forces continued): 31.9, 25.4 and
+/// 20.3 N (RMS 1.38-1.39×, 1.20×); with `d̂` continued: 8.9, 9.9 and 9.2 N (≤ 1.01×).
+#[test]
+fn force_faults_at_3_kg_in_the_first_gait_period_continue_the_disturbance() {
+    force_faults(
+        3.0,
+        &[
+            (FaultKind::Nan, 1.5, 0.2, 12.0, 1.05),
+            (FaultKind::Stuck, 1.5, 0.2, 12.0, 1.05),
+            (FaultKind::Dropout, 1.0, 0.2, 12.0, 1.05),
+        ],
+    );
 }
 
 /// Issue 28, the forces at 3 kg: over the first `REPLAY_AFTER_STEPS` steps of estimated
@@ -863,6 +983,122 @@ fn a_force_sensor_lost_for_a_second_is_ridden_through() {
             (FaultKind::Nan, 5.0, 1.0, 12.0, 1.1),
         ],
     );
+}
+
+/// Issue 28, a strap force lost before the gait period is known (nothing to replay): while
+/// every encoder is measured its estimate continues the forces of the last second at the gait
+/// frequency of the angles, for [`FORCE_FIT_S`], then holds. It holds from the start with an
+/// encoder lost at the fault's start, from the step an encoder is lost within the fault (and
+/// is not continued again when the encoder is back), and for a strap whose fault began after
+/// the continuation's first step. Before, it held from the start: here 5.6 N off after 0.29 s.
+#[test]
+fn a_force_lost_in_the_first_gait_period_follows_its_continuation() {
+    let w = std::f64::consts::TAU * 0.9;
+    let q = |t: f64| SVector::<f64, 2>::from([0.4 * (w * t).sin(), 0.3 * (1.0 - (w * t).cos())]);
+    let f = |t: f64| {
+        SVector::<f64, 2>::from([
+            5.0 * (w * t + 0.5).sin() + 1.5 * (2.0 * w * t).cos(),
+            4.0 * (w * t + 1.0).sin() - 1.0,
+        ])
+    };
+    // The forces are lost from 1.3 s (step 130) for 0.4 s; the cases: the angles lost too from
+    // the start, lost for 5 steps from the 10th step of the fault, the shank's force lost 3
+    // steps after the thigh's.
+    let fault_at = 130;
+    let fit_steps = (FORCE_FIT_S / 0.01).round() as usize;
+    #[derive(Clone, Copy, PartialEq)]
+    enum Case {
+        Encoders,
+        AnglesLost,
+        AnglesLostWithin,
+        StrapsApart,
+    }
+    for case in [
+        Case::Encoders,
+        Case::AnglesLost,
+        Case::AnglesLostWithin,
+        Case::StrapsApart,
+    ] {
+        let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
+        let mut prev = SVector::<f64, 2>::zeros();
+        for k in 0..fault_at + 40 {
+            let t = k as f64 * 0.01;
+            let lost = [
+                k >= fault_at,
+                k >= fault_at + usize::from(case == Case::StrapsApart) * 3,
+            ];
+            let angles_lost = match case {
+                Case::AnglesLost => k >= fault_at,
+                Case::AnglesLostWithin => (fault_at + 10..fault_at + 15).contains(&k),
+                _ => false,
+            };
+            let mut force = f(t);
+            for j in 0..2 {
+                if lost[j] {
+                    force[j] = f64::NAN;
+                }
+            }
+            let m = Measurement {
+                t,
+                q: if angles_lost {
+                    SVector::repeat(f64::NAN)
+                } else {
+                    q(t)
+                },
+                qd: (q(t) - q(t - 0.04)) / 0.04,
+                force,
+            };
+            let rep = guard.repair(&m, None, 50, None);
+            let est = rep.m.force;
+            if k < fault_at {
+                assert!(!rep.any_rejected, "step {k}: a clean channel was rejected");
+            }
+            for j in 0..2 {
+                if !lost[j] {
+                    continue;
+                }
+                assert!(rep.estimated.force[j], "step {k}, strap {j}");
+                let step = (est[j] - prev[j]).abs();
+                let err = (est[j] - f(t)[j]).abs();
+                let continued = match case {
+                    Case::Encoders => k < fault_at + fit_steps,
+                    Case::AnglesLost => false,
+                    Case::AnglesLostWithin => k < fault_at + 10,
+                    Case::StrapsApart => j == 0 && k < fault_at + fit_steps,
+                };
+                let first = k == fault_at + usize::from(case == Case::StrapsApart && j == 1) * 3;
+                if continued {
+                    assert!(
+                        err <= 0.3,
+                        "case {}, step {k}, strap {j}: {err:.3} N off",
+                        case as u8
+                    );
+                } else if !first {
+                    assert!(
+                        step <= 1e-12,
+                        "case {}, step {k}, strap {j}: moved {step:.3} N",
+                        case as u8
+                    );
+                }
+            }
+            prev = est;
+        }
+    }
+    // Holding, as before: the force's change over the continuation.
+    let held_err = (f(1.29 + FORCE_FIT_S - 0.01) - f(1.29)).amax();
+    assert!(held_err > 5.0, "{held_err:.2} N");
+}
+
+/// Issue 28, strap-force faults in the first gait period (no period known: `d̂` held, the
+/// filters predicting only), cells of the fine scan (docs/RELIABILITY.md §2a) that failed
+/// while the force estimate held: a 60-ms NaN of both forces at 1.5 s, 3 kg, and a 200-ms
+/// dropout at 2 s, 2 kg, stay ≤ 12 N and ≤ 1.1× clean with no trip. Measured on 2026-12-06:
+/// held, 35.4 N (RMS 1.51×) and 20.3 N (1.21×); the forces continued, 8.7 N (0.99×) and 5.9 N
+/// (1.03×); `d̂` continued with them, 8.9 N (1.00×) and 7.2 N (1.01×).
+#[test]
+fn force_faults_in_the_first_gait_period_follow_the_forces_continuation() {
+    force_faults(3.0, &[(FaultKind::Nan, 1.5, 0.06, 12.0, 1.1)]);
+    force_faults(2.0, &[(FaultKind::Dropout, 2.0, 0.2, 12.0, 1.1)]);
 }
 
 /// The replay's lag is matched on the angles (`PERIOD_MATCH_STEPS`): on a gait whose frequency

@@ -6,7 +6,9 @@ use super::nmpc::{classify, horizon_inputs, NmpcCore};
 use super::nmpc_problem::{NmpcProblem, NmpcSettings};
 use super::ocp_tree::{tree_is_structured, TreeSqp};
 use super::prediction::{HorizonInputs, PredictionModel};
-use super::ride_through::ChannelGuard;
+use super::ride_through::{
+    ChannelGuard, TorqueExtrapolation, EXTRAPOLATION_FIT_S, EXTRAPOLATION_MIN_S,
+};
 #[cfg(doc)]
 use super::robust::RobustTuning;
 use super::robust::{IntentEstimate, RobustSettings, RobustState};
@@ -341,7 +343,8 @@ pub struct MultiStageOptions {
 
 /// Steps of estimated strap forces over which the EKF banks still update with the measured
 /// rows of `y = [q, qd]` (`MultiStage::mark_estimated`) before `d̂` is replayed
-/// (`MultiStage::replay_disturbance`) or, without a known gait period, held: an estimate a
+/// (`MultiStage::replay_disturbance`), continued with the forces at the gait frequency
+/// (`MultiStage::continue_disturbance`) or, without either, held: an estimate a
 /// few steps old is close to the force, a force rejected for a few steps (a gate's jolt, the
 /// ramp into a rail) is no gait to replay, and the filters keep following the model's error
 /// along the gait (at 3 kg it moves `d̂` by up to 0.7 N·m per step). Chosen by measurement
@@ -375,6 +378,18 @@ struct DisturbanceReplay<const N: usize> {
     period: usize,
     /// The replay restarted on a new period (its offsets continue the replayed `d̂`).
     restarted: bool,
+    /// `d̂` was continued at the gait frequency within this force fault
+    /// (`MultiStage::continue_disturbance`): a replay that follows continues the current `d̂`.
+    continued: bool,
+    /// Every bank's `d̂ᵢ` (bank-major, two banks' room) on the continuation's first step, how
+    /// many of them are set, and the steps since: the continuation is fitted again on each
+    /// step to the same stretch of the history (kept out of the Cortex-M7's RAM,
+    /// docs/EMBEDDED.md).
+    starts: Vec<SVector<f64, N>>,
+    started: usize,
+    fit_steps: u32,
+    /// Control period (s).
+    dt: f64,
 }
 
 impl<const N: usize> DisturbanceReplay<N> {
@@ -393,6 +408,11 @@ impl<const N: usize> DisturbanceReplay<N> {
             offset: [offset.clone(), offset],
             period: 0,
             restarted: false,
+            continued: false,
+            starts: vec![SVector::zeros(); 2 * scenarios],
+            started: 0,
+            fit_steps: 0,
+            dt,
         }
     }
 
@@ -441,13 +461,60 @@ impl<const N: usize> DisturbanceReplay<N> {
         }
     }
 
-    /// End the replay (the forces are measured again, or the period is unknown).
+    /// End the replay and the continuation (the forces are measured again, or `d̂` is held:
+    /// `continued` stays for the rest of the fault, see [`Self::end_fault`]).
     fn stop(&mut self) {
         for o in self.offset.iter_mut() {
             o.fill(SVector::repeat(f64::NAN));
         }
         self.period = 0;
         self.restarted = false;
+        self.started = 0;
+    }
+
+    /// The strap forces are measured: a later fault's replay starts from its filters' update.
+    fn end_fault(&mut self) {
+        self.stop();
+        self.continued = false;
+    }
+
+    /// Steps of history the continuation is fitted to (up to [`EXTRAPOLATION_FIT_S`] before
+    /// its first step); `None` when shorter than [`EXTRAPOLATION_MIN_S`].
+    fn fit_span(&self) -> Option<usize> {
+        let since = self.fit_steps as usize;
+        let n = ((EXTRAPOLATION_FIT_S / self.dt).round() as usize)
+            .min(self.count.saturating_sub(since));
+        ((n as f64) * self.dt >= EXTRAPOLATION_MIN_S - 1e-9 && self.holds(n + since)).then_some(n)
+    }
+
+    /// `d̂` of bank `b`, scenario `i` (the `index`-th in bank-major order) continued at the
+    /// gait frequency `omega` (rad/s) from its value on the continuation's first step
+    /// (`current` there): [`TorqueExtrapolation::fit_series`] fitted to the history of the
+    /// [`EXTRAPOLATION_FIT_S`] before that step (older than the last slot, as
+    /// [`Self::holds`] reads it); `None` when that history is shorter than
+    /// [`EXTRAPOLATION_MIN_S`] or the fit is not finite.
+    fn continued(
+        &mut self,
+        index: usize,
+        b: usize,
+        i: usize,
+        current: &SVector<f64, N>,
+        omega: f64,
+    ) -> Option<SVector<f64, N>> {
+        if self.started == index {
+            *self.starts.get_mut(index)? = *current;
+            self.started += 1;
+        }
+        let start = *self.starts.get(index)?;
+        let since = self.fit_steps as usize;
+        let n = self.fit_span()?;
+        // The history `stride + 1 ..= n` steps before the continuation's first step (its time
+        // origin: the fit's steps back count from there), read between the slots as the
+        // replay reads it (the slots alone: two cells of the fine scan lost at 12.1 N,
+        // docs/RELIABILITY.md §2).
+        let samples = (self.stride + 1..=n).map(|k| (k, self.back(b, i, k + since)));
+        let fit = TorqueExtrapolation::fit_series(samples, omega, self.dt, start)?;
+        Some(fit.at(self.fit_steps, self.dt))
     }
 
     /// The replayed `d̂` of bank `b`, scenario `i` at this step: one period `p` (set by
@@ -467,7 +534,8 @@ impl<const N: usize> DisturbanceReplay<N> {
     ) -> SVector<f64, N> {
         let p = self.period;
         if !self.offset[b][i].iter().all(|v| v.is_finite()) {
-            let k = if !self.restarted && self.holds(p + since) {
+            // After a continuation `current` is no longer the filters' last update: p + 1.
+            let k = if !self.restarted && !self.continued && self.holds(p + since) {
                 p + since
             } else {
                 p + 1
@@ -542,9 +610,9 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     /// Consecutive steps with estimated strap forces (the filters update over the first
     /// `REPLAY_AFTER_STEPS` of them, then the replay begins).
     forces_estimated_for: u32,
-    /// This step the banks update their joint states with the measured rows and hold `d̂`
-    /// (the replay sets it): `replay_disturbance` while the replay continues the filters'
-    /// last update.
+    /// This step the banks update their joint states with the measured rows and hold `d̂`:
+    /// set by `replay_disturbance` while the replay, or the continuation at the gait
+    /// frequency, continues the filters' last update.
     hold_disturbance: bool,
     /// This force fault has had a step on which the filters predicted without an update (no
     /// replay, or no row of `y` measured): their joint states have drifted, and the rest of
@@ -554,6 +622,9 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     /// the measurement, so the banks do not restart them when the forces are measured again.
     held_last: bool,
     period: Option<usize>,
+    /// The gait frequency (rad/s) at which the strap forces are continued this step
+    /// ([`EstimatedChannels::gait_omega`]).
+    gait_omega: Option<f64>,
     /// `d̂` carried by the gait while the forces are estimated (`replay_disturbance`).
     replay: DisturbanceReplay<N>,
     /// This step's measurement ends estimates handed over as measurements
@@ -647,6 +718,7 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             went_blind: false,
             held_last: false,
             period: None,
+            gait_omega: None,
             replay,
             resuming: false,
             robust: None,
@@ -985,8 +1057,9 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     /// rows of `y = [q, qd]` (`update_rows`), and while a strap force (the filters' input) is
     /// estimated, with those over its first [`REPLAY_AFTER_STEPS`] steps only; after them an
     /// estimate drifting from the force would move `d̂`, so no row (the filters predict
-    /// without an update, `d̂` held), unless `replay_disturbance` carries `d̂` and the measured
-    /// rows update the joint states alone. The probabilities are kept throughout.
+    /// without an update, `d̂` held), unless `replay_disturbance` carries `d̂` (the replay or
+    /// the continuation) and the measured rows update the joint states alone. The
+    /// probabilities are kept throughout.
     fn mark_estimated(&mut self, estimated: &EstimatedChannels<N>) {
         let force = estimated.force.iter().any(|&e| e);
         self.forces_estimated = force;
@@ -996,6 +1069,7 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             0
         };
         self.period = estimated.period;
+        self.gait_omega = estimated.gait_omega;
         self.estimating = estimated.any();
         self.resuming = estimated.resume;
         for a in 0..N {
@@ -1027,9 +1101,11 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     /// leg (issue 28, docs/RELIABILITY.md §2a). While the replay continues the filters' last
     /// update (no step of this fault predicted without one), the banks hold `d̂ᵢ` and update
     /// their joint states with the measured rows: the NMPC starts from the filters' velocity,
-    /// and predicted alone it drifted by 0.1-0.2 rad/s within a 200-ms fault at 3 kg. Without
-    /// a replay the filters predict only: with a held `d̂ᵢ` the measured rows would pull the
-    /// joint states along the gait's disturbance instead (measured, docs/RELIABILITY.md §2).
+    /// and predicted alone it drifted by 0.1-0.2 rad/s within a 200-ms fault at 3 kg. Before
+    /// the period is known `d̂ᵢ` may be continued at the gait frequency instead
+    /// (`continue_disturbance`). Without either the filters predict only: with a held `d̂ᵢ`
+    /// the measured rows would pull the joint states along the gait's disturbance instead
+    /// (measured, docs/RELIABILITY.md §2).
     // Out of line: kept out of `step`'s stack frame (the Cortex-M7 image's stack peak).
     #[inline(never)]
     fn replay_disturbance(&mut self) {
@@ -1049,17 +1125,42 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
                 p
             }
             _ => {
-                if self.forces_estimated && self.forces_estimated_for > REPLAY_AFTER_STEPS {
-                    self.went_blind = true;
+                let after = self.forces_estimated && self.forces_estimated_for > REPLAY_AFTER_STEPS;
+                if !(after && !self.went_blind && self.continue_disturbance()) {
+                    if after {
+                        self.went_blind = true;
+                    }
+                    if self.forces_estimated {
+                        self.replay.stop();
+                    } else {
+                        self.replay.end_fault();
+                    }
                 }
-                r.stop();
                 return;
             }
         };
+        // A continuation within this fault is over; the replay continues its `d̂`.
+        r.started = 0;
         r.set_period(p);
         if !self.went_blind && self.measured.iter().any(|&m| m) {
             self.hold_disturbance = true;
         }
+        self.set_disturbances(|r, b, i, _, d| Some(r.replayed(b, i, d, since)));
+    }
+
+    /// Set every bank's `d̂ᵢ` to `f(replay, bank, scenario, index, d̂ᵢ)` where it gives one
+    /// (`index` counts the filters in bank-major order).
+    fn set_disturbances(
+        &mut self,
+        mut f: impl FnMut(
+            &mut DisturbanceReplay<N>,
+            usize,
+            usize,
+            usize,
+            &SVector<f64, N>,
+        ) -> Option<SVector<f64, N>>,
+    ) {
+        let mut k = 0;
         for b in 0..2 {
             let bank = match b {
                 0 => &mut self.bank,
@@ -1069,10 +1170,49 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
                 },
             };
             for i in 0..bank.len() {
-                let d = r.replayed(b, i, &bank.disturbance(i), since);
-                bank.set_disturbance(i, &d);
+                if let Some(d) = f(&mut self.replay, b, i, k, &bank.disturbance(i)) {
+                    bank.set_disturbance(i, &d);
+                }
+                k += 1;
             }
         }
+    }
+
+    /// Before the gait period is known, while the strap forces follow their continuation at
+    /// the gait frequency ω ([`EstimatedChannels::gait_omega`], for at most
+    /// [`FORCE_FIT_S`](super::FORCE_FIT_S)): every bank's `d̂ᵢ` is continued at ω as well
+    /// (`a + Σ_{h=1,2} (b_h sin hωτ + c_h cos hωτ)` fitted to its last
+    /// [`EXTRAPOLATION_FIT_S`] on the continuation's first step, started at the filters'
+    /// last update), and the banks hold it and update their joint states with the measured
+    /// rows, as during the replay. Held instead, `d̂ᵢ` stood still while at 3 kg it moves by
+    /// up to 0.7 N·m per step along the gait (docs/RELIABILITY.md §2). `false` without a
+    /// continuation (no ω, or too short a history): `d̂ᵢ` is then held.
+    // Out of line, as `replay_disturbance`.
+    #[inline(never)]
+    fn continue_disturbance(&mut self) -> bool {
+        let Some(omega) = self.gait_omega else {
+            return false;
+        };
+        let r = &mut self.replay;
+        if r.period != 0 {
+            r.stop();
+        }
+        if r.started == 0 {
+            r.fit_steps = 0;
+        }
+        if r.fit_span().is_none() {
+            r.started = 0;
+            return false;
+        }
+        // A filter whose fit is not finite keeps its `d̂ᵢ`.
+        self.set_disturbances(|r, b, i, k, d| r.continued(k, b, i, d, omega));
+        let r = &mut self.replay;
+        r.fit_steps = r.fit_steps.saturating_add(1);
+        r.continued = true;
+        if self.measured.iter().any(|&m| m) {
+            self.hold_disturbance = true;
+        }
+        true
     }
 
     /// Record this step's `d̂ᵢ` of every bank for `replay_disturbance`. While the forces are
@@ -1206,6 +1346,7 @@ impl<const N: usize, const NA: usize, const NY: usize> Controller<N> for MultiSt
         self.hold_disturbance = false;
         self.forces_estimated = false;
         self.period = None;
+        self.gait_omega = None;
         self.resuming = false;
         out
     }

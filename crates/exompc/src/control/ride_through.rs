@@ -4,7 +4,7 @@
 use super::Measurement;
 #[cfg(not(feature = "std"))]
 use crate::math::Float;
-use alloc::{vec, vec::Vec};
+use alloc::{boxed::Box, vec, vec::Vec};
 use nalgebra::{SMatrix, SVector};
 
 /// Index of the angle, velocity and force signal of a measurement.
@@ -55,6 +55,12 @@ pub const ANCHORED_LIMIT_FACTOR: u64 = 4;
 /// An encoder angle repeated bit for bit while the joint moves faster than this (rad/s) is
 /// stuck.
 pub const STUCK_SPEED: f64 = 0.05;
+/// Longest time (s) a strap force rejected before the gait period is known (no period to
+/// replay) follows the forces' continuation at the gait frequency ([`TorqueExtrapolation`]
+/// fitted to the forces of the last [`EXTRAPOLATION_FIT_S`] at the fault's start), while
+/// every encoder is measured; after it, or with an encoder lost, the estimate holds. Chosen by
+/// measurement (docs/RELIABILITY.md §2).
+pub const FORCE_FIT_S: f64 = 0.3;
 /// Samples of the angles over which the replay's lag is matched: the lag within
 /// [`PERIOD_MATCH_SPAN`] of the supervisor's gait period at which the last this many angles
 /// best equal (least squares) the angles that lag back. The supervisor's period is the time
@@ -85,7 +91,8 @@ pub const PERIOD_MATCH_EVERY: u32 = 10;
 /// partner is lost too (or a force) by replaying the gait one period back (the supervisor's gait
 /// period, the lag matched on the angles near it: [`PERIOD_MATCH_STEPS`]) with the offset it had when the replay began (added once; a new period estimate
 /// restarts the replay where it is), or, without a known period, by holding (an angle:
-/// integrating the estimated velocity). A rejected channel is
+/// integrating the estimated velocity; a strap force, while every encoder is measured, first
+/// follows its continuation at the gait frequency for [`FORCE_FIT_S`]). A rejected channel is
 /// accepted again once a fresh sample lies within [`ACCEPT_GATES`] gates of its estimate
 /// ([`SLOPE_ACCEPT_GATES`] for a velocity estimated from its good angle's slope; a filtered
 /// velocity or force also moving like its estimate, within one gate), or, after `resync_after`
@@ -164,12 +171,20 @@ pub struct ChannelGuard<const N: usize> {
     /// ([`PERIOD_MATCH_STEPS`]), and the steps since that match.
     matched: Option<(usize, usize)>,
     match_age: u32,
+    /// The strap forces' continuation fitted at the start of the current force fault while
+    /// no gait period is known ([`FORCE_FIT_S`]; boxed in `new`: the guard is built on the
+    /// firmware's stack), and the steps since (`u32::MAX` once an encoder was lost in the
+    /// fault: it is not followed again).
+    force_fit: Box<Option<TorqueExtrapolation<N>>>,
+    force_fit_age: u32,
+    /// Per strap: its estimate is the continuation on this step.
+    fit_used: [bool; N],
 }
 
 /// Which channels of a measurement stand in for rejected ones and must not update a
 /// model-based estimator: an angle, and a velocity whose angle is rejected too (a velocity
 /// estimated from its good angle's slope is a measurement of it and not listed).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct EstimatedChannels<const N: usize> {
     /// Per joint: the angle is an estimate.
     pub q: [bool; N],
@@ -179,6 +194,10 @@ pub struct EstimatedChannels<const N: usize> {
     pub force: [bool; N],
     /// The gait period in control steps, when the guard knows it (the lag of its replay).
     pub period: Option<usize>,
+    /// While the strap forces follow their continuation at the gait frequency (no period
+    /// known, [`FORCE_FIT_S`]): that frequency (rad/s), at which a model-based estimator may
+    /// continue what the forces carry.
+    pub gait_omega: Option<f64>,
     /// An angle that stood in for a rejected one as a measurement (implied by its measured
     /// velocity, [`Repaired::q_from_velocity`]) is measured again, further than its gate from
     /// the implied angle's extrapolation (up to [`ACCEPT_GATES`] gates, or any distance when
@@ -268,6 +287,9 @@ impl<const N: usize> ChannelGuard<N> {
             robot_part: [SVector::repeat(f64::NAN); 2],
             replay_period: None,
             force_bias: SVector::zeros(),
+            force_fit: Box::new(None),
+            force_fit_age: 0,
+            fit_used: [false; N],
             matched: None,
             match_age: 0,
         }
@@ -394,6 +416,7 @@ impl<const N: usize> ChannelGuard<N> {
             self.filled = 0;
             self.matched = None;
             self.force_bias = SVector::zeros();
+            *self.force_fit = None;
             self.robot_part = [SVector::repeat(f64::NAN); 2];
         }
         self.last_t = m.t;
@@ -413,6 +436,7 @@ impl<const N: usize> ChannelGuard<N> {
             qd: [false; N],
             force: [false; N],
             period: None,
+            gait_omega: None,
             resume: false,
         };
         let period = period_s
@@ -713,6 +737,29 @@ impl<const N: usize> ChannelGuard<N> {
             }
         }
         estimated.period = period;
+        // The continuation only while every encoder is measured: judged once every joint's
+        // verdict is in (a strap's estimate came before the later joints' verdicts); once one
+        // is lost, the continued forces hold and are not continued again in this fault.
+        let encoders = (0..N).all(|i| self.bad_for[Q][i] == 0 && self.bad_for[QD][i] == 0);
+        if !encoders && self.fit_used.iter().any(|&u| u) {
+            for j in (0..N).filter(|&j| self.fit_used[j]) {
+                out[F][j] = self.back(F, 1)[j];
+            }
+            self.fit_used = [false; N];
+        }
+        if !encoders {
+            self.force_fit_age = u32::MAX;
+        }
+        estimated.gait_omega = (*self.force_fit)
+            .as_ref()
+            .filter(|_| self.fit_used.iter().any(|&u| u))
+            .map(|f| f.omega());
+        self.fit_used = [false; N];
+        if (0..N).all(|j| self.bad_for[F][j] == 0) {
+            *self.force_fit = None;
+        } else if self.force_fit.is_some() {
+            self.force_fit_age = self.force_fit_age.saturating_add(1);
+        }
         let ready = self.filled > 0 || !any;
         if any {
             self.estimated_steps += 1;
@@ -812,8 +859,33 @@ impl<const N: usize> ChannelGuard<N> {
         }
         match sig {
             Q => (prev + self.dt * self.back(QD, 1)[j], false),
+            F => (self.force_continuation(j).unwrap_or(prev), false),
             _ => (prev, false),
         }
+    }
+
+    /// Strap force `j` continued at the gait frequency ([`FORCE_FIT_S`]): fitted on the
+    /// fault's first step, for the straps whose fault began on that step, followed for at
+    /// most [`FORCE_FIT_S`] while every encoder is measured (checked in `repair` once every
+    /// joint's verdict is in).
+    fn force_continuation(&mut self, j: usize) -> Option<f64> {
+        if self.force_fit.is_none() && self.bad_for[F][j] == 1 {
+            *self.force_fit = TorqueExtrapolation::fit(
+                &self.hist[F],
+                self.pos,
+                &self.hist[Q],
+                self.pos,
+                self.filled,
+                self.dt,
+            );
+            self.force_fit_age = 0;
+        }
+        let fit = (*self.force_fit).as_ref()?;
+        let age = self.force_fit_age;
+        let from_start = self.bad_for[F][j] == u64::from(age) + 1;
+        let on = from_start && f64::from(age) * self.dt < FORCE_FIT_S - 1e-9;
+        self.fit_used[j] = on;
+        on.then(|| fit.at(age, self.dt)[j])
     }
 }
 
@@ -885,6 +957,23 @@ impl<const N: usize> TorqueExtrapolation<N> {
         if (n as f64) * dt < EXTRAPOLATION_MIN_S - 1e-9 {
             return None;
         }
+        Self::fit_series((1..=n).map(|i| (i, back_t(i))), omega, dt, back_t(1))
+    }
+
+    /// The extrapolation of a series at the gait frequency `omega` (rad/s): fitted to the
+    /// `samples` `(i, value)`, `i ≥ 1` the steps back of each, and started at `last`, the value
+    /// one step back (the offset of [`Self::fit`]); `None` with fewer than five samples or a
+    /// fit that is not finite. [`Self::at`]`(s)` is then the value `s + 1` steps after
+    /// `last`'s.
+    pub fn fit_series(
+        samples: impl Iterator<Item = (usize, SVector<f64, N>)>,
+        omega: f64,
+        dt: f64,
+        last: SVector<f64, N>,
+    ) -> Option<Self> {
+        if !(omega.is_finite() && dt.is_finite() && dt > 0.0) {
+            return None;
+        }
         let feats = |tau: f64| {
             let (s1, c1) = (omega * tau).sin_cos();
             let (s2, c2) = (2.0 * omega * tau).sin_cos();
@@ -895,9 +984,10 @@ impl<const N: usize> TorqueExtrapolation<N> {
         let mut hi = SVector::<f64, N>::repeat(f64::NEG_INFINITY);
         let mut a = [[0.0; 5]; 5];
         let mut b = [[0.0; N]; 5];
-        for i in 1..=n {
+        let mut n = 0usize;
+        for (i, t) in samples {
+            n += 1;
             let x = feats(-(i as f64) * dt);
-            let t = back_t(i);
             for r in 0..5 {
                 for c in 0..5 {
                     a[r][c] += x[r] * x[c];
@@ -909,6 +999,9 @@ impl<const N: usize> TorqueExtrapolation<N> {
             lo = lo.inf(&t);
             hi = hi.sup(&t);
         }
+        if n < 5 {
+            return None;
+        }
         for (r, row) in a.iter_mut().enumerate() {
             row[r] += 1e-9 * n as f64;
         }
@@ -917,17 +1010,21 @@ impl<const N: usize> TorqueExtrapolation<N> {
             *cj = solve5(a, rhs)?;
         }
         let x = feats(-dt);
-        let last = back_t(1);
-        let offset = SVector::from_fn(|j, _| {
+        let offset: SVector<f64, N> = SVector::from_fn(|j, _| {
             last[j] - coef[j].iter().zip(&x).map(|(c, x)| c * x).sum::<f64>()
         });
-        Some(TorqueExtrapolation {
+        (offset.iter().all(|v| v.is_finite())).then_some(TorqueExtrapolation {
             omega,
             coef,
             offset,
             lo,
             hi,
         })
+    }
+
+    /// The gait frequency (rad/s) the extrapolation continues at.
+    pub fn omega(&self) -> f64 {
+        self.omega
     }
 
     /// The gait frequency (rad/s) of the angles `back(i)` (`i` steps back), if they swing.
