@@ -490,9 +490,8 @@ impl<const N: usize> DisturbanceReplay<N> {
     /// `d̂` of bank `b`, scenario `i` (the `index`-th in bank-major order) continued at the
     /// gait frequency `omega` (rad/s) from its value on the continuation's first step
     /// (`current` there): [`TorqueExtrapolation::fit_series`] fitted to the history of the
-    /// [`EXTRAPOLATION_FIT_S`] before that step (older than the last slot, as
-    /// [`Self::holds`] reads it); `None` when that history is shorter than
-    /// [`EXTRAPOLATION_MIN_S`] or the fit is not finite.
+    /// `n` steps ([`Self::fit_span`]) before that step (older than the last slot, as
+    /// [`Self::holds`] reads it); `None` when the fit is not finite.
     fn continued(
         &mut self,
         index: usize,
@@ -500,6 +499,7 @@ impl<const N: usize> DisturbanceReplay<N> {
         i: usize,
         current: &SVector<f64, N>,
         omega: f64,
+        n: usize,
     ) -> Option<SVector<f64, N>> {
         if self.started == index {
             *self.starts.get_mut(index)? = *current;
@@ -507,7 +507,6 @@ impl<const N: usize> DisturbanceReplay<N> {
         }
         let start = *self.starts.get(index)?;
         let since = self.fit_steps as usize;
-        let n = self.fit_span()?;
         // The history `stride + 1 ..= n` steps before the continuation's first step (its time
         // origin: the fit's steps back count from there), read between the slots as the
         // replay reads it (the slots alone: two cells of the fine scan lost at 12.1 N,
@@ -1200,12 +1199,12 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
         if r.started == 0 {
             r.fit_steps = 0;
         }
-        if r.fit_span().is_none() {
+        let Some(n) = r.fit_span() else {
             r.started = 0;
             return false;
-        }
+        };
         // A filter whose fit is not finite keeps its `d̂ᵢ`.
-        self.set_disturbances(|r, b, i, k, d| r.continued(k, b, i, d, omega));
+        self.set_disturbances(|r, b, i, k, d| r.continued(k, b, i, d, omega, n));
         let r = &mut self.replay;
         r.fit_steps = r.fit_steps.saturating_add(1);
         r.continued = true;
