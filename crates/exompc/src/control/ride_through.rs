@@ -55,6 +55,10 @@ pub const ANCHORED_LIMIT_FACTOR: u64 = 4;
 /// An encoder angle repeated bit for bit while the joint moves faster than this (rad/s) is
 /// stuck.
 pub const STUCK_SPEED: f64 = 0.05;
+/// Shortest span (periods) of angles accepted after an angle fault whose slope, moved back by the
+/// filter's lag, stands for the velocity while the filter window still holds estimates
+/// ([`ChannelGuard`]).
+pub const PARTIAL_SLOPE_SPAN: usize = 2;
 /// Longest time (s) a strap force rejected before the gait period is known (no period to
 /// replay) follows the forces' continuation at the gait frequency ([`TorqueExtrapolation`]
 /// fitted to the forces of the last [`EXTRAPOLATION_FIT_S`] at the fault's start), while
@@ -82,12 +86,14 @@ pub const PERIOD_MATCH_EVERY: u32 = 10;
 /// sensor: an angle only while the joint moves faster than [`STUCK_SPEED`]), or outside its
 /// innovation gate: an angle further than `max(`[`JUMP_ACCEL`]`·dt², 0.01)` from its linear
 /// extrapolation (a jump no leg can make), a velocity further than [`VELOCITY_GATE`] from the
-/// encoder's mean slope over the filter window (what a clean filtered velocity equals), a force
-/// further than [`FORCE_GATE`] from its linear extrapolation moved by the robot's own part of the
-/// force ([`ChannelGuard::with_straps`]). A rejected channel is estimated: an angle by integrating
-/// its good velocity, a velocity from its good angle's slope over the filter window (once the
-/// window holds accepted angles only: before that the slope spans the jump from an estimate back to
-/// the measurement, and the velocity counts as one whose angle is lost), and a channel whose
+/// encoder's mean slope over the filter window (what a clean filtered velocity equals; after an
+/// angle fault, until the window holds accepted angles only, their slope over at least
+/// [`PARTIAL_SLOPE_SPAN`] periods moved back by the filter's lag, else its linear extrapolation), a
+/// force further than [`FORCE_GATE`] from its linear extrapolation moved by the robot's own part of
+/// the force ([`ChannelGuard::with_straps`]). A rejected channel is estimated: an angle by
+/// integrating its good velocity, a velocity from its good angle's slope (the same slope: a slope
+/// across the jump from an estimate back to the measurement is not used, and with fewer accepted
+/// angles the velocity counts as one whose angle is lost), and a channel whose
 /// partner is lost too (or a force) by replaying the gait one period back (the supervisor's gait
 /// period, the lag matched on the angles near it: [`PERIOD_MATCH_STEPS`]) with the offset it had when the replay began (added once; a new period estimate
 /// restarts the replay where it is), or, without a known period, by holding (an angle:
@@ -144,6 +150,8 @@ pub struct ChannelGuard<const N: usize> {
     /// Per joint: consecutive accepted angle samples (the angle's slope over the filter
     /// window stands for the velocity only once the window holds no estimate).
     q_good_for: [u32; N],
+    /// Per joint: consecutive accepted velocity samples before this step.
+    qd_good_for: [u32; N],
     /// Per joint: samples left during which the velocity is not accepted again, because its
     /// filter window may still hold faulty samples: a filter window after a stalled
     /// acquisition (every angle frozen or invalid at once, one frozen), `window − 1` after it
@@ -279,6 +287,7 @@ impl<const N: usize> ChannelGuard<N> {
             railed: [false; N],
             after_accept: [[0; N]; 3],
             q_good_for: [0; N],
+            qd_good_for: [0; N],
             qd_held_off: [0; N],
             q_anchored: [false; N],
             q_frozen: [false; N],
@@ -524,10 +533,9 @@ impl<const N: usize> ChannelGuard<N> {
                 // A velocity's estimate while its angle has been good over the window: the
                 // angle's mean slope (`out[Q]` is this step's accepted angle); else the linear
                 // extrapolation.
-                let estimate = if sig == QD && slope_ok {
-                    self.slope(&out, j, span)
-                } else {
-                    p
+                let estimate = match sig {
+                    QD => self.angle_velocity(&out, j).unwrap_or(p),
+                    _ => p,
                 };
                 // A strap force believed on smoothness alone carries the bias that kept it at
                 // its estimate (`force_bias`, fading at [`FORCE_BIAS_RATE`]).
@@ -698,7 +706,8 @@ impl<const N: usize> ChannelGuard<N> {
             // a velocity from its good angle, else the replay.
             for sig in [Q, QD, F] {
                 if self.bad_for[sig][j] > 0 {
-                    let q_bad = self.bad_for[Q][j] > 0 || (sig == QD && !self.slope_ok(j));
+                    let q_bad = self.bad_for[Q][j] > 0
+                        || (sig == QD && self.angle_velocity(&out, j).is_none());
                     let qd_bad = self.bad_for[QD][j] > 0;
                     // An angle whose velocity has been measured on every step since the
                     // angle was last accepted: the angle the velocity implies through the
@@ -735,6 +744,11 @@ impl<const N: usize> ChannelGuard<N> {
                     }
                 }
             }
+            self.qd_good_for[j] = if self.bad_for[QD][j] == 0 {
+                self.qd_good_for[j].saturating_add(1)
+            } else {
+                0
+            };
         }
         estimated.period = period;
         // The continuation only while every encoder is measured: judged once every joint's
@@ -811,6 +825,33 @@ impl<const N: usize> ChannelGuard<N> {
         q.is_finite().then_some(q)
     }
 
+    /// The velocity of joint `j` that its accepted angles give (`out[Q]` is this step's angle):
+    /// their mean slope over the filter window (what a clean filtered velocity equals) once the
+    /// window holds accepted angles only; after an angle fault, while at least
+    /// [`PARTIAL_SLOPE_SPAN`] periods of them are accepted, their slope moved back by the
+    /// filter's lag over the rest of the window (half the missing span times the velocity's
+    /// change over the last period). `None` while the angle is rejected or too few are accepted.
+    fn angle_velocity(&self, out: &[SVector<f64, N>; 3], j: usize) -> Option<f64> {
+        let full = (self.window - 1).max(1);
+        if self.slope_ok(j) {
+            return Some(self.slope(out, j, full));
+        }
+        let span = (self.q_good_for[j] as usize).checked_sub(1)?;
+        if self.bad_for[Q][j] > 0 || span < PARTIAL_SLOPE_SPAN {
+            return None;
+        }
+        // The velocity's change over the last period: the filtered velocity's own when its last
+        // two samples were accepted, else the angles' last second difference.
+        let measured = self.back(QD, 1)[j] - self.back(QD, 2)[j];
+        let dv = if self.qd_good_for[j] >= 2 && measured.is_finite() {
+            measured
+        } else {
+            (out[Q][j] - 2.0 * self.back(Q, 1)[j] + self.back(Q, 2)[j]) / self.dt
+        };
+        let lag = dv * full.saturating_sub(span) as f64 / 2.0;
+        Some(self.slope(out, j, span) - lag)
+    }
+
     /// The angle's mean slope over the last `span` periods, `out[Q]` being this step's angle.
     fn slope(&self, out: &[SVector<f64, N>; 3], j: usize, span: usize) -> f64 {
         (out[Q][j] - self.back(Q, span)[j]) / (span as f64 * self.dt)
@@ -833,8 +874,10 @@ impl<const N: usize> ChannelGuard<N> {
             Q if self.bad_for[QD][j] == 0 && out[QD][j].is_finite() => {
                 return (prev + self.dt * out[QD][j], false);
             }
-            QD if self.slope_ok(j) => {
-                return (self.slope(out, j, (self.window - 1).max(1)), false);
+            QD => {
+                if let Some(v) = self.angle_velocity(out, j) {
+                    return (v, false);
+                }
             }
             _ => {}
         }
