@@ -148,7 +148,9 @@ pub struct ChannelGuard<const N: usize> {
     /// runs through the estimate that stood in for the channel).
     after_accept: [[u8; N]; 3],
     /// Per joint: consecutive accepted angle samples (the angle's slope over the filter
-    /// window stands for the velocity only once the window holds no estimate).
+    /// window stands for the velocity once the window holds no estimate; the slope over the
+    /// accepted ones, moved back by the filter's lag, from [`PARTIAL_SLOPE_SPAN`] periods of
+    /// them).
     q_good_for: [u32; N],
     /// Per joint: consecutive accepted velocity samples before this step.
     qd_good_for: [u32; N],
@@ -530,8 +532,8 @@ impl<const N: usize> ChannelGuard<N> {
                     0.0
                 };
                 let p = pred[sig][j] - robot_d2;
-                // A velocity's estimate while its angle has been good over the window: the
-                // angle's mean slope (`out[Q]` is this step's accepted angle); else the linear
+                // A velocity's estimate while its angle is measured: the accepted angles' slope
+                // (`angle_velocity`; `out[Q]` is this step's accepted angle); else the linear
                 // extrapolation.
                 let estimate = match sig {
                     QD => self.angle_velocity(&out, j).unwrap_or(p),
@@ -610,7 +612,9 @@ impl<const N: usize> ChannelGuard<N> {
                         || !last.is_finite()
                         || (v - last - (estimate - self.back(sig, 1)[j])).abs() < gate;
                     // A velocity estimated from its good angle's slope is a measurement of
-                    // the same quantity, not an estimate drifting through the fault.
+                    // the same quantity, not an estimate drifting through the fault (over the
+                    // whole window only: on the slope of a partial window, for the few steps it
+                    // lasts, `ACCEPT_GATES` and smoothness as for an estimate, as measured).
                     let accept_gates = if sig == QD && slope_ok {
                         SLOPE_ACCEPT_GATES
                     } else {

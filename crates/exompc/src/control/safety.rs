@@ -866,6 +866,9 @@ pub struct Supervisor<const N: usize, C> {
     /// (steps) on the last step.
     handback: u32,
     replay_lag_now: Option<usize>,
+    /// The current (or last) coast began with the channel guard's replay lag known: the torque
+    /// replays at it.
+    replay_at_guard_lag: bool,
     /// The protective stop had the torque on the previous step.
     stopped: bool,
     /// Steps left of the blend from the end of the protective stop back to the controller,
@@ -985,6 +988,7 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             blend_in_from: SVector::zeros(),
             handback: 0,
             replay_lag_now: None,
+            replay_at_guard_lag: false,
             stopped: false,
             stop_handback: 0,
             stop_handback_from: SVector::zeros(),
@@ -1001,8 +1005,10 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
     }
 
     /// The gait period `period_s` in steps, when the torque history holds more than it: the lag
-    /// of the replay of one gait period back. A period longer than the history, shorter than
-    /// two steps or not finite is not replayed (checked in floating point: no overflow).
+    /// of the replay of one gait period back when the channel guard's is not used (and of the
+    /// fill of a gap in the data, after which the guard has none). A
+    /// period longer than the history, shorter than two steps or not finite is not replayed
+    /// (checked in floating point: no overflow).
     fn replay_lag(&self, period_s: Option<f64>) -> Option<usize> {
         period_s
             .map(|p| (p / self.dt()).round())
@@ -1551,7 +1557,17 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         if coast && !self.coasting {
             self.stall_coast = rep.stalled;
         }
-        let replay_period = self.replay_lag(period);
+        // The torque replays one gait period back at the channel guard's lag, where the angles
+        // repeat (`PERIOD_MATCH_STEPS`), as the channels' and `d̂`'s replays do, when the coast
+        // began with that lag known; else (a coast that began in the first gait period, whose
+        // period becomes known within it and is matched on the coast's own estimates, or the
+        // guard's history too short after a gap) at the gait period.
+        if coast && !self.coasting {
+            self.replay_at_guard_lag = rep.estimated.period.is_some();
+        }
+        let replay_period = (rep.estimated.period)
+            .filter(|&p| self.replay_at_guard_lag && p + 2 < self.torque_filled)
+            .or_else(|| self.replay_lag(period));
         self.replay_lag_now = replay_period;
         // Before the gait period is known (the first gait period), the replay extrapolates
         // the applied torque at the gait frequency of the recent angles
