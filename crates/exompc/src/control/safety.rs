@@ -1006,9 +1006,9 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
 
     /// The gait period `period_s` in steps, when the torque history holds more than it: the lag
     /// of the replay of one gait period back when the channel guard's is not used (and of the
-    /// fill of a gap in the data, after which the guard has none). A
-    /// period longer than the history, shorter than two steps or not finite is not replayed
-    /// (checked in floating point: no overflow).
+    /// fill of a gap in the data, after which the guard has none). A period longer than the
+    /// history, shorter than two steps or not finite is not replayed (checked in floating point:
+    /// no overflow).
     fn replay_lag(&self, period_s: Option<f64>) -> Option<usize> {
         period_s
             .map(|p| (p / self.dt()).round())
@@ -1554,15 +1554,13 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             rep.estimated.q.iter().all(|&e| e) && !rep.estimated.qd.iter().any(|&e| e);
         let angles_fault = self.stall_coast && angles_only && period.is_none();
         let coast = all_lost || (self.coasting && valid && rep.any_rejected && !angles_fault);
-        if coast && !self.coasting {
-            self.stall_coast = rep.stalled;
-        }
         // The torque replays one gait period back at the channel guard's lag, where the angles
         // repeat (`PERIOD_MATCH_STEPS`), as the channels' and `d̂`'s replays do, when the coast
         // began with that lag known; else (a coast that began in the first gait period, whose
         // period becomes known within it and is matched on the coast's own estimates, or the
         // guard's history too short after a gap) at the gait period.
         if coast && !self.coasting {
+            self.stall_coast = rep.stalled;
             self.replay_at_guard_lag = rep.estimated.period.is_some();
         }
         let replay_period = (rep.estimated.period)
