@@ -467,7 +467,7 @@ impl<const N: usize> ChannelGuard<N> {
         // filter window (what a clean filtered velocity equals).
         let pred: [SVector<f64, N>; 3] =
             core::array::from_fn(|s| self.back(s, 1) * 2.0 - self.back(s, 2));
-        let span = (self.window - 1).max(1);
+        let span = self.window_span();
         let force_resync = (FORCE_RESYNC_S / self.dt).ceil().max(1.0) as u64;
         // Every angle frozen or out of range in the same sample, at least one frozen: the
         // acquisition stalled (it delivers no new samples), and the filtered velocities of the
@@ -791,7 +791,6 @@ impl<const N: usize> ChannelGuard<N> {
             self.filled = (self.filled + 1).min(len);
             self.robot_part = [robot_part, self.robot_part[0]];
         }
-        let encoders_good = (0..N).all(|j| self.bad_for[Q][j] == 0 && self.bad_for[QD][j] == 0);
         Repaired {
             m: Measurement {
                 t: m.t,
@@ -803,11 +802,17 @@ impl<const N: usize> ChannelGuard<N> {
             definite_fault: definite,
             estimated,
             longest_fault_s: longest as f64 * self.dt,
-            encoders_good,
+            encoders_good: encoders,
             ready,
             stalled: stall,
             q_from_velocity,
         }
+    }
+
+    /// The periods a filter window spans (`window − 1`, at least 1): the angle's slope over
+    /// them is what a clean filtered velocity equals.
+    fn window_span(&self) -> usize {
+        (self.window - 1).max(1)
     }
 
     /// The angle of joint `j` has been accepted over the whole filter window.
@@ -821,7 +826,7 @@ impl<const N: usize> ChannelGuard<N> {
     /// filter's lag no further than the window). `None` without that much history or a finite
     /// velocity.
     fn angle_from_velocity(&self, j: usize, qd: f64) -> Option<f64> {
-        let span = (self.window - 1).max(1);
+        let span = self.window_span();
         if !qd.is_finite() || self.filled < span.max(2) {
             return None;
         }
@@ -836,7 +841,7 @@ impl<const N: usize> ChannelGuard<N> {
     /// filter's lag over the rest of the window (half the missing span times the velocity's
     /// change over the last period). `None` while the angle is rejected or too few are accepted.
     fn angle_velocity(&self, out: &[SVector<f64, N>; 3], j: usize) -> Option<f64> {
-        let full = (self.window - 1).max(1);
+        let full = self.window_span();
         if self.slope_ok(j) {
             return Some(self.slope(out, j, full));
         }
