@@ -429,6 +429,9 @@ impl<const N: usize> ChannelGuard<N> {
             self.force_bias = SVector::zeros();
             *self.force_fit = None;
             self.robot_part = [SVector::repeat(f64::NAN); 2];
+            // The angle's slope and the velocity's change do not reach across the gap.
+            self.q_good_for = [0; N];
+            self.qd_good_for = [0; N];
         }
         self.last_t = m.t;
         let warm = self.filled > self.window + 2;
@@ -779,6 +782,11 @@ impl<const N: usize> ChannelGuard<N> {
             self.force_fit_age = self.force_fit_age.saturating_add(1);
         }
         let ready = self.filled > 0 || !any;
+        // A sample not kept in the history does not count towards the angle's slope.
+        if !ready {
+            self.q_good_for = [0; N];
+            self.qd_good_for = [0; N];
+        }
         if any {
             self.estimated_steps += 1;
         }
@@ -815,9 +823,11 @@ impl<const N: usize> ChannelGuard<N> {
         (self.window - 1).max(1)
     }
 
-    /// The angle of joint `j` has been accepted over the whole filter window.
+    /// The angle of joint `j` has been accepted over the whole filter window (on at least two
+    /// samples, so that a one-sample window's slope does not reach back to an estimate; counted
+    /// from the last gap in the data).
     fn slope_ok(&self, j: usize) -> bool {
-        self.q_good_for[j] as usize >= self.window
+        self.q_good_for[j] as usize > self.window_span()
     }
 
     /// The angle of joint `j` that the filtered velocity `qd` implies: the angle `window − 1`
