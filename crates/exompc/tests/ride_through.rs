@@ -1729,6 +1729,65 @@ fn a_slope_does_not_reach_across_a_gap_in_the_data() {
     assert!(worst < 0.05, "{worst:.3} rad/s off");
 }
 
+/// Quantised encoders. The T-Motor AK's MIT-mode reply (16-bit position over ±12.5 rad:
+/// 0.38 mrad; 12-bit velocity over ±50 rad/s: 24 mrad/s, docs/HARDWARE.md): no channel is
+/// rejected on a clean run, nor after a fault of both angles (the velocities measured), when
+/// the velocity is judged against the returning angles' slope (`PARTIAL_SLOPE_SPAN`, over two
+/// periods). A 12-bit encoder per turn (1.53 mrad): its angle repeats where the leg turns, and
+/// is taken for frozen unless the guard knows the step (`[monitors] encoder_step_rad`,
+/// [`ChannelGuard::with_encoder_step`]); knowing it, a stuck angle is still rejected in the
+/// same sample while the leg swings.
+#[test]
+fn quantised_encoders_are_not_taken_for_frozen() {
+    let ak = 25.0 / 65535.0;
+    let turn12 = 2.0 * std::f64::consts::PI / 4096.0;
+    let qd_step = 100.0 / 4095.0;
+    let quantise = |x: SVector<f64, 2>, step: f64| x.map(|v| (v / step).round() * step);
+    // Rejected samples outside the faults, and the delay until a stuck angle is rejected.
+    let run = |q_step: f64, known: f64, nan_angles: bool, stuck_at: Option<usize>| {
+        let mut g = Gait::new();
+        let guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
+        let mut guard = guard.with_encoder_step(known);
+        let (mut rejected, mut delay) = (0, None);
+        let mut held = SVector::<f64, 2>::zeros();
+        for k in 0..600 {
+            let clean = g.raw(k);
+            let mut raw = (
+                quantise(clean.0, q_step),
+                quantise(clean.1, qd_step),
+                clean.2,
+            );
+            let nan = nan_angles && (300..320).contains(&k);
+            if nan {
+                raw.0 = SVector::repeat(f64::NAN);
+            }
+            let stuck = stuck_at.is_some_and(|s| k >= s);
+            if stuck_at == Some(k) {
+                held = raw.0;
+            }
+            if stuck {
+                raw.0 = held;
+            }
+            let m = g.measure(k, raw);
+            let rep = guard.repair(&m, None, 50, None);
+            if stuck && delay.is_none() && rep.estimated.q[0] {
+                delay = Some(k - stuck_at.unwrap());
+            }
+            if k > 10 && !nan && !stuck && rep.any_rejected {
+                rejected += 1;
+            }
+        }
+        (rejected, delay)
+    };
+    assert_eq!(run(ak, 0.0, false, None).0, 0);
+    assert_eq!(run(ak, 0.0, true, None).0, 0);
+    assert!(run(turn12, 0.0, false, None).0 > 0);
+    assert_eq!(run(turn12, turn12, false, None).0, 0);
+    assert_eq!(run(turn12, turn12, true, None).0, 0);
+    // Stuck from mid-swing of the hip (k = 400: 2.5 rad/s) until the end of the run.
+    assert_eq!(run(turn12, turn12, false, Some(400)).1, Some(1));
+}
+
 /// Issue 28, one group at 2 kg: a 200-ms stuck or dropped pair of angles at 1.25 s (a stall in
 /// the first gait period: cells of the fine phase scan) meets one group's goal. On the
 /// angles' return the knee's velocity failed its gate, and the model's velocity (2 rad/s off)

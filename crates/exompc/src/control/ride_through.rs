@@ -111,6 +111,9 @@ pub const PERIOD_MATCH_EVERY: u32 = 10;
 #[derive(Clone, Debug)]
 pub struct ChannelGuard<const N: usize> {
     dt: f64,
+    /// The speed (rad/s) above which a repeated angle is frozen ([`STUCK_SPEED`], or more for a
+    /// coarse encoder: [`ChannelGuard::with_encoder_step`]).
+    stuck_speed: f64,
     /// Filter window of the velocity and force channels (samples).
     window: usize,
     bounds: [f64; 3],
@@ -270,6 +273,7 @@ impl<const N: usize> ChannelGuard<N> {
         let gates = [(JUMP_ACCEL * dt * dt).max(0.01), VELOCITY_GATE, FORCE_GATE];
         ChannelGuard {
             dt,
+            stuck_speed: STUCK_SPEED,
             window: window.clamp(1, 1000),
             bounds,
             gates,
@@ -304,6 +308,16 @@ impl<const N: usize> ChannelGuard<N> {
             matched: None,
             match_age: 0,
         }
+    }
+
+    /// The encoders' angle step `step` (rad, ≥ 0): an angle repeated bit for bit is frozen only
+    /// while its joint moves faster than `max(STUCK_SPEED, 2 step / dt)` (a quantised angle
+    /// repeats while the joint moves less than a step per period). 0: exact angles.
+    pub fn with_encoder_step(mut self, step: f64) -> Self {
+        if step.is_finite() && step > 0.0 {
+            self.stuck_speed = STUCK_SPEED.max(2.0 * step / self.dt);
+        }
+        self
     }
 
     /// The same guard with the strap model `F = ks J (Δq + τ Δq̇)`, `Δq = q_H − q_R` (paper
@@ -489,7 +503,7 @@ impl<const N: usize> ChannelGuard<N> {
             };
             angle_in_range(j)
                 && vals[Q][j].to_bits() == self.raw[Q][0][j].to_bits()
-                && qd.abs() > STUCK_SPEED
+                && qd.abs() > self.stuck_speed
         };
         let stall = warm
             && (0..N).all(|j| self.bad_for[Q][j] == 0 && (!angle_in_range(j) || angle_frozen(j)))
@@ -514,7 +528,7 @@ impl<const N: usize> ChannelGuard<N> {
                     } else {
                         self.back(QD, 1)[j]
                     };
-                    qd.abs() > STUCK_SPEED
+                    qd.abs() > self.stuck_speed
                 };
                 let stuck = warm && repeated && (sig != Q || moving);
                 // A strap force's extrapolation moves with the robot's own part of it (the

@@ -141,6 +141,14 @@ pub struct Monitors {
     pub latch_trips: usize,
     /// The window of `latch_trips` (s), in (0, 1e6]. Default 60.
     pub latch_window_s: f64,
+    /// The encoders' angle step (rad), in [0, 0.1]: a quantised angle repeats legitimately
+    /// while its joint moves less than a step per period, so an angle repeated bit for bit is
+    /// taken for frozen only while the joint moves faster than
+    /// `max(STUCK_SPEED, 2 · encoder_step_rad / dt)` ([`ChannelGuard::with_encoder_step`]).
+    /// 0 (default): angles finer than `STUCK_SPEED · dt` (0.5 mrad at 10 ms), such as the
+    /// T-Motor AK's 16-bit position (0.38 mrad); a 12-bit encoder per turn (1.5 mrad) needs
+    /// it set.
+    pub encoder_step_rad: f64,
     /// `[monitors.fallback]`: the transparent fallback controller of `response = "fallback"`
     /// (and what `hold` and `ramp_to_zero` hand over to, [`RESPONSE_ESCALATE_S`]).
     pub fallback: FallbackSettings,
@@ -161,6 +169,7 @@ impl Default for Monitors {
             oscillation_clear_s: 2.0,
             latch_trips: 2,
             latch_window_s: 60.0,
+            encoder_step_rad: 0.0,
             fallback: FallbackSettings::default(),
         }
     }
@@ -171,7 +180,8 @@ impl Monitors {
     pub const MAX_LATCH_TRIPS: usize = 1000;
 
     /// Checks every threshold, cutoff and time (finite, > 0; the window in (0, 10], the gait
-    /// ratio in [0, 20], the clear time in [0, 1e6], the latch window in (0, 1e6],
+    /// ratio in [0, 20], the clear time in [0, 1e6], the encoder step in [0, 0.1], the latch
+    /// window in (0, 1e6],
     /// `latch_trips` in 0..=1000); the error names the key (`force_max_n`, ...).
     pub fn validate(&self) -> Result<(), InvalidField> {
         check::reals(&[
@@ -211,6 +221,11 @@ impl Monitors {
                 "oscillation_clear_s",
                 self.oscillation_clear_s,
                 Range::Closed(0.0, 1e6),
+            ),
+            (
+                "encoder_step_rad",
+                self.encoder_step_rad,
+                Range::Closed(0.0, 0.1),
             ),
             (
                 "latch_window_s",
@@ -940,6 +955,7 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
                 settings.saturation_n,
             ],
         );
+        let guard = guard.with_encoder_step(settings.monitors.encoder_step_rad);
         // The force gate's robot part needs the scenario's own straps, not the stand-ins.
         let guard = if known_straps {
             guard.with_straps(ks_j, tau)
