@@ -29,6 +29,23 @@ pub fn uses_cia402(hw: &HardwareConfig) -> bool {
         .any(|(_, j)| matches!(j, Joint::Cia402(_)))
 }
 
+/// The coarsest joint-angle step (rad) of the config's CiA 402 drives: one position increment
+/// at the joint, `2π / (counts_per_rev · gear_ratio)`. An angle repeated bit for bit while
+/// the joint moves less than that per period is no frozen encoder (`[monitors]
+/// encoder_step_rad`, docs/RELIABILITY.md §2). `None` without a CiA 402 joint.
+pub fn encoder_step(hw: &HardwareConfig) -> Option<f64> {
+    hw.joints
+        .iter()
+        .iter()
+        .filter_map(|(_, j)| match j {
+            Joint::Cia402(c) => {
+                Some(std::f64::consts::TAU / (c.counts_per_rev * c.gear_ratio).abs())
+            }
+            _ => None,
+        })
+        .reduce(f64::max)
+}
+
 /// The named CiA 402 joints and the CANopen force node of a run.
 type Parts<const N: usize> = ([(&'static str, Cia402Joint); N], CanopenForceSensor);
 
@@ -215,5 +232,30 @@ where
              \"virtual\", \"slcan\")"
                 .into(),
         )),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn hardware(text: &str) -> HardwareConfig {
+        let (_, table) = exompc_can::config::split_hardware(text).unwrap();
+        HardwareConfig::from_table(table.unwrap()).unwrap()
+    }
+
+    /// One position increment at the joint, the coarsest joint's: 4096 counts per motor turn
+    /// behind the example's 50:1 gears, and 80 counts on the hip (1.57 mrad at the joint,
+    /// which the frozen-angle test needs to know); none for the AK drives.
+    #[test]
+    fn the_encoder_step_is_one_increment_at_the_joint() {
+        let text = include_str!("../../../examples/can-cia402-virtual.toml");
+        let geared = encoder_step(&hardware(text)).unwrap();
+        assert!((geared - std::f64::consts::TAU / (4096.0 * 50.0)).abs() < 1e-15);
+        let coarse = text.replacen("counts_per_rev = 4096", "counts_per_rev = 80", 1);
+        let coarse = encoder_step(&hardware(&coarse)).unwrap();
+        assert!((coarse - std::f64::consts::TAU / (80.0 * 50.0)).abs() < 1e-15);
+        let ak = include_str!("../../../examples/can-virtual.toml");
+        assert_eq!(encoder_step(&hardware(ak)), None);
     }
 }

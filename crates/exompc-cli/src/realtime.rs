@@ -552,6 +552,11 @@ pub(crate) fn run(a: RunArgs) -> Result<(), CliError> {
     if let Some(hw) = hw {
         check_out(&a.out, a.force)?;
         if exompc_cli::can_cia402::uses_cia402(&hw) {
+            // A repeated angle below one position increment per period is no frozen encoder.
+            if let Some(step) = exompc_cli::can_cia402::encoder_step(&hw) {
+                let m = &mut s.monitors;
+                m.encoder_step_rad = m.encoder_step_rad.max(step.min(0.01));
+            }
             return match a.dof {
                 1 => run_cia402::<OneDof, 1>(&s, &a, &hw),
                 _ => run_cia402::<TwoDof, 2>(&s, &a, &hw),

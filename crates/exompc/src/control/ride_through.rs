@@ -53,7 +53,8 @@ pub const SLOPE_ACCEPT_GATES: f64 = 1.5;
 /// channels (measured on the 1-s fault grid, docs/RELIABILITY.md §2).
 pub const ANCHORED_LIMIT_FACTOR: u64 = 4;
 /// An encoder angle repeated bit for bit while the joint moves faster than this (rad/s) is
-/// stuck.
+/// stuck: the floor of the speed threshold, raised for a coarse encoder
+/// ([`ChannelGuard::with_encoder_step`]).
 pub const STUCK_SPEED: f64 = 0.05;
 /// Shortest span (periods) of angles accepted after an angle fault whose slope, moved back by the
 /// filter's lag, stands for the velocity while the filter window still holds estimates
@@ -83,7 +84,8 @@ pub const PERIOD_MATCH_EVERY: u32 = 10;
 ///
 /// Each channel (angle, filtered velocity, filtered strap force of each joint) is rejected when its
 /// sample is non-finite or out of range (in the same sample), repeated bit for bit (a frozen
-/// sensor: an angle only while the joint moves faster than [`STUCK_SPEED`]), or outside its
+/// sensor: an angle only while the joint moves faster than [`STUCK_SPEED`], or than twice a
+/// coarse encoder's step per period, [`ChannelGuard::with_encoder_step`]), or outside its
 /// innovation gate: an angle further than `max(`[`JUMP_ACCEL`]`·dt², 0.01)` from its linear
 /// extrapolation (a jump no leg can make), a velocity further than [`VELOCITY_GATE`] from the
 /// encoder's mean slope over the filter window (what a clean filtered velocity equals; after an
@@ -153,9 +155,11 @@ pub struct ChannelGuard<const N: usize> {
     /// Per joint: consecutive accepted angle samples (the angle's slope over the filter
     /// window stands for the velocity once the window holds no estimate; the slope over the
     /// accepted ones, moved back by the filter's lag, from [`PARTIAL_SLOPE_SPAN`] periods of
-    /// them).
+    /// them). Counted from the last gap in the data and the first sample kept in the history
+    /// after it ([`ChannelGuard::restart_counts`]).
     q_good_for: [u32; N],
-    /// Per joint: consecutive accepted velocity samples before this step.
+    /// Per joint: consecutive accepted velocity samples before this step (counted as
+    /// `q_good_for`).
     qd_good_for: [u32; N],
     /// Per joint: samples left during which the velocity is not accepted again, because its
     /// filter window may still hold faulty samples: a filter window after a stalled
@@ -443,9 +447,7 @@ impl<const N: usize> ChannelGuard<N> {
             self.force_bias = SVector::zeros();
             *self.force_fit = None;
             self.robot_part = [SVector::repeat(f64::NAN); 2];
-            // The angle's slope and the velocity's change do not reach across the gap.
-            self.q_good_for = [0; N];
-            self.qd_good_for = [0; N];
+            self.restart_counts();
         }
         self.last_t = m.t;
         let warm = self.filled > self.window + 2;
@@ -496,14 +498,9 @@ impl<const N: usize> ChannelGuard<N> {
         let angle_in_range =
             |j: usize| vals[Q][j].is_finite() && vals[Q][j].abs() <= self.bounds[Q];
         let angle_frozen = |j: usize| {
-            let qd = if self.bad_for[QD][j] == 0 && vals[QD][j].is_finite() {
-                vals[QD][j]
-            } else {
-                self.back(QD, 1)[j]
-            };
             angle_in_range(j)
                 && vals[Q][j].to_bits() == self.raw[Q][0][j].to_bits()
-                && qd.abs() > self.stuck_speed
+                && self.moving(vals[QD][j], j)
         };
         let stall = warm
             && (0..N).all(|j| self.bad_for[Q][j] == 0 && (!angle_in_range(j) || angle_frozen(j)))
@@ -522,15 +519,7 @@ impl<const N: usize> ChannelGuard<N> {
                         v.abs() <= self.bounds[sig]
                     };
                 let repeated = v.to_bits() == self.raw[sig][0][j].to_bits();
-                let moving = {
-                    let qd = if self.bad_for[QD][j] == 0 && vals[QD][j].is_finite() {
-                        vals[QD][j]
-                    } else {
-                        self.back(QD, 1)[j]
-                    };
-                    qd.abs() > self.stuck_speed
-                };
-                let stuck = warm && repeated && (sig != Q || moving);
+                let stuck = warm && repeated && (sig != Q || self.moving(vals[QD][j], j));
                 // A strap force's extrapolation moves with the robot's own part of it (the
                 // second difference of `ks J (q̄ + τ q̇̄)` while the angles of its joints are
                 // measured, [`ChannelGuard::with_straps`]).
@@ -796,10 +785,8 @@ impl<const N: usize> ChannelGuard<N> {
             self.force_fit_age = self.force_fit_age.saturating_add(1);
         }
         let ready = self.filled > 0 || !any;
-        // A sample not kept in the history does not count towards the angle's slope.
         if !ready {
-            self.q_good_for = [0; N];
-            self.qd_good_for = [0; N];
+            self.restart_counts();
         }
         if any {
             self.estimated_steps += 1;
@@ -835,6 +822,26 @@ impl<const N: usize> ChannelGuard<N> {
     /// them is what a clean filtered velocity equals.
     fn window_span(&self) -> usize {
         (self.window - 1).max(1)
+    }
+
+    /// The angle's slope and the velocity's change start anew: after a gap in the data, and
+    /// on a sample not kept in the history (they would reach back across it as if it were one
+    /// period).
+    fn restart_counts(&mut self) {
+        self.q_good_for = [0; N];
+        self.qd_good_for = [0; N];
+    }
+
+    /// Joint `j` moves fast enough for a repeated angle to be frozen: its velocity (this
+    /// sample's `qd` if the velocity was accepted on the last step and `qd` is finite, else the
+    /// last estimate) faster than `stuck_speed`.
+    fn moving(&self, qd: f64, j: usize) -> bool {
+        let qd = if self.bad_for[QD][j] == 0 && qd.is_finite() {
+            qd
+        } else {
+            self.back(QD, 1)[j]
+        };
+        qd.abs() > self.stuck_speed
     }
 
     /// The angle of joint `j` has been accepted over the whole filter window (on at least two

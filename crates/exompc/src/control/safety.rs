@@ -141,13 +141,16 @@ pub struct Monitors {
     pub latch_trips: usize,
     /// The window of `latch_trips` (s), in (0, 1e6]. Default 60.
     pub latch_window_s: f64,
-    /// The encoders' angle step (rad), in [0, 0.1]: a quantised angle repeats legitimately
+    /// The encoders' angle step (rad), in [0, 0.01]: a quantised angle repeats legitimately
     /// while its joint moves less than a step per period, so an angle repeated bit for bit is
     /// taken for frozen only while the joint moves faster than
-    /// `max(STUCK_SPEED, 2 · encoder_step_rad / dt)` ([`ChannelGuard::with_encoder_step`]).
-    /// 0 (default): angles finer than `STUCK_SPEED · dt` (0.5 mrad at 10 ms), such as the
-    /// T-Motor AK's 16-bit position (0.38 mrad); a 12-bit encoder per turn (1.5 mrad) needs
-    /// it set.
+    /// `max(STUCK_SPEED, 2 · encoder_step_rad / dt)` ([`ChannelGuard::with_encoder_step`];
+    /// twice the step per period: the test reads the filtered velocity, which lags the
+    /// joint's by two samples where the leg turns). 0 (default): `STUCK_SPEED` (0.05 rad/s)
+    /// alone, as for exact angles; on the 1-Hz test gait the T-Motor AK's 16-bit position
+    /// (0.38 mrad) raised no rejection with it, a 12-bit encoder per turn (1.53 mrad) one at
+    /// every turn of the leg. `exompc run` with CiA 402 drives takes at least one position
+    /// increment at the joint, `2π / (counts_per_rev · gear_ratio)`.
     pub encoder_step_rad: f64,
     /// `[monitors.fallback]`: the transparent fallback controller of `response = "fallback"`
     /// (and what `hold` and `ramp_to_zero` hand over to, [`RESPONSE_ESCALATE_S`]).
@@ -180,7 +183,7 @@ impl Monitors {
     pub const MAX_LATCH_TRIPS: usize = 1000;
 
     /// Checks every threshold, cutoff and time (finite, > 0; the window in (0, 10], the gait
-    /// ratio in [0, 20], the clear time in [0, 1e6], the encoder step in [0, 0.1], the latch
+    /// ratio in [0, 20], the clear time in [0, 1e6], the encoder step in [0, 0.01], the latch
     /// window in (0, 1e6],
     /// `latch_trips` in 0..=1000); the error names the key (`force_max_n`, ...).
     pub fn validate(&self) -> Result<(), InvalidField> {
@@ -225,7 +228,7 @@ impl Monitors {
             (
                 "encoder_step_rad",
                 self.encoder_step_rad,
-                Range::Closed(0.0, 0.1),
+                Range::Closed(0.0, 0.01),
             ),
             (
                 "latch_window_s",
