@@ -130,6 +130,11 @@ fn the_adapter_refuses_what_a_real_one_refuses() {
     // Raw lines: a frame while closed, a malformed frame, an unknown command, S9.
     let mut port = FdPort::open(served.pty.path()).unwrap();
     let mut answers = Vec::new();
+    // Bytes read and not yet taken, and the frames that came from the bus meanwhile: the
+    // node's answer to the frame sent arrives whenever it does, also within a later answer.
+    let mut pending: Vec<u8> = Vec::new();
+    let mut from_bus = Vec::new();
+    let mut buf = [0u8; 64];
     for line in [
         "C\r",
         "t1230\r",
@@ -144,16 +149,35 @@ fn the_adapter_refuses_what_a_real_one_refuses() {
     ] {
         port.write_all_timeout(line.as_bytes(), Duration::from_secs(1))
             .unwrap();
-        let mut buf = [0u8; 64];
-        let mut got = Vec::new();
-        // Read until the answer (ends in \r or BEL) is complete.
-        while !got.ends_with(b"\r") && !got.ends_with(&[7]) {
+        // The answer: the first token (ending in \r or BEL) that is not a received frame.
+        let answer = loop {
+            if let Some(end) = pending.iter().position(|&b| b == b'\r' || b == 7) {
+                let token: Vec<u8> = pending.drain(..=end).collect();
+                let token = String::from_utf8_lossy(&token).into_owned();
+                if token.len() > 1 && token.starts_with(['t', 'T', 'r', 'R']) {
+                    from_bus.push(token);
+                    continue;
+                }
+                break token;
+            }
             let n = port.read_timeout(&mut buf, Duration::from_secs(2)).unwrap();
             assert!(n > 0, "no answer to {line:?}");
-            got.extend_from_slice(&buf[..n]);
-        }
-        answers.push(String::from_utf8_lossy(&got).into_owned());
+            pending.extend_from_slice(&buf[..n]);
+        };
+        answers.push(answer);
     }
+    // The node's answer to the one frame that reached the bus (id + 1, bytes reversed).
+    while from_bus.is_empty() && !pending.ends_with(b"\r") {
+        let n = port.read_timeout(&mut buf, Duration::from_secs(2)).unwrap();
+        assert!(n > 0, "no frame from the bus");
+        pending.extend_from_slice(&buf[..n]);
+    }
+    from_bus.extend(
+        String::from_utf8_lossy(&pending)
+            .split_inclusive('\r')
+            .map(str::to_owned),
+    );
+    assert_eq!(from_bus, ["t1241AA\r"]);
     let bel = "\u{7}";
     // The first `C` may close a channel the failed open left closed: BEL.
     assert_eq!(
