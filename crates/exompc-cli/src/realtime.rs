@@ -555,7 +555,8 @@ pub(crate) fn run(a: RunArgs) -> Result<(), CliError> {
             // A repeated angle below one position increment per period is no frozen encoder.
             if let Some(step) = exompc_cli::can_cia402::encoder_step(&hw) {
                 let m = &mut s.monitors;
-                m.encoder_step_rad = m.encoder_step_rad.max(step.min(0.01));
+                let max = exompc::control::Monitors::MAX_ENCODER_STEP_RAD;
+                m.encoder_step_rad = m.encoder_step_rad.max(step.min(max));
             }
             return match a.dof {
                 1 => run_cia402::<OneDof, 1>(&s, &a, &hw),

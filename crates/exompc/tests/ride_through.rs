@@ -292,6 +292,12 @@ struct Gait {
     f_f: MovingAverage<2>,
 }
 
+/// The guard of the unit tests: 10-ms periods, a 5-sample filter window, the default ranges
+/// (π rad, 30 rad/s, 70 N).
+fn gait_guard() -> ChannelGuard<2> {
+    ChannelGuard::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0])
+}
+
 impl Gait {
     fn new() -> Self {
         Gait {
@@ -330,7 +336,7 @@ fn delay(
     corrupt: impl Fn(&mut (SVector<f64, 2>, SVector<f64, 2>, SVector<f64, 2>), usize),
 ) -> Option<usize> {
     let mut g = Gait::new();
-    let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
+    let mut guard = gait_guard();
     for k in 0..320 {
         let mut raw = g.raw(k);
         if k >= 300 {
@@ -357,7 +363,7 @@ fn delay(
 fn a_gap_in_the_data_ends_a_rejection_without_waiting() {
     for (sig, spike) in [(0, 0.5), (1, 5.0), (2, 30.0)] {
         let mut g = Gait::new();
-        let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
+        let mut guard = gait_guard();
         for k in 0..303 {
             let mut raw = g.raw(k);
             if k >= 300 {
@@ -740,7 +746,7 @@ fn torque_extrapolation_continues_a_periodic_torque() {
 fn a_stalled_acquisition_flags_the_velocities_in_the_same_sample() {
     for every in [true, false] {
         let mut g = Gait::new();
-        let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
+        let mut guard = gait_guard();
         let held = g.raw(299);
         for k in 0..320 {
             let mut raw = g.raw(k);
@@ -1064,7 +1070,7 @@ fn a_force_lost_in_the_first_gait_period_follows_its_continuation() {
         Case::AnglesLostWithin,
         Case::StrapsApart,
     ] {
-        let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
+        let mut guard = gait_guard();
         let mut prev = SVector::<f64, 2>::zeros();
         for k in 0..fault_at + 40 {
             let t = k as f64 * 0.01;
@@ -1184,7 +1190,7 @@ fn the_replay_lag_is_matched_on_the_angles() {
         .unwrap();
     for period_s in [1.07, exact as f64 * 0.01] {
         let p0 = (period_s / 0.01).round() as usize;
-        let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
+        let mut guard = gait_guard();
         let mut lag = None;
         for k in 0..=300 {
             lag = lag_at(&mut guard, k, period_s);
@@ -1221,7 +1227,7 @@ fn the_replay_lag_is_matched_on_the_angles() {
 fn an_angle_with_a_measured_velocity_follows_the_velocity() {
     for (steps, resync) in [(20usize, 50u64), (20, 10)] {
         let mut g = Gait::new();
-        let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
+        let mut guard = gait_guard();
         let mut resumed = false;
         for k in 0..330 {
             let clean = g.raw(k);
@@ -1281,7 +1287,7 @@ fn an_angle_spike_at_3_kg_is_ridden_through() {
 #[test]
 fn invalid_angles_with_measured_velocities_are_no_stall() {
     let mut g = Gait::new();
-    let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
+    let mut guard = gait_guard();
     for k in 0..330 {
         let clean = g.raw(k);
         let mut raw = clean;
@@ -1325,7 +1331,7 @@ fn force_fault_run(
     resync_after: u64,
 ) -> Vec<ForceSample> {
     let mut g = Gait::new();
-    let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
+    let mut guard = gait_guard();
     let mut truth = MovingAverage::<2>::new(5);
     (0..steps)
         .map(|k| {
@@ -1589,7 +1595,7 @@ fn a_frozen_velocity_is_accepted_again_only_near_the_angles_slope() {
     let mut accepted = 0;
     for start in [300, 310, 325, 340, 360, 375] {
         let mut g = Gait::new();
-        let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
+        let mut guard = gait_guard();
         let held = g.raw(start - 1).1;
         let mut qs = Vec::new();
         let mut was = [false; 2];
@@ -1629,7 +1635,7 @@ fn a_frozen_velocity_is_accepted_again_only_near_the_angles_slope() {
 fn a_velocity_is_taken_from_the_returning_angles() {
     let mut g = Gait::new();
     let mut clean_qd = MovingAverage::<2>::new(5);
-    let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
+    let mut guard = gait_guard();
     let mut worst: f64 = 0.0;
     for k in 0..340 {
         let clean = g.raw(k);
@@ -1710,7 +1716,7 @@ fn a_one_sample_window_takes_no_slope_from_an_estimated_angle() {
 fn a_slope_does_not_reach_across_a_gap_in_the_data() {
     let mut g = Gait::new();
     let mut clean_qd = MovingAverage::<2>::new(5);
-    let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
+    let mut guard = gait_guard();
     let mut worst: f64 = 0.0;
     for k in 0..330 {
         let clean = g.raw(k);
@@ -1753,7 +1759,7 @@ fn quantised_encoders_are_not_taken_for_frozen() {
     // Rejected samples outside the faults, and the delay until a stuck angle is rejected.
     let run = |q_step: f64, known: f64, nan_angles: bool, stuck_at: Option<usize>| {
         let mut g = Gait::new();
-        let guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
+        let guard = gait_guard();
         let mut guard = guard.with_encoder_step(known);
         let (mut rejected, mut delay) = (0, None);
         let mut held = SVector::<f64, 2>::zeros();
@@ -1796,7 +1802,7 @@ fn quantised_encoders_are_not_taken_for_frozen() {
     // Both joints slow at once (0.1 rad/s: both angles repeat on the same samples), which
     // the stall test, knowing the step, does not take for a stalled acquisition.
     for known in [0.0, turn12] {
-        let guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
+        let guard = gait_guard();
         let mut guard = guard.with_encoder_step(known);
         let (mut stalls, mut rejected) = (0, 0);
         for k in 0..300 {
@@ -1829,7 +1835,7 @@ fn quantised_encoders_are_not_taken_for_frozen() {
 fn samples_the_guard_does_not_keep_do_not_count_towards_the_slope() {
     let mut g = Gait::new();
     let mut clean_qd = MovingAverage::<2>::new(5);
-    let mut guard = ChannelGuard::<2>::new(0.01, 5, [std::f64::consts::PI, 30.0, 70.0]);
+    let mut guard = gait_guard();
     let mut kept_from = None;
     for k in 0..330 {
         let clean = g.raw(k);

@@ -506,6 +506,9 @@ impl<const N: usize> ChannelGuard<N> {
             && (0..N).all(|j| self.bad_for[Q][j] == 0 && (!angle_in_range(j) || angle_frozen(j)))
             && (0..N).any(angle_frozen);
         for j in 0..N {
+            // The velocity the accepted angles give (`angle_velocity`), once the angle's verdict
+            // is in: the velocity's estimate in its verdict and, if it is rejected, its value.
+            let mut qd_from_angles = None;
             // Angle first: the velocity check needs the angle's verdict.
             for sig in [Q, QD, F] {
                 // The angle's slope over the window is a velocity measurement only once the
@@ -541,8 +544,11 @@ impl<const N: usize> ChannelGuard<N> {
                 // A velocity's estimate while its angle is measured: the accepted angles' slope
                 // (`angle_velocity`; `out[Q]` is this step's accepted angle); else the linear
                 // extrapolation.
+                if sig == QD {
+                    qd_from_angles = self.angle_velocity(&out, j);
+                }
                 let estimate = match sig {
-                    QD => self.angle_velocity(&out, j).unwrap_or(p),
+                    QD => qd_from_angles.unwrap_or(p),
                     _ => p,
                 };
                 // A strap force believed on smoothness alone carries the bias that kept it at
@@ -716,8 +722,7 @@ impl<const N: usize> ChannelGuard<N> {
             // a velocity from its good angle, else the replay.
             for sig in [Q, QD, F] {
                 if self.bad_for[sig][j] > 0 {
-                    let q_bad = self.bad_for[Q][j] > 0
-                        || (sig == QD && self.angle_velocity(&out, j).is_none());
+                    let q_bad = self.bad_for[Q][j] > 0 || (sig == QD && qd_from_angles.is_none());
                     let qd_bad = self.bad_for[QD][j] > 0;
                     // An angle whose velocity has been measured on every step since the
                     // angle was last accepted: the angle the velocity implies through the
@@ -736,10 +741,11 @@ impl<const N: usize> ChannelGuard<N> {
                         self.q_anchored[j] = implied.is_some();
                         q_from_velocity[j] = implied.is_some();
                     }
-                    let (value, replayed) = match (sig, model, implied) {
-                        (Q, _, Some(q)) => (q, false),
-                        (Q, Some((q, _)), None) if !replay => (q[j], false),
-                        (QD, Some((_, qd)), _) if q_bad && !replay => (qd[j], false),
+                    let (value, replayed) = match (sig, model, implied, qd_from_angles) {
+                        (Q, _, Some(q), _) => (q, false),
+                        (Q, Some((q, _)), None, _) if !replay => (q[j], false),
+                        (QD, _, _, Some(v)) if self.filled >= 2 => (v, false),
+                        (QD, Some((_, qd)), _, None) if !replay => (qd[j], false),
                         _ => self.estimate(sig, j, &out, period),
                     };
                     out[sig][j] = value;
@@ -898,7 +904,8 @@ impl<const N: usize> ChannelGuard<N> {
     }
 
     /// The estimate of a rejected channel `sig` of joint `j` (`out` holds this step's values
-    /// of the signals already decided), and whether it is the gait replay.
+    /// of the signals already decided), and whether it is the gait replay; a velocity that its
+    /// accepted angles give ([`ChannelGuard::angle_velocity`]) takes that in `repair` instead.
     fn estimate(
         &mut self,
         sig: usize,
@@ -910,16 +917,8 @@ impl<const N: usize> ChannelGuard<N> {
             return (0.0, false);
         }
         let prev = self.back(sig, 1)[j];
-        match sig {
-            Q if self.bad_for[QD][j] == 0 && out[QD][j].is_finite() => {
-                return (prev + self.dt * out[QD][j], false);
-            }
-            QD => {
-                if let Some(v) = self.angle_velocity(out, j) {
-                    return (v, false);
-                }
-            }
-            _ => {}
+        if sig == Q && self.bad_for[QD][j] == 0 && out[QD][j].is_finite() {
+            return (prev + self.dt * out[QD][j], false);
         }
         if let Some(p) = period {
             // Replay the gait one period back, with the offset it had when this replay

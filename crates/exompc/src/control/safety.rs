@@ -181,6 +181,8 @@ impl Default for Monitors {
 impl Monitors {
     /// Largest `latch_trips`.
     pub const MAX_LATCH_TRIPS: usize = 1000;
+    /// Largest `encoder_step_rad` (rad): 20 rad/s at 10 ms would switch the frozen-angle test off.
+    pub const MAX_ENCODER_STEP_RAD: f64 = 0.01;
 
     /// Checks every threshold, cutoff and time (finite, > 0; the window in (0, 10], the gait
     /// ratio in [0, 20], the clear time in [0, 1e6], the encoder step in [0, 0.01], the latch
@@ -228,7 +230,7 @@ impl Monitors {
             (
                 "encoder_step_rad",
                 self.encoder_step_rad,
-                Range::Closed(0.0, 0.01),
+                Range::Closed(0.0, Self::MAX_ENCODER_STEP_RAD),
             ),
             (
                 "latch_window_s",
