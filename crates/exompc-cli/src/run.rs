@@ -247,6 +247,13 @@ pub fn describe_safety(sa: &exompc::sim::SafetySummary) -> String {
             sa.escalations
         );
     }
+    if sa.revocations > 0 {
+        out += &format!(
+            "\n    revocations {}: encoder channels believed on smoothness alone were rejected \
+             again (the controller failed right after; the protective stop followed)",
+            sa.revocations
+        );
+    }
     if let Some(t) = sa.latched_at_s {
         out += &format!(
             "\n    latched at {t:.2} s by {} (handover {}): the monitor response kept the torque \

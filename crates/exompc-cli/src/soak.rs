@@ -153,12 +153,13 @@ pub(crate) fn run(a: SoakArgs) -> Result<(), CliError> {
     );
     println!(
         "  sensor faults {} (estimated steps {})   handovers {}   fallback stops {}   \
-         escalations {}",
+         escalations {}   revocations {}",
         report.sensor_faults,
         report.estimated_steps,
         report.handovers,
         report.fallback_stops,
-        report.escalations
+        report.escalations,
+        report.revocations
     );
     match report.latched_at_s {
         Some(t) => println!(

@@ -98,6 +98,13 @@ fn safety_reasons(s: &SafetySummary, steps: u64, holds_expected: bool) -> Vec<St
             s.escalations
         ));
     }
+    if s.revocations > 0 {
+        r.push(format!(
+            "encoder channels believed on smoothness alone were rejected again {} times (the \
+             controller failed right after; the protective stop followed)",
+            s.revocations
+        ));
+    }
     if let Some(t) = s.latched_at_s {
         r.push(format!(
             "latched at {t:.2} s by {} (handover {}): the controller was not handed the torque \
@@ -201,6 +208,7 @@ impl Verdict {
             handovers: r.handovers,
             fallback_stops: r.fallback_stops,
             escalations: r.escalations,
+            revocations: r.revocations,
             latched_at_s: r.latched_at_s,
             latched_by: r.latched_by.clone(),
             latched_for_s: r.latched_for_s,

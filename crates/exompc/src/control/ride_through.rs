@@ -29,6 +29,13 @@ pub const FORCE_GATE: f64 = 2.0;
 /// samples after a re-acceptance, no longer hides the real forces after a 200-ms link outage
 /// (test `link_outages_are_ridden_through`: 19.8 N either way; docs/RELIABILITY.md §2a).
 pub const FORCE_RESYNC_S: f64 = 0.3;
+/// How long (s) an encoder channel (angle or velocity) believed again on smoothness alone
+/// stays unverified: a monitor that sees the controller fail tripping within it rejects the
+/// channel again ([`ChannelGuard::revoke_unverified`]). A smooth value that disagrees with its
+/// estimate may be an offset (a 0.5-rad encoder spike believed after `sensor_timeout_s`), and
+/// a controller stepping on it fails within a few steps. Chosen by measurement (the 1-s scan,
+/// docs/RELIABILITY.md §2): 0.1 s caught two of the three cells 0.3, 0.5 and 1 s caught.
+pub const UNVERIFIED_S: f64 = 0.3;
 /// Rate (N/s) at which a strap force believed on smoothness alone ([`FORCE_RESYNC_S`]) moves
 /// from the estimate that stood in for it to the measurement: the jump is taken in over
 /// `|jump| / FORCE_BIAS_RATE`, so a sensor offset believed after a long fault does not step
@@ -152,6 +159,17 @@ pub struct ChannelGuard<const N: usize> {
     /// Samples after a re-acceptance whose innovation is not gated (the extrapolation still
     /// runs through the estimate that stood in for the channel).
     after_accept: [[u8; N]; 3],
+    /// Per encoder signal (q, qd) and joint: steps since the channel was believed again on
+    /// smoothness alone while it disagreed with its estimate (0: not so, or longer ago than
+    /// [`UNVERIFIED_S`]), and the steps it had been rejected then.
+    unverified: [[u32; N]; 2],
+    unverified_bad_for: [[u64; N]; 2],
+    /// Per signal and joint: a channel rejected again by [`ChannelGuard::revoke_unverified`]
+    /// is accepted no sooner than this many steps into its fault (0: no such floor).
+    accept_floor: [[u64; N]; 3],
+    /// The steps after which a rejected channel is accepted on smoothness alone, as `repair`
+    /// was last given them.
+    resync_after: u64,
     /// Per joint: consecutive accepted angle samples (the angle's slope over the filter
     /// window stands for the velocity once the window holds no estimate; the slope over the
     /// accepted ones, moved back by the filter's lag, from [`PARTIAL_SLOPE_SPAN`] periods of
@@ -296,6 +314,10 @@ impl<const N: usize> ChannelGuard<N> {
             res_alpha: 1.0 - (-dt / RESIDUAL_TAU_S).exp(),
             railed: [false; N],
             after_accept: [[0; N]; 3],
+            unverified: [[0; N]; 2],
+            unverified_bad_for: [[0; N]; 2],
+            accept_floor: [[0; N]; 3],
+            resync_after: 1,
             q_good_for: [0; N],
             qd_good_for: [0; N],
             qd_held_off: [0; N],
@@ -380,6 +402,37 @@ impl<const N: usize> ChannelGuard<N> {
         self.peak_ratio
     }
 
+    /// Reject again every encoder channel believed on smoothness alone within the last
+    /// [`UNVERIFIED_S`] (the supervisor calls it when a monitor that sees the controller fail
+    /// trips: the believed value is taken to be an offset). Each continues its fault where it
+    /// was accepted, so the persistent-fault limit applies (the protective stop), and is not
+    /// accepted again for another `resync_after` steps. Returns how many were rejected again.
+    pub fn revoke_unverified(&mut self) -> u32 {
+        let mut revoked = 0;
+        for sig in [Q, QD] {
+            for j in 0..N {
+                if self.unverified[sig][j] == 0 || self.bad_for[sig][j] > 0 {
+                    continue;
+                }
+                let resumed = self.unverified_bad_for[sig][j].max(1);
+                self.bad_for[sig][j] = resumed;
+                self.accept_floor[sig][j] = resumed + self.resync_after;
+                self.unverified[sig][j] = 0;
+                self.after_accept[sig][j] = 0;
+                self.smooth[sig][j] = 0;
+                self.offset[sig][j] = f64::NAN;
+                if sig == Q {
+                    self.q_anchored[j] = false;
+                    self.q_good_for[j] = 0;
+                } else {
+                    self.qd_good_for[j] = 0;
+                }
+                revoked += 1;
+            }
+        }
+        revoked
+    }
+
     /// True while the channel `signal` (0 q, 1 qd, 2 F) of `joint` is rejected.
     pub fn is_rejected(&self, signal: usize, joint: usize) -> bool {
         self.bad_for[signal][joint] > 0
@@ -450,6 +503,8 @@ impl<const N: usize> ChannelGuard<N> {
             self.restart_counts();
         }
         self.last_t = m.t;
+        self.resync_after = resync_after;
+        let unverified_steps = (UNVERIFIED_S / self.dt).ceil() as u32;
         let warm = self.filled > self.window + 2;
         let vals = [m.q, m.qd, m.force];
         let mut out = vals;
@@ -575,6 +630,8 @@ impl<const N: usize> ChannelGuard<N> {
                 definite |= !in_range || stuck;
                 let after_accept = !was_bad && self.after_accept[sig][j] > 0;
                 let mut resynced = false;
+                // Believed on smoothness alone while it disagrees with its estimate.
+                let mut unverified = false;
                 // A velocity rejected with a stalled acquisition stays rejected for a filter
                 // window: by then a stalled velocity has frozen (and is rejected as such), a
                 // good one is accepted again. A frozen filtered velocity (a stuck or
@@ -599,7 +656,10 @@ impl<const N: usize> ChannelGuard<N> {
                 // the value: a frozen encoder accepted at a turn of the hip ended the
                 // protective stop within its fault (tests/latch.rs).
                 let still_frozen = sig == Q && was_bad && self.q_frozen[j] && repeated;
-                let good = if !in_range || stuck || held_off || still_frozen {
+                // Rejected again after being believed on smoothness alone (`revoke_unverified`):
+                // not accepted before its floor.
+                let floored = was_bad && self.bad_for[sig][j] < self.accept_floor[sig][j];
+                let good = if !in_range || stuck || held_off || still_frozen || floored {
                     false
                 } else if (was_bad && (self.railed[j] || !warm))
                     || (!was_bad && (after_rail || after_accept))
@@ -642,6 +702,7 @@ impl<const N: usize> ChannelGuard<N> {
                         && self.smooth[sig][j] >= 2
                         && !(sig == QD && slope_ok);
                     resynced = resync_now && moves_along;
+                    unverified = !agrees && resync_now;
                     agrees || resync_now
                 } else {
                     residual <= gate
@@ -671,7 +732,19 @@ impl<const N: usize> ChannelGuard<N> {
                     let fade = FORCE_BIAS_RATE * self.dt;
                     self.force_bias[j] -= self.force_bias[j].clamp(-fade, fade);
                 }
+                if sig != F {
+                    let u = &mut self.unverified[sig][j];
+                    *u = if good && unverified {
+                        self.unverified_bad_for[sig][j] = self.bad_for[sig][j];
+                        1
+                    } else if good && *u > 0 && *u < unverified_steps {
+                        *u + 1
+                    } else {
+                        0
+                    };
+                }
                 if good {
+                    self.accept_floor[sig][j] = 0;
                     if was_bad {
                         self.after_accept[sig][j] = 2;
                     } else if after_accept {

@@ -653,6 +653,12 @@ pub enum MonitorAction {
     /// until every monitor has cleared (`monitor` is a tripped monitor whose condition
     /// persists, or the one that latched; `value` the response's time so far, s).
     Escalate,
+    /// A monitor that sees the controller fail tripped within [`UNVERIFIED_S`](super::UNVERIFIED_S) of an encoder
+    /// channel being believed again on smoothness alone: those channels are rejected again
+    /// ([`ChannelGuard::revoke_unverified`]), their fault continuing, so the persistent-fault
+    /// limit brings the protective stop (`monitor` is the one that tripped, `value` the
+    /// number of channels rejected again).
+    Revoke,
 }
 
 /// One logged monitor event.
@@ -693,6 +699,9 @@ pub struct SafetyReport {
     /// Times the configured `hold` or `ramp_to_zero` handed the torque to the transparent
     /// fallback after [`RESPONSE_ESCALATE_S`] ([`MonitorAction::Escalate`]).
     pub escalations: u64,
+    /// Times encoder channels believed on smoothness alone were rejected again because the
+    /// controller failed right after ([`MonitorAction::Revoke`]).
+    pub revocations: u64,
     /// Supervisor time (s) at which it latched (`[monitors] latch_trips`), `None` when it has
     /// not, or when the latch was reset since.
     pub latched_at: Option<f64>,
@@ -1450,7 +1459,27 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         } else if !self.tripped[2] {
             self.railed_trip = false;
         }
+        let was_tripped = self.tripped;
         self.update_monitors(raw, m, rep.longest_fault_s.max(railed_silence), now);
+        // The controller failing right after an encoder channel was believed on smoothness
+        // alone: the believed value is taken to be an offset and rejected again. A 0.5-rad
+        // spike of every sensor for 1 s at 3 kg, believed after `sensor_timeout_s`, put the
+        // hip at its limit when the strap-force monitor's hand-over ended (96.1 N; 75.9 N).
+        if let Some(&i) = LATCHING
+            .iter()
+            .find(|&&i| self.tripped[i] && !was_tripped[i])
+        {
+            let revoked = self.guard.revoke_unverified();
+            if revoked > 0 {
+                self.report.revocations += 1;
+                self.log(MonitorEvent {
+                    t: now,
+                    monitor: MONITORS[i],
+                    action: MonitorAction::Revoke,
+                    value: f64::from(revoked),
+                });
+            }
+        }
         let controller_failed = LATCHING.iter().any(|&i| self.tripped[i]);
         if controller_failed && !self.engaged {
             self.handover(now);

@@ -150,6 +150,9 @@ pub struct SoakReport {
     /// Times the configured `hold` or `ramp_to_zero` handed the torque to the transparent
     /// fallback because the trip's cause persisted.
     pub escalations: u64,
+    /// Times encoder channels believed on smoothness alone were rejected again because the
+    /// controller failed right after (the protective stop followed).
+    pub revocations: u64,
     /// Simulated time (s) at which the supervisor latched its response, `null` if it did not.
     pub latched_at_s: Option<f64>,
     /// The monitor whose trip latched it (`tracking_error`, ...), `null` if it did not.
@@ -238,6 +241,7 @@ pub fn run_soak(
         handovers: summary.safety.handovers,
         fallback_stops: summary.safety.fallback_stops,
         escalations: summary.safety.escalations,
+        revocations: summary.safety.revocations,
         latched_at_s: summary.safety.latched_at_s,
         latched_by: summary.safety.latched_by,
         latched_for_s: summary.safety.latched_for_s,

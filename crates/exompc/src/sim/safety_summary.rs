@@ -47,6 +47,11 @@ pub struct SafetySummary {
     /// fallback because the trip's cause persisted (`control::RESPONSE_ESCALATE_S`).
     #[serde(default)]
     pub escalations: u64,
+    /// Times encoder channels believed again on smoothness alone were rejected again because
+    /// a monitor that sees the controller fail tripped within `control::UNVERIFIED_S` (the
+    /// believed value taken for an offset; the protective stop follows).
+    #[serde(default)]
+    pub revocations: u64,
     /// Supervisor time (s) at which repeated handovers latched the response
     /// (`[monitors] latch_trips`); `null` when it did not latch.
     #[serde(default)]
@@ -109,6 +114,7 @@ impl SafetySummary {
             handovers: r.handovers,
             fallback_stops: r.fallback_stops,
             escalations: r.escalations,
+            revocations: r.revocations,
             latched_at_s: r.latched_at,
             latched_by: r.latched_by.map(|k| snake_case(&format!("{k:?}"))),
             latched_for_s: r.latched_for_s,
@@ -151,6 +157,7 @@ mod tests {
             handovers: 2,
             fallback_stops: 1,
             escalations: 1,
+            revocations: 2,
             latched_at: Some(1.2),
             latched_by: Some(MonitorKind::StrapForce),
             latched_for_s: 0.3,
@@ -161,6 +168,7 @@ mod tests {
         assert_eq!((s.handovers, s.latched_at_s), (2, Some(1.2)));
         assert_eq!(s.fallback_stops, 1);
         assert_eq!(s.escalations, 1);
+        assert_eq!(s.revocations, 2);
         assert_eq!(s.latched_by.as_deref(), Some("strap_force"));
         assert!((s.latched_for_s - 0.3).abs() < 1e-12);
         assert_eq!((s.estimated_steps, s.sensor_faults), (5, 1));
