@@ -653,8 +653,9 @@ pub enum MonitorAction {
     /// until every monitor has cleared (`monitor` is a tripped monitor whose condition
     /// persists, or the one that latched; `value` the response's time so far, s).
     Escalate,
-    /// A monitor that sees the controller fail tripped within [`UNVERIFIED_S`](super::UNVERIFIED_S) of an encoder
-    /// channel being believed again on smoothness alone: those channels are rejected again
+    /// A monitor that sees the controller fail tripped within
+    /// [`UNVERIFIED_S`](super::UNVERIFIED_S) of an encoder channel being believed again on
+    /// smoothness alone: those channels are rejected again
     /// ([`ChannelGuard::revoke_unverified`]), their fault continuing, so the persistent-fault
     /// limit brings the protective stop (`monitor` is the one that tripped, `value` the
     /// number of channels rejected again).
@@ -1464,7 +1465,8 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         // The controller failing right after an encoder channel was believed on smoothness
         // alone: the believed value is taken to be an offset and rejected again. A 0.5-rad
         // spike of every sensor for 1 s at 3 kg, believed after `sensor_timeout_s`, put the
-        // hip at its limit when the strap-force monitor's hand-over ended (96.1 N; 75.9 N).
+        // hip at its limit when the strap-force monitor's hand-over ended: 96.1 N, 75.9 N with
+        // the rejection again (docs/RELIABILITY.md §2).
         if let Some(&i) = LATCHING
             .iter()
             .find(|&&i| self.tripped[i] && !was_tripped[i])
