@@ -250,7 +250,7 @@ pub fn describe_safety(sa: &exompc::sim::SafetySummary) -> String {
     if sa.revocations > 0 {
         out += &format!(
             "\n    revocations {}: encoder channels believed on smoothness alone were rejected \
-             again (the controller failed right after; the protective stop followed)",
+             again (the controller failed right after; for an angle the protective stop followed)",
             sa.revocations
         );
     }

@@ -101,7 +101,7 @@ fn safety_reasons(s: &SafetySummary, steps: u64, holds_expected: bool) -> Vec<St
     if s.revocations > 0 {
         r.push(format!(
             "encoder channels believed on smoothness alone were rejected again {} times (the \
-             controller failed right after; the protective stop followed)",
+             controller failed right after; for an angle the protective stop followed)",
             s.revocations
         ));
     }

@@ -34,7 +34,7 @@ pub const FORCE_RESYNC_S: f64 = 0.3;
 /// channel again ([`ChannelGuard::revoke_unverified`]). A smooth value that disagrees with its
 /// estimate may be an offset (a 0.5-rad encoder spike believed after `sensor_timeout_s`), and
 /// a controller stepping on it fails within a few steps. Chosen by measurement (the 1-s scan,
-/// docs/RELIABILITY.md §2): 0.1 s caught two of the three cells 0.3, 0.5 and 1 s caught.
+/// docs/RELIABILITY.md §2): 0.1 s caught one of the two cells 0.3 and 1 s caught.
 pub const UNVERIFIED_S: f64 = 0.3;
 /// Rate (N/s) at which a strap force believed on smoothness alone ([`FORCE_RESYNC_S`]) moves
 /// from the estimate that stood in for it to the measurement: the jump is taken in over
@@ -116,7 +116,8 @@ pub const PERIOD_MATCH_EVERY: u32 = 10;
 /// from it to the measurement at [`FORCE_BIAS_RATE`]; a velocity estimated from its good angle's
 /// slope, a measurement of the same quantity, is never accepted on smoothness alone). The two
 /// samples after a re-acceptance are not gated: the extrapolation still runs through the
-/// estimate.
+/// estimate. An encoder channel believed on smoothness alone stays unverified for
+/// [`UNVERIFIED_S`] and is rejected again on request ([`ChannelGuard::revoke_unverified`]).
 #[derive(Clone, Debug)]
 pub struct ChannelGuard<const N: usize> {
     dt: f64,
@@ -164,9 +165,14 @@ pub struct ChannelGuard<const N: usize> {
     /// [`UNVERIFIED_S`]), and the steps it had been rejected then.
     unverified: [[u32; N]; 2],
     unverified_bad_for: [[u64; N]; 2],
-    /// Per signal and joint: a channel rejected again by [`ChannelGuard::revoke_unverified`]
-    /// is accepted no sooner than this many steps into its fault (0: no such floor).
-    accept_floor: [[u64; N]; 3],
+    /// Per encoder signal and joint: a channel rejected again by
+    /// [`ChannelGuard::revoke_unverified`] is accepted no sooner than this many steps into
+    /// its fault (0: no such floor).
+    accept_floor: [[u64; N]; 2],
+    /// Per encoder signal and joint: rejected again since it was last accepted. Its estimate
+    /// was built on the samples it was believed on, so its next acceptance, by agreement too,
+    /// is unverified again.
+    revoked: [[bool; N]; 2],
     /// The steps after which a rejected channel is accepted on smoothness alone, as `repair`
     /// was last given them.
     resync_after: u64,
@@ -316,7 +322,8 @@ impl<const N: usize> ChannelGuard<N> {
             after_accept: [[0; N]; 3],
             unverified: [[0; N]; 2],
             unverified_bad_for: [[0; N]; 2],
-            accept_floor: [[0; N]; 3],
+            accept_floor: [[0; N]; 2],
+            revoked: [[false; N]; 2],
             resync_after: 1,
             q_good_for: [0; N],
             qd_good_for: [0; N],
@@ -405,8 +412,10 @@ impl<const N: usize> ChannelGuard<N> {
     /// Reject again every encoder channel believed on smoothness alone within the last
     /// [`UNVERIFIED_S`] (the supervisor calls it when a monitor that sees the controller fail
     /// trips: the believed value is taken to be an offset). Each continues its fault where it
-    /// was accepted, so the persistent-fault limit applies (the protective stop), and is not
-    /// accepted again for another `resync_after` steps. Returns how many were rejected again.
+    /// was accepted, so the persistent-fault limit applies (an angle's is past it: the
+    /// protective stop; a velocity whose angle is measured counts [`ANCHORED_LIMIT_FACTOR`]
+    /// times slower), and is not accepted again for another `resync_after` steps; its next
+    /// acceptance is unverified again. Returns how many were rejected again.
     pub fn revoke_unverified(&mut self) -> u32 {
         let mut revoked = 0;
         for sig in [Q, QD] {
@@ -416,7 +425,8 @@ impl<const N: usize> ChannelGuard<N> {
                 }
                 let resumed = self.unverified_bad_for[sig][j].max(1);
                 self.bad_for[sig][j] = resumed;
-                self.accept_floor[sig][j] = resumed + self.resync_after;
+                self.accept_floor[sig][j] = resumed.saturating_add(self.resync_after);
+                self.revoked[sig][j] = true;
                 self.unverified[sig][j] = 0;
                 self.after_accept[sig][j] = 0;
                 self.smooth[sig][j] = 0;
@@ -500,6 +510,8 @@ impl<const N: usize> ChannelGuard<N> {
             self.force_bias = SVector::zeros();
             *self.force_fit = None;
             self.robot_part = [SVector::repeat(f64::NAN); 2];
+            // A channel rejected again is accepted as any other after a gap (unverified).
+            self.accept_floor = [[0; N]; 2];
             self.restart_counts();
         }
         self.last_t = m.t;
@@ -658,7 +670,8 @@ impl<const N: usize> ChannelGuard<N> {
                 let still_frozen = sig == Q && was_bad && self.q_frozen[j] && repeated;
                 // Rejected again after being believed on smoothness alone (`revoke_unverified`):
                 // not accepted before its floor.
-                let floored = was_bad && self.bad_for[sig][j] < self.accept_floor[sig][j];
+                let floored =
+                    sig != F && was_bad && self.bad_for[sig][j] < self.accept_floor[sig][j];
                 let good = if !in_range || stuck || held_off || still_frozen || floored {
                     false
                 } else if (was_bad && (self.railed[j] || !warm))
@@ -702,7 +715,7 @@ impl<const N: usize> ChannelGuard<N> {
                         && self.smooth[sig][j] >= 2
                         && !(sig == QD && slope_ok);
                     resynced = resync_now && moves_along;
-                    unverified = !agrees && resync_now;
+                    unverified = resync_now;
                     agrees || resync_now
                 } else {
                     residual <= gate
@@ -733,8 +746,11 @@ impl<const N: usize> ChannelGuard<N> {
                     self.force_bias[j] -= self.force_bias[j].clamp(-fade, fade);
                 }
                 if sig != F {
+                    // Accepted on smoothness alone, or accepted at all after being rejected
+                    // again (`revoked`): unverified.
+                    let fresh = good && was_bad && (unverified || self.revoked[sig][j]);
                     let u = &mut self.unverified[sig][j];
-                    *u = if good && unverified {
+                    *u = if fresh {
                         self.unverified_bad_for[sig][j] = self.bad_for[sig][j];
                         1
                     } else if good && *u > 0 && *u < unverified_steps {
@@ -742,9 +758,12 @@ impl<const N: usize> ChannelGuard<N> {
                     } else {
                         0
                     };
+                    if good {
+                        self.accept_floor[sig][j] = 0;
+                        self.revoked[sig][j] = false;
+                    }
                 }
                 if good {
-                    self.accept_floor[sig][j] = 0;
                     if was_bad {
                         self.after_accept[sig][j] = 2;
                     } else if after_accept {

@@ -653,12 +653,12 @@ pub enum MonitorAction {
     /// until every monitor has cleared (`monitor` is a tripped monitor whose condition
     /// persists, or the one that latched; `value` the response's time so far, s).
     Escalate,
-    /// A monitor that sees the controller fail tripped within
-    /// [`UNVERIFIED_S`](super::UNVERIFIED_S) of an encoder channel being believed again on
-    /// smoothness alone: those channels are rejected again
+    /// A monitor that sees the controller fail tripped, the controller having had the torque,
+    /// within [`UNVERIFIED_S`](super::UNVERIFIED_S) of an encoder channel being believed again
+    /// on smoothness alone: those channels are rejected again
     /// ([`ChannelGuard::revoke_unverified`]), their fault continuing, so the persistent-fault
-    /// limit brings the protective stop (`monitor` is the one that tripped, `value` the
-    /// number of channels rejected again).
+    /// limit brings the protective stop for an angle (`monitor` is the one that tripped,
+    /// `value` the number of channels rejected again).
     Revoke,
 }
 
@@ -1461,16 +1461,18 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             self.railed_trip = false;
         }
         let was_tripped = self.tripped;
+        let controller_had_it = !self.stopped && !self.engaged && !self.latched;
         self.update_monitors(raw, m, rep.longest_fault_s.max(railed_silence), now);
         // The controller failing right after an encoder channel was believed on smoothness
         // alone: the believed value is taken to be an offset and rejected again. A 0.5-rad
         // spike of every sensor for 1 s at 3 kg, believed after `sensor_timeout_s`, put the
         // hip at its limit when the strap-force monitor's hand-over ended: 96.1 N, 75.9 N with
-        // the rejection again (docs/RELIABILITY.md §2).
-        if let Some(&i) = LATCHING
+        // the rejection again (docs/RELIABILITY.md §2). Only a trip of the controller's own
+        // torque: one during the protective stop or a monitor response is not its failure.
+        let newly = LATCHING
             .iter()
-            .find(|&&i| self.tripped[i] && !was_tripped[i])
-        {
+            .find(|&&i| self.tripped[i] && !was_tripped[i]);
+        if let Some(&i) = newly.filter(|_| controller_had_it) {
             let revoked = self.guard.revoke_unverified();
             if revoked > 0 {
                 self.report.revocations += 1;

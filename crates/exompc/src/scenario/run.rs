@@ -151,7 +151,7 @@ pub struct SoakReport {
     /// fallback because the trip's cause persisted.
     pub escalations: u64,
     /// Times encoder channels believed on smoothness alone were rejected again because the
-    /// controller failed right after (the protective stop followed).
+    /// controller failed right after (for an angle the protective stop followed).
     pub revocations: u64,
     /// Simulated time (s) at which the supervisor latched its response, `null` if it did not.
     pub latched_at_s: Option<f64>,

@@ -49,7 +49,7 @@ pub struct SafetySummary {
     pub escalations: u64,
     /// Times encoder channels believed again on smoothness alone were rejected again because
     /// a monitor that sees the controller fail tripped within `control::UNVERIFIED_S` (the
-    /// believed value taken for an offset; the protective stop follows).
+    /// believed value taken for an offset; for an angle the protective stop follows).
     #[serde(default)]
     pub revocations: u64,
     /// Supervisor time (s) at which repeated handovers latched the response
