@@ -311,7 +311,7 @@ fn an_angle_believed_on_smoothness_alone_is_rejected_again_on_request() {
         never_revoked.repair(&m, None, resync, None);
         if k == 250 {
             assert_eq!(
-                guard.revoke_unverified(),
+                guard.revoke_unverified(resync),
                 0,
                 "nothing believed on smoothness"
             );
@@ -323,16 +323,24 @@ fn an_angle_believed_on_smoothness_alone_is_rejected_again_on_request() {
         let Some(a) = accepted else { continue };
         // The unverified window, on the guard never rejected again.
         if k == a + window - 1 {
-            assert_eq!(never_revoked.clone().revoke_unverified(), 1, "step {k}");
+            assert_eq!(
+                never_revoked.clone().revoke_unverified(resync),
+                1,
+                "step {k}"
+            );
             window_checked[0] = true;
         }
         if k == a + window {
-            assert_eq!(never_revoked.clone().revoke_unverified(), 0, "step {k}");
+            assert_eq!(
+                never_revoked.clone().revoke_unverified(resync),
+                0,
+                "step {k}"
+            );
             window_checked[1] = true;
         }
         match (revoked_at, back) {
             (None, _) if k == a + 5 => {
-                assert_eq!(guard.revoke_unverified(), 1, "step {k}");
+                assert_eq!(guard.revoke_unverified(resync), 1, "step {k}");
                 assert!(guard.is_rejected(0, 0), "step {k}");
                 revoked_at = Some(k);
             }
@@ -348,7 +356,7 @@ fn an_angle_believed_on_smoothness_alone_is_rejected_again_on_request() {
                     assert!(rejected, "accepted again at step {k}, {} after", k - r);
                 } else if !rejected {
                     back = Some(k);
-                    assert_eq!(guard.clone().revoke_unverified(), 1, "step {k}");
+                    assert_eq!(guard.clone().revoke_unverified(resync), 1, "step {k}");
                     reaccepted_checked = true;
                 }
             }

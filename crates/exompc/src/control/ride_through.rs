@@ -173,9 +173,6 @@ pub struct ChannelGuard<const N: usize> {
     /// was built on the samples it was believed on, so its next acceptance, by agreement too,
     /// is unverified again.
     revoked: [[bool; N]; 2],
-    /// The steps after which a rejected channel is accepted on smoothness alone, as `repair`
-    /// was last given them.
-    resync_after: u64,
     /// Per joint: consecutive accepted angle samples (the angle's slope over the filter
     /// window stands for the velocity once the window holds no estimate; the slope over the
     /// accepted ones, moved back by the filter's lag, from [`PARTIAL_SLOPE_SPAN`] periods of
@@ -324,7 +321,6 @@ impl<const N: usize> ChannelGuard<N> {
             unverified_bad_for: [[0; N]; 2],
             accept_floor: [[0; N]; 2],
             revoked: [[false; N]; 2],
-            resync_after: 1,
             q_good_for: [0; N],
             qd_good_for: [0; N],
             qd_held_off: [0; N],
@@ -414,9 +410,10 @@ impl<const N: usize> ChannelGuard<N> {
     /// trips: the believed value is taken to be an offset). Each continues its fault where it
     /// was accepted, so the persistent-fault limit applies (an angle's is past it: the
     /// protective stop; a velocity whose angle is measured counts [`ANCHORED_LIMIT_FACTOR`]
-    /// times slower), and is not accepted again for another `resync_after` steps; its next
-    /// acceptance is unverified again. Returns how many were rejected again.
-    pub fn revoke_unverified(&mut self) -> u32 {
+    /// times slower), and is not accepted again for another `resync_after` steps (as `repair`
+    /// takes them); its next acceptance is unverified again. Returns how many were rejected
+    /// again.
+    pub fn revoke_unverified(&mut self, resync_after: u64) -> u32 {
         let mut revoked = 0;
         for sig in [Q, QD] {
             for j in 0..N {
@@ -425,7 +422,7 @@ impl<const N: usize> ChannelGuard<N> {
                 }
                 let resumed = self.unverified_bad_for[sig][j].max(1);
                 self.bad_for[sig][j] = resumed;
-                self.accept_floor[sig][j] = resumed.saturating_add(self.resync_after);
+                self.accept_floor[sig][j] = resumed.saturating_add(resync_after);
                 self.revoked[sig][j] = true;
                 self.unverified[sig][j] = 0;
                 self.after_accept[sig][j] = 0;
@@ -515,7 +512,6 @@ impl<const N: usize> ChannelGuard<N> {
             self.restart_counts();
         }
         self.last_t = m.t;
-        self.resync_after = resync_after;
         let unverified_steps = (UNVERIFIED_S / self.dt).ceil() as u32;
         let warm = self.filled > self.window + 2;
         let vals = [m.q, m.qd, m.force];

@@ -1258,6 +1258,27 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         }
     }
 
+    /// Rejects again the encoder channels believed on smoothness alone within
+    /// [`UNVERIFIED_S`](super::UNVERIFIED_S) ([`ChannelGuard::revoke_unverified`]) and logs a
+    /// [`MonitorAction::Revoke`] under the first tripped controller-failure monitor.
+    fn revoke_unverified(&mut self, resync_after: u64, now: f64) {
+        let revoked = self.guard.revoke_unverified(resync_after);
+        if revoked == 0 {
+            return;
+        }
+        self.report.revocations += 1;
+        let i = LATCHING
+            .into_iter()
+            .find(|&i| self.tripped[i])
+            .unwrap_or(LATCHING[0]);
+        self.log(MonitorEvent {
+            t: now,
+            monitor: MONITORS[i],
+            action: MonitorAction::Revoke,
+            value: f64::from(revoked),
+        });
+    }
+
     /// Counts a handover at `now` and latches after `latch_trips` of them within
     /// `latch_window_s`.
     fn handover(&mut self, now: f64) {
@@ -1460,32 +1481,19 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         } else if !self.tripped[2] {
             self.railed_trip = false;
         }
-        let was_tripped = self.tripped;
-        let controller_had_it = !self.stopped && !self.engaged && !self.latched;
         self.update_monitors(raw, m, rep.longest_fault_s.max(railed_silence), now);
-        // The controller failing right after an encoder channel was believed on smoothness
-        // alone: the believed value is taken to be an offset and rejected again. A 0.5-rad
-        // spike of every sensor for 1 s at 3 kg, believed after `sensor_timeout_s`, put the
-        // hip at its limit when the strap-force monitor's hand-over ended: 96.1 N, 75.9 N with
-        // the rejection again (docs/RELIABILITY.md §2). Only a trip of the controller's own
-        // torque: one during the protective stop or a monitor response is not its failure.
-        let newly = LATCHING
-            .iter()
-            .find(|&&i| self.tripped[i] && !was_tripped[i]);
-        if let Some(&i) = newly.filter(|_| controller_had_it) {
-            let revoked = self.guard.revoke_unverified();
-            if revoked > 0 {
-                self.report.revocations += 1;
-                self.log(MonitorEvent {
-                    t: now,
-                    monitor: MONITORS[i],
-                    action: MonitorAction::Revoke,
-                    value: f64::from(revoked),
-                });
-            }
-        }
         let controller_failed = LATCHING.iter().any(|&i| self.tripped[i]);
         if controller_failed && !self.engaged {
+            // The controller failing right after an encoder channel was believed on smoothness
+            // alone: the believed value is taken to be an offset and rejected again. A 0.5-rad
+            // spike of every sensor for 1 s at 3 kg, believed after `sensor_timeout_s`, put the
+            // hip at its limit when the strap-force monitor's hand-over ended: 96.1 N, 75.9 N
+            // with the rejection again (docs/RELIABILITY.md §2). Only a failure of the
+            // controller's own torque: not during the protective stop (nor a monitor response
+            // or the latch: then `engaged`).
+            if !self.stopped {
+                self.revoke_unverified(resync_after, now);
+            }
             self.handover(now);
         }
         self.engaged = controller_failed || self.latched;
