@@ -39,7 +39,10 @@ pub const UNVERIFIED_S: f64 = 0.3;
 /// Rate (N/s) at which a strap force believed on smoothness alone ([`FORCE_RESYNC_S`]) moves
 /// from the estimate that stood in for it to the measurement: the jump is taken in over
 /// `|jump| / FORCE_BIAS_RATE`, so a sensor offset believed after a long fault does not step
-/// the controller's force (docs/RELIABILITY.md §2).
+/// the controller's force (docs/RELIABILITY.md §2). The same holds for a force accepted again
+/// within [`FORCE_RESYNC_S`] of its rejection after it was found frozen: its filter window
+/// still averages frozen samples, and their ramp back is accepted where it passes the
+/// estimate.
 pub const FORCE_BIAS_RATE: f64 = 100.0;
 /// Each gate widens to this many times the RMS of the channel's recent residuals (accepted
 /// samples, time constant [`RESIDUAL_TAU_S`]) when that is larger: a fast or forceful gait's
@@ -202,9 +205,12 @@ pub struct ChannelGuard<const N: usize> {
     robot_part: [SVector<f64, N>; 2],
     /// The gait period (steps) of the last step's replays.
     replay_period: Option<usize>,
-    /// Per strap: the bias added to a force believed on smoothness alone, fading to zero at
-    /// [`FORCE_BIAS_RATE`].
+    /// Per strap: the bias added to a force believed on smoothness alone, or accepted again
+    /// soon after a frozen fault, fading to zero at [`FORCE_BIAS_RATE`].
     force_bias: SVector<f64, N>,
+    /// Per strap: its current fault found the filtered force frozen (a finite bit-for-bit
+    /// repeat: a stuck or dropped-out sensor).
+    force_frozen: [bool; N],
     /// The supervisor's gait period (steps) and the replay lag matched to it
     /// ([`PERIOD_MATCH_STEPS`]), and the steps since that match.
     matched: Option<(usize, usize)>,
@@ -331,6 +337,7 @@ impl<const N: usize> ChannelGuard<N> {
             robot_part: [SVector::repeat(f64::NAN); 2],
             replay_period: None,
             force_bias: SVector::zeros(),
+            force_frozen: [false; N],
             force_fit: Box::new(None),
             force_fit_age: 0,
             fit_used: [false; N],
@@ -505,6 +512,7 @@ impl<const N: usize> ChannelGuard<N> {
             self.filled = 0;
             self.matched = None;
             self.force_bias = SVector::zeros();
+            self.force_frozen = [false; N];
             *self.force_fit = None;
             self.robot_part = [SVector::repeat(f64::NAN); 2];
             // A channel rejected again is accepted as any other after a gap (unverified).
@@ -729,14 +737,31 @@ impl<const N: usize> ChannelGuard<N> {
                     self.railed[j] = railed;
                 }
                 if sig == F {
-                    if good && resynced && (estimate - v).is_finite() {
-                        // Believed on smoothness alone while it moves along its estimate (an
-                        // offset), the force starts at its estimate and its jump is taken in at
-                        // `FORCE_BIAS_RATE`; a force that moves otherwise is believed at once.
+                    // Accepted again within `FORCE_RESYNC_S` of its rejection, after it was found
+                    // frozen: the filtered force still averages frozen samples, and its ramp
+                    // back was accepted where it passed the estimate (a 200-ms dropout of both
+                    // forces at 3.5 s, 3 kg: the hip torque swung from −13.6 to +11.0 N·m in 3
+                    // steps, 14.8 N; 10.3 N taken in from the estimate). After longer faults the
+                    // estimate has drifted and is not kept (a 1-s dropout at 1.5 s, 2 kg:
+                    // 11.8 N, 22.5 N taken in from it). A force back from full scale is believed
+                    // at once (`railed`).
+                    let after_frozen = warm
+                        && was_bad
+                        && self.force_frozen[j]
+                        && !self.railed[j]
+                        && self.bad_for[F][j] < force_resync;
+                    if good && (resynced || after_frozen) && (estimate - v).is_finite() {
+                        // The force starts at its estimate and the difference is taken in at
+                        // `FORCE_BIAS_RATE`. Believed on smoothness alone, only while it moves
+                        // along its estimate (an offset); one that moves otherwise is believed at
+                        // once.
                         self.force_bias[j] = estimate - v;
                     }
                     if good {
                         out[F][j] = v + self.force_bias[j];
+                        self.force_frozen[j] = false;
+                    } else if stuck && in_range {
+                        self.force_frozen[j] = true;
                     }
                     let fade = FORCE_BIAS_RATE * self.dt;
                     self.force_bias[j] -= self.force_bias[j].clamp(-fade, fade);
