@@ -1480,11 +1480,13 @@ fn largest_steps(xs: impl Iterator<Item = SVector<f64, 2>>) -> Vec<f64> {
 
 /// A force replayed over more than one gait period repeats the gait before the fault with one
 /// offset, the one it had when the replay began: the replay does not extrapolate the change of
-/// the period before the fault. The force drifts by 0.5 N a period; the replay starts 0.5 N
-/// above the period before (matching the force through the first period), and from the second
-/// period on it repeats the first (`F̂(k) − F̂(k − p)` ≈ 0; here it then falls behind the drift
-/// by 0.5 N a period, the price of an error that does not grow with a gait that does not
-/// drift). Adding the offset again every period extrapolated it: 0.5 N more each period.
+/// the period before the fault. The force drifts by 0.5 N a period. For its first
+/// `FORCE_FIT_S` the estimate follows the forces' continuation, which has no trend term and
+/// ends 0.51 N off; the replay then starts there, keeps that error through the first period
+/// (it carries the drift one period back), and from the second period on it repeats the first
+/// (`F̂(k) − F̂(k − p)` ≈ 0; here it then falls behind the drift by 0.5 N a period, the price
+/// of an error that does not grow with a gait that does not drift). Adding the offset again
+/// every period extrapolated it: 0.5 N more each period.
 #[test]
 fn a_replay_over_several_periods_adds_its_offset_once() {
     let run = force_fault_run(
@@ -1499,11 +1501,19 @@ fn a_replay_over_several_periods_adds_its_offset_once() {
         50,
     );
     let mut est = Vec::new();
+    let replay_from = 300 + (FORCE_FIT_S / 0.01).round() as usize;
+    let err_at = |k: usize| (run[k].rep.m.force - run[k].true_f).amax();
     for (k, s) in run.iter().enumerate().take(550).skip(300) {
         assert!(s.rep.estimated.force.iter().all(|&e| e), "step {k}");
-        if k < 400 {
-            let err = (s.rep.m.force - s.true_f).amax();
-            assert!(err <= 0.05, "step {k}: {err:.3} N off the force");
+        if k < replay_from {
+            assert!(
+                err_at(k) <= 0.6,
+                "step {k}: {:.3} N off the force",
+                err_at(k)
+            );
+        } else if k < 400 {
+            let moved = (err_at(k) - err_at(replay_from)).abs();
+            assert!(moved <= 0.05, "step {k}: the error moved by {moved:.3} N");
         }
         est.push(s.rep.m.force);
     }
@@ -2104,6 +2114,23 @@ fn a_strap_force_back_from_a_frozen_fault_at_3_kg_does_not_swing_the_torque() {
         &[
             (FaultKind::Dropout, 3.5, 0.2, 12.0, 1.05),
             (FaultKind::Stuck, 3.5, 0.2, 12.0, 1.05),
+        ],
+    );
+}
+
+/// Issue 28, the forces at 3 kg where the hip reverses at 2.58 s, early in the run: the gait
+/// one period back is another gait (the human grows heavier over the run, docs/MODEL.md §2),
+/// and the forces replayed from it put the thigh strap at 17.4 N within the fault. A strap
+/// force follows its continuation at the gait frequency for `FORCE_FIT_S` first, also with
+/// the period known. Measured on 2026-12-06, replayed → continued: a 200-ms dropout at 2.5 s
+/// 21.6 → 8.9 N, a 200-ms NaN there 20.4 → 8.9 N (RMS 1.25 / 1.19 → 1.01×).
+#[test]
+fn force_faults_while_the_gait_changes_follow_the_forces_continuation() {
+    force_faults(
+        3.0,
+        &[
+            (FaultKind::Dropout, 2.5, 0.2, 12.0, 1.05),
+            (FaultKind::Nan, 2.5, 0.2, 12.0, 1.05),
         ],
     );
 }

@@ -70,11 +70,11 @@ pub const STUCK_SPEED: f64 = 0.05;
 /// filter's lag, stands for the velocity while the filter window still holds estimates
 /// ([`ChannelGuard`]).
 pub const PARTIAL_SLOPE_SPAN: usize = 2;
-/// Longest time (s) a strap force rejected before the gait period is known (no period to
-/// replay) follows the forces' continuation at the gait frequency ([`TorqueExtrapolation`]
-/// fitted to the forces of the last [`EXTRAPOLATION_FIT_S`] at the fault's start), while
-/// every encoder is measured; after it, or with an encoder lost, the estimate holds. Chosen by
-/// measurement (docs/RELIABILITY.md §2).
+/// Longest time (s) a rejected strap force follows the forces' continuation at the gait
+/// frequency ([`TorqueExtrapolation`] fitted to the forces of the last [`EXTRAPOLATION_FIT_S`]
+/// at the fault's start), while every encoder is measured; after it, or with an encoder lost,
+/// the estimate replays the gait one period back (continuous with the continuation), or holds
+/// before the gait period is known. Chosen by measurement (docs/RELIABILITY.md §2).
 pub const FORCE_FIT_S: f64 = 0.3;
 /// Samples of the angles over which the replay's lag is matched: the lag within
 /// [`PERIOD_MATCH_SPAN`] of the supervisor's gait period at which the last this many angles
@@ -109,8 +109,8 @@ pub const PERIOD_MATCH_EVERY: u32 = 10;
 /// partner is lost too (or a force) by replaying the gait one period back (the supervisor's gait
 /// period, the lag matched on the angles near it: [`PERIOD_MATCH_STEPS`]) with the offset it had when the replay began (added once; a new period estimate
 /// restarts the replay where it is), or, without a known period, by holding (an angle:
-/// integrating the estimated velocity; a strap force, while every encoder is measured, first
-/// follows its continuation at the gait frequency for [`FORCE_FIT_S`]). A rejected channel is
+/// integrating the estimated velocity); a strap force, while every encoder is measured, first
+/// follows its continuation at the gait frequency for [`FORCE_FIT_S`]. A rejected channel is
 /// accepted again once a fresh sample lies within [`ACCEPT_GATES`] gates of its estimate
 /// ([`SLOPE_ACCEPT_GATES`] for a velocity estimated from its good angle's slope; a filtered
 /// velocity or force also moving like its estimate, within one gate), or, after `resync_after`
@@ -882,11 +882,16 @@ impl<const N: usize> ChannelGuard<N> {
         estimated.period = period;
         // The continuation only while every encoder is measured: judged once every joint's
         // verdict is in (a strap's estimate came before the later joints' verdicts); once one
-        // is lost, the continued forces hold and are not continued again in this fault.
+        // is lost, the continued forces replay the gait one period back, or hold before the
+        // period is known, and are not continued again in this fault.
         let encoders = (0..N).all(|i| self.bad_for[Q][i] == 0 && self.bad_for[QD][i] == 0);
         if !encoders && self.fit_used.iter().any(|&u| u) {
-            for j in (0..N).filter(|&j| self.fit_used[j]) {
-                out[F][j] = self.back(F, 1)[j];
+            let used = self.fit_used;
+            for j in (0..N).filter(|&j| used[j]) {
+                out[F][j] = match period {
+                    Some(p) => self.replay(F, j, p),
+                    None => self.back(F, 1)[j],
+                };
             }
             self.fit_used = [false; N];
         }
@@ -1033,29 +1038,41 @@ impl<const N: usize> ChannelGuard<N> {
         if sig == Q && self.bad_for[QD][j] == 0 && out[QD][j].is_finite() {
             return (prev + self.dt * out[QD][j], false);
         }
-        if let Some(p) = period {
-            // Replay the gait one period back, with the offset it had when this replay
-            // began; from the second period on, the value a period back is a replayed one
-            // and already carries it.
-            let then = self.back(sig, p)[j];
-            if !self.offset[sig][j].is_finite() {
-                self.offset[sig][j] = prev - self.back(sig, p + 1)[j];
-                self.replayed_for[sig][j] = 0;
+        // A strap force follows its continuation at the gait frequency first, also with the
+        // period known: the gait one period back is another gait while it changes (the human
+        // grows heavier, docs/MODEL.md §2; a 200-ms dropout of both forces at 2.5 s, 3 kg:
+        // 21.6 N replayed, 8.9 N continued).
+        if sig == F && period.is_some() {
+            if let Some(v) = self.force_continuation(j) {
+                return (v, false);
             }
-            let replayed = &mut self.replayed_for[sig][j];
-            let carried = *replayed as usize >= p;
-            *replayed = replayed.saturating_add(1);
-            let value = if carried {
-                then
-            } else {
-                then + self.offset[sig][j]
-            };
-            return (value, true);
+        }
+        if let Some(p) = period {
+            return (self.replay(sig, j, p), true);
         }
         match sig {
             Q => (prev + self.dt * self.back(QD, 1)[j], false),
             F => (self.force_continuation(j).unwrap_or(prev), false),
             _ => (prev, false),
+        }
+    }
+
+    /// Signal `sig` of joint `j` replayed one gait period `p` back, with the offset it had when
+    /// this replay began; from the second period on, the value a period back is a replayed
+    /// one and already carries it.
+    fn replay(&mut self, sig: usize, j: usize, p: usize) -> f64 {
+        let then = self.back(sig, p)[j];
+        if !self.offset[sig][j].is_finite() {
+            self.offset[sig][j] = self.back(sig, 1)[j] - self.back(sig, p + 1)[j];
+            self.replayed_for[sig][j] = 0;
+        }
+        let replayed = &mut self.replayed_for[sig][j];
+        let carried = *replayed as usize >= p;
+        *replayed = replayed.saturating_add(1);
+        if carried {
+            then
+        } else {
+            then + self.offset[sig][j]
         }
     }
 
