@@ -215,10 +215,10 @@ pub struct ChannelGuard<const N: usize> {
     /// ([`PERIOD_MATCH_STEPS`]), and the steps since that match.
     matched: Option<(usize, usize)>,
     match_age: u32,
-    /// The strap forces' continuation fitted at the start of the current force fault while
-    /// no gait period is known ([`FORCE_FIT_S`]; boxed in `new`: the guard is built on the
-    /// firmware's stack), and the steps since (`u32::MAX` once an encoder was lost in the
-    /// fault: it is not followed again).
+    /// The strap forces' continuation fitted at the start of the current force fault
+    /// ([`FORCE_FIT_S`]; boxed in `new`: the guard is built on the firmware's stack), and the
+    /// steps since (`u32::MAX` once an encoder was lost in the fault: it is not followed
+    /// again).
     force_fit: Box<Option<TorqueExtrapolation<N>>>,
     force_fit_age: u32,
     /// Per strap: its estimate is the continuation on this step.
@@ -238,9 +238,9 @@ pub struct EstimatedChannels<const N: usize> {
     pub force: [bool; N],
     /// The gait period in control steps, when the guard knows it (the lag of its replay).
     pub period: Option<usize>,
-    /// While the strap forces follow their continuation at the gait frequency (no period
-    /// known, [`FORCE_FIT_S`]): that frequency (rad/s), at which a model-based estimator may
-    /// continue what the forces carry.
+    /// While the strap forces follow their continuation at the gait frequency
+    /// ([`FORCE_FIT_S`]): that frequency (rad/s), at which a model-based estimator may continue
+    /// what the forces carry (with the period known, the MS-NMPC replays `d̂` instead).
     pub gait_omega: Option<f64>,
     /// An angle that stood in for a rejected one as a measurement (implied by its measured
     /// velocity, [`Repaired::q_from_velocity`]) is measured again, further than its gate from
