@@ -1038,11 +1038,11 @@ impl<const N: usize> ChannelGuard<N> {
         if sig == Q && self.bad_for[QD][j] == 0 && out[QD][j].is_finite() {
             return (prev + self.dt * out[QD][j], false);
         }
-        // A strap force follows its continuation at the gait frequency first, also with the
-        // period known: the gait one period back is another gait while it changes (the human
+        // A strap force follows its continuation at the gait frequency first, with the period
+        // known or not: the gait one period back is another gait while it changes (the human
         // grows heavier, docs/MODEL.md §2; a 200-ms dropout of both forces at 2.5 s, 3 kg:
         // 21.6 N replayed, 8.9 N continued).
-        if sig == F && period.is_some() {
+        if sig == F {
             if let Some(v) = self.force_continuation(j) {
                 return (v, false);
             }
@@ -1052,7 +1052,6 @@ impl<const N: usize> ChannelGuard<N> {
         }
         match sig {
             Q => (prev + self.dt * self.back(QD, 1)[j], false),
-            F => (self.force_continuation(j).unwrap_or(prev), false),
             _ => (prev, false),
         }
     }
