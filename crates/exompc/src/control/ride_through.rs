@@ -117,7 +117,10 @@ pub const PERIOD_MATCH_EVERY: u32 = 10;
 /// steps, once three fresh samples are smooth (the estimate then jumps to it: the supervisor's rate
 /// limit bounds the torque step; a strap force that moves along its estimate, an offset, moves
 /// from it to the measurement at [`FORCE_BIAS_RATE`]; a velocity estimated from its good angle's
-/// slope, a measurement of the same quantity, is never accepted on smoothness alone). The two
+/// slope, a measurement of the same quantity, is never accepted on smoothness alone; a velocity
+/// rejected only by the stall rule is accepted once it is fresh and smooth after the filter
+/// window, and with the angles still rejected the angles of the stall's steps are rewritten as
+/// the velocities received then imply them, [`Repaired::q_from_velocity`]). The two
 /// samples after a re-acceptance are not gated: the extrapolation still runs through the
 /// estimate. An encoder channel believed on smoothness alone stays unverified for
 /// [`UNVERIFIED_S`] and is rejected again on request ([`ChannelGuard::revoke_unverified`]).
@@ -223,6 +226,15 @@ pub struct ChannelGuard<const N: usize> {
     force_fit_age: u32,
     /// Per strap: its estimate is the continuation on this step.
     fit_used: [bool; N],
+    /// The filtered velocities received since a stalled acquisition was found (the stall rule
+    /// holds them off), and how many are held (`None`: no stall since, or more than the buffer
+    /// holds): when they prove fresh, the angles of those steps are the ones they imply
+    /// ([`ChannelGuard::angles_through_stall`]).
+    stall_qd: Vec<SVector<f64, N>>,
+    stall_len: Option<usize>,
+    /// Per joint: the velocity's current rejection is the stall rule's hold-off alone (it was
+    /// neither frozen nor out of range since).
+    qd_stall_only: [bool; N],
 }
 
 /// Which channels of a measurement stand in for rejected ones and must not update a
@@ -246,7 +258,9 @@ pub struct EstimatedChannels<const N: usize> {
     /// velocity, [`Repaired::q_from_velocity`]) is measured again, further than its gate from
     /// the implied angle's extrapolation (up to [`ACCEPT_GATES`] gates, or any distance when
     /// resynchronised): a jump no leg makes, so a model-based estimator restarts its states
-    /// at this measurement, as after listed estimates, instead of updating on the jump.
+    /// at this measurement, as after listed estimates, instead of updating on the jump. Also
+    /// on the step the angles of a stall take over from the velocities received through it
+    /// (from the estimates that stood in for them).
     pub resume: bool,
 }
 
@@ -282,13 +296,16 @@ pub struct Repaired<const N: usize> {
     /// The estimate is usable (at least one measurement has been accepted).
     pub ready: bool,
     /// Every angle turned frozen or invalid in this sample, at least one frozen (a stalled
-    /// acquisition): the velocities were rejected with them.
+    /// acquisition): the velocities were rejected with them (for a filter window; fresh after
+    /// it, they imply the angles, [`Repaired::q_from_velocity`]).
     pub stalled: bool,
     /// Per joint: the angle is rejected and its estimate has been, on every step since it was
     /// last accepted, the angle its measured velocity implies through the filter window
     /// (listed in `estimated.q`, but anchored to the measured angles by measured velocities, as
     /// a velocity estimated from its good angle's slope is a measurement of it: a model-based
-    /// estimator may update with it).
+    /// estimator may update with it). After a stall of the angles alone, from the step the
+    /// velocities are accepted again: the angles of the held-off steps are rewritten as the
+    /// velocities received then imply them.
     pub q_from_velocity: [bool; N],
 }
 
@@ -341,6 +358,9 @@ impl<const N: usize> ChannelGuard<N> {
             force_fit: Box::new(None),
             force_fit_age: 0,
             fit_used: [false; N],
+            stall_qd: vec![SVector::zeros(); window.clamp(1, 1000) + 3],
+            stall_len: None,
+            qd_stall_only: [false; N],
             matched: None,
             match_age: 0,
         }
@@ -517,6 +537,7 @@ impl<const N: usize> ChannelGuard<N> {
             self.robot_part = [SVector::repeat(f64::NAN); 2];
             // A channel rejected again is accepted as any other after a gap (unverified).
             self.accept_floor = [[0; N]; 2];
+            self.stall_len = None;
             self.restart_counts();
         }
         self.last_t = m.t;
@@ -565,7 +586,9 @@ impl<const N: usize> ChannelGuard<N> {
         // they are rejected with the angles. Angles that are all non-finite or out of range
         // are invalid readings, not a stall: the velocities, fresh, are judged on their own
         // and imply the angles (rejecting them too made a 60-ms NaN of both angles at 3 kg
-        // the loss of every encoder: 22.1 N).
+        // the loss of every encoder: 22.1 N). Velocities still fresh after the window (a stalled
+        // one has frozen by then) show that only the angles failed: they are accepted on their
+        // own and imply the angles of the whole fault (`angles_through_stall`).
         let angle_in_range =
             |j: usize| vals[Q][j].is_finite() && vals[Q][j].abs() <= self.bounds[Q];
         let angle_frozen = |j: usize| {
@@ -576,6 +599,15 @@ impl<const N: usize> ChannelGuard<N> {
         let stall = warm
             && (0..N).all(|j| self.bad_for[Q][j] == 0 && (!angle_in_range(j) || angle_frozen(j)))
             && (0..N).any(angle_frozen);
+        if stall {
+            self.stall_len = Some(0);
+        }
+        if let Some(n) = self.stall_len {
+            self.stall_len = self.stall_qd.get_mut(n).map(|slot| {
+                *slot = vals[QD];
+                n + 1
+            });
+        }
         for j in 0..N {
             // The velocity the accepted angles give (`angle_velocity`), once the angle's verdict
             // is in: the velocity's estimate in its verdict and, if it is rejected, its value.
@@ -658,6 +690,11 @@ impl<const N: usize> ChannelGuard<N> {
                 let stalled = stall && !was_bad;
                 let held_off = sig == QD && (stalled || self.qd_held_off[j] > 0);
                 if sig == QD {
+                    if stalled {
+                        self.qd_stall_only[j] = true;
+                    } else if !in_range || stuck || !was_bad {
+                        self.qd_stall_only[j] = false;
+                    }
                     let left = self.qd_held_off[j].saturating_sub(1);
                     self.qd_held_off[j] = if stalled {
                         self.window as u32
@@ -686,6 +723,13 @@ impl<const N: usize> ChannelGuard<N> {
                     // was good is then. Waiting for the resynchronisation instead held the
                     // torque for `sensor_timeout_s` after a gap (`ready` stays false while a
                     // channel is rejected and the history is empty).
+                    true
+                } else if sig == QD && was_bad && self.qd_stall_only[j] && smooth_now {
+                    // Held off by the stall rule alone and still fresh after it (a stalled
+                    // velocity would have frozen): the acquisition did not stall, only the
+                    // angles failed. The velocity, judged on its own (smooth), is a
+                    // measurement; against the estimate that stood in for it (the gait
+                    // replay), a knee accelerating at 3 kg was not accepted within the fault.
                     true
                 } else if was_bad {
                     let resync = if sig == F {
@@ -724,6 +768,21 @@ impl<const N: usize> ChannelGuard<N> {
                 } else {
                     residual <= gate
                 };
+                // A velocity held off by the stall rule and accepted again while the angle is
+                // still rejected: the acquisition did not stall (a stalled velocity would have
+                // frozen), only the angles failed. The angles of the fault's steps are the
+                // ones the received velocities imply, and the angle is implied from now on.
+                if sig == QD && good && was_bad {
+                    if let Some(n) = self.stall_len {
+                        if self.bad_for[Q][j] as usize == n
+                            && self.bad_for[QD][j] as usize + 1 == n
+                            && self.angles_through_stall(j, n)
+                        {
+                            self.q_anchored[j] = true;
+                            estimated.resume = true;
+                        }
+                    }
+                }
                 self.smooth[sig][j] = if smooth_now {
                     self.smooth[sig][j].saturating_add(1)
                 } else {
@@ -940,6 +999,34 @@ impl<const N: usize> ChannelGuard<N> {
             stalled: stall,
             q_from_velocity,
         }
+    }
+
+    /// Rewrites the history of joint `j` over the `n − 1` steps before this one, since a
+    /// stalled acquisition was found: the velocities received then (`stall_qd`) and the angles
+    /// they imply (`q_i = q_{i−span} + span·dt·qd_i`, the filtered velocity being the angle's
+    /// mean slope over the filter window), anchored on the measured angles before the stall.
+    /// `false` (nothing written) when a received velocity is non-finite or repeats the one
+    /// before bit for bit (a stall after all), or the history does not reach back far enough.
+    fn angles_through_stall(&mut self, j: usize, n: usize) -> bool {
+        let span = self.window_span();
+        let len = self.hist[Q].len();
+        if n < 2 || self.filled <= n + span || n > self.stall_qd.len() {
+            return false;
+        }
+        let v = &self.stall_qd[..n];
+        let fresh = v.iter().all(|x| x[j].is_finite())
+            && v.windows(2).all(|w| w[0][j].to_bits() != w[1][j].to_bits());
+        if !fresh {
+            return false;
+        }
+        for i in 0..n - 1 {
+            let back = n - 1 - i;
+            let q = self.back(Q, back + span)[j] + span as f64 * self.dt * self.stall_qd[i][j];
+            let at = (self.pos + len - back) % len;
+            self.hist[Q][at][j] = q;
+            self.hist[QD][at][j] = self.stall_qd[i][j];
+        }
+        true
     }
 
     /// The periods a filter window spans (`window − 1`, at least 1): the angle's slope over
