@@ -1100,9 +1100,11 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     /// leg (issue 28, docs/RELIABILITY.md §2a). While the replay continues the filters' last
     /// update (no step of this fault predicted without one), the banks hold `d̂ᵢ` and update
     /// their joint states with the measured rows: the NMPC starts from the filters' velocity,
-    /// and predicted alone it drifted by 0.1-0.2 rad/s within a 200-ms fault at 3 kg. Before
-    /// the period is known `d̂ᵢ` may be continued at the gait frequency instead
-    /// (`continue_disturbance`). Without either the filters predict only: with a held `d̂ᵢ`
+    /// and predicted alone it drifted by 0.1-0.2 rad/s within a 200-ms fault at 3 kg. While
+    /// the forces follow their continuation (`EstimatedChannels::gait_omega`; before the
+    /// period is known, or fitted to measurements alone) `d̂ᵢ` is continued at the gait
+    /// frequency instead (`continue_disturbance`), and the replay continues from it. Without
+    /// either the filters predict only: with a held `d̂ᵢ`
     /// the measured rows would pull the joint states along the gait's disturbance instead
     /// (measured, docs/RELIABILITY.md §2).
     // Out of line: kept out of `step`'s stack frame (the Cortex-M7 image's stack peak).
@@ -1119,7 +1121,8 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             Some(p)
                 if self.forces_estimated
                     && self.forces_estimated_for > REPLAY_AFTER_STEPS
-                    && r.holds(p + 1) =>
+                    && r.holds(p + 1)
+                    && self.gait_omega.is_none() =>
             {
                 p
             }
@@ -1177,15 +1180,19 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
         }
     }
 
-    /// Before the gait period is known, while the strap forces follow their continuation at
-    /// the gait frequency ω ([`EstimatedChannels::gait_omega`], for at most
-    /// [`FORCE_FIT_S`](super::FORCE_FIT_S)): every bank's `d̂ᵢ` is continued at ω as well
+    /// While the strap forces follow their continuation at the gait frequency ω
+    /// ([`EstimatedChannels::gait_omega`], for at most [`FORCE_FIT_S`](super::FORCE_FIT_S);
+    /// with the gait period known only for a continuation fitted to measurements alone):
+    /// every bank's `d̂ᵢ` is continued at ω as well
     /// (`a + Σ_{h=1,2} (b_h sin hωτ + c_h cos hωτ)` fitted to its last
     /// [`EXTRAPOLATION_FIT_S`] on the continuation's first step, started at the filters'
     /// last update), and the banks hold it and update their joint states with the measured
     /// rows, as during the replay. Held instead, `d̂ᵢ` stood still while at 3 kg it moves by
-    /// up to 0.7 N·m per step along the gait (docs/RELIABILITY.md §2). `false` without a
-    /// continuation (no ω, or too short a history): `d̂ᵢ` is then held.
+    /// up to 0.7 N·m per step along the gait (docs/RELIABILITY.md §2); replayed one gait
+    /// period back, it carried another gait early in the run (the human grows heavier,
+    /// docs/MODEL.md §2: a 200-ms NaN of both forces at 2.25 s, 3 kg, 20.4 N, continued
+    /// 14.1 N). `false` without a continuation (no ω, or too short a history): `d̂ᵢ` is then
+    /// held.
     // Out of line, as `replay_disturbance`.
     #[inline(never)]
     fn continue_disturbance(&mut self) -> bool {

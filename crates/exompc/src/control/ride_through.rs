@@ -235,6 +235,12 @@ pub struct ChannelGuard<const N: usize> {
     /// Per joint: the velocity's current rejection is the stall rule's hold-off alone (it was
     /// neither frozen nor out of range since).
     qd_stall_only: [bool; N],
+    /// Consecutive steps (from the first kept sample) on which no channel was rejected and no
+    /// strap force carried a bias: the history a continuation is fitted to holds measurements
+    /// alone when it spans no more.
+    clean_steps: u32,
+    /// The current force fault's continuation was fitted to such a history.
+    fit_clean: bool,
 }
 
 /// Which channels of a measurement stand in for rejected ones and must not update a
@@ -252,7 +258,9 @@ pub struct EstimatedChannels<const N: usize> {
     pub period: Option<usize>,
     /// While the strap forces follow their continuation at the gait frequency
     /// ([`FORCE_FIT_S`]): that frequency (rad/s), at which a model-based estimator may continue
-    /// what the forces carry (with the period known, the MS-NMPC replays `d̂` instead).
+    /// what the forces carry. With the gait period known, only for a continuation fitted to
+    /// measurements alone (no channel rejected and no force biased over the fit's history: one
+    /// fitted across an earlier fault continues that fault); else the MS-NMPC replays `d̂`.
     pub gait_omega: Option<f64>,
     /// An angle that stood in for a rejected one as a measurement (implied by its measured
     /// velocity, [`Repaired::q_from_velocity`]) is measured again, further than its gate from
@@ -361,6 +369,8 @@ impl<const N: usize> ChannelGuard<N> {
             stall_qd: vec![SVector::zeros(); window.clamp(1, 1000) + 3],
             stall_len: None,
             qd_stall_only: [false; N],
+            clean_steps: 0,
+            fit_clean: false,
             matched: None,
             match_age: 0,
         }
@@ -957,9 +967,12 @@ impl<const N: usize> ChannelGuard<N> {
         if !encoders {
             self.force_fit_age = u32::MAX;
         }
+        // With the period known only from a clean history: a continuation fitted across an
+        // earlier fault continues that fault.
+        let clean_fit = self.fit_clean || period.is_none();
         estimated.gait_omega = (*self.force_fit)
             .as_ref()
-            .filter(|_| self.fit_used.iter().any(|&u| u))
+            .filter(|_| clean_fit && self.fit_used.iter().any(|&u| u))
             .map(|f| f.omega());
         self.fit_used = [false; N];
         if (0..N).all(|j| self.bad_for[F][j] == 0) {
@@ -974,6 +987,11 @@ impl<const N: usize> ChannelGuard<N> {
         if any {
             self.estimated_steps += 1;
         }
+        self.clean_steps = if any || self.force_bias.iter().any(|b| *b != 0.0) || self.filled == 0 {
+            0
+        } else {
+            self.clean_steps.saturating_add(1)
+        };
         if ready {
             let len = self.hist[0].len();
             for (sig, o) in out.iter().enumerate() {
@@ -1177,6 +1195,8 @@ impl<const N: usize> ChannelGuard<N> {
                 self.dt,
             );
             self.force_fit_age = 0;
+            let span = ((EXTRAPOLATION_FIT_S / self.dt).round() as usize).min(self.filled);
+            self.fit_clean = self.clean_steps as usize + 1 >= span;
         }
         let fit = (*self.force_fit).as_ref()?;
         let age = self.force_fit_age;
