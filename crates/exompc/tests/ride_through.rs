@@ -947,6 +947,45 @@ fn a_stall_of_the_angles_alone_is_measured_through_by_the_velocities() {
     assert_eq!(implied_from, Some(306));
 }
 
+/// The angles through a stall are implied only from trusted data: not for a joint whose angle
+/// was not measured over the filter window before the stall (a NaN until two samples before
+/// it: the rewrite would anchor on estimates), and not for a joint whose velocity was out of
+/// range within the stall (a glitch integrated into the angle); the other joint still is.
+#[test]
+fn the_angles_through_a_stall_are_implied_only_from_trusted_data() {
+    for case in ["late angle", "velocity glitch"] {
+        let mut g = Gait::new();
+        let mut guard = gait_guard();
+        let held = g.raw(299).0;
+        let (mut implied, mut stalled) = ([false; 2], false);
+        for k in 0..330 {
+            let mut raw = g.raw(k);
+            if case == "late angle" && (294..298).contains(&k) {
+                raw.0[0] = f64::NAN;
+            }
+            if case == "velocity glitch" && k == 301 {
+                raw.1[1] = 1e3;
+            }
+            if (300..320).contains(&k) {
+                raw.0 = held;
+            }
+            let m = g.measure(k, raw);
+            let rep = guard.repair(&m, None, 50, None);
+            stalled |= rep.stalled;
+            for (j, imp) in implied.iter_mut().enumerate() {
+                *imp |= (300..320).contains(&k) && rep.q_from_velocity[j];
+            }
+        }
+        assert!(stalled, "{case}");
+        let want = if case == "late angle" {
+            [false, true]
+        } else {
+            [true, false]
+        };
+        assert_eq!(implied, want, "{case}");
+    }
+}
+
 /// Issue 28, one group at 3 kg: 200-ms stuck or dropped pairs of angles at 1.25 s and 2.75 s
 /// (stalls of the encoders, cells of the fine phase scan) meet one group's goal. On the torque
 /// replayed one gait period back until every channel was back, the hip torque stayed 3-4 N·m

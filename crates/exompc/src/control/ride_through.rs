@@ -119,8 +119,9 @@ pub const PERIOD_MATCH_EVERY: u32 = 10;
 /// from it to the measurement at [`FORCE_BIAS_RATE`]; a velocity estimated from its good angle's
 /// slope, a measurement of the same quantity, is never accepted on smoothness alone; a velocity
 /// rejected only by the stall rule is accepted once it is fresh and smooth after the filter
-/// window, and with the angles still rejected the angles of the stall's steps are rewritten as
-/// the velocities received then imply them, [`Repaired::q_from_velocity`]). The two
+/// window, and with its angle still rejected, measured over the window before the stall, the
+/// angles of the stall's steps are rewritten as the velocities received then imply them,
+/// [`Repaired::q_from_velocity`]). The two
 /// samples after a re-acceptance are not gated: the extrapolation still runs through the
 /// estimate. An encoder channel believed on smoothness alone stays unverified for
 /// [`UNVERIFIED_S`] and is rejected again on request ([`ChannelGuard::revoke_unverified`]).
@@ -235,6 +236,9 @@ pub struct ChannelGuard<const N: usize> {
     /// Per joint: the velocity's current rejection is the stall rule's hold-off alone (it was
     /// neither frozen nor out of range since).
     qd_stall_only: [bool; N],
+    /// Per joint: the angles of the filter window before the last stall were measured (the
+    /// anchors of [`ChannelGuard::angles_through_stall`]).
+    stall_anchored: [bool; N],
     /// Consecutive steps (from the first kept sample) on which no channel was rejected and no
     /// strap force carried a bias: the history a continuation is fitted to holds measurements
     /// alone when it spans no more.
@@ -369,6 +373,7 @@ impl<const N: usize> ChannelGuard<N> {
             stall_qd: vec![SVector::zeros(); window.clamp(1, 1000) + 3],
             stall_len: None,
             qd_stall_only: [false; N],
+            stall_anchored: [false; N],
             clean_steps: 0,
             fit_clean: false,
             matched: None,
@@ -611,6 +616,7 @@ impl<const N: usize> ChannelGuard<N> {
             && (0..N).any(angle_frozen);
         if stall {
             self.stall_len = Some(0);
+            self.stall_anchored = core::array::from_fn(|j| self.q_good_for[j] as usize >= span);
         }
         if let Some(n) = self.stall_len {
             self.stall_len = self.stall_qd.get_mut(n).map(|slot| {
@@ -700,10 +706,10 @@ impl<const N: usize> ChannelGuard<N> {
                 let stalled = stall && !was_bad;
                 let held_off = sig == QD && (stalled || self.qd_held_off[j] > 0);
                 if sig == QD {
-                    if stalled {
-                        self.qd_stall_only[j] = true;
-                    } else if !in_range || stuck || !was_bad {
+                    if !in_range || stuck || (!was_bad && !stalled) {
                         self.qd_stall_only[j] = false;
+                    } else if stalled {
+                        self.qd_stall_only[j] = true;
                     }
                     let left = self.qd_held_off[j].saturating_sub(1);
                     self.qd_held_off[j] = if stalled {
@@ -734,12 +740,20 @@ impl<const N: usize> ChannelGuard<N> {
                     // torque for `sensor_timeout_s` after a gap (`ready` stays false while a
                     // channel is rejected and the history is empty).
                     true
-                } else if sig == QD && was_bad && self.qd_stall_only[j] && smooth_now {
+                } else if sig == QD
+                    && was_bad
+                    && self.qd_stall_only[j]
+                    && smooth_now
+                    && self.smooth[QD][j] >= 2
+                {
                     // Held off by the stall rule alone and still fresh after it (a stalled
                     // velocity would have frozen): the acquisition did not stall, only the
-                    // angles failed. The velocity, judged on its own (smooth), is a
-                    // measurement; against the estimate that stood in for it (the gait
+                    // angles failed. The velocity, judged on its own (three smooth samples),
+                    // is a measurement; against the estimate that stood in for it (the gait
                     // replay), a knee accelerating at 3 kg was not accepted within the fault.
+                    // Unverified where it disagrees with that estimate, as a channel believed
+                    // on smoothness alone.
+                    unverified = (vb - estimate).abs() >= ACCEPT_GATES * gate;
                     true
                 } else if was_bad {
                     let resync = if sig == F {
@@ -782,11 +796,11 @@ impl<const N: usize> ChannelGuard<N> {
                 // still rejected: the acquisition did not stall (a stalled velocity would have
                 // frozen), only the angles failed. The angles of the fault's steps are the
                 // ones the received velocities imply, and the angle is implied from now on.
-                if sig == QD && good && was_bad {
+                if sig == QD && good && was_bad && self.qd_stall_only[j] && self.stall_anchored[j] {
                     if let Some(n) = self.stall_len {
                         if self.bad_for[Q][j] as usize == n
                             && self.bad_for[QD][j] as usize + 1 == n
-                            && self.angles_through_stall(j, n)
+                            && self.angles_through_stall(j, n, gate)
                         {
                             self.q_anchored[j] = true;
                             estimated.resume = true;
@@ -987,8 +1001,11 @@ impl<const N: usize> ChannelGuard<N> {
         if any {
             self.estimated_steps += 1;
         }
-        self.clean_steps = if any || self.force_bias.iter().any(|b| *b != 0.0) || self.filled == 0 {
+        // (The first sample kept after a gap in the data starts the count.)
+        self.clean_steps = if any || self.force_bias.iter().any(|b| *b != 0.0) {
             0
+        } else if self.filled == 0 {
+            1
         } else {
             self.clean_steps.saturating_add(1)
         };
@@ -1023,18 +1040,23 @@ impl<const N: usize> ChannelGuard<N> {
     /// stalled acquisition was found: the velocities received then (`stall_qd`) and the angles
     /// they imply (`q_i = q_{i−span} + span·dt·qd_i`, the filtered velocity being the angle's
     /// mean slope over the filter window), anchored on the measured angles before the stall.
-    /// `false` (nothing written) when a received velocity is non-finite or repeats the one
-    /// before bit for bit (a stall after all), or the history does not reach back far enough.
-    fn angles_through_stall(&mut self, j: usize, n: usize) -> bool {
+    /// `false` (nothing written) when a received velocity is non-finite, out of range, repeats
+    /// the one before bit for bit (a stall after all) or is not smooth (a second difference
+    /// beyond `gate`), or the history does not reach back far enough.
+    fn angles_through_stall(&mut self, j: usize, n: usize, gate: f64) -> bool {
         let span = self.window_span();
         let len = self.hist[Q].len();
         if n < 2 || self.filled <= n + span || n > self.stall_qd.len() {
             return false;
         }
         let v = &self.stall_qd[..n];
-        let fresh = v.iter().all(|x| x[j].is_finite())
-            && v.windows(2).all(|w| w[0][j].to_bits() != w[1][j].to_bits());
-        if !fresh {
+        let bound = self.bounds[QD];
+        let fresh = v.iter().all(|x| x[j].is_finite() && x[j].abs() <= bound)
+            && v.windows(2).all(|w| w[0][j].to_bits() != w[1][j].to_bits())
+            && v.windows(3)
+                .all(|w| (w[2][j] - 2.0 * w[1][j] + w[0][j]).abs() < gate);
+        let anchors = (n..n + span).all(|b| self.back(Q, b)[j].is_finite());
+        if !fresh || !anchors {
             return false;
         }
         for i in 0..n - 1 {
@@ -1196,7 +1218,7 @@ impl<const N: usize> ChannelGuard<N> {
             );
             self.force_fit_age = 0;
             let span = ((EXTRAPOLATION_FIT_S / self.dt).round() as usize).min(self.filled);
-            self.fit_clean = self.clean_steps as usize + 1 >= span;
+            self.fit_clean = self.clean_steps as usize >= span;
         }
         let fit = (*self.force_fit).as_ref()?;
         let age = self.force_fit_age;
