@@ -6,9 +6,7 @@ use super::nmpc::{classify, horizon_inputs, NmpcCore};
 use super::nmpc_problem::{NmpcProblem, NmpcSettings};
 use super::ocp_tree::{tree_is_structured, TreeSqp};
 use super::prediction::{HorizonInputs, PredictionModel};
-use super::ride_through::{
-    ChannelGuard, TorqueExtrapolation, EXTRAPOLATION_FIT_S, EXTRAPOLATION_MIN_S,
-};
+use super::ride_through::{ChannelGuard, TorqueExtrapolation, EXTRAPOLATION_MIN_S};
 #[cfg(doc)]
 use super::robust::RobustTuning;
 use super::robust::{IntentEstimate, RobustSettings, RobustState};
@@ -478,12 +476,11 @@ impl<const N: usize> DisturbanceReplay<N> {
         self.continued = false;
     }
 
-    /// Steps of history the continuation is fitted to (up to [`EXTRAPOLATION_FIT_S`] before
+    /// Steps of history the continuation is fitted to (up to [`EXTRAPOLATION_FIT_S`](super::EXTRAPOLATION_FIT_S) before
     /// its first step); `None` when shorter than [`EXTRAPOLATION_MIN_S`].
     fn fit_span(&self) -> Option<usize> {
         let since = self.fit_steps as usize;
-        let n = ((EXTRAPOLATION_FIT_S / self.dt).round() as usize)
-            .min(self.count.saturating_sub(since));
+        let n = TorqueExtrapolation::<N>::fit_steps(self.count.saturating_sub(since), self.dt);
         ((n as f64) * self.dt >= EXTRAPOLATION_MIN_S - 1e-9 && self.holds(n + since)).then_some(n)
     }
 
@@ -1185,7 +1182,7 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     /// with the gait period known only for a continuation fitted to measurements alone):
     /// every bank's `d̂ᵢ` is continued at ω as well
     /// (`a + Σ_{h=1,2} (b_h sin hωτ + c_h cos hωτ)` fitted to its last
-    /// [`EXTRAPOLATION_FIT_S`] on the continuation's first step, started at the filters'
+    /// [`EXTRAPOLATION_FIT_S`](super::EXTRAPOLATION_FIT_S) on the continuation's first step, started at the filters'
     /// last update), and the banks hold it and update their joint states with the measured
     /// rows, as during the replay. Held instead, `d̂ᵢ` stood still while at 3 kg it moves by
     /// up to 0.7 N·m per step along the gait (docs/RELIABILITY.md §2); replayed one gait

@@ -523,9 +523,14 @@ impl<const N: usize> ChannelGuard<N> {
         best.1
     }
 
+    /// The history slot of the sample `steps` steps back (1: the last one kept).
+    fn slot(&self, steps: usize) -> usize {
+        let len = self.hist[0].len();
+        (self.pos + len - steps % len) % len
+    }
+
     fn back(&self, sig: usize, steps: usize) -> SVector<f64, N> {
-        let len = self.hist[sig].len();
-        self.hist[sig][(self.pos + len - steps % len) % len]
+        self.hist[sig][self.slot(steps)]
     }
 
     /// Detect faulty channels of `m` and replace them by their estimates; `period_s` is the
@@ -1045,7 +1050,6 @@ impl<const N: usize> ChannelGuard<N> {
     /// beyond `gate`), or the history does not reach back far enough.
     fn angles_through_stall(&mut self, j: usize, n: usize, gate: f64) -> bool {
         let span = self.window_span();
-        let len = self.hist[Q].len();
         if n < 2 || self.filled <= n + span || n > self.stall_qd.len() {
             return false;
         }
@@ -1062,7 +1066,7 @@ impl<const N: usize> ChannelGuard<N> {
         for i in 0..n - 1 {
             let back = n - 1 - i;
             let q = self.back(Q, back + span)[j] + span as f64 * self.dt * self.stall_qd[i][j];
-            let at = (self.pos + len - back) % len;
+            let at = self.slot(back);
             self.hist[Q][at][j] = q;
             self.hist[QD][at][j] = self.stall_qd[i][j];
         }
@@ -1217,7 +1221,7 @@ impl<const N: usize> ChannelGuard<N> {
                 self.dt,
             );
             self.force_fit_age = 0;
-            let span = ((EXTRAPOLATION_FIT_S / self.dt).round() as usize).min(self.filled);
+            let span = TorqueExtrapolation::<N>::fit_steps(self.filled, self.dt);
             self.fit_clean = self.clean_steps as usize >= span;
         }
         let fit = (*self.force_fit).as_ref()?;
@@ -1268,6 +1272,12 @@ pub struct TorqueExtrapolation<const N: usize> {
 }
 
 impl<const N: usize> TorqueExtrapolation<N> {
+    /// Samples a fit spans with `filled` samples held at period `dt`: those of the last
+    /// [`EXTRAPOLATION_FIT_S`], at most `filled`.
+    pub(crate) fn fit_steps(filled: usize, dt: f64) -> usize {
+        ((EXTRAPOLATION_FIT_S / dt).round() as usize).min(filled)
+    }
+
     /// Fits the extrapolation to the rings `torques` (applied torques) and `angles` (the
     /// angles of the same steps; at least [`EXTRAPOLATION_ANGLE_S`] long), `torque_pos` and
     /// `angle_pos` the next slot to write in each, `filled` the samples held, `dt` the control
@@ -1293,7 +1303,7 @@ impl<const N: usize> TorqueExtrapolation<N> {
         };
         let back_t = |i: usize| back(torques, torque_pos, i);
         let omega = Self::gait_omega(|i| back(angles, angle_pos, i), filled.min(angles.len()), dt)?;
-        let n = ((EXTRAPOLATION_FIT_S / dt).round() as usize).min(filled);
+        let n = Self::fit_steps(filled, dt);
         if (n as f64) * dt < EXTRAPOLATION_MIN_S - 1e-9 {
             return None;
         }
