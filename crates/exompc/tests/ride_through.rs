@@ -9,7 +9,8 @@ use exompc::config::{ControllerKind, Experiment};
 use exompc::control::{
     ChannelGuard, EstimatedChannels, Measurement, MonitorAction, MonitorKind, Repaired, StepStatus,
     TorqueExtrapolation, EXTRAPOLATION_FADE_STEPS, EXTRAPOLATION_MAX_HZ, FORCE_BIAS_RATE,
-    FORCE_FIT_S, FORCE_RESYNC_S, GAIT_MAX_HZ, SLOPE_ACCEPT_GATES, UNVERIFIED_S, VELOCITY_GATE,
+    FORCE_FIT_S, FORCE_REPLAY_WEIGHT, FORCE_RESYNC_S, GAIT_MAX_HZ, SLOPE_ACCEPT_GATES,
+    UNVERIFIED_S, VELOCITY_GATE,
 };
 use exompc::estimate::MovingAverage;
 use exompc::model::Straps;
@@ -2246,11 +2247,82 @@ fn a_strap_force_back_from_a_frozen_fault_at_3_kg_does_not_swing_the_torque() {
     );
 }
 
+/// With the gait period known, a rejected strap force's estimate over its continuation is
+/// `(1 − w) · continuation + w · replay` (`FORCE_REPLAY_WEIGHT`), the replay the force one
+/// period back with its offset at the fault's start; without the period, the continuation
+/// alone. The force drifts by 2 N/s on top of the gait: the replay carries the drift, the
+/// continuation (no trend term) does not, so the two differ.
+#[test]
+fn with_the_period_known_a_force_estimate_blends_the_continuation_with_the_replay() {
+    let (start, p) = (325, 100);
+    let run = |period: Option<f64>| {
+        let mut g = Gait::new();
+        let mut guard = gait_guard();
+        let (mut measured, mut estimated) = (Vec::new(), Vec::new());
+        for k in 0..start + 10 {
+            let mut raw = g.raw(k);
+            raw.2 += SVector::repeat(2.0 * k as f64 * 0.01);
+            if k >= start {
+                raw.2 = SVector::repeat(f64::NAN);
+            }
+            let m = g.measure(k, raw);
+            let rep = guard.repair(&m, period, 50, None);
+            if k < start {
+                measured.push(m.force);
+            } else {
+                assert!(rep.estimated.force.iter().all(|&e| e), "step {k}");
+                estimated.push(rep.m.force);
+            }
+        }
+        (measured, estimated)
+    };
+    let (f, blended) = run(Some(1.0));
+    let (_, continued) = run(None);
+    let mut apart = 0.0_f64;
+    for (a, (e, c)) in blended.iter().zip(&continued).enumerate() {
+        let k = start + a;
+        let replayed = f[k - p] + f[start - 1] - f[start - 1 - p];
+        for j in 0..2 {
+            let want = c[j] + FORCE_REPLAY_WEIGHT * (replayed[j] - c[j]);
+            assert!(
+                (e[j] - want).abs() < 1e-9,
+                "step {a}, strap {j}: {} vs {want} (continued {}, replayed {})",
+                e[j],
+                c[j],
+                replayed[j]
+            );
+            apart = apart.max((replayed[j] - c[j]).abs());
+        }
+    }
+    assert!(
+        apart > 0.05,
+        "the replay and the continuation agree: {apart}"
+    );
+}
+
+/// Issue 28, the forces at 3 kg early in the run (the fine scan's cells at 2.25 s, the period
+/// known): the continuation alone gave a 200-ms NaN / dropout / stuck value / spike of both
+/// forces 14.1 / 13.0 / 13.0 / 14.3 N, blended with the replay (`FORCE_REPLAY_WEIGHT`, the
+/// range margin `FORCE_RANGE_MARGIN`) 9.9 / 11.8 / 11.5 / 9.9 N (measured on 2026-12-06).
+#[test]
+fn force_faults_at_3_kg_blend_the_continuation_with_the_replay() {
+    force_faults(
+        3.0,
+        &[
+            (FaultKind::Nan, 2.25, 0.2, 12.0, 1.05),
+            (FaultKind::Dropout, 2.25, 0.2, 12.0, 1.05),
+            (FaultKind::Stuck, 2.25, 0.2, 12.0, 1.05),
+            (FaultKind::Spike, 2.25, 0.2, 12.0, 1.05),
+        ],
+    );
+}
+
 /// Issue 28, the forces at 3 kg early in the run: while the strap forces follow their
 /// continuation (the period known) the MS-NMPC continues `d̂` with them instead of replaying
 /// it one gait period back, another gait there (the human grows heavier, docs/MODEL.md §2).
 /// Measured on 2026-12-06, `d̂` replayed → continued: a 200-ms NaN of both forces at 2.25 s,
-/// 20.4 → 14.1 N (the hip's reversal; above the 12-N goal either way), at 2.75 s 11.1 → 9.3 N.
+/// 20.4 → 14.1 N (the hip's reversal), at 2.75 s 11.1 → 9.3 N; with the forces' blend of
+/// continuation and replay (`FORCE_REPLAY_WEIGHT`) 9.9 / 8.9 N.
 #[test]
 fn the_disturbance_follows_the_forces_continuation_with_the_period_known() {
     force_faults(
@@ -2299,7 +2371,8 @@ fn a_continuation_fitted_across_an_earlier_fault_is_not_handed_on_with_the_perio
 /// and the forces replayed from it put the thigh strap at 17.4 N within the fault. A strap
 /// force follows its continuation at the gait frequency for `FORCE_FIT_S` first, also with
 /// the period known. Measured on 2026-12-06, replayed → continued: a 200-ms dropout at 2.5 s
-/// 21.6 → 8.9 N, a 200-ms NaN there 20.4 → 8.9 N (RMS 1.25 / 1.19 → 1.01×).
+/// 21.6 → 8.9 N, a 200-ms NaN there 20.4 → 8.9 N (RMS 1.25 / 1.19 → 1.01×); blended with the
+/// replay (`FORCE_REPLAY_WEIGHT`) 10.4 / 10.7 N.
 #[test]
 fn force_faults_while_the_gait_changes_follow_the_forces_continuation() {
     force_faults(

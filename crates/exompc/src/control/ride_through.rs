@@ -76,6 +76,21 @@ pub const PARTIAL_SLOPE_SPAN: usize = 2;
 /// the estimate replays the gait one period back (continuous with the continuation), or holds
 /// before the gait period is known. Chosen by measurement (docs/RELIABILITY.md §2).
 pub const FORCE_FIT_S: f64 = 0.3;
+/// Weight of the gait replay in a rejected strap force's estimate while it follows its
+/// continuation ([`FORCE_FIT_S`]) with the gait period known: the estimate is
+/// `(1 − w) · continuation + w · replay`, the replay the force one period back with the offset
+/// it had at the fault's start (the lag matched then). The continuation misses a gait whose
+/// shape changes within the fault, the replay one that changed since the period before (the
+/// human grows heavier, docs/MODEL.md §2): a 200-ms NaN of both forces at 2.25 s, 3 kg, 14.1 N
+/// continued, 9.9 N blended; at 2.5 s, 8.9 → 10.7 N. Chosen by measurement
+/// (docs/RELIABILITY.md §2).
+pub const FORCE_REPLAY_WEIGHT: f64 = 0.4;
+/// With the gait period known, a strap force's continuation may leave the range of the forces
+/// it was fitted to by this fraction of that range on either side (the torque's
+/// [`TorqueExtrapolation`] stays within it): forces that grow from one step of the gait to the
+/// next (the human grows heavier) were held at the last second's extreme. Chosen by measurement
+/// (docs/RELIABILITY.md §2).
+pub const FORCE_RANGE_MARGIN: f64 = 0.25;
 /// Samples of the angles over which the replay's lag is matched: the lag within
 /// [`PERIOD_MATCH_SPAN`] of the supervisor's gait period at which the last this many angles
 /// best equal (least squares) the angles that lag back. The supervisor's period is the time
@@ -110,7 +125,8 @@ pub const PERIOD_MATCH_EVERY: u32 = 10;
 /// period, the lag matched on the angles near it: [`PERIOD_MATCH_STEPS`]) with the offset it had when the replay began (added once; a new period estimate
 /// restarts the replay where it is), or, without a known period, by holding (an angle:
 /// integrating the estimated velocity); a strap force, while every encoder is measured, first
-/// follows its continuation at the gait frequency for [`FORCE_FIT_S`]. A rejected channel is
+/// follows its continuation at the gait frequency for [`FORCE_FIT_S`] (with the period known,
+/// blended with the replay, [`FORCE_REPLAY_WEIGHT`]). A rejected channel is
 /// accepted again once a fresh sample lies within [`ACCEPT_GATES`] gates of its estimate
 /// ([`SLOPE_ACCEPT_GATES`] for a velocity estimated from its good angle's slope; a filtered
 /// velocity or force also moving like its estimate, within one gate), or, after `resync_after`
@@ -225,6 +241,9 @@ pub struct ChannelGuard<const N: usize> {
     /// again).
     force_fit: Box<Option<TorqueExtrapolation<N>>>,
     force_fit_age: u32,
+    /// The replay lag the continuation is blended with ([`FORCE_REPLAY_WEIGHT`]; 0: the
+    /// period was unknown at the fault's start).
+    blend_lag: usize,
     /// Per strap: its estimate is the continuation on this step.
     fit_used: [bool; N],
     /// The filtered velocities received since a stalled acquisition was found (the stall rule
@@ -369,6 +388,7 @@ impl<const N: usize> ChannelGuard<N> {
             force_frozen: [false; N],
             force_fit: Box::new(None),
             force_fit_age: 0,
+            blend_lag: 0,
             fit_used: [false; N],
             stall_qd: vec![SVector::zeros(); window.clamp(1, 1000) + 3],
             stall_len: None,
@@ -1174,7 +1194,7 @@ impl<const N: usize> ChannelGuard<N> {
         // grows heavier, docs/MODEL.md §2; a 200-ms dropout of both forces at 2.5 s, 3 kg:
         // 21.6 N replayed, 8.9 N continued).
         if sig == F {
-            if let Some(v) = self.force_continuation(j) {
+            if let Some(v) = self.force_continuation(j, period) {
                 return (v, false);
             }
         }
@@ -1209,8 +1229,10 @@ impl<const N: usize> ChannelGuard<N> {
     /// Strap force `j` continued at the gait frequency ([`FORCE_FIT_S`]): fitted on the
     /// fault's first step, for the straps whose fault began on that step, followed for at
     /// most [`FORCE_FIT_S`] while every encoder is measured (checked in `repair` once every
-    /// joint's verdict is in).
-    fn force_continuation(&mut self, j: usize) -> Option<f64> {
+    /// joint's verdict is in). With the gait period (lag `period`) known on the first step,
+    /// the continuation may leave the fitted range by [`FORCE_RANGE_MARGIN`] and is blended
+    /// with the replay at that lag ([`FORCE_REPLAY_WEIGHT`]).
+    fn force_continuation(&mut self, j: usize, period: Option<usize>) -> Option<f64> {
         if self.force_fit.is_none() && self.bad_for[F][j] == 1 {
             *self.force_fit = TorqueExtrapolation::fit(
                 &self.hist[F],
@@ -1220,6 +1242,12 @@ impl<const N: usize> ChannelGuard<N> {
                 self.filled,
                 self.dt,
             );
+            self.blend_lag = period.unwrap_or(0);
+            if self.blend_lag > 0 {
+                if let Some(f) = self.force_fit.as_mut() {
+                    f.widen(FORCE_RANGE_MARGIN);
+                }
+            }
             self.force_fit_age = 0;
             let span = TorqueExtrapolation::<N>::fit_steps(self.filled, self.dt);
             self.fit_clean = self.clean_steps as usize >= span;
@@ -1229,7 +1257,20 @@ impl<const N: usize> ChannelGuard<N> {
         let from_start = self.bad_for[F][j] == u64::from(age) + 1;
         let on = from_start && f64::from(age) * self.dt < FORCE_FIT_S - 1e-9;
         self.fit_used[j] = on;
-        on.then(|| fit.at(age, self.dt)[j])
+        if !on {
+            return None;
+        }
+        let continued = fit.at(age, self.dt)[j];
+        // The replay from the fault's start (`a + 1` steps back, the last measured sample):
+        // `F(k − p) + F(k₀ − 1) − F(k₀ − 1 − p)`, while the history holds it.
+        let (p, a) = (self.blend_lag, age as usize);
+        if p > a + 1 && a + 1 + p < self.filled.min(self.hist[F].len()) {
+            let replayed = self.back(F, p)[j] + self.back(F, a + 1)[j] - self.back(F, a + 1 + p)[j];
+            if replayed.is_finite() {
+                return Some(continued + FORCE_REPLAY_WEIGHT * (replayed - continued));
+            }
+        }
+        Some(continued)
     }
 }
 
@@ -1370,6 +1411,14 @@ impl<const N: usize> TorqueExtrapolation<N> {
             lo,
             hi,
         })
+    }
+
+    /// Let the extrapolation leave the range of the fitted samples by `margin` times that
+    /// range on either side.
+    pub(crate) fn widen(&mut self, margin: f64) {
+        let r = self.hi - self.lo;
+        self.lo -= r * margin;
+        self.hi += r * margin;
     }
 
     /// The gait frequency (rad/s) the extrapolation continues at.
