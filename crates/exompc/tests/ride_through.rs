@@ -9,8 +9,8 @@ use exompc::config::{ControllerKind, Experiment};
 use exompc::control::{
     ChannelGuard, EstimatedChannels, Measurement, MonitorAction, MonitorKind, Repaired, StepStatus,
     TorqueExtrapolation, EXTRAPOLATION_FADE_STEPS, EXTRAPOLATION_MAX_HZ, FORCE_BIAS_RATE,
-    FORCE_FIT_S, FORCE_REPLAY_WEIGHT, FORCE_RESYNC_S, GAIT_MAX_HZ, SLOPE_ACCEPT_GATES,
-    UNVERIFIED_S, VELOCITY_GATE,
+    FORCE_FIT_S, FORCE_RANGE_MARGIN, FORCE_REPLAY_WEIGHT, FORCE_RESYNC_S, GAIT_MAX_HZ,
+    SLOPE_ACCEPT_GATES, UNVERIFIED_S, VELOCITY_GATE,
 };
 use exompc::estimate::MovingAverage;
 use exompc::model::Straps;
@@ -2247,19 +2247,24 @@ fn a_strap_force_back_from_a_frozen_fault_at_3_kg_does_not_swing_the_torque() {
     );
 }
 
-/// With the gait period known, a rejected strap force's estimate over its continuation is
-/// `(1 − w) · continuation + w · replay` (`FORCE_REPLAY_WEIGHT`), the replay the force one
-/// period back with its offset at the fault's start; without the period, the continuation
-/// alone. The force drifts by 2 N/s on top of the gait: the replay carries the drift, the
-/// continuation (no trend term) does not, so the two differ.
+/// With the gait period known, a rejected strap force's estimate over its continuation
+/// (`FORCE_FIT_S`) is `(1 − w) · continuation + w · replay` (`FORCE_REPLAY_WEIGHT`), the replay
+/// the force one period back with its offset at the fault's start; without the period, the
+/// continuation alone; after the continuation, the replay, continuous with the blend. The
+/// force drifts by 2 N/s on top of the gait: the replay carries the drift, the continuation (no
+/// trend term) does not, so the two differ. The blend is checked on every step where the
+/// continuation without the period lies inside the range of the fitted forces (there the range
+/// margin, `FORCE_RANGE_MARGIN`, makes no difference); on every step the continuation the
+/// blend implies lies within that range widened by the margin.
 #[test]
 fn with_the_period_known_a_force_estimate_blends_the_continuation_with_the_replay() {
-    let (start, p) = (325, 100);
+    let (start, p, w) = (325, 100, FORCE_REPLAY_WEIGHT);
+    let span = (FORCE_FIT_S / 0.01).round() as usize;
     let run = |period: Option<f64>| {
         let mut g = Gait::new();
         let mut guard = gait_guard();
         let (mut measured, mut estimated) = (Vec::new(), Vec::new());
-        for k in 0..start + 10 {
+        for k in 0..start + span + 5 {
             let mut raw = g.raw(k);
             raw.2 += SVector::repeat(2.0 * k as f64 * 0.01);
             if k >= start {
@@ -2278,22 +2283,46 @@ fn with_the_period_known_a_force_estimate_blends_the_continuation_with_the_repla
     };
     let (f, blended) = run(Some(1.0));
     let (_, continued) = run(None);
-    let mut apart = 0.0_f64;
-    for (a, (e, c)) in blended.iter().zip(&continued).enumerate() {
-        let k = start + a;
-        let replayed = f[k - p] + f[start - 1] - f[start - 1 - p];
-        for j in 0..2 {
-            let want = c[j] + FORCE_REPLAY_WEIGHT * (replayed[j] - c[j]);
+    let fitted = &f[start - 100..start];
+    let (mut checked, mut apart) = (0, 0.0_f64);
+    for j in 0..2 {
+        let lo = fitted.iter().map(|v| v[j]).fold(f64::INFINITY, f64::min);
+        let hi = fitted
+            .iter()
+            .map(|v| v[j])
+            .fold(f64::NEG_INFINITY, f64::max);
+        let margin = FORCE_RANGE_MARGIN * (hi - lo);
+        for a in 0..span {
+            let k = start + a;
+            let replayed = f[k - p][j] + f[start - 1][j] - f[start - 1 - p][j];
+            let (e, c) = (blended[a][j], continued[a][j]);
+            apart = apart.max((replayed - c).abs());
+            let implied = (e - w * replayed) / (1.0 - w);
             assert!(
-                (e[j] - want).abs() < 1e-9,
-                "step {a}, strap {j}: {} vs {want} (continued {}, replayed {})",
-                e[j],
-                c[j],
-                replayed[j]
+                implied >= lo - margin - 1e-9 && implied <= hi + margin + 1e-9,
+                "step {a}, strap {j}: continuation {implied} outside [{lo}, {hi}] ± {margin}"
             );
-            apart = apart.max((replayed[j] - c[j]).abs());
+            if c > lo && c < hi {
+                let want = c + w * (replayed - c);
+                assert!(
+                    (e - want).abs() < 1e-9,
+                    "step {a}, strap {j}: {e} vs {want} (continued {c}, replayed {replayed})"
+                );
+                checked += 1;
+            }
+        }
+        // The replay after the continuation, continuous with the blend.
+        for a in span..span + 5 {
+            let k = start + a;
+            let step = blended[a][j] - blended[a - 1][j];
+            let replay_step = f[k - p][j] - f[k - 1 - p][j];
+            assert!(
+                (step - replay_step).abs() < 1e-9,
+                "step {a}, strap {j}: {step} vs the replay's {replay_step}"
+            );
         }
     }
+    assert!(checked >= span, "the blend checked on {checked} steps only");
     assert!(
         apart > 0.05,
         "the replay and the continuation agree: {apart}"

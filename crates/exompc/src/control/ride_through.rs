@@ -1189,10 +1189,10 @@ impl<const N: usize> ChannelGuard<N> {
         if sig == Q && self.bad_for[QD][j] == 0 && out[QD][j].is_finite() {
             return (prev + self.dt * out[QD][j], false);
         }
-        // A strap force follows its continuation at the gait frequency first, with the period
-        // known or not: the gait one period back is another gait while it changes (the human
-        // grows heavier, docs/MODEL.md §2; a 200-ms dropout of both forces at 2.5 s, 3 kg:
-        // 21.6 N replayed, 8.9 N continued).
+        // A strap force follows its continuation at the gait frequency first (with the period
+        // known, blended with the replay, `FORCE_REPLAY_WEIGHT`): the gait one period back is
+        // another gait while it changes (the human grows heavier, docs/MODEL.md §2; a 200-ms
+        // dropout of both forces at 2.5 s, 3 kg: 21.6 N replayed, 10.4 N blended).
         if sig == F {
             if let Some(v) = self.force_continuation(j, period) {
                 return (v, false);
@@ -1230,8 +1230,9 @@ impl<const N: usize> ChannelGuard<N> {
     /// fault's first step, for the straps whose fault began on that step, followed for at
     /// most [`FORCE_FIT_S`] while every encoder is measured (checked in `repair` once every
     /// joint's verdict is in). With the gait period (lag `period`) known on the first step,
-    /// the continuation may leave the fitted range by [`FORCE_RANGE_MARGIN`] and is blended
-    /// with the replay at that lag ([`FORCE_REPLAY_WEIGHT`]).
+    /// longer than the continuation and held in the history with it, the continuation may
+    /// leave the fitted range by [`FORCE_RANGE_MARGIN`] and is blended with the replay at
+    /// that lag ([`FORCE_REPLAY_WEIGHT`]).
     fn force_continuation(&mut self, j: usize, period: Option<usize>) -> Option<f64> {
         if self.force_fit.is_none() && self.bad_for[F][j] == 1 {
             *self.force_fit = TorqueExtrapolation::fit(
@@ -1242,7 +1243,15 @@ impl<const N: usize> ChannelGuard<N> {
                 self.filled,
                 self.dt,
             );
-            self.blend_lag = period.unwrap_or(0);
+            // The blend and the margin are decided once, here: on for a lag that reaches back
+            // before the fault over the whole continuation within the history held (a check
+            // on each step would switch a long period's blend off partway, stepping the
+            // estimate).
+            let span = (FORCE_FIT_S / self.dt).ceil() as usize;
+            let held = self.filled.min(self.hist[F].len());
+            self.blend_lag = period
+                .filter(|&p| p > span && p + span + 1 <= held)
+                .unwrap_or(0);
             if self.blend_lag > 0 {
                 if let Some(f) = self.force_fit.as_mut() {
                     f.widen(FORCE_RANGE_MARGIN);
@@ -1264,7 +1273,7 @@ impl<const N: usize> ChannelGuard<N> {
         // The replay from the fault's start (`a + 1` steps back, the last measured sample):
         // `F(k − p) + F(k₀ − 1) − F(k₀ − 1 − p)`, while the history holds it.
         let (p, a) = (self.blend_lag, age as usize);
-        if p > a + 1 && a + 1 + p < self.filled.min(self.hist[F].len()) {
+        if p > a {
             let replayed = self.back(F, p)[j] + self.back(F, a + 1)[j] - self.back(F, a + 1 + p)[j];
             if replayed.is_finite() {
                 return Some(continued + FORCE_REPLAY_WEIGHT * (replayed - continued));
@@ -1509,4 +1518,39 @@ fn solve5(mut a: [[f64; 5]; 5], mut b: [f64; 5]) -> Option<[f64; 5]> {
         x[r] = (b[r] - s) / a[r][r];
     }
     x.iter().all(|v| v.is_finite()).then_some(x)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A widened extrapolation leaves the fitted range by its margin at most: a 0.5-Hz sine
+    /// fitted over its rise from −1 to 0.69 continues to its crest at 1, held at 0.69 by the
+    /// plain range and followed within the range widened by a quarter (up to 1.11).
+    #[test]
+    fn a_widened_extrapolation_leaves_the_fitted_range_by_its_margin() {
+        let (dt, w) = (0.01, core::f64::consts::PI);
+        let phi = 0.7_f64.asin();
+        let s = |t: f64| SVector::<f64, 1>::repeat((w * t + phi).sin());
+        let samples = (1..=100).map(|i| (i, s(-(i as f64) * dt)));
+        let plain = TorqueExtrapolation::fit_series(samples, w, dt, s(-dt)).expect("a fit");
+        let hi = s(-dt)[0];
+        let mut wide = plain;
+        wide.widen(FORCE_RANGE_MARGIN);
+        let peak = |x: &TorqueExtrapolation<1>| {
+            (0..60)
+                .map(|k| x.at(k, dt)[0])
+                .fold(f64::NEG_INFINITY, f64::max)
+        };
+        assert!((peak(&plain) - hi).abs() < 1e-12, "plain: {}", peak(&plain));
+        assert!((peak(&wide) - 1.0).abs() < 1e-3, "widened: {}", peak(&wide));
+        // Below, the widened range still bounds it: −1 − 0.25 · 1.69.
+        let low = (0..200)
+            .map(|k| wide.at(k, dt)[0])
+            .fold(f64::INFINITY, f64::min);
+        assert!(
+            low >= -1.0 - FORCE_RANGE_MARGIN * (hi + 1.0) - 1e-9,
+            "{low}"
+        );
+    }
 }
