@@ -1249,9 +1249,7 @@ impl<const N: usize> ChannelGuard<N> {
             // estimate).
             let span = (FORCE_FIT_S / self.dt).ceil() as usize;
             let held = self.filled.min(self.hist[F].len());
-            self.blend_lag = period
-                .filter(|&p| p > span && p + span + 1 <= held)
-                .unwrap_or(0);
+            self.blend_lag = period.filter(|&p| p > span && p + span < held).unwrap_or(0);
             if self.blend_lag > 0 {
                 if let Some(f) = self.force_fit.as_mut() {
                     f.widen(FORCE_RANGE_MARGIN);
