@@ -1247,9 +1247,11 @@ impl<const N: usize> ChannelGuard<N> {
             // before the fault over the whole continuation within the history held (a check
             // on each step would switch a long period's blend off partway, stepping the
             // estimate).
-            let span = (FORCE_FIT_S / self.dt).ceil() as usize;
+            let continued_steps = (FORCE_FIT_S / self.dt).ceil() as usize;
             let held = self.filled.min(self.hist[F].len());
-            self.blend_lag = period.filter(|&p| p > span && p + span < held).unwrap_or(0);
+            self.blend_lag = period
+                .filter(|&p| p > continued_steps && p + continued_steps < held)
+                .unwrap_or(0);
             if self.blend_lag > 0 {
                 if let Some(f) = self.force_fit.as_mut() {
                     f.widen(FORCE_RANGE_MARGIN);
@@ -1269,9 +1271,10 @@ impl<const N: usize> ChannelGuard<N> {
         }
         let continued = fit.at(age, self.dt)[j];
         // The replay from the fault's start (`a + 1` steps back, the last measured sample):
-        // `F(k − p) + F(k₀ − 1) − F(k₀ − 1 − p)`, while the history holds it.
+        // `F(k − p) + F(k₀ − 1) − F(k₀ − 1 − p)`; a lag set at the fit outlasts the
+        // continuation and is held in the history over it.
         let (p, a) = (self.blend_lag, age as usize);
-        if p > a {
+        if p > 0 {
             let replayed = self.back(F, p)[j] + self.back(F, a + 1)[j] - self.back(F, a + 1 + p)[j];
             if replayed.is_finite() {
                 return Some(continued + FORCE_REPLAY_WEIGHT * (replayed - continued));
