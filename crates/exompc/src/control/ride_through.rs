@@ -62,6 +62,14 @@ pub const SLOPE_ACCEPT_GATES: f64 = 1.5;
 /// longer than an angle before the protective stop: its estimate stays anchored to measured
 /// channels (measured on the 1-s fault grid, docs/RELIABILITY.md §2).
 pub const ANCHORED_LIMIT_FACTOR: u64 = 4;
+/// An encoder channel of a joint whose angle and velocity are both rejected, with the gait
+/// period known (its estimate is the gait replayed one period back, and the torque replays
+/// one period back while every encoder is lost), is believed on smoothness alone and stops the
+/// controller only after this many times `sensor_timeout_s`: the replay follows the leg for
+/// about a period, while a smooth value that disagrees with it after `sensor_timeout_s` was
+/// mostly an offset (every sensor's 1-s spike at 3 s, 3 kg: 74.0 N, 16.3 N with 2). Measured on
+/// the 1-s scan (docs/RELIABILITY.md §2): 2 and 3 the same.
+pub const REPLAY_LIMIT_FACTOR: u64 = 2;
 /// An encoder angle repeated bit for bit while the joint moves faster than this (rad/s) is
 /// stuck: the floor of the speed threshold, raised for a coarse encoder
 /// ([`ChannelGuard::with_encoder_step`]).
@@ -130,7 +138,8 @@ pub const PERIOD_MATCH_EVERY: u32 = 10;
 /// accepted again once a fresh sample lies within [`ACCEPT_GATES`] gates of its estimate
 /// ([`SLOPE_ACCEPT_GATES`] for a velocity estimated from its good angle's slope; a filtered
 /// velocity or force also moving like its estimate, within one gate), or, after `resync_after`
-/// steps, once three fresh samples are smooth (the estimate then jumps to it: the supervisor's rate
+/// steps ([`REPLAY_LIMIT_FACTOR`] times that for both encoders of a joint on the gait replay),
+/// once three fresh samples are smooth (the estimate then jumps to it: the supervisor's rate
 /// limit bounds the torque step; a strap force that moves along its estimate, an offset, moves
 /// from it to the measurement at [`FORCE_BIAS_RATE`]; a velocity estimated from its good angle's
 /// slope, a measurement of the same quantity, is never accepted on smoothness alone; a velocity
@@ -320,7 +329,9 @@ pub struct Repaired<const N: usize> {
     /// The channels that stand in for rejected ones.
     pub estimated: EstimatedChannels<N>,
     /// Longest time (s) a channel has been rejected, 0 when all are good; a velocity whose
-    /// angle is measured and a strap force count [`ANCHORED_LIMIT_FACTOR`] times slower.
+    /// angle is measured and a strap force count [`ANCHORED_LIMIT_FACTOR`] times slower, an
+    /// encoder channel of a joint whose angle and velocity are both lost with the gait period
+    /// known [`REPLAY_LIMIT_FACTOR`] times.
     pub longest_fault_s: f64,
     /// Every encoder channel (angle, velocity) is good.
     pub encoders_good: bool,
@@ -754,6 +765,12 @@ impl<const N: usize> ChannelGuard<N> {
                 // not accepted before its floor.
                 let floored =
                     sig != F && was_bad && self.bad_for[sig][j] < self.accept_floor[sig][j];
+                // An encoder channel of a joint whose angle and velocity are both rejected, with
+                // the gait period known: estimated by the gait replay ([`REPLAY_LIMIT_FACTOR`]).
+                let replayed = sig != F
+                    && period.is_some()
+                    && self.bad_for[Q][j] > 0
+                    && self.bad_for[QD][j] > 0;
                 let good = if !in_range || stuck || held_off || still_frozen || floored {
                     false
                 } else if (was_bad && (self.railed[j] || !warm))
@@ -783,6 +800,8 @@ impl<const N: usize> ChannelGuard<N> {
                 } else if was_bad {
                     let resync = if sig == F {
                         resync_after.min(force_resync)
+                    } else if replayed {
+                        resync_after.saturating_mul(REPLAY_LIMIT_FACTOR)
                     } else {
                         resync_after
                     };
@@ -913,7 +932,9 @@ impl<const N: usize> ChannelGuard<N> {
                     self.bad_for[sig][j] = self.bad_for[sig][j].saturating_add(1);
                     any = true;
                     let anchored = sig == F || (sig == QD && self.bad_for[Q][j] == 0);
-                    let age = if anchored {
+                    let age = if replayed {
+                        self.bad_for[sig][j] / REPLAY_LIMIT_FACTOR
+                    } else if anchored {
                         self.bad_for[sig][j] / ANCHORED_LIMIT_FACTOR
                     } else {
                         self.bad_for[sig][j]
