@@ -56,24 +56,28 @@ pub const ACCEPT_GATES: f64 = 4.0;
 /// within this many gates of the angle's mean slope over the window (its estimate, a
 /// measurement of the same quantity that does not drift: with [`ACCEPT_GATES`] the ramp back
 /// of a frozen filtered velocity was accepted 0.17 rad/s off and the controller pushed on it).
-/// The same for a velocity whose angle is lost too, on the gait replay (period known,
-/// [`REPLAY_LIMIT_FACTOR`]): the filtered velocity takes a 0.5-rad/s spike in over its window,
-/// and within [`ACCEPT_GATES`] of the replay it was accepted again on the sample after its
-/// rejection, 0.14 rad/s off, then believed with the whole spike (every sensor's 1-s spike at
-/// 4 s, 3 kg: 81.9 N, 14.2 N with this). Chosen by measurement (docs/RELIABILITY.md §2).
+/// The same for a velocity whose angle is lost too ([`JOINT_LOST_LIMIT_FACTOR`]), against its
+/// estimate there (the gait replay, or held before the period is known): the filtered velocity
+/// takes a 0.5-rad/s spike in over its window, and within [`ACCEPT_GATES`] of the replay it was
+/// accepted again on the sample after its rejection, 0.14 rad/s off, then believed with the
+/// whole spike (every sensor's 1-s spike at 4 s, 3 kg: 81.9 N, 14.2 N with this). Chosen by
+/// measurement (docs/RELIABILITY.md §2).
 pub const SLOPE_ACCEPT_GATES: f64 = 1.5;
 /// A velocity whose angle is measured, or a strap force, may stay rejected this many times
 /// longer than an angle before the protective stop: its estimate stays anchored to measured
 /// channels (measured on the 1-s fault grid, docs/RELIABILITY.md §2).
 pub const ANCHORED_LIMIT_FACTOR: u64 = 4;
-/// An encoder channel of a joint whose angle and velocity are both rejected, with the gait
-/// period known (its estimate is the gait replayed one period back, and the torque replays
-/// one period back while every encoder is lost), is believed on smoothness alone and stops the
-/// controller only after this many times `sensor_timeout_s`: the replay follows the leg for
-/// about a period, while a smooth value that disagrees with it after `sensor_timeout_s` was
-/// mostly an offset (every sensor's 1-s spike at 3 s, 3 kg: 74.0 N, 16.3 N with 2). Measured on
-/// the 1-s scan (docs/RELIABILITY.md §2): 2 and 3 the same.
-pub const REPLAY_LIMIT_FACTOR: u64 = 2;
+/// An encoder channel of a joint whose angle and velocity are both rejected is believed on
+/// smoothness alone, and trips the persistent-fault limit (the protective stop), only after
+/// this many times `sensor_timeout_s`. Its estimate is the gait replayed one period back (before
+/// the gait period is known, held), and while every encoder is lost the torque replays one
+/// period back (before, it follows its extrapolation): the torque follows the leg for about a
+/// period, while a smooth value that disagrees with its estimate after `sensor_timeout_s` was
+/// mostly an offset (every sensor's 1-s spike at 3 s, 3 kg: 74.0 N, 16.3 N with 2; at 1.5 s,
+/// before the period is known: 75.9 N, 41.1 N), and the stop leaves the person carrying robot
+/// and payload. Measured on the 1-s scan (docs/RELIABILITY.md §2; 3 gave the same cells with the
+/// period known).
+pub const JOINT_LOST_LIMIT_FACTOR: u64 = 2;
 /// An encoder angle repeated bit for bit while the joint moves faster than this (rad/s) is
 /// stuck: the floor of the speed threshold, raised for a coarse encoder
 /// ([`ChannelGuard::with_encoder_step`]).
@@ -141,9 +145,9 @@ pub const PERIOD_MATCH_EVERY: u32 = 10;
 /// blended with the replay, [`FORCE_REPLAY_WEIGHT`]). A rejected channel is
 /// accepted again once a fresh sample lies within [`ACCEPT_GATES`] gates of its estimate
 /// ([`SLOPE_ACCEPT_GATES`] for a velocity estimated from its good angle's slope or, its angle
-/// lost too, from the gait replay; a filtered
+/// lost too; a filtered
 /// velocity or force also moving like its estimate, within one gate), or, after `resync_after`
-/// steps ([`REPLAY_LIMIT_FACTOR`] times that for both encoders of a joint on the gait replay),
+/// steps ([`JOINT_LOST_LIMIT_FACTOR`] times that for both encoders of a joint),
 /// once three fresh samples are smooth (the estimate then jumps to it: the supervisor's rate
 /// limit bounds the torque step; a strap force that moves along its estimate, an offset, moves
 /// from it to the measurement at [`FORCE_BIAS_RATE`]; a velocity estimated from its good angle's
@@ -335,8 +339,8 @@ pub struct Repaired<const N: usize> {
     pub estimated: EstimatedChannels<N>,
     /// Longest time (s) a channel has been rejected, 0 when all are good; a velocity whose
     /// angle is measured and a strap force count [`ANCHORED_LIMIT_FACTOR`] times slower, an
-    /// encoder channel of a joint whose angle and velocity are both lost with the gait period
-    /// known [`REPLAY_LIMIT_FACTOR`] times.
+    /// encoder channel of a joint whose angle and velocity are both lost
+    /// [`JOINT_LOST_LIMIT_FACTOR`] times.
     pub longest_fault_s: f64,
     /// Every encoder channel (angle, velocity) is good.
     pub encoders_good: bool,
@@ -770,12 +774,9 @@ impl<const N: usize> ChannelGuard<N> {
                 // not accepted before its floor.
                 let floored =
                     sig != F && was_bad && self.bad_for[sig][j] < self.accept_floor[sig][j];
-                // An encoder channel of a joint whose angle and velocity are both rejected, with
-                // the gait period known: estimated by the gait replay ([`REPLAY_LIMIT_FACTOR`]).
-                let replayed = sig != F
-                    && period.is_some()
-                    && self.bad_for[Q][j] > 0
-                    && self.bad_for[QD][j] > 0;
+                // An encoder channel of a joint whose angle and velocity are both rejected
+                // ([`JOINT_LOST_LIMIT_FACTOR`]).
+                let joint_lost = sig != F && self.bad_for[Q][j] > 0 && self.bad_for[QD][j] > 0;
                 let good = if !in_range || stuck || held_off || still_frozen || floored {
                     false
                 } else if (was_bad && (self.railed[j] || !warm))
@@ -805,8 +806,8 @@ impl<const N: usize> ChannelGuard<N> {
                 } else if was_bad {
                     let resync = if sig == F {
                         resync_after.min(force_resync)
-                    } else if replayed {
-                        resync_after.saturating_mul(REPLAY_LIMIT_FACTOR)
+                    } else if joint_lost {
+                        resync_after.saturating_mul(JOINT_LOST_LIMIT_FACTOR)
                     } else {
                         resync_after
                     };
@@ -821,7 +822,7 @@ impl<const N: usize> ChannelGuard<N> {
                     // the same quantity, not an estimate drifting through the fault (over the
                     // whole window only: on the slope of a partial window, for the few steps it
                     // lasts, `ACCEPT_GATES` and smoothness as for an estimate, as measured).
-                    let accept_gates = if sig == QD && (slope_ok || replayed) {
+                    let accept_gates = if sig == QD && (slope_ok || joint_lost) {
                         SLOPE_ACCEPT_GATES
                     } else {
                         ACCEPT_GATES
@@ -937,8 +938,8 @@ impl<const N: usize> ChannelGuard<N> {
                     self.bad_for[sig][j] = self.bad_for[sig][j].saturating_add(1);
                     any = true;
                     let anchored = sig == F || (sig == QD && self.bad_for[Q][j] == 0);
-                    let age = if replayed {
-                        self.bad_for[sig][j] / REPLAY_LIMIT_FACTOR
+                    let age = if joint_lost {
+                        self.bad_for[sig][j] / JOINT_LOST_LIMIT_FACTOR
                     } else if anchored {
                         self.bad_for[sig][j] / ANCHORED_LIMIT_FACTOR
                     } else {
