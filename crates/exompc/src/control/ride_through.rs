@@ -144,11 +144,10 @@ pub const PERIOD_MATCH_EVERY: u32 = 10;
 /// follows its continuation at the gait frequency for [`FORCE_FIT_S`] (with the period known,
 /// blended with the replay, [`FORCE_REPLAY_WEIGHT`]). A rejected channel is
 /// accepted again once a fresh sample lies within [`ACCEPT_GATES`] gates of its estimate
-/// ([`SLOPE_ACCEPT_GATES`] for a velocity estimated from its good angle's slope or, its angle
-/// lost too; a filtered
-/// velocity or force also moving like its estimate, within one gate), or, after `resync_after`
-/// steps ([`JOINT_LOST_LIMIT_FACTOR`] times that for both encoders of a joint),
-/// once three fresh samples are smooth (the estimate then jumps to it: the supervisor's rate
+/// ([`SLOPE_ACCEPT_GATES`] for a velocity estimated from its good angle's slope, or whose angle
+/// is lost too; a filtered velocity or force also moving like its estimate, within one gate),
+/// or, after `resync_after` steps ([`JOINT_LOST_LIMIT_FACTOR`] times that for both encoders of
+/// a joint), once three fresh samples are smooth (the estimate then jumps to it: the supervisor's rate
 /// limit bounds the torque step; a strap force that moves along its estimate, an offset, moves
 /// from it to the measurement at [`FORCE_BIAS_RATE`]; a velocity estimated from its good angle's
 /// slope, a measurement of the same quantity, is never accepted on smoothness alone; a velocity
