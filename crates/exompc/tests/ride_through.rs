@@ -255,12 +255,13 @@ fn every_sensor_spiked_for_a_second_from_1_s(payload_kg: f64, seconds: f64) {
 }
 
 /// Issue 28, a fault beyond 1 s at 3 kg: every sensor's spike (0.5 rad, 0.5 rad/s, 30 N) for
-/// 1.5 s from 2 s (10-s msnmpc run). When the tracking-error monitor trips (4.16 s), an
-/// encoder channel believed on smoothness alone within `UNVERIFIED_S` before it is taken to
-/// be an offset and rejected again (`ChannelGuard::revoke_unverified`; a `revoke` event), its
-/// fault continues past the persistent-fault limit, and the protective stop follows at once:
-/// peak true strap force 72.0 N, no latch. With the rejection again skipped (a build with the
-/// call removed, same day): 110.5 N. Measured on 2026-12-06.
+/// 1.5 s from 2 s (10-s msnmpc run; the spike ends at 3.5 s). When the tracking-error monitor
+/// trips at 4.16 s, the encoder channel believed on smoothness alone within `UNVERIFIED_S`
+/// before it (after the spike; the rule cannot tell an offset from a true reading) is rejected
+/// again (`ChannelGuard::revoke_unverified`; a `revoke` event), its fault continues past the
+/// persistent-fault limit, and the protective stop follows at once: peak true strap force
+/// 72.0 N, no latch. With the rejection again skipped (a build with the call removed, same
+/// day): 110.5 N. Measured on 2026-12-06.
 #[test]
 fn the_controller_failing_on_an_offset_angle_rejects_it_again() {
     let fault = (FaultKind::Spike, ChannelGroup::All, 2.0, 1.5);
@@ -270,6 +271,7 @@ fn the_controller_failing_on_an_offset_angle_rejects_it_again() {
         .find(|e| e.action == MonitorAction::Revoke)
         .unwrap_or_else(|| panic!("no channel rejected again: {:?}", rep.events));
     assert!(revoke.value >= 1.0, "{revoke:?}");
+    assert!((3.5..4.5).contains(&revoke.t), "{revoke:?}");
     let stop = (rep.events.iter())
         .find(|e| e.monitor == MonitorKind::SensorTimeout && e.action == MonitorAction::Trip)
         .map(|e| e.t);
@@ -746,6 +748,21 @@ fn losing_every_sensor_for_a_second_is_ridden_through_on_the_replay() {
         3.0,
         &[(FaultKind::Dropout, 2.0, 1.0), (FaultKind::Nan, 0.0, 1.0)],
     );
+}
+
+/// Issue 28, every sensor's 1-s spike before the gait period is known (from 1.5 s, 3 kg, a
+/// cell of the 1-s scan, 10-s msnmpc run): both encoders of each joint wait
+/// `JOINT_LOST_LIMIT_FACTOR` × `sensor_timeout_s` (1 s, the end of the spike) before a smooth
+/// value is believed, so the 0.5-rad offset is never believed: ≤ 70 N, no latch. At
+/// `sensor_timeout_s` the offset was believed at 2.0 s and the controller drove the knee to
+/// 8.9 rad/s before the monitors stopped it: 75.9 N (now 41.1 N; measured on 2026-12-06).
+#[test]
+fn every_sensor_spiked_for_a_second_in_the_first_gait_period_stays_within_70_n() {
+    let cell = (FaultKind::Spike, ChannelGroup::All, 1.5, 1.0);
+    let s = cell_scenario(&Experiment::default(), 10.0, 3.0, Some(cell));
+    let (peak, _, rep, _) = run(&s);
+    assert!(peak <= 70.0, "peak {peak:.1} N");
+    assert_eq!(rep.latched_at, None, "{:?}", rep.events);
 }
 
 /// Issue 28, every sensor's 0.5-rad / 0.5-rad/s / 30-N spike for 1 s with the gait period

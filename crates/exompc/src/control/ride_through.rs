@@ -56,12 +56,12 @@ pub const ACCEPT_GATES: f64 = 4.0;
 /// within this many gates of the angle's mean slope over the window (its estimate, a
 /// measurement of the same quantity that does not drift: with [`ACCEPT_GATES`] the ramp back
 /// of a frozen filtered velocity was accepted 0.17 rad/s off and the controller pushed on it).
-/// The same for a velocity whose angle is lost too ([`JOINT_LOST_LIMIT_FACTOR`]), against its
-/// estimate there (the gait replay, or held before the period is known): the filtered velocity
-/// takes a 0.5-rad/s spike in over its window, and within [`ACCEPT_GATES`] of the replay it was
-/// accepted again on the sample after its rejection, 0.14 rad/s off, then believed with the
-/// whole spike (every sensor's 1-s spike at 4 s, 3 kg: 81.9 N, 14.2 N with this). Chosen by
-/// measurement (docs/RELIABILITY.md §2).
+/// The same for a velocity whose angle is rejected too ([`JOINT_LOST_LIMIT_FACTOR`]), judged
+/// against its estimate there (the gait replay; before the period is known, the controller's
+/// model prediction): a filtered velocity ramps into a 0.5-rad/s spike over its window, and
+/// within [`ACCEPT_GATES`] of the replay it was accepted again on the sample after its
+/// rejection, 0.14 rad/s off, then believed with the whole spike (every sensor's 1-s spike at
+/// 4 s, 3 kg: 81.9 N, 14.2 N with this). Chosen by measurement (docs/RELIABILITY.md §2).
 pub const SLOPE_ACCEPT_GATES: f64 = 1.5;
 /// A velocity whose angle is measured, or a strap force, may stay rejected this many times
 /// longer than an angle before the protective stop: its estimate stays anchored to measured
@@ -69,10 +69,11 @@ pub const SLOPE_ACCEPT_GATES: f64 = 1.5;
 pub const ANCHORED_LIMIT_FACTOR: u64 = 4;
 /// An encoder channel of a joint whose angle and velocity are both rejected is believed on
 /// smoothness alone, and trips the persistent-fault limit (the protective stop), only after
-/// this many times `sensor_timeout_s`. Its estimate is the gait replayed one period back (before
-/// the gait period is known, held), and while every encoder is lost the torque replays one
-/// period back (before, it follows its extrapolation): the torque follows the leg for about a
-/// period, while a smooth value that disagrees with its estimate after `sensor_timeout_s` was
+/// this many times `sensor_timeout_s` (a channel rejected again, [`ChannelGuard::revoke_unverified`],
+/// at once). Its estimate is the gait replayed one period back (before the gait period is known,
+/// the controller's model prediction), and while every encoder is rejected the torque is
+/// replayed one period back (before the period is known, extrapolated): the replay follows the
+/// leg for about a period, while a smooth value that disagrees with its estimate after `sensor_timeout_s` was
 /// mostly an offset (every sensor's 1-s spike at 3 s, 3 kg: 74.0 N, 16.3 N with 2; at 1.5 s,
 /// before the period is known: 75.9 N, 41.1 N), and the stop leaves the person carrying robot
 /// and payload. Measured on the 1-s scan (docs/RELIABILITY.md §2; 3 gave the same cells with the
@@ -337,9 +338,9 @@ pub struct Repaired<const N: usize> {
     /// The channels that stand in for rejected ones.
     pub estimated: EstimatedChannels<N>,
     /// Longest time (s) a channel has been rejected, 0 when all are good; a velocity whose
-    /// angle is measured and a strap force count [`ANCHORED_LIMIT_FACTOR`] times slower, an
-    /// encoder channel of a joint whose angle and velocity are both lost
-    /// [`JOINT_LOST_LIMIT_FACTOR`] times.
+    /// angle is measured and a strap force count [`ANCHORED_LIMIT_FACTOR`] times slower; an
+    /// encoder channel of a joint whose angle and velocity are both rejected counts
+    /// [`JOINT_LOST_LIMIT_FACTOR`] times slower (not after a rejection again).
     pub longest_fault_s: f64,
     /// Every encoder channel (angle, velocity) is good.
     pub encoders_good: bool,
@@ -937,7 +938,8 @@ impl<const N: usize> ChannelGuard<N> {
                     self.bad_for[sig][j] = self.bad_for[sig][j].saturating_add(1);
                     any = true;
                     let anchored = sig == F || (sig == QD && self.bad_for[Q][j] == 0);
-                    let age = if joint_lost {
+                    // A channel rejected again (`revoke_unverified`) is past its limit at once.
+                    let age = if joint_lost && !self.revoked[sig][j] {
                         self.bad_for[sig][j] / JOINT_LOST_LIMIT_FACTOR
                     } else if anchored {
                         self.bad_for[sig][j] / ANCHORED_LIMIT_FACTOR
