@@ -1188,8 +1188,8 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     /// up to 0.7 N·m per step along the gait (docs/RELIABILITY.md §2); replayed one gait
     /// period back, it carried another gait early in the run (the human grows heavier,
     /// docs/MODEL.md §2: a 200-ms NaN of both forces at 2.25 s, 3 kg, 20.4 N, continued
-    /// 14.1 N, with the forces' blend 9.9 N). `false` without a continuation (no ω, or too short a history): `d̂ᵢ` is then
-    /// held.
+    /// 14.1 N, with the forces' blend 9.9 N). `false` without a continuation (no ω, or too short
+    /// a history): `d̂ᵢ` is then held.
     // Out of line, as `replay_disturbance`.
     #[inline(never)]
     fn continue_disturbance(&mut self) -> bool {

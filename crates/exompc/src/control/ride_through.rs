@@ -69,15 +69,15 @@ pub const SLOPE_ACCEPT_GATES: f64 = 1.5;
 pub const ANCHORED_LIMIT_FACTOR: u64 = 4;
 /// An encoder channel of a joint whose angle and velocity are both rejected is believed on
 /// smoothness alone, and trips the persistent-fault limit (the protective stop), only after
-/// this many times `sensor_timeout_s` (a channel rejected again, [`ChannelGuard::revoke_unverified`],
-/// at once). Its estimate is the gait replayed one period back (before the gait period is known,
-/// the controller's model prediction), and while every encoder is rejected the torque is
-/// replayed one period back (before the period is known, extrapolated): the replay follows the
-/// leg for about a period, while a smooth value that disagrees with its estimate after `sensor_timeout_s` was
-/// mostly an offset (every sensor's 1-s spike at 3 s, 3 kg: 74.0 N, 16.3 N with 2; at 1.5 s,
-/// before the period is known: 75.9 N, 41.1 N), and the stop leaves the person carrying robot
-/// and payload. Measured on the 1-s scan (docs/RELIABILITY.md §2; 3 gave the same cells with the
-/// period known).
+/// this many times `sensor_timeout_s` (a channel rejected again,
+/// [`ChannelGuard::revoke_unverified`], at once). Its estimate is the gait replayed one period
+/// back (before the gait period is known, the controller's model prediction), and while every
+/// encoder is rejected the torque is replayed one period back (before the period is known,
+/// extrapolated): the replay follows the leg for about a period, while a smooth value that
+/// disagrees with its estimate after `sensor_timeout_s` was mostly an offset (every sensor's
+/// 1-s spike at 3 s, 3 kg: 74.0 N, 16.3 N with 2; at 1.5 s, before the period is known: 75.9 N,
+/// 41.1 N), and the stop leaves the person carrying robot and payload. Measured on the 1-s scan
+/// (docs/RELIABILITY.md §2; 3 gave the same cells with the period known).
 pub const JOINT_LOST_LIMIT_FACTOR: u64 = 2;
 /// An encoder angle repeated bit for bit while the joint moves faster than this (rad/s) is
 /// stuck: the floor of the speed threshold, raised for a coarse encoder
@@ -148,8 +148,8 @@ pub const PERIOD_MATCH_EVERY: u32 = 10;
 /// ([`SLOPE_ACCEPT_GATES`] for a velocity estimated from its good angle's slope, or whose angle
 /// is lost too; a filtered velocity or force also moving like its estimate, within one gate),
 /// or, after `resync_after` steps ([`JOINT_LOST_LIMIT_FACTOR`] times that for both encoders of
-/// a joint), once three fresh samples are smooth (the estimate then jumps to it: the supervisor's rate
-/// limit bounds the torque step; a strap force that moves along its estimate, an offset, moves
+/// a joint), once three fresh samples are smooth (the estimate then jumps to it: the
+/// supervisor's rate limit bounds the torque step; a strap force that moves along its estimate, an offset, moves
 /// from it to the measurement at [`FORCE_BIAS_RATE`]; a velocity estimated from its good angle's
 /// slope, a measurement of the same quantity, is never accepted on smoothness alone; a velocity
 /// rejected only by the stall rule is accepted once it is fresh and smooth after the filter
