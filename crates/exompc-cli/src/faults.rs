@@ -28,7 +28,8 @@ pub(crate) struct FaultsArgs {
     /// Fault kinds, comma-separated (spike, dropout, nan, inf, stuck, saturation).
     #[arg(long, value_name = "LIST", default_value = "spike,dropout,nan,stuck")]
     kinds: String,
-    /// Channel groups, comma-separated (all, angles, velocities, forces).
+    /// Channel groups, comma-separated (all, angles, velocities, forces; joint1, joint2: one
+    /// joint's encoder, its angle and velocity).
     #[arg(
         long,
         value_name = "LIST",
@@ -119,7 +120,7 @@ pub(crate) fn run(a: FaultsArgs) -> Result<(), CliError> {
         "--groups",
         &a.groups,
         ChannelGroup::parse,
-        "all, angles, velocities, forces",
+        &ChannelGroup::NAMES.join(", "),
     )?;
     let grid = FaultGrid {
         kinds,

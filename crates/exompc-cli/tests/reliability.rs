@@ -453,6 +453,41 @@ fn killed_run_leaves_no_truncated_results() {
     assert!(!out_dir.join("summary.json").exists());
 }
 
+/// `exompc faults --groups` takes one joint's encoder (`joint1`: the hip's angle and
+/// velocity) as a group, named so in the table; an unknown group is refused (exit 2) naming
+/// what was typed and every group.
+#[test]
+fn fault_scan_groups_include_one_joints_encoder() {
+    let dir = fresh_dir("fault-scan-joint");
+    let d = dir.to_str().unwrap();
+    let bad = exompc(&["faults", "--groups", "joint3", "--out", d]);
+    assert_eq!(bad.status.code(), Some(2), "{}", stderr(&bad));
+    let e = stderr(&bad);
+    assert!(
+        e.contains("`joint3`") && e.contains("forces, joint1, joint2"),
+        "{e}"
+    );
+    let args = [
+        "faults",
+        "--kinds",
+        "dropout",
+        "--groups",
+        "joint1",
+        "--durations",
+        "0.06",
+        "--payloads",
+        "0",
+        "--run-s",
+        "4",
+        "--out",
+        d,
+    ];
+    let out = exompc(&args);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let md = std::fs::read_to_string(dir.join("faults.md")).unwrap();
+    assert!(md.contains("| dropout | joint1 | 0.06 |"), "{md}");
+}
+
 /// `exompc faults` on a one-cell grid (a 60-ms NaN on the strap forces, 4-s runs): the table,
 /// the JSON and the heat map (a PNG and an SVG naming the row) are written; a second scan into
 /// the same folder without `--force` is refused (exit 2) and leaves the results as they were.

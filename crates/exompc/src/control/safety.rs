@@ -1,7 +1,7 @@
 //! Runtime safety supervision around any controller: see [`Supervisor`].
 
 use super::highpass::HighPass;
-use super::ride_through::{ChannelGuard, TorqueExtrapolation, EXTRAPOLATION_ANGLE_S};
+use super::ride_through::{ChannelGuard, Repaired, TorqueExtrapolation, EXTRAPOLATION_ANGLE_S};
 use super::{
     ControlOutput, Controller, EstimatedChannels, FallbackSettings, Measurement, StepStatus,
     TorqueLimits, Transparent,
@@ -885,8 +885,18 @@ pub struct Supervisor<const N: usize, C> {
     /// The previous step fed the fallback a measurement (it restarts when fed again after
     /// steps without one).
     fallback_fed: bool,
-    /// The current coast began with a stalled acquisition ([`Repaired::stalled`](super::Repaired::stalled)).
+    /// The current coast began with a stalled acquisition ([`Repaired::stalled`]).
     stall_coast: bool,
+    /// Per joint, consecutive steps its angle (`[0]`) and its velocity (`[1]`) have been
+    /// estimates: a joint's two channels lost within the filter window of each other are
+    /// one encoder's fault ([`Supervisor::joint_lost`]).
+    estimated_for: [[u32; N]; 2],
+    /// The current coast began with a joint's encoder lost, not every encoder: it lasts while
+    /// a channel of a joint lost within it is estimated (`coast_joints`), not until every
+    /// channel is back.
+    joint_coast: bool,
+    /// The joints whose angle and velocity were both estimates within the current coast.
+    coast_joints: [bool; N],
     /// The torque replay had the torque on the previous step.
     coasting: bool,
     /// Steps left of the blend into the torque replay of one gait period back, and the
@@ -1015,6 +1025,9 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             extrapolation: None,
             extrapolated_steps: 0,
             stall_coast: false,
+            estimated_for: [[0; N]; 2],
+            joint_coast: false,
+            coast_joints: [false; N],
             coasting: false,
             blend_in: 0,
             blend_in_from: SVector::zeros(),
@@ -1034,6 +1047,37 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         };
         sup.inner.set_previous_torque(prev);
         sup
+    }
+
+    /// Whether a joint's encoder is lost this step, counting how long each channel has been
+    /// estimated (`estimated_for`): its angle and velocity both estimated, their faults begun
+    /// within `filter_window` steps of each other (a filtered velocity shows a dropped-out or
+    /// stuck raw velocity only over its window), or its angle estimated for at most
+    /// `filter_window` steps while its velocity is still accepted (the velocity may be failing
+    /// with it unseen; an angle that its velocity implies, or one of a stalled acquisition, is
+    /// not counted). The rest of an angle's fault, with its velocity still accepted, is left to
+    /// the controller on the angle the velocity integrates to. An angle fault with a velocity
+    /// rejected later in it is not an encoder lost (a 1-s spike of both angles at 3 s, 2 kg:
+    /// 14.8 N stepped on, 59.8 N coasting from the velocity's rejection on).
+    fn joint_lost(&mut self, valid: bool, rep: &Repaired<N>) -> bool {
+        let window = u32::try_from(self.s.filter_window).unwrap_or(u32::MAX);
+        let stalled = rep.stalled || (self.coasting && self.stall_coast);
+        let mut lost = false;
+        for j in 0..N {
+            let counts = [rep.estimated.q[j], rep.estimated.qd[j]];
+            for (n, &e) in self.estimated_for.iter_mut().zip(&counts) {
+                n[j] = if valid && e {
+                    n[j].saturating_add(1)
+                } else {
+                    0
+                };
+            }
+            let [q_for, qd_for] = [self.estimated_for[0][j], self.estimated_for[1][j]];
+            let together = qd_for > 0 && q_for.abs_diff(qd_for) <= window;
+            let onset = q_for <= window && !rep.q_from_velocity[j] && !stalled;
+            lost |= q_for > 0 && (together || onset);
+        }
+        lost
     }
 
     /// The gait period `period_s` in steps, when the torque history holds more than it: the lag
@@ -1619,7 +1663,24 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             rep.estimated.q.iter().all(|&e| e) && !rep.estimated.qd.iter().any(|&e| e);
         let implied = rep.q_from_velocity.iter().all(|&v| v);
         let angles_fault = self.stall_coast && angles_only && (period.is_none() || implied);
-        let coast = all_lost || (self.coasting && valid && rep.any_rejected && !angles_fault);
+        // One joint's encoder lost (its angle and velocity) coasts too: stepped on the model's
+        // prediction of that joint, which follows the applied torque, the controller drove the
+        // torque to its limit within 0.05 s (the knee's angle and velocity NaN for 60 ms at
+        // 1.5 s, 3 kg: 115.9 N; docs/RELIABILITY.md §2).
+        let joint_lost = self.joint_lost(valid, &rep);
+        if all_lost || !self.coasting {
+            self.joint_coast = joint_lost && !all_lost;
+            self.coast_joints = [false; N];
+        }
+        for j in 0..N {
+            self.coast_joints[j] |= valid && rep.estimated.q[j] && rep.estimated.qd[j];
+        }
+        let joint_faulted =
+            (0..N).any(|j| self.coast_joints[j] && (rep.estimated.q[j] || rep.estimated.qd[j]));
+        let coast = all_lost
+            || joint_lost
+            || (self.coasting && valid && self.joint_coast && joint_faulted)
+            || (self.coasting && valid && !self.joint_coast && rep.any_rejected && !angles_fault);
         // The torque replays one gait period back at the channel guard's lag, where the angles
         // repeat (`PERIOD_MATCH_STEPS`), as the channels' and `d̂`'s replays do, when the coast
         // began with that lag known; else (a coast that began in the first gait period, whose

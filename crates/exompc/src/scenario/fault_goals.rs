@@ -20,15 +20,29 @@ pub enum ChannelGroup {
     Velocities,
     /// Both strap forces.
     Forces,
+    /// Joint 1's encoder (the hip): its angle and velocity.
+    Joint1,
+    /// Joint 2's encoder (the knee): its angle and velocity.
+    Joint2,
 }
 
 impl ChannelGroup {
-    /// Every group, in the scan's order.
+    /// The groups of the scan's default grid (issue 28's), in the scan's order.
     pub const ALL: [ChannelGroup; 4] = [
         ChannelGroup::All,
         ChannelGroup::Angles,
         ChannelGroup::Velocities,
         ChannelGroup::Forces,
+    ];
+
+    /// Every group: [`ChannelGroup::ALL`] and one joint's encoder each.
+    pub const EVERY: [ChannelGroup; 6] = [
+        ChannelGroup::All,
+        ChannelGroup::Angles,
+        ChannelGroup::Velocities,
+        ChannelGroup::Forces,
+        ChannelGroup::Joint1,
+        ChannelGroup::Joint2,
     ];
 
     /// The group's channels.
@@ -38,41 +52,49 @@ impl ChannelGroup {
             ChannelGroup::Angles => &[Channel::Q1, Channel::Q2],
             ChannelGroup::Velocities => &[Channel::Qd1, Channel::Qd2],
             ChannelGroup::Forces => &[Channel::F1, Channel::F2],
+            ChannelGroup::Joint1 => &[Channel::Q1, Channel::Qd1],
+            ChannelGroup::Joint2 => &[Channel::Q2, Channel::Qd2],
         }
     }
 
     /// The smallest group holding every channel of `channels`: angles, velocities or forces
-    /// when they are all of one kind, otherwise (or for none) every sensor.
+    /// when they are all of one kind, one joint's encoder when they are its angle and velocity,
+    /// otherwise (or for none) every sensor.
     pub fn of(channels: impl IntoIterator<Item = Channel>) -> Self {
-        let mut group = None;
+        let (mut any, mut held) = (false, [true; 6]);
         for c in channels {
-            let g = Self::ALL[1..]
-                .iter()
-                .copied()
-                .find(|g| g.channels().contains(&c))
-                .unwrap_or(ChannelGroup::All);
-            match group {
-                None => group = Some(g),
-                Some(h) if h == g => {}
-                Some(_) => return ChannelGroup::All,
+            any = true;
+            for (h, g) in held.iter_mut().zip(Self::EVERY) {
+                *h &= g.channels().contains(&c);
             }
         }
-        group.unwrap_or(ChannelGroup::All)
+        // `EVERY[1..]` holds two channels each: the first that holds them all is the smallest.
+        Self::EVERY[1..]
+            .iter()
+            .zip(&held[1..])
+            .find(|(_, &h)| any && h)
+            .map_or(ChannelGroup::All, |(&g, _)| g)
     }
 
-    /// The lowercase name (`all`, `angles`, ...).
+    /// The lowercase name (`all`, `angles`, ..., `joint1`).
     pub fn name(self) -> &'static str {
         match self {
             ChannelGroup::All => "all",
             ChannelGroup::Angles => "angles",
             ChannelGroup::Velocities => "velocities",
             ChannelGroup::Forces => "forces",
+            ChannelGroup::Joint1 => "joint1",
+            ChannelGroup::Joint2 => "joint2",
         }
     }
 
+    /// Every group's name, as [`ChannelGroup::parse`] takes them.
+    pub const NAMES: [&'static str; 6] =
+        ["all", "angles", "velocities", "forces", "joint1", "joint2"];
+
     /// Parses a name of [`ChannelGroup::name`].
     pub fn parse(s: &str) -> Option<Self> {
-        Self::ALL.into_iter().find(|g| g.name() == s)
+        Self::EVERY.into_iter().find(|g| g.name() == s)
     }
 }
 
@@ -374,9 +396,20 @@ mod tests {
             ChannelGroup::of([Channel::Q1, Channel::F1]),
             ChannelGroup::All
         );
-        for g in ChannelGroup::ALL {
+        assert_eq!(
+            ChannelGroup::of([Channel::Qd2, Channel::Q2]),
+            ChannelGroup::Joint2
+        );
+        assert_eq!(ChannelGroup::of([Channel::Qd1]), ChannelGroup::Velocities);
+        assert_eq!(
+            ChannelGroup::of([Channel::Q1, Channel::Qd2]),
+            ChannelGroup::All
+        );
+        assert_eq!(ChannelGroup::of([]), ChannelGroup::All);
+        for (g, name) in ChannelGroup::EVERY.into_iter().zip(ChannelGroup::NAMES) {
             assert_eq!(ChannelGroup::of(g.channels().iter().copied()), g);
-            assert_eq!(ChannelGroup::parse(g.name()), Some(g));
+            assert_eq!(g.name(), name);
+            assert_eq!(ChannelGroup::parse(name), Some(g));
         }
     }
 
