@@ -1330,7 +1330,7 @@ pub const EXTRAPOLATION_MIN_HZ: f64 = 0.2;
 
 /// The applied torque continued at the gait frequency, for the first gait period of a run
 /// (before [`GaitFrequency`](super::GaitFrequency) knows the period, the torque of one period back cannot be
-/// replayed): while every encoder channel is lost the torque follows
+/// replayed): while every encoder channel, or one joint's encoder, is lost the torque follows
 /// `T(τ) = a + Σ_{h=1,2} (b_h sin hωτ + c_h cos hωτ)`, fitted by least squares to the
 /// applied torque of the last [`EXTRAPOLATION_FIT_S`], started at the last applied torque (the
 /// fit's residual there fades out over [`EXTRAPOLATION_FADE_STEPS`]) and kept within the range

@@ -725,7 +725,8 @@ pub struct SafetyReport {
 pub const STOP_RAMP_NM_PER_S: f64 = 100.0;
 
 /// Steps over which the torque goes back from the replay of one gait period back (every
-/// encoder channel lost) to the controller's, linearly (0.1 s at 10 ms).
+/// encoder channel, or one joint's encoder, lost) to the controller's, linearly (0.1 s at
+/// 10 ms).
 pub const REPLAY_HANDBACK_STEPS: u32 = 10;
 
 /// Steps over which the torque goes back from the protective stop's (where its ramp to zero
@@ -737,7 +738,8 @@ pub const REPLAY_HANDBACK_STEPS: u32 = 10;
 pub const STOP_HANDBACK_STEPS: u32 = 20;
 
 /// Steps over which the torque blends from the applied one into the replay of the torque one
-/// gait period back when every encoder channel is lost (0.05 s at 10 ms): the gait is not
+/// gait period back when every encoder channel, or one joint's encoder, is lost (0.05 s at
+/// 10 ms): the gait is not
 /// exactly periodic, and the replay's first value differs from the applied torque by up to
 /// several N·m, which the rate limit (10 N·m a period) let through in one step. Measured on
 /// 2026-12-05 (docs/RELIABILITY.md §2, the scans of §2a): 3 / 5 / 8 steps took the fine phase
@@ -866,7 +868,7 @@ pub struct Supervisor<const N: usize, C> {
     latch_monitor: MonitorKind,
     report: SafetyReport,
     /// Applied torques of the last [`ChannelGuard::HISTORY_S`] (ring, allocated once), for
-    /// the torque replay while every encoder channel is lost.
+    /// the torque replay while every encoder channel, or one joint's encoder, is lost.
     torque_hist: Vec<SVector<f64, N>>,
     /// The angles the controller stepped on over the last [`EXTRAPOLATION_ANGLE_S`] (ring,
     /// advanced with `torque_hist`): the gait frequency of the torque extrapolation before a
@@ -875,8 +877,8 @@ pub struct Supervisor<const N: usize, C> {
     angle_pos: usize,
     torque_pos: usize,
     torque_filled: usize,
-    /// The torque extrapolation while every encoder channel is lost before the gait period
-    /// is known (`None`: hold the torque), and the steps since it began.
+    /// The torque extrapolation while an encoder is lost (every one, or one joint's) before
+    /// the gait period is known (`None`: hold the torque), and the steps since it began.
     extrapolation: Option<TorqueExtrapolation<N>>,
     extrapolated_steps: u32,
     /// The transparent fallback's demanded torque of the previous step while it had the
@@ -885,15 +887,16 @@ pub struct Supervisor<const N: usize, C> {
     /// The previous step fed the fallback a measurement (it restarts when fed again after
     /// steps without one).
     fallback_fed: bool,
-    /// The current coast began with a stalled acquisition ([`Repaired::stalled`]).
+    /// The current coast began with a stalled acquisition, or one came within it
+    /// ([`Repaired::stalled`]).
     stall_coast: bool,
     /// Per joint, consecutive steps its angle (`[0]`) and its velocity (`[1]`) have been
     /// estimates: a joint's two channels lost within the filter window of each other are
     /// one encoder's fault ([`Supervisor::joint_lost`]).
     estimated_for: [[u32; N]; 2],
     /// The current coast began with a joint's encoder lost, not every encoder: it lasts while
-    /// a channel of a joint lost within it is estimated (`coast_joints`), not until every
-    /// channel is back.
+    /// a channel of a joint whose angle and velocity were both estimates within it is estimated
+    /// (`coast_joints`), not until every channel is back.
     joint_coast: bool,
     /// The joints whose angle and velocity were both estimates within the current coast.
     coast_joints: [bool; N],
@@ -1049,35 +1052,47 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
         sup
     }
 
-    /// Whether a joint's encoder is lost this step, counting how long each channel has been
-    /// estimated (`estimated_for`): its angle and velocity both estimated, their faults begun
-    /// within `filter_window` steps of each other (a filtered velocity shows a dropped-out or
-    /// stuck raw velocity only over its window), or its angle estimated for at most
-    /// `filter_window` steps while its velocity is still accepted (the velocity may be failing
-    /// with it unseen; an angle that its velocity implies, or one of a stalled acquisition, is
-    /// not counted). The rest of an angle's fault, with its velocity still accepted, is left to
-    /// the controller on the angle the velocity integrates to. An angle fault with a velocity
-    /// rejected later in it is not an encoder lost (a 1-s spike of both angles at 3 s, 2 kg:
-    /// 14.8 N stepped on, 59.8 N coasting from the velocity's rejection on).
-    fn joint_lost(&mut self, valid: bool, rep: &Repaired<N>) -> bool {
+    /// Whether a joint's encoder is lost this step, and whether a channel of a joint whose angle
+    /// and velocity were both estimates within the current coast (`coast_joints`) still is,
+    /// counting how long each channel has been estimated (`estimated_for`; a step that is not
+    /// valid holds the counts). A joint's encoder is lost when its angle and velocity are both
+    /// estimated, their faults begun within `filter_window` steps of each other (a filtered
+    /// velocity shows a dropped-out or stuck raw velocity only over its window), and over the
+    /// first `filter_window` steps of its angle's fault whatever its velocity (a velocity still
+    /// accepted may be failing with it unseen; not for an angle that its velocity implies, nor
+    /// in a stalled acquisition). The rest of an angle's fault, with its velocity accepted, is
+    /// left to the controller on the angle the velocity integrates to. An angle fault with a
+    /// velocity rejected later in it is not an encoder lost (a 1-s spike of both angles at 3 s,
+    /// 2 kg: 14.8 N stepped on, 59.8 N coasting from the velocity's rejection on). `all_lost`:
+    /// every encoder channel is estimated (such a coast is not a joint's).
+    fn joint_lost(&mut self, valid: bool, rep: &Repaired<N>, all_lost: bool) -> (bool, bool) {
         let window = u32::try_from(self.s.filter_window).unwrap_or(u32::MAX);
         let stalled = rep.stalled || (self.coasting && self.stall_coast);
-        let mut lost = false;
+        let new_coast = all_lost || !self.coasting;
+        if new_coast {
+            self.coast_joints = [false; N];
+        }
+        let (mut lost, mut faulted) = (false, false);
         for j in 0..N {
-            let counts = [rep.estimated.q[j], rep.estimated.qd[j]];
-            for (n, &e) in self.estimated_for.iter_mut().zip(&counts) {
-                n[j] = if valid && e {
-                    n[j].saturating_add(1)
-                } else {
-                    0
-                };
+            let estimated = [rep.estimated.q[j], rep.estimated.qd[j]];
+            if valid {
+                for (n, &e) in self.estimated_for.iter_mut().zip(&estimated) {
+                    n[j] = if e { n[j].saturating_add(1) } else { 0 };
+                }
             }
             let [q_for, qd_for] = [self.estimated_for[0][j], self.estimated_for[1][j]];
-            let together = qd_for > 0 && q_for.abs_diff(qd_for) <= window;
-            let onset = q_for <= window && !rep.q_from_velocity[j] && !stalled;
-            lost |= q_for > 0 && (together || onset);
+            let both = valid && q_for > 0 && qd_for > 0;
+            self.coast_joints[j] |= both;
+            let together = both && q_for.abs_diff(qd_for) <= window;
+            let onset =
+                valid && (1..=window).contains(&q_for) && !rep.q_from_velocity[j] && !stalled;
+            lost |= together || onset;
+            faulted |= self.coast_joints[j] && (estimated[0] || estimated[1]);
         }
-        lost
+        if new_coast {
+            self.joint_coast = lost && !all_lost;
+        }
+        (lost, faulted)
     }
 
     /// The gait period `period_s` in steps, when the torque history holds more than it: the lag
@@ -1641,13 +1656,13 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             self.report.bad_measurement_steps += 1;
             (prev, StepStatus::BadMeasurement, 0)
         };
-        // Every encoder channel lost (the estimates are the gait replayed one period back):
-        // the torque replays the torque applied one gait period back (the rate limit bounds
-        // the step into it), so the robot keeps following the leg as it did a period ago,
-        // until every channel is measured again (before the gait period is known it follows
-        // the torque's extrapolation, `TorqueExtrapolation`); then it blends back to the
-        // controller's
-        // over `REPLAY_HANDBACK_STEPS`. The controller keeps stepping on the estimates; its
+        // Every encoder channel lost (the estimates are the gait replayed one period back), or
+        // one joint's encoder (below): the torque replays the torque applied one gait period
+        // back (the rate limit bounds the step into it), so the robot keeps following the leg
+        // as it did a period ago, until every channel is measured again (a joint's coast: its
+        // channels; before the gait period is known it follows the torque's extrapolation,
+        // `TorqueExtrapolation`); then it blends back to the controller's over
+        // `REPLAY_HANDBACK_STEPS`. The controller keeps stepping on the estimates; its
         // output, carried over after a period of replayed estimates, drove the robot away
         // from the leg (issue 28, docs/RELIABILITY.md §2).
         let all_lost =
@@ -1666,21 +1681,18 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         // One joint's encoder lost (its angle and velocity) coasts too: stepped on the model's
         // prediction of that joint, which follows the applied torque, the controller drove the
         // torque to its limit within 0.05 s (the knee's angle and velocity NaN for 60 ms at
-        // 1.5 s, 3 kg: 115.9 N; docs/RELIABILITY.md §2).
-        let joint_lost = self.joint_lost(valid, &rep);
-        if all_lost || !self.coasting {
-            self.joint_coast = joint_lost && !all_lost;
-            self.coast_joints = [false; N];
-        }
-        for j in 0..N {
-            self.coast_joints[j] |= valid && rep.estimated.q[j] && rep.estimated.qd[j];
-        }
-        let joint_faulted =
-            (0..N).any(|j| self.coast_joints[j] && (rep.estimated.q[j] || rep.estimated.qd[j]));
+        // 1.5 s, 3 kg: 115.9 N; docs/RELIABILITY.md §2). Such a coast lasts while a channel of
+        // a joint lost within it is estimated; one of every encoder until every channel is back.
+        let (joint_lost, joint_faulted) = self.joint_lost(valid, &rep, all_lost);
         let coast = all_lost
             || joint_lost
-            || (self.coasting && valid && self.joint_coast && joint_faulted)
-            || (self.coasting && valid && !self.joint_coast && rep.any_rejected && !angles_fault);
+            || (self.coasting
+                && valid
+                && if self.joint_coast {
+                    joint_faulted
+                } else {
+                    rep.any_rejected && !angles_fault
+                });
         // The torque replays one gait period back at the channel guard's lag, where the angles
         // repeat (`PERIOD_MATCH_STEPS`), as the channels' and `d̂`'s replays do, when the coast
         // began with that lag known; else (a coast that began in the first gait period, whose
@@ -1690,6 +1702,8 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             self.stall_coast = rep.stalled;
             self.replay_at_guard_lag = rep.estimated.period.is_some();
         }
+        // A stall within a joint's coast turns it into the stall's.
+        self.stall_coast |= all_lost && rep.stalled;
         let replay_period = (rep.estimated.period)
             .filter(|&p| self.replay_at_guard_lag && p + 2 < self.torque_filled)
             .or_else(|| self.replay_lag(period));

@@ -27,15 +27,15 @@ pub enum ChannelGroup {
 }
 
 impl ChannelGroup {
-    /// The groups of the scan's default grid (issue 28's), in the scan's order.
-    pub const ALL: [ChannelGroup; 4] = [
-        ChannelGroup::All,
-        ChannelGroup::Angles,
-        ChannelGroup::Velocities,
-        ChannelGroup::Forces,
-    ];
+    /// The groups of the scan's default grid (issue 28's), in the scan's order: the first four
+    /// of [`ChannelGroup::EVERY`].
+    pub const ALL: [ChannelGroup; 4] = {
+        let e = Self::EVERY;
+        [e[0], e[1], e[2], e[3]]
+    };
 
-    /// Every group: [`ChannelGroup::ALL`] and one joint's encoder each.
+    /// Every group, in the declaration's order: [`ChannelGroup::ALL`] and one joint's encoder
+    /// each.
     pub const EVERY: [ChannelGroup; 6] = [
         ChannelGroup::All,
         ChannelGroup::Angles,
@@ -78,17 +78,10 @@ impl ChannelGroup {
 
     /// The lowercase name (`all`, `angles`, ..., `joint1`).
     pub fn name(self) -> &'static str {
-        match self {
-            ChannelGroup::All => "all",
-            ChannelGroup::Angles => "angles",
-            ChannelGroup::Velocities => "velocities",
-            ChannelGroup::Forces => "forces",
-            ChannelGroup::Joint1 => "joint1",
-            ChannelGroup::Joint2 => "joint2",
-        }
+        Self::NAMES[self as usize]
     }
 
-    /// Every group's name, as [`ChannelGroup::parse`] takes them.
+    /// Every group's name, in the order of [`ChannelGroup::EVERY`] (the declaration's).
     pub const NAMES: [&'static str; 6] =
         ["all", "angles", "velocities", "forces", "joint1", "joint2"];
 
