@@ -453,6 +453,26 @@ fn killed_run_leaves_no_truncated_results() {
     assert!(!out_dir.join("summary.json").exists());
 }
 
+/// The arguments of `exompc faults` on one cell: a 60-ms fault of `kind` on `group` at 0 kg,
+/// 4-s runs, results in `out`.
+fn one_cell_fault_scan<'a>(kind: &'a str, group: &'a str, out: &'a str) -> [&'a str; 13] {
+    [
+        "faults",
+        "--kinds",
+        kind,
+        "--groups",
+        group,
+        "--durations",
+        "0.06",
+        "--payloads",
+        "0",
+        "--run-s",
+        "4",
+        "--out",
+        out,
+    ]
+}
+
 /// `exompc faults --groups` takes one joint's encoder (`joint1`: the hip's angle and
 /// velocity) as a group, named so in the table; an unknown group is refused (exit 2) naming
 /// what was typed and every group.
@@ -467,22 +487,7 @@ fn fault_scan_groups_include_one_joints_encoder() {
         e.contains("`joint3`") && e.contains("forces, joint1, joint2"),
         "{e}"
     );
-    let args = [
-        "faults",
-        "--kinds",
-        "dropout",
-        "--groups",
-        "joint1",
-        "--durations",
-        "0.06",
-        "--payloads",
-        "0",
-        "--run-s",
-        "4",
-        "--out",
-        d,
-    ];
-    let out = exompc(&args);
+    let out = exompc(&one_cell_fault_scan("dropout", "joint1", d));
     assert!(out.status.success(), "{}", stderr(&out));
     let md = std::fs::read_to_string(dir.join("faults.md")).unwrap();
     assert!(md.contains("| dropout | joint1 | 0.06 |"), "{md}");
@@ -495,21 +500,7 @@ fn fault_scan_groups_include_one_joints_encoder() {
 fn fault_scan_writes_table_json_and_heat_map() {
     let dir = fresh_dir("fault-scan");
     let d = dir.to_str().unwrap();
-    let args = [
-        "faults",
-        "--kinds",
-        "nan",
-        "--groups",
-        "forces",
-        "--durations",
-        "0.06",
-        "--payloads",
-        "0",
-        "--run-s",
-        "4",
-        "--out",
-        d,
-    ];
+    let args = one_cell_fault_scan("nan", "forces", d);
     let out = exompc(&args);
     assert!(out.status.success(), "{}", stderr(&out));
     let md = std::fs::read_to_string(dir.join("faults.md")).unwrap();
