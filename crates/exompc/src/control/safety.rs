@@ -1060,9 +1060,9 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
     /// velocity shows a dropped-out or stuck raw velocity only over its window), and from the
     /// second to the `filter_window`-th step of its angle's fault whatever its velocity (a
     /// velocity still accepted may be failing with it unseen; not for an angle that its
-    /// velocity implies, nor in a stalled acquisition; one sample rejected alone, a quantized
-    /// encoder's repeat over the CiA 402 bus, coasted that loop 4.3 / 6.2 % above `simulate`'s
-    /// RMS strap forces, 2.3 / 3.4 % from the second). The rest of an angle's fault, with its velocity accepted, is
+    /// velocity implies, nor in a stalled acquisition; counted from the first, the angle samples
+    /// rejected alone in the closed loop over the CiA 402 bus, `cia402_robot.rs`, coasted it
+    /// 4.3 / 6.2 % above `simulate`'s RMS strap forces, 2.3 / 3.4 % from the second). The rest of an angle's fault, with its velocity accepted, is
     /// left to the controller on the angle the velocity integrates to. An angle fault with a
     /// velocity rejected later in it is not an encoder lost (a 1-s spike of both angles at 3 s,
     /// 2 kg: 14.8 N stepped on, 59.8 N coasting from the velocity's rejection on). `all_lost`:
