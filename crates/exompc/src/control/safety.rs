@@ -1062,8 +1062,9 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
     /// velocity still accepted may be failing with it unseen; not for an angle that its
     /// velocity implies, nor in a stalled acquisition; counted from the first, the angle samples
     /// rejected alone in the closed loop over the CiA 402 bus, `cia402_robot.rs`, coasted it
-    /// 4.3 / 6.2 % above `simulate`'s RMS strap forces, 2.3 / 3.4 % from the second). The rest of an angle's fault, with its velocity accepted, is
-    /// left to the controller on the angle the velocity integrates to. An angle fault with a
+    /// 4.3 / 6.2 % above `simulate`'s RMS strap forces, 2.3 / 3.4 % from the second). The rest
+    /// of an angle's fault, with its velocity accepted, is left to the controller on the angle
+    /// the velocity integrates to. An angle fault with a
     /// velocity rejected later in it is not an encoder lost (a 1-s spike of both angles at 3 s,
     /// 2 kg: 14.8 N stepped on, 59.8 N coasting from the velocity's rejection on). `all_lost`:
     /// every encoder channel is estimated (such a coast is not a joint's).
@@ -1684,7 +1685,8 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         // prediction of that joint, which follows the applied torque, the controller drove the
         // torque to its limit within 0.05 s (the knee's angle and velocity NaN for 60 ms at
         // 1.5 s, 3 kg: 115.9 N; docs/RELIABILITY.md §2). Such a coast lasts while a channel of
-        // a joint lost within it is estimated; one of every encoder until every channel is back.
+        // a joint whose angle and velocity were both estimates within it is estimated; one of
+        // every encoder until every channel is back.
         let (joint_lost, joint_faulted) = self.joint_lost(valid, &rep, all_lost);
         let coast = all_lost
             || joint_lost

@@ -61,7 +61,7 @@ impl ChannelGroup {
     /// when they are all of one kind, one joint's encoder when they are its angle and velocity,
     /// otherwise (or for none) every sensor.
     pub fn of(channels: impl IntoIterator<Item = Channel>) -> Self {
-        let (mut any, mut held) = (false, [true; 6]);
+        let (mut any, mut held) = (false, [true; Self::EVERY.len()]);
         for c in channels {
             any = true;
             for (h, g) in held.iter_mut().zip(Self::EVERY) {
