@@ -3,6 +3,7 @@
 //! the protective stop on a drive fault, a lost drive and a lost force node.
 
 use exompc::config::Experiment;
+use exompc::control::Controller;
 use exompc::runtime::{ControlLoop, Lifecycle, LoopSettings, PeriodRecord, RobotInterface};
 use exompc::scenario::{build_supervised, limits, plant_params, uncertainty, Dof, TwoDof};
 use exompc::sim::{Plant, Sensors};
@@ -24,6 +25,8 @@ struct Rig {
     bus: VirtualBus,
     leg: Arc<Mutex<Leg>>,
     robot: Cia402Robot<2, VirtualEndpoint, VirtualClock>,
+    /// The supervisor's channel fault episodes in the last `run`.
+    sensor_faults: u64,
 }
 
 fn node(id: u32) -> NodeId {
@@ -46,7 +49,9 @@ fn rig() -> Rig {
 }
 
 fn rig_mode(mode: Mode) -> Rig {
-    let s = Experiment::default();
+    let mut s = Experiment::default();
+    // As `exompc run` sets it: one position increment at the joint (docs/RELIABILITY.md §2).
+    s.monitors.encoder_step_rad = std::f64::consts::TAU / (4096.0 * 50.0);
     let dt = Duration::from_secs_f64(s.timing.dt);
     let bus = VirtualBus::new(VirtualBusSettings::default(), TimeBase::Simulated);
     let plant = Plant::new(plant_params::<TwoDof, 2>(&s), TwoDof::trajectory(&s));
@@ -102,7 +107,13 @@ fn rig_mode(mode: Mode) -> Rig {
             phase: Some(0.5),
         },
     );
-    Rig { s, bus, leg, robot }
+    Rig {
+        s,
+        bus,
+        leg,
+        robot,
+        sensor_faults: 0,
+    }
 }
 
 fn run(rig: &mut Rig, periods: usize, mut at: impl FnMut(usize, &Rig)) -> Vec<PeriodRecord<2>> {
@@ -133,6 +144,10 @@ fn run(rig: &mut Rig, periods: usize, mut at: impl FnMut(usize, &Rig)) -> Vec<Pe
             break;
         }
     }
+    rig.sensor_faults = lp
+        .controller()
+        .safety_report()
+        .map_or(0, |r| r.sensor_faults);
     out
 }
 
@@ -164,10 +179,11 @@ fn closed_loop(mode: Mode) -> ([f64; 2], [f64; 2]) {
         sim.rms_force_n.shank.unwrap(),
     ];
     eprintln!(
-        "CiA 402 {mode:?}: {can:.3?} N, simulate {want:.3?} N; bus load {:.1} % ({} frames in {:.2} s)",
+        "CiA 402 {mode:?}: {can:.3?} N, simulate {want:.3?} N; bus load {:.1} % ({} frames in {:.2} s); {} sensor fault episodes",
         100.0 * load.fraction(),
         load.frames,
-        load.elapsed.as_secs_f64()
+        load.elapsed.as_secs_f64(),
+        r.sensor_faults
     );
     assert!(leg
         .drive_stats()

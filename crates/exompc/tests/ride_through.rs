@@ -427,7 +427,10 @@ impl Gait {
     }
     /// The clean raw sample at step k.
     fn raw(&self, k: usize) -> (SVector<f64, 2>, SVector<f64, 2>, SVector<f64, 2>) {
-        let t = k as f64 * self.dt;
+        self.raw_at(k as f64 * self.dt)
+    }
+    /// The clean raw sample at time t (s).
+    fn raw_at(&self, t: f64) -> (SVector<f64, 2>, SVector<f64, 2>, SVector<f64, 2>) {
         let w = 2.0 * std::f64::consts::PI;
         let q = SVector::from([0.4 * (w * t).sin(), -0.6 + 0.5 * (w * t + 1.0).sin()]);
         let qd = SVector::from([0.4 * w * (w * t).cos(), 0.5 * w * (w * t + 1.0).cos()]);
@@ -2142,6 +2145,87 @@ fn quantised_encoders_are_not_taken_for_frozen() {
             "known step {known}"
         );
     }
+}
+
+/// Turns between two samples, on a CiA 402 drive's encoder (4096 increments behind 50:1:
+/// 0.03 mrad, known to the guard as `exompc run` sets it) and velocity (1 rpm at the motor:
+/// 2.1 mrad/s). With the gait shifted by half a period, each joint turns midway between two
+/// samples: the angle repeats there while the filtered velocity, lagging two samples, still
+/// moves (0.3 rad/s). That is no frozen angle: no channel is rejected (before: 12 samples in
+/// 6 s). A frozen angle is still rejected on its first repeat mid-swing and on its second at
+/// a turn. A filtered velocity that repeats once (the raw sample entering its window equal to
+/// the one leaving it, as a quantised velocity does at its extremes; once in 10 s on the CiA
+/// 402 loop) is not frozen either; a frozen one is rejected within 3 samples (the stated
+/// delay).
+#[test]
+fn a_turn_between_two_samples_is_not_a_frozen_encoder() {
+    let q_step = 2.0 * std::f64::consts::PI / (4096.0 * 50.0);
+    let qd_step = 2.0 * std::f64::consts::PI / 60.0 / 50.0;
+    let quantise = |x: SVector<f64, 2>, step: f64| x.map(|v| (v / step).round() * step);
+    // Rejected samples outside the fault, and the delay until the channel is rejected; with
+    // `once`, the hip's filtered velocity repeats on that sample alone.
+    let run = |stuck: Option<(usize, usize)>, once: Option<usize>| {
+        let mut g = Gait::new();
+        let mut guard = gait_guard().with_encoder_step(q_step);
+        let (mut rejected, mut delay) = (0, None);
+        let mut held = (SVector::<f64, 2>::zeros(), SVector::<f64, 2>::zeros());
+        let mut last_qd = f64::NAN;
+        for k in 0..600 {
+            // Half a period late: the turns fall midway between samples.
+            let clean = g.raw_at(k as f64 * g.dt - 0.005);
+            let mut raw = (
+                quantise(clean.0, q_step),
+                quantise(clean.1, qd_step),
+                clean.2,
+            );
+            let faulty = stuck.is_some_and(|(_, at)| k >= at);
+            if let Some((sig, at)) = stuck {
+                if k == at {
+                    held = (raw.0, raw.1);
+                }
+                if faulty {
+                    match sig {
+                        0 => raw.0[0] = held.0[0],
+                        _ => raw.1[0] = held.1[0],
+                    }
+                }
+            }
+            let mut m = g.measure(k, raw);
+            if once == Some(k) {
+                m.qd[0] = last_qd;
+            }
+            last_qd = m.qd[0];
+            guard.repair(&m, None, 50, None);
+            if let Some((sig, at)) = stuck {
+                if faulty && delay.is_none() && guard.is_rejected(sig, 0) {
+                    delay = Some(k - at);
+                }
+            }
+            let any = (0..3).any(|s| (0..2).any(|j| guard.is_rejected(s, j)));
+            if k > 10 && !faulty && any {
+                rejected += 1;
+            }
+        }
+        (rejected, delay)
+    };
+    assert_eq!(run(None, None).0, 0, "rejected on a clean run");
+    // The hip turns midway between samples 25 and 26 (0.255 s) and swings fastest at 0.505 s;
+    // the held value repeats from the sample after `at`.
+    assert_eq!(run(Some((0, 50)), None).1, Some(1), "stuck angle mid-swing");
+    let at_turn = run(Some((0, 125)), None).1;
+    assert!(
+        at_turn.is_some_and(|d| d <= 2),
+        "stuck angle at a turn: {at_turn:?}"
+    );
+    // The hip's velocity peaks midway between samples 100 and 101.
+    assert_eq!(
+        run(None, Some(101)).0,
+        0,
+        "a filtered velocity repeated once"
+    );
+    // Stuck where the hip's velocity changes fastest (its turn at 0.755 s).
+    let qd = run(Some((1, 75)), None).1;
+    assert!(qd.is_some_and(|d| d <= 3), "stuck velocity: {qd:?}");
 }
 
 /// After a gap the guard keeps no sample in its history while a channel is rejected (nothing

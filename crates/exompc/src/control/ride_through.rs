@@ -127,7 +127,9 @@ pub const PERIOD_MATCH_EVERY: u32 = 10;
 /// Each channel (angle, filtered velocity, filtered strap force of each joint) is rejected when its
 /// sample is non-finite or out of range (in the same sample), repeated bit for bit (a frozen
 /// sensor: an angle only while the joint moves faster than [`STUCK_SPEED`], or than twice a
-/// coarse encoder's step per period, [`ChannelGuard::with_encoder_step`]), or outside its
+/// coarse encoder's step per period, [`ChannelGuard::with_encoder_step`], and on its first
+/// repeat only where the angles' extrapolation moves it by more than four steps; a filtered
+/// velocity on its second repeat in a row; a filtered force on its first), or outside its
 /// innovation gate: an angle further than `max(`[`JUMP_ACCEL`]`·dt², 0.01)` from its linear
 /// extrapolation (a jump no leg can make), a velocity further than [`VELOCITY_GATE`] from the
 /// encoder's mean slope over the filter window (what a clean filtered velocity equals; after an
@@ -165,6 +167,8 @@ pub struct ChannelGuard<const N: usize> {
     /// The speed (rad/s) above which a repeated angle is frozen ([`STUCK_SPEED`], or more for a
     /// coarse encoder: [`ChannelGuard::with_encoder_step`]).
     stuck_speed: f64,
+    /// The encoders' angle step (rad; 0: exact angles, [`ChannelGuard::with_encoder_step`]).
+    encoder_step: f64,
     /// Filter window of the velocity and force channels (samples).
     window: usize,
     bounds: [f64; 3],
@@ -373,6 +377,7 @@ impl<const N: usize> ChannelGuard<N> {
         ChannelGuard {
             dt,
             stuck_speed: STUCK_SPEED,
+            encoder_step: 0.0,
             window: window.clamp(1, 1000),
             bounds,
             gates,
@@ -423,10 +428,13 @@ impl<const N: usize> ChannelGuard<N> {
 
     /// The encoders' angle step `step` (rad, ≥ 0): an angle repeated bit for bit is frozen only
     /// while its joint moves faster than `max(STUCK_SPEED, 2 step / dt)` (a quantised angle
-    /// repeats while the joint moves less than a step per period). 0: exact angles.
+    /// repeats while the joint moves less than a step per period), and, on its first repeat,
+    /// only where the angles' own extrapolation moves it by more than 4 steps (a turn between
+    /// two samples). 0: exact angles.
     pub fn with_encoder_step(mut self, step: f64) -> Self {
         if step.is_finite() && step > 0.0 {
             self.stuck_speed = STUCK_SPEED.max(2.0 * step / self.dt);
+            self.encoder_step = step;
         }
         self
     }
@@ -654,7 +662,7 @@ impl<const N: usize> ChannelGuard<N> {
         let angle_frozen = |j: usize| {
             angle_in_range(j)
                 && vals[Q][j].to_bits() == self.raw[Q][0][j].to_bits()
-                && self.moving(vals[QD][j], j)
+                && self.angle_moved(vals[QD][j], j)
         };
         let stall = warm
             && (0..N).all(|j| self.bad_for[Q][j] == 0 && (!angle_in_range(j) || angle_frozen(j)))
@@ -686,7 +694,17 @@ impl<const N: usize> ChannelGuard<N> {
                         v.abs() <= self.bounds[sig]
                     };
                 let repeated = v.to_bits() == self.raw[sig][0][j].to_bits();
-                let stuck = warm && repeated && (sig != Q || self.moving(vals[QD][j], j));
+                // A filtered velocity repeats once where the raw sample entering its window
+                // equals the one leaving it (a quantised velocity, at its extremes); a frozen one
+                // repeats from then on. A filtered force is frozen on its first repeat: one
+                // sample later lost 4 fine-scan cells (docs/RELIABILITY.md §2).
+                let stuck = warm
+                    && repeated
+                    && match sig {
+                        Q => self.angle_moved(vals[QD][j], j),
+                        QD => self.window <= 1 || self.repeated_before(QD, j),
+                        _ => true,
+                    };
                 // A strap force's extrapolation moves with the robot's own part of it (the
                 // second difference of `ks J (q̄ + τ q̇̄)` while the angles of its joints are
                 // measured, [`ChannelGuard::with_straps`]).
@@ -1145,6 +1163,31 @@ impl<const N: usize> ChannelGuard<N> {
             self.back(QD, 1)[j]
         };
         qd.abs() > self.stuck_speed
+    }
+
+    /// Joint `j` moved over the last period by more than a repeated angle allows: it moves
+    /// ([`Self::moving`]), and on the angle's first repeat the angles' quadratic extrapolation
+    /// moves it by more than 4 encoder steps (its own quantisation error is up to 3 steps, and
+    /// a repeat allows 1). The filtered velocity lags the leg by half its window: at a turn
+    /// between two samples it still moves while the angle stays within a step (the CiA 402
+    /// loop over the bus, `crates/exompc-can/tests/cia402_robot.rs`: a turn extrapolated 2.0
+    /// steps away).
+    fn angle_moved(&self, qd: f64, j: usize) -> bool {
+        if !self.moving(qd, j) {
+            return false;
+        }
+        if self.repeated_before(Q, j) {
+            return true;
+        }
+        let [a, b, c] = [1, 2, 3].map(|s| self.back(Q, s)[j]);
+        let d = (2.0 * (a - b) - (b - c)).abs();
+        // NaN (no history) counts as moved.
+        d.is_nan() || d > 4.0 * self.encoder_step
+    }
+
+    /// The last sample of channel `sig` of joint `j` repeated the one before it bit for bit.
+    fn repeated_before(&self, sig: usize, j: usize) -> bool {
+        self.raw[sig][0][j].to_bits() == self.raw[sig][1][j].to_bits()
     }
 
     /// The angle of joint `j` has been accepted over the whole filter window (on at least two
