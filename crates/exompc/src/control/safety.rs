@@ -1057,12 +1057,10 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
     /// counting how long each channel has been estimated (`estimated_for`; a step that is not
     /// valid holds the counts). A joint's encoder is lost when its angle and velocity are both
     /// estimated, their faults begun within `filter_window` steps of each other (a filtered
-    /// velocity shows a dropped-out or stuck raw velocity only over its window), and from the
-    /// second to the `filter_window`-th step of its angle's fault whatever its velocity (a
-    /// velocity still accepted may be failing with it unseen; not for an angle that its
-    /// velocity implies, nor in a stalled acquisition; counted from the first, the angle samples
-    /// rejected alone in the closed loop over the CiA 402 bus, `cia402_robot.rs`, coasted it
-    /// 4.3 / 6.2 % above `simulate`'s RMS strap forces, 2.3 / 3.4 % from the second). The rest
+    /// velocity shows a dropped-out or stuck raw velocity only over its window), and over the
+    /// first `filter_window` steps of its angle's fault whatever its velocity (a velocity still
+    /// accepted may be failing with it unseen; not for an angle that its velocity implies, nor
+    /// in a stalled acquisition). The rest
     /// of an angle's fault, with its velocity accepted, is left to the controller on the angle
     /// the velocity integrates to. An angle fault with a
     /// velocity rejected later in it is not an encoder lost (a 1-s spike of both angles at 3 s,
@@ -1088,7 +1086,7 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             self.coast_joints[j] |= both;
             let together = both && q_for.abs_diff(qd_for) <= window;
             let onset =
-                valid && (2..=window).contains(&q_for) && !rep.q_from_velocity[j] && !stalled;
+                valid && (1..=window).contains(&q_for) && !rep.q_from_velocity[j] && !stalled;
             lost |= together || onset;
             faulted |= self.coast_joints[j] && (estimated[0] || estimated[1]);
         }
