@@ -8,9 +8,11 @@ use crate::sim::{Channel, FaultEvent, RecordResult, Recorder, StepRecord};
 use alloc::{format, string::String, vec::Vec};
 use serde::Serialize;
 
-/// A group of sensor channels that fails together.
+/// A group of sensor channels that fails together (more may come: match with a wildcard
+/// arm, or use [`ChannelGroup::EVERY`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
+#[non_exhaustive]
 pub enum ChannelGroup {
     /// Every sensor: both angles, velocities and strap forces.
     All,
