@@ -2155,16 +2155,18 @@ fn quantised_encoders_are_not_taken_for_frozen() {
 /// 6 s). A frozen angle is still rejected on its first repeat mid-swing and on its second at
 /// a turn. A filtered velocity that repeats once (the raw sample entering its window equal to
 /// the one leaving it, as a quantised velocity does at its extremes; once in 10 s on the CiA
-/// 402 loop) is not frozen either; a frozen one is rejected within 3 samples (the stated
-/// delay).
+/// 402 loop) is not frozen either; a frozen one is rejected on its second repeat at an
+/// extreme (where the velocity check cannot see it yet), and within 3 samples where the
+/// velocity changes fastest (the stated delay).
 #[test]
 fn a_turn_between_two_samples_is_not_a_frozen_encoder() {
     let q_step = 2.0 * std::f64::consts::PI / (4096.0 * 50.0);
     let qd_step = 2.0 * std::f64::consts::PI / 60.0 / 50.0;
     let quantise = |x: SVector<f64, 2>, step: f64| x.map(|v| (v / step).round() * step);
     // Rejected samples outside the fault, and the delay until the channel is rejected; with
-    // `once`, the hip's filtered velocity repeats on that sample alone.
-    let run = |stuck: Option<(usize, usize)>, once: Option<usize>| {
+    // `held_qd = (from, to)`, the hip's filtered velocity repeats the value before `from` on
+    // the samples `from..=to` (a fault when `to > from`).
+    let run = |stuck: Option<(usize, usize)>, held_qd: Option<(usize, usize)>| {
         let mut g = Gait::new();
         let mut guard = gait_guard().with_encoder_step(q_step);
         let (mut rejected, mut delay) = (0, None);
@@ -2178,7 +2180,9 @@ fn a_turn_between_two_samples_is_not_a_frozen_encoder() {
                 quantise(clean.1, qd_step),
                 clean.2,
             );
-            let faulty = stuck.is_some_and(|(_, at)| k >= at);
+            let qd_held = held_qd.is_some_and(|(from, to)| (from..=to).contains(&k));
+            let faulty = stuck.is_some_and(|(_, at)| k >= at)
+                || (qd_held && held_qd.is_some_and(|(from, to)| to > from));
             if let Some((sig, at)) = stuck {
                 if k == at {
                     held = (raw.0, raw.1);
@@ -2191,15 +2195,18 @@ fn a_turn_between_two_samples_is_not_a_frozen_encoder() {
                 }
             }
             let mut m = g.measure(k, raw);
-            if once == Some(k) {
+            if qd_held {
                 m.qd[0] = last_qd;
             }
             last_qd = m.qd[0];
             guard.repair(&m, None, 50, None);
-            if let Some((sig, at)) = stuck {
-                if faulty && delay.is_none() && guard.is_rejected(sig, 0) {
-                    delay = Some(k - at);
-                }
+            let (sig, at) = match (stuck, held_qd) {
+                (Some(s), _) => s,
+                (None, Some((from, _))) => (1, from),
+                _ => (0, 0),
+            };
+            if faulty && delay.is_none() && guard.is_rejected(sig, 0) {
+                delay = Some(k - at);
             }
             let any = (0..3).any(|s| (0..2).any(|j| guard.is_rejected(s, j)));
             if k > 10 && !faulty && any {
@@ -2212,16 +2219,22 @@ fn a_turn_between_two_samples_is_not_a_frozen_encoder() {
     // The hip turns midway between samples 25 and 26 (0.255 s) and swings fastest at 0.505 s;
     // the held value repeats from the sample after `at`.
     assert_eq!(run(Some((0, 50)), None).1, Some(1), "stuck angle mid-swing");
-    let at_turn = run(Some((0, 125)), None).1;
-    assert!(
-        at_turn.is_some_and(|d| d <= 2),
-        "stuck angle at a turn: {at_turn:?}"
+    assert_eq!(
+        run(Some((0, 125)), None).1,
+        Some(2),
+        "stuck angle at a turn"
     );
     // The hip's velocity peaks midway between samples 100 and 101.
     assert_eq!(
-        run(None, Some(101)).0,
+        run(None, Some((101, 101))).0,
         0,
         "a filtered velocity repeated once"
+    );
+    // Frozen from there: its first repeat at 101, its second at 102.
+    assert_eq!(
+        run(None, Some((101, 599))).1,
+        Some(1),
+        "a frozen filtered velocity at its extreme"
     );
     // Stuck where the hip's velocity changes fastest (its turn at 0.755 s).
     let qd = run(Some((1, 75)), None).1;

@@ -129,7 +129,8 @@ pub const PERIOD_MATCH_EVERY: u32 = 10;
 /// sensor: an angle only while the joint moves faster than [`STUCK_SPEED`], or than twice a
 /// coarse encoder's step per period, [`ChannelGuard::with_encoder_step`], and on its first
 /// repeat only where the angles' extrapolation moves it by more than four steps; a filtered
-/// velocity on its second repeat in a row; a filtered force on its first), or outside its
+/// velocity on its second repeat in a row, its first with a window of one sample; a filtered
+/// force on its first), or outside its
 /// innovation gate: an angle further than `max(`[`JUMP_ACCEL`]`·dt², 0.01)` from its linear
 /// extrapolation (a jump no leg can make), a velocity further than [`VELOCITY_GATE`] from the
 /// encoder's mean slope over the filter window (what a clean filtered velocity equals; after an
@@ -659,10 +660,11 @@ impl<const N: usize> ChannelGuard<N> {
         // own and imply the angles of the whole fault (`angles_through_stall`).
         let angle_in_range =
             |j: usize| vals[Q][j].is_finite() && vals[Q][j].abs() <= self.bounds[Q];
+        // (On the joint's velocity alone: a stall at one joint's turn is still a stall.)
         let angle_frozen = |j: usize| {
             angle_in_range(j)
                 && vals[Q][j].to_bits() == self.raw[Q][0][j].to_bits()
-                && self.angle_moved(vals[QD][j], j)
+                && self.moving(vals[QD][j], j)
         };
         let stall = warm
             && (0..N).all(|j| self.bad_for[Q][j] == 0 && (!angle_in_range(j) || angle_frozen(j)))
@@ -1181,7 +1183,7 @@ impl<const N: usize> ChannelGuard<N> {
         }
         let [a, b, c] = [1, 2, 3].map(|s| self.back(Q, s)[j]);
         let d = (2.0 * (a - b) - (b - c)).abs();
-        // NaN (no history) counts as moved.
+        // A NaN estimate counts as moved.
         d.is_nan() || d > 4.0 * self.encoder_step
     }
 

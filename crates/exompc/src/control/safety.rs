@@ -146,7 +146,9 @@ pub struct Monitors {
     /// taken for frozen only while the joint moves faster than
     /// `max(STUCK_SPEED, 2 · encoder_step_rad / dt)` ([`ChannelGuard::with_encoder_step`];
     /// twice the step per period: the test reads the filtered velocity, which lags the
-    /// joint's by two samples where the leg turns). 0 (default): `STUCK_SPEED` (0.05 rad/s)
+    /// joint's by two samples where the leg turns), and on its first repeat only where the
+    /// angles' quadratic extrapolation moves it by more than 4 steps (a turn between two
+    /// samples). 0 (default): `STUCK_SPEED` (0.05 rad/s)
     /// alone, as for exact angles; on the 1-Hz test gait the T-Motor AK's 16-bit position
     /// (0.38 mrad) raised no rejection with it, a 12-bit encoder per turn (1.53 mrad) one at
     /// every turn of the leg. `exompc run` with CiA 402 drives takes at least one position
