@@ -165,9 +165,6 @@ pub const PERIOD_MATCH_EVERY: u32 = 10;
 #[derive(Clone, Debug)]
 pub struct ChannelGuard<const N: usize> {
     dt: f64,
-    /// The speed (rad/s) above which a repeated angle is frozen ([`STUCK_SPEED`], or more for a
-    /// coarse encoder: [`ChannelGuard::with_encoder_step`]).
-    stuck_speed: f64,
     /// The encoders' angle step (rad; 0: exact angles, [`ChannelGuard::with_encoder_step`]).
     encoder_step: f64,
     /// Filter window of the velocity and force channels (samples).
@@ -377,7 +374,6 @@ impl<const N: usize> ChannelGuard<N> {
         let gates = [(JUMP_ACCEL * dt * dt).max(0.01), VELOCITY_GATE, FORCE_GATE];
         ChannelGuard {
             dt,
-            stuck_speed: STUCK_SPEED,
             encoder_step: 0.0,
             window: window.clamp(1, 1000),
             bounds,
@@ -434,7 +430,6 @@ impl<const N: usize> ChannelGuard<N> {
     /// two samples). 0: exact angles.
     pub fn with_encoder_step(mut self, step: f64) -> Self {
         if step.is_finite() && step > 0.0 {
-            self.stuck_speed = STUCK_SPEED.max(2.0 * step / self.dt);
             self.encoder_step = step;
         }
         self
@@ -1157,14 +1152,14 @@ impl<const N: usize> ChannelGuard<N> {
 
     /// Joint `j` moves fast enough for a repeated angle to be frozen: its velocity (this
     /// sample's `qd` if the velocity was accepted on the last step and `qd` is finite, else the
-    /// last estimate) faster than `stuck_speed`.
+    /// last estimate) faster than `max(STUCK_SPEED, 2 · encoder_step / dt)`.
     fn moving(&self, qd: f64, j: usize) -> bool {
         let qd = if self.bad_for[QD][j] == 0 && qd.is_finite() {
             qd
         } else {
             self.back(QD, 1)[j]
         };
-        qd.abs() > self.stuck_speed
+        qd.abs() > STUCK_SPEED.max(2.0 * self.encoder_step / self.dt)
     }
 
     /// Joint `j` moved over the last period by more than a repeated angle allows: it moves
