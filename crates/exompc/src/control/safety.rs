@@ -752,6 +752,18 @@ pub const STOP_HANDBACK_STEPS: u32 = 20;
 /// was ([`TorqueExtrapolation`]).
 pub const REPLAY_BLEND_IN_STEPS: u32 = 5;
 
+/// Gain of the strap-force feedback on one joint's coast: while a joint's encoder is lost and
+/// the strap forces are measured, the coast's torque (the replay of one gait period back, or
+/// the torque's extrapolation before the period is known) is corrected by
+/// `COAST_FORCE_GAIN · Jᵀ (F − F₀)`, `F₀` the strap forces when the coast began and `Jᵀ` the
+/// straps' lever map (paper eqs. 3-4: `Jᵀ F` is the strap torque on the robot). The replay is
+/// open loop: the gait is not exactly periodic (early in a run the torque one period back lay
+/// 3-4 N·m off), and the strap stretch it left built up over the coast; the measured forces
+/// see it. Chosen by measurement (docs/RELIABILITY.md §2, "One joint's encoder"): 1 / 2 / 3
+/// took the fine joint scan to 1214 / 1216 / 1216 of 1216 cells (worst 13.1 / 10.1 / 11.8 N)
+/// and its 1-s scan to 286 / 288 / 288 of 288 (worst 117.8 / 56.1 / 54.7 N).
+pub const COAST_FORCE_GAIN: f64 = 2.0;
+
 /// How long (s) the configured `hold` or `ramp_to_zero` keeps the torque before the
 /// transparent fallback takes it, if the trip's cause is then present (a tripped monitor's
 /// condition, still or again before the monitors have cleared, or the latch;
@@ -881,7 +893,7 @@ pub struct Supervisor<const N: usize, C> {
     torque_filled: usize,
     /// The torque extrapolation while an encoder is lost (every one, or one joint's) before
     /// the gait period is known (`None`: hold the torque), and the steps since it began.
-    extrapolation: Option<TorqueExtrapolation<N>>,
+    extrapolation: Box<Option<TorqueExtrapolation<N>>>,
     extrapolated_steps: u32,
     /// The transparent fallback's demanded torque of the previous step while it had the
     /// torque (the divergence check of `watch_fallback`).
@@ -908,6 +920,14 @@ pub struct Supervisor<const N: usize, C> {
     /// applied torque it starts from ([`REPLAY_BLEND_IN_STEPS`]).
     blend_in: u32,
     blend_in_from: SVector<f64, N>,
+    /// One joint's coast: the offset that continues the applied torque into the replay of one
+    /// gait period back, `T(k₀ − 1) − T(k₀ − 1 − p)` (`k₀` the coast's first step), fading
+    /// out over one period, and the steps since the coast began.
+    coast_offset: SVector<f64, N>,
+    coast_steps: u32,
+    /// One joint's coast: the strap forces when it began (`None`: they were estimates), from
+    /// which the strap-force feedback counts their change ([`COAST_FORCE_GAIN`]).
+    coast_force0: Option<SVector<f64, N>>,
     /// Steps left of the blend from the replay back to the controller, and the replay's lag
     /// (steps) on the last step.
     handback: u32,
@@ -1027,7 +1047,7 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             fallback_fed: false,
             torque_pos: 0,
             torque_filled: 0,
-            extrapolation: None,
+            extrapolation: Box::new(None),
             extrapolated_steps: 0,
             stall_coast: false,
             estimated_for: [[0; N]; 2],
@@ -1036,6 +1056,9 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             coasting: false,
             blend_in: 0,
             blend_in_from: SVector::zeros(),
+            coast_offset: SVector::zeros(),
+            coast_steps: 0,
+            coast_force0: None,
             handback: 0,
             replay_lag_now: None,
             replay_at_guard_lag: false,
@@ -1087,8 +1110,7 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
             let both = valid && q_for > 0 && qd_for > 0;
             self.coast_joints[j] |= both;
             let together = both && q_for.abs_diff(qd_for) <= window;
-            let onset =
-                valid && (1..=window).contains(&q_for) && !rep.q_from_velocity[j] && !stalled;
+            let onset = valid && q_for > 0 && !rep.q_from_velocity[j] && !stalled;
             lost |= together || onset;
             faulted |= self.coast_joints[j] && (estimated[0] || estimated[1]);
         }
@@ -1217,6 +1239,30 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
     fn torque_back(&self, lag: usize, ahead: usize) -> SVector<f64, N> {
         let len = self.torque_hist.len();
         self.torque_hist[(self.torque_pos + ahead + len - lag % len) % len]
+    }
+
+    /// One joint's coast: the offset that continues the applied torque into the replay at lag
+    /// `p`, `steps` steps into the coast (fading out linearly over `p` steps).
+    fn coast_offset_at(&self, steps: u32, p: usize) -> SVector<f64, N> {
+        let fade = 1.0 - f64::from(steps) / p.max(1) as f64;
+        self.coast_offset * fade.max(0.0)
+    }
+
+    /// The strap-force feedback's torque `COAST_FORCE_GAIN · Jᵀ ΔF` for the strap forces'
+    /// change `df` ([`COAST_FORCE_GAIN`]; `Jᵀ ΔF` the change of the strap torque on the robot,
+    /// paper eqs. 3-4); zero without the straps' levers and stiffness or if not finite.
+    fn strap_feedback(&self, df: &SVector<f64, N>) -> SVector<f64, N> {
+        let (ks_j, _, known) = strap_model::<N>(
+            &self.s.strap_levers_m,
+            self.s.strap_stiffness,
+            self.s.strap_damping,
+        );
+        let c = ks_j.transpose() * df * (COAST_FORCE_GAIN / self.s.strap_stiffness);
+        if known && c.iter().all(|v| v.is_finite()) {
+            c
+        } else {
+            SVector::zeros()
+        }
     }
 
     /// A gap of `gap_s` in the measurements (periods the runtime did not step the controller,
@@ -1717,7 +1763,7 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         // ([`TorqueExtrapolation`], fitted when the coast begins), or holds it when no fit is
         // possible.
         if replay_period.is_none() && coast && !self.coasting && !gap {
-            self.extrapolation = TorqueExtrapolation::fit(
+            *self.extrapolation = TorqueExtrapolation::fit(
                 &self.torque_hist,
                 self.torque_pos,
                 &self.angle_hist,
@@ -1727,17 +1773,40 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             );
             self.extrapolated_steps = 0;
         }
+        // One joint's coast continues the applied torque into the replay (an offset fading out
+        // over one period, instead of the blend below) and corrects the replay or the
+        // extrapolation by the strap forces' change since it began ([`COAST_FORCE_GAIN`]).
+        if coast && !self.coasting {
+            self.coast_steps = 0;
+            self.coast_offset = match replay_period {
+                Some(p) if self.joint_coast => prev - self.torque_back(p + 1, 0),
+                _ => SVector::zeros(),
+            };
+            let forces_measured = !rep.estimated.force.iter().any(|&e| e);
+            self.coast_force0 = (self.joint_coast && forces_measured).then_some(rep.m.force);
+        }
+        // None while the forces are estimates (held, the hip's 1-s spike at 1 s, 3 kg, of the
+        // joint scan went from 44.7 to 78.6 N).
+        let coast_feedback = match self.coast_force0 {
+            Some(f0) if self.joint_coast && !rep.estimated.force.iter().any(|&e| e) => {
+                self.strap_feedback(&(rep.m.force - f0))
+            }
+            _ => SVector::zeros(),
+        };
         let replay = match replay_period {
-            Some(p) => Some(self.torque_back(p, 0)),
-            None => match &self.extrapolation {
+            Some(p) => Some(
+                self.torque_back(p, 0) + self.coast_offset_at(self.coast_steps, p) + coast_feedback,
+            ),
+            None => match &*self.extrapolation {
                 Some(x) if !gap => {
-                    let r = x.at(self.extrapolated_steps, self.dt());
+                    let r = x.at(self.extrapolated_steps, self.dt()) + coast_feedback;
                     self.extrapolated_steps = self.extrapolated_steps.saturating_add(1);
                     Some(r)
                 }
                 _ => (self.torque_filled > 0).then_some(prev),
             },
         };
+        self.coast_steps = self.coast_steps.saturating_add(1);
         // After a gap in the data (a link outage: the robot rode through on its replay of the
         // torque one gait period back) the controller resumes on fresh filters and estimates:
         // its first outputs swung at the rate limit (issue 28, docs/REALTIME.md). The torque
@@ -1748,7 +1817,7 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         // Into the replay of one gait period back the torque blends from the applied one over
         // `REPLAY_BLEND_IN_STEPS` (through a handback that begins within them too).
         if coast && !self.coasting {
-            self.blend_in = if replay_period.is_some() {
+            self.blend_in = if replay_period.is_some() && !self.joint_coast {
                 REPLAY_BLEND_IN_STEPS
             } else {
                 0
@@ -1786,7 +1855,7 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             }
         };
         if !self.coasting && self.handback == 0 {
-            self.extrapolation = None;
+            *self.extrapolation = None;
         }
         // When the protective stop ends the torque goes back to the controller's over
         // `STOP_HANDBACK_STEPS`, from where the stop left it.
@@ -1880,9 +1949,13 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
             // Period k+1+i of a handback with `left − i` steps left.
             let left = self.handback.saturating_sub(ahead);
             let replay = match self.replay_lag_now {
-                Some(lag) if i < lag => Some(self.torque_back(lag, i)),
+                Some(lag) if i < lag => Some(
+                    self.torque_back(lag, i)
+                        + self.coast_offset_at(self.coast_steps.saturating_add(ahead), lag),
+                ),
                 Some(_) => None,
-                None => (self.extrapolation.as_ref())
+                None => (*self.extrapolation)
+                    .as_ref()
                     .map(|x| x.at(self.extrapolated_steps.saturating_add(ahead), self.dt())),
             };
             let mut d = *o;
