@@ -740,8 +740,8 @@ pub const REPLAY_HANDBACK_STEPS: u32 = 10;
 pub const STOP_HANDBACK_STEPS: u32 = 20;
 
 /// Steps over which the torque blends from the applied one into the replay of the torque one
-/// gait period back when every encoder channel, or one joint's encoder, is lost (0.05 s at
-/// 10 ms): the gait is not
+/// gait period back when every encoder channel is lost (0.05 s at 10 ms; one joint's coast
+/// continues the applied torque by an offset instead, [`COAST_FORCE_GAIN`]): the gait is not
 /// exactly periodic, and the replay's first value differs from the applied torque by up to
 /// several N·m, which the rate limit (10 N·m a period) let through in one step. Measured on
 /// 2026-12-05 (docs/RELIABILITY.md §2, the scans of §2a): 3 / 5 / 8 steps took the fine phase
@@ -909,8 +909,8 @@ pub struct Supervisor<const N: usize, C> {
     /// one encoder's fault ([`Supervisor::joint_lost`]).
     estimated_for: [[u32; N]; 2],
     /// The current coast began with a joint's encoder lost, not every encoder: it lasts while
-    /// a channel of a joint whose angle and velocity were both estimates within it is estimated
-    /// (`coast_joints`), not until every channel is back.
+    /// a joint's angle is estimated, or a channel of a joint whose angle and velocity were both
+    /// estimates within it (`coast_joints`), not until every channel is back.
     joint_coast: bool,
     /// The joints whose angle and velocity were both estimates within the current coast.
     coast_joints: [bool; N],
@@ -1082,15 +1082,15 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
     /// counting how long each channel has been estimated (`estimated_for`; a step that is not
     /// valid holds the counts). A joint's encoder is lost when its angle and velocity are both
     /// estimated, their faults begun within `filter_window` steps of each other (a filtered
-    /// velocity shows a dropped-out or stuck raw velocity only over its window), and over the
-    /// first `filter_window` steps of its angle's fault whatever its velocity (a velocity still
-    /// accepted may be failing with it unseen; not for an angle that its velocity implies, nor
-    /// in a stalled acquisition). The rest
-    /// of an angle's fault, with its velocity accepted, is left to the controller on the angle
-    /// the velocity integrates to. An angle fault with a
-    /// velocity rejected later in it is not an encoder lost (a 1-s spike of both angles at 3 s,
-    /// 2 kg: 14.8 N stepped on, 59.8 N coasting from the velocity's rejection on). `all_lost`:
-    /// every encoder channel is estimated (such a coast is not a joint's).
+    /// velocity shows a dropped-out or stuck raw velocity only over its window), and while its
+    /// angle is estimated whatever its velocity (a velocity still accepted may be failing with
+    /// it unseen; not for an angle that its velocity implies, nor in a stalled acquisition).
+    /// Handed to the controller on the angle its velocity integrates to after the filter
+    /// window, a 200-ms stuck hip angle at 2.25 s, 3 kg, peaked at 33.7 N (9.8 N coasting). An
+    /// angle fault with a velocity rejected later in it is not an encoder lost (a 1-s spike of
+    /// both angles at 3 s, 2 kg: 14.8 N stepped on, 59.8 N coasting from the velocity's
+    /// rejection on). `all_lost`: every encoder channel is estimated (such a coast is not a
+    /// joint's).
     fn joint_lost(&mut self, valid: bool, rep: &Repaired<N>, all_lost: bool) -> (bool, bool) {
         let window = u32::try_from(self.s.filter_window).unwrap_or(u32::MAX);
         let stalled = rep.stalled || (self.coasting && self.stall_coast);
@@ -1730,9 +1730,9 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         // One joint's encoder lost (its angle and velocity) coasts too: stepped on the model's
         // prediction of that joint, which follows the applied torque, the controller drove the
         // torque to its limit within 0.05 s (the knee's angle and velocity NaN for 60 ms at
-        // 1.5 s, 3 kg: 115.9 N; docs/RELIABILITY.md §2). Such a coast lasts while a channel of
-        // a joint whose angle and velocity were both estimates within it is estimated; one of
-        // every encoder until every channel is back.
+        // 1.5 s, 3 kg: 115.9 N; docs/RELIABILITY.md §2). Such a coast lasts while a joint's
+        // angle is estimated, or a channel of a joint whose angle and velocity were both
+        // estimates within it; one of every encoder until every channel is back.
         let (joint_lost, joint_faulted) = self.joint_lost(valid, &rep, all_lost);
         let coast = all_lost
             || joint_lost
