@@ -741,7 +741,8 @@ pub const STOP_HANDBACK_STEPS: u32 = 20;
 
 /// Steps over which the torque blends from the applied one into the replay of the torque one
 /// gait period back when every encoder channel is lost (0.05 s at 10 ms; one joint's coast
-/// continues the applied torque by an offset instead, [`COAST_FORCE_GAIN`]): the gait is not
+/// starts from the applied torque by the offset `T(k₀ − 1) − T(k₀ − 1 − p)` instead, fading
+/// out over one period, docs/RELIABILITY.md §2): the gait is not
 /// exactly periodic, and the replay's first value differs from the applied torque by up to
 /// several N·m, which the rate limit (10 N·m a period) let through in one step. Measured on
 /// 2026-12-05 (docs/RELIABILITY.md §2, the scans of §2a): 3 / 5 / 8 steps took the fine phase
@@ -759,9 +760,12 @@ pub const REPLAY_BLEND_IN_STEPS: u32 = 5;
 /// straps' lever map (paper eqs. 3-4: `Jᵀ F` is the strap torque on the robot). The replay is
 /// open loop: the gait is not exactly periodic (early in a run the torque one period back lay
 /// 3-4 N·m off), and the strap stretch it left built up over the coast; the measured forces
-/// see it. Chosen by measurement (docs/RELIABILITY.md §2, "One joint's encoder"): 1 / 2 / 3
-/// took the fine joint scan to 1214 / 1216 / 1216 of 1216 cells (worst 13.1 / 10.1 / 11.8 N)
-/// and its 1-s scan to 286 / 288 / 288 of 288 (worst 117.8 / 56.1 / 54.7 N).
+/// see it. The correction ends with the joint's coast (the handback blends the controller in
+/// from the replay without it; the rate limit bounds that step); in a coast longer than one
+/// gait period the replayed torque carries the correction of one period back, to which the
+/// new one adds. Chosen by measurement (docs/RELIABILITY.md §2, "One joint's encoder"): 1 / 2
+/// / 3 took the fine joint scan to 1214 / 1216 / 1216 of 1216 cells (worst 13.1 / 10.1 /
+/// 11.8 N) and its 1-s scan to 286 / 288 / 288 of 288 (worst 117.8 / 56.1 / 54.7 N).
 pub const COAST_FORCE_GAIN: f64 = 2.0;
 
 /// How long (s) the configured `hold` or `ramp_to_zero` keeps the torque before the
@@ -1085,11 +1089,12 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
     /// velocity shows a dropped-out or stuck raw velocity only over its window), and while its
     /// angle is estimated whatever its velocity (a velocity still accepted may be failing with
     /// it unseen; not for an angle that its velocity implies, nor in a stalled acquisition).
-    /// Handed to the controller on the angle its velocity integrates to after the filter
-    /// window, a 200-ms stuck hip angle at 2.25 s, 3 kg, peaked at 33.7 N (9.8 N coasting). An
-    /// angle fault with a velocity rejected later in it is not an encoder lost (a 1-s spike of
-    /// both angles at 3 s, 2 kg: 14.8 N stepped on, 59.8 N coasting from the velocity's
-    /// rejection on). `all_lost`: every encoder channel is estimated (such a coast is not a
+    /// Coasting for the whole angle fault: a 200-ms stuck hip angle at 2.25 s, 3 kg, 9.8 N,
+    /// against 33.7 N handed to the controller on the angle its velocity integrates to after
+    /// the filter window. A velocity rejected later in an angle fault does not make the two
+    /// one encoder's fault (a coast begun at that rejection took a 1-s spike of both angles at
+    /// 3 s, 2 kg, to 59.8 N); the angle's coast covers it from the angle's first step
+    /// (27.1 N). `all_lost`: every encoder channel is estimated (such a coast is not a
     /// joint's).
     fn joint_lost(&mut self, valid: bool, rep: &Repaired<N>, all_lost: bool) -> (bool, bool) {
         let window = u32::try_from(self.s.filter_window).unwrap_or(u32::MAX);
