@@ -1057,7 +1057,7 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     /// the continuation) and the measured rows update the joint states alone. The
     /// probabilities are kept throughout.
     fn mark_estimated(&mut self, estimated: &EstimatedChannels<N>) {
-        let force = estimated.force.iter().any(|&e| e);
+        let force = estimated.any_force();
         self.forces_estimated = force;
         self.forces_estimated_for = if force {
             self.forces_estimated_for.saturating_add(1)

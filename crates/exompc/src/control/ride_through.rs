@@ -321,9 +321,14 @@ impl<const N: usize> EstimatedChannels<N> {
         self.q.iter().chain(&self.qd).any(|&e| e)
     }
 
+    /// Some strap force is an estimate.
+    pub fn any_force(&self) -> bool {
+        self.force.iter().any(|&e| e)
+    }
+
     /// Some channel is an estimate.
     pub fn any(&self) -> bool {
-        self.any_encoder() || self.force.iter().any(|&e| e)
+        self.any_encoder() || self.any_force()
     }
 }
 
@@ -455,6 +460,11 @@ impl<const N: usize> ChannelGuard<N> {
     /// history; NaN without the strap model, or unless the angles of the window and of the
     /// sample before it are measured (an estimate's step back to the measurement is no motion
     /// of the robot).
+    /// The strap model's `ks J` given by [`Self::with_straps`], if any.
+    pub(crate) fn strap_stiffness_map(&self) -> Option<SMatrix<f64, N, N>> {
+        self.straps.map(|(ks_j, _)| ks_j)
+    }
+
     fn joint_motion(&self, q: f64, i: usize) -> f64 {
         let Some((_, tau)) = self.straps else {
             return f64::NAN;

@@ -1255,15 +1255,14 @@ impl<const N: usize, C: Controller<N>> Supervisor<N, C> {
 
     /// The strap-force feedback's torque `COAST_FORCE_GAIN · Jᵀ ΔF` for the strap forces'
     /// change `df` ([`COAST_FORCE_GAIN`]; `Jᵀ ΔF` the change of the strap torque on the robot,
-    /// paper eqs. 3-4); zero without the straps' levers and stiffness or if not finite.
+    /// paper eqs. 3-4, from the channel guard's `ks J`); zero without the straps' levers and
+    /// stiffness or if not finite.
     fn strap_feedback(&self, df: &SVector<f64, N>) -> SVector<f64, N> {
-        let (ks_j, _, known) = strap_model::<N>(
-            &self.s.strap_levers_m,
-            self.s.strap_stiffness,
-            self.s.strap_damping,
-        );
+        let Some(ks_j) = self.guard.strap_stiffness_map() else {
+            return SVector::zeros();
+        };
         let c = ks_j.transpose() * df * (COAST_FORCE_GAIN / self.s.strap_stiffness);
-        if known && c.iter().all(|v| v.is_finite()) {
+        if c.iter().all(|v| v.is_finite()) {
             c
         } else {
             SVector::zeros()
@@ -1781,19 +1780,19 @@ impl<const N: usize, C: Controller<N>> Controller<N> for Supervisor<N, C> {
         // One joint's coast continues the applied torque into the replay (an offset fading out
         // over one period, instead of the blend below) and corrects the replay or the
         // extrapolation by the strap forces' change since it began ([`COAST_FORCE_GAIN`]).
+        let forces_measured = !rep.estimated.any_force();
         if coast && !self.coasting {
             self.coast_steps = 0;
             self.coast_offset = match replay_period {
                 Some(p) if self.joint_coast => prev - self.torque_back(p + 1, 0),
                 _ => SVector::zeros(),
             };
-            let forces_measured = !rep.estimated.force.iter().any(|&e| e);
             self.coast_force0 = (self.joint_coast && forces_measured).then_some(rep.m.force);
         }
         // None while the forces are estimates (held, the hip's 1-s spike at 1 s, 3 kg, of the
         // joint scan went from 44.7 to 78.6 N).
         let coast_feedback = match self.coast_force0 {
-            Some(f0) if self.joint_coast && !rep.estimated.force.iter().any(|&e| e) => {
+            Some(f0) if self.joint_coast && forces_measured => {
                 self.strap_feedback(&(rep.m.force - f0))
             }
             _ => SVector::zeros(),
