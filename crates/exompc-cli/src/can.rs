@@ -175,7 +175,7 @@ pub fn virtual_bus(hw: &HardwareConfig, time: TimeBase) -> VirtualBus {
     VirtualBus::new(settings, time)
 }
 
-/// The bus of a CAN run: the in-process virtual bus, or an slcan adapter.
+/// The bus of a CAN run: the in-process virtual bus, an slcan adapter, or a SocketCAN interface.
 pub enum AnyBus {
     /// An endpoint of the in-process virtual bus.
     Virtual(VirtualEndpoint),
@@ -254,6 +254,58 @@ impl Clock for AnyClock {
     }
 }
 
+/// Opens the hardware bus of `robot.bus` (slcan, or SocketCAN in a Linux build with the
+/// feature `socketcan`) for the AK and the CiA 402 robots alike, with a label for messages
+/// (`slcan /dev/ttyACM0 at 1000000 bit/s`, `SocketCAN can0`). The virtual transport is built
+/// with its simulated leg by each robot's `rig`; here it, and a transport this build lacks,
+/// is a configuration error.
+pub fn hardware_bus(bus: &BusConfig) -> Result<(AnyBus, String), CliError> {
+    match bus {
+        #[cfg(unix)]
+        BusConfig::Slcan(sl) => {
+            let port = exompc_can::FdPort::open(Path::new(&sl.port)).map_err(|e| {
+                CliError::io(
+                    format!("opening the slcan port {} (robot.bus.port)", sl.port),
+                    e,
+                )
+            })?;
+            let bus = exompc_can::SlcanBus::open(port, sl.bitrate)
+                .map_err(|e| CliError::Runtime(format!("slcan adapter at {}: {e}", sl.port)))?;
+            Ok((
+                AnyBus::Slcan(bus),
+                format!("slcan {} at {} bit/s", sl.port, sl.bitrate),
+            ))
+        }
+        #[cfg(all(target_os = "linux", feature = "socketcan"))]
+        BusConfig::Socketcan(sc) => {
+            let bus =
+                exompc_can::socketcan_bus::SocketCanBus::open(&sc.interface).map_err(|e| {
+                    CliError::io(
+                        format!(
+                            "opening SocketCAN interface {} (robot.bus.interface)",
+                            sc.interface
+                        ),
+                        e,
+                    )
+                })?;
+            Ok((
+                AnyBus::SocketCan(bus),
+                format!("SocketCAN {}", sc.interface),
+            ))
+        }
+        BusConfig::Virtual(_) => Err(CliError::Config(
+            "robot.bus.transport: \"virtual\" has no hardware bus to open".into(),
+        )),
+        #[allow(unreachable_patterns)]
+        _ => Err(CliError::Config(
+            "robot.bus.transport: \"socketcan\" needs a Linux build with the feature \
+             `socketcan` (cargo build --release --features exompc-cli/socketcan); available \
+             here: \"virtual\", \"slcan\""
+                .into(),
+        )),
+    }
+}
+
 /// A CAN robot with its clock, and for the virtual transport the bus and the simulated leg.
 pub struct CanRig<const N: usize, Tr: exompc::sim::Trajectory<N>> {
     /// The robot.
@@ -302,19 +354,11 @@ where
                 label: format!("virtual CAN bus at {} bit/s", hw.bus.bitrate()),
             })
         }
-        #[cfg(unix)]
-        BusConfig::Slcan(sl) => {
-            let port = exompc_can::FdPort::open(Path::new(&sl.port)).map_err(|e| {
-                CliError::io(
-                    format!("opening the slcan port {} (robot.bus.port)", sl.port),
-                    e,
-                )
-            })?;
-            let bus = exompc_can::SlcanBus::open(port, sl.bitrate)
-                .map_err(|e| CliError::Runtime(format!("slcan adapter at {}: {e}", sl.port)))?;
+        hardware => {
+            let (bus, label) = hardware_bus(hardware)?;
             let clock = AnyClock::Monotonic(MonotonicClock::new(spin));
             let robot = CanRobot::new(
-                AnyBus::Slcan(bus),
+                bus,
                 clock.clone(),
                 drives,
                 names,
@@ -326,44 +370,8 @@ where
                 clock,
                 bus: None,
                 leg: None,
-                label: format!("slcan {} at {} bit/s", sl.port, sl.bitrate),
+                label,
             })
         }
-        #[cfg(all(target_os = "linux", feature = "socketcan"))]
-        BusConfig::Socketcan(sc) => {
-            let bus =
-                exompc_can::socketcan_bus::SocketCanBus::open(&sc.interface).map_err(|e| {
-                    CliError::io(
-                        format!(
-                            "opening SocketCAN interface {} (robot.bus.interface)",
-                            sc.interface
-                        ),
-                        e,
-                    )
-                })?;
-            let clock = AnyClock::Monotonic(MonotonicClock::new(spin));
-            let robot = CanRobot::new(
-                AnyBus::SocketCan(bus),
-                clock.clone(),
-                drives,
-                names,
-                sensors,
-                settings(s, hw, None),
-            );
-            Ok(CanRig {
-                robot,
-                clock,
-                bus: None,
-                leg: None,
-                label: format!("SocketCAN {}", sc.interface),
-            })
-        }
-        #[allow(unreachable_patterns)]
-        _ => Err(CliError::Config(
-            "robot.bus.transport: \"socketcan\" needs a Linux build with the feature \
-             `socketcan` (cargo build --release --features exompc-cli/socketcan); available \
-             here: \"virtual\", \"slcan\""
-                .into(),
-        )),
     }
 }

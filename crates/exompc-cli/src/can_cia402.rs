@@ -2,7 +2,7 @@
 //! joint and a CANopen strap-force node (`driver = "canopen"`), on the virtual bus with the
 //! simulated leg behind virtual drives, or behind an slcan adapter.
 
-use crate::can::{virtual_bus, AnyBus, AnyClock};
+use crate::can::{hardware_bus, virtual_bus, AnyBus, AnyClock};
 use crate::error::CliError;
 use exompc::config::Experiment;
 use exompc::runtime::MonotonicClock;
@@ -17,7 +17,6 @@ use exompc_can::config::{
 };
 use exompc_can::force_node::ForceSensor as ForceReader;
 use exompc_can::TimeBase;
-use std::path::Path;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -200,19 +199,11 @@ where
                 ),
             })
         }
-        #[cfg(unix)]
-        BusConfig::Slcan(sl) => {
-            let port = exompc_can::FdPort::open(Path::new(&sl.port)).map_err(|e| {
-                CliError::io(
-                    format!("opening the slcan port {} (robot.bus.port)", sl.port),
-                    e,
-                )
-            })?;
-            let bus = exompc_can::SlcanBus::open(port, sl.bitrate)
-                .map_err(|e| CliError::Runtime(format!("slcan adapter at {}: {e}", sl.port)))?;
+        hardware => {
+            let (bus, label) = hardware_bus(hardware)?;
             let clock = AnyClock::Monotonic(MonotonicClock::new(spin));
             let robot = Cia402Robot::new(
-                AnyBus::Slcan(bus),
+                bus,
                 clock.clone(),
                 masters,
                 names,
@@ -224,14 +215,9 @@ where
                 clock,
                 bus: None,
                 leg: None,
-                label: format!("slcan {} at {} bit/s (CiA 402 drives)", sl.port, sl.bitrate),
+                label: format!("{label} (CiA 402 drives)"),
             })
         }
-        _ => Err(CliError::Config(
-            "robot.bus.transport: \"socketcan\" is not available in this build (available: \
-             \"virtual\", \"slcan\")"
-                .into(),
-        )),
     }
 }
 

@@ -4,7 +4,7 @@
 
 use crate::args::parse_payloads;
 use crate::args::ConfigOpt;
-use crate::plot::{colour_bar, heat_scaled};
+use crate::plot::{colour_bar, heat_cell, heat_err as err, write_drawing, Drawing};
 use clap::builder::TypedValueParser as _;
 use clap::Args;
 use exompc::sim::StabilityCriteria;
@@ -12,6 +12,7 @@ use exompc_cli::envelope::{class_counts, markdown, scan, Envelope, Grid};
 use exompc_cli::error::CliError;
 use exompc_cli::io;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::io::IsTerminal as _;
 use std::path::{Path, PathBuf};
@@ -150,14 +151,8 @@ pub(crate) fn run(a: EnvelopeArgs) -> Result<(), CliError> {
     Ok(())
 }
 
-fn err(e: impl std::fmt::Display) -> CliError {
-    CliError::Runtime(format!("drawing the heat map: {e}"))
-}
-
-/// Colour of an RMS force (N) on a white → yellow → red → dark-red scale, saturating at 60 N.
-fn heat(v: f64) -> RGBColor {
-    heat_scaled(v, 60.0)
-}
+/// The heat map's force scale saturates here (N): an RMS strap force.
+const HEAT_MAX_N: f64 = 60.0;
 
 /// The heat map: rows are cells, columns payloads; each cell coloured by the MS-NMPC's
 /// largest RMS strap force, labelled with it; a black frame and `✗` where the run is not
@@ -193,7 +188,13 @@ where
     let cols = env.grid.payloads_kg.len().max(1) as i32;
     let cw = ((w as i32 - left - bar_w - 10) / cols).max(10);
     let ch = ((h as i32 - top - bottom) / rows).max(10);
-    colour_bar(&root, (w as i32 - bar_w + 20, top), rows * ch, font, 60.0)?;
+    colour_bar(
+        &root,
+        (w as i32 - bar_w + 20, top),
+        rows * ch,
+        font,
+        HEAT_MAX_N,
+    )?;
     for (j, p) in env.grid.payloads_kg.iter().enumerate() {
         let x = left + j as i32 * cw + cw / 2 - 20;
         root.draw(&Text::new(
@@ -217,11 +218,6 @@ where
             let v = run.map_or(f64::NAN, |r| {
                 r.rms().iter().copied().fold(f64::NAN, f64::max)
             });
-            root.draw(&Rectangle::new(
-                [(x, y), (x + cw - 2, y + ch - 2)],
-                heat(v).filled(),
-            ))
-            .map_err(err)?;
             let verdict = env
                 .verdicts
                 .iter()
@@ -239,13 +235,6 @@ where
                 |d| !d.stable,
             );
             let worse = verdict.as_ref().is_some_and(|d| !d.no_worse_than_nmpc);
-            if unstable {
-                root.draw(&Rectangle::new(
-                    [(x + 1, y + 1), (x + cw - 3, y + ch - 3)],
-                    BLACK.stroke_width(3),
-                ))
-                .map_err(err)?;
-            }
             let mut label = if v.is_finite() {
                 format!("{v:.1}")
             } else {
@@ -257,37 +246,36 @@ where
             if worse {
                 label += " ▲";
             }
-            let color = if v > 30.0 { WHITE } else { BLACK };
-            root.draw(&Text::new(
+            heat_cell(
+                &root,
+                (x, y, cw, ch),
+                v,
+                HEAT_MAX_N,
+                if unstable { 3 } else { 0 },
                 label,
-                (x + cw / 2 - 30, y + ch / 2 - 7),
-                (font, 14).into_font().color(&color),
-            ))
-            .map_err(err)?;
+                cw / 2 - 30,
+                14,
+            )?;
         }
     }
     root.present().map_err(err)?;
     Ok(())
 }
 
+/// The heat map of an envelope scan (drawn by [`draw`]).
+struct EnvelopeMap<'a>(&'a Envelope);
+
+impl Drawing for EnvelopeMap<'_> {
+    fn draw<DB: DrawingBackend>(&self, root: DrawingArea<DB, Shift>) -> Result<(), CliError>
+    where
+        DB::ErrorType: 'static,
+    {
+        draw(root, self.0)
+    }
+}
+
 /// Writes `dir/envelope.svg` and `dir/envelope.png`.
 fn heat_map(env: &Envelope, dir: &Path) -> Result<Vec<PathBuf>, CliError> {
-    crate::plot::ensure_font()?;
     let size = (900u32, (110 + 34 * env.grid.cells.len()).max(300) as u32);
-    let mut svg = String::new();
-    draw(
-        SVGBackend::with_string(&mut svg, size).into_drawing_area(),
-        env,
-    )?;
-    let svg_path = dir.join("envelope.svg");
-    io::write_atomic(&svg_path, svg.as_bytes())?;
-    let png_path = dir.join("envelope.png");
-    let tmp = dir.join(format!(".envelope.tmp.{}.png", std::process::id()));
-    if let Err(e) = draw(BitMapBackend::new(&tmp, size).into_drawing_area(), env) {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(e);
-    }
-    std::fs::rename(&tmp, &png_path)
-        .map_err(|e| CliError::io(format!("writing {}", png_path.display()), e))?;
-    Ok(vec![png_path, svg_path])
+    write_drawing(&EnvelopeMap(env), dir, "envelope", size)
 }

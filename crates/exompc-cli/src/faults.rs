@@ -4,6 +4,7 @@
 //! `out/faults`).
 
 use crate::args::{parse_payloads, ConfigOpt};
+use crate::plot::{heat_cell, heat_err as err, write_drawing, Drawing};
 use clap::Args;
 use exompc::config::ControllerKind;
 use exompc::scenario::{
@@ -12,6 +13,7 @@ use exompc::scenario::{
 use exompc::sim::FaultKind;
 use exompc_cli::error::CliError;
 use exompc_cli::io;
+use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::path::{Path, PathBuf};
 
@@ -161,10 +163,6 @@ pub(crate) fn run(a: FaultsArgs) -> Result<(), CliError> {
     Ok(())
 }
 
-fn err(e: impl std::fmt::Display) -> CliError {
-    CliError::Runtime(format!("drawing the fault heat map: {e}"))
-}
-
 /// The heat map: rows kind × group, columns duration × payload × start (in the grid's
 /// order); each cell coloured by its peak true strap force and labelled with it, a black frame
 /// and `✗` where the cell fails its goals; a colour bar up to [`HEAT_MAX_N`].
@@ -257,19 +255,7 @@ where
                     && c.start_s == t
             });
             let v = cell.map_or(f64::NAN, |c| c.peak_force_n);
-            root.draw(&Rectangle::new(
-                [(x, y), (x + cw - 2, y + ch - 2)],
-                crate::plot::heat_scaled(v, HEAT_MAX_N).filled(),
-            ))
-            .map_err(err)?;
             let fail = cell.is_some_and(|c| !c.pass);
-            if fail {
-                root.draw(&Rectangle::new(
-                    [(x + 1, y + 1), (x + cw - 3, y + ch - 3)],
-                    BLACK.stroke_width(2),
-                ))
-                .map_err(err)?;
-            }
             let mut label = if v.is_finite() {
                 format!("{v:.0}")
             } else {
@@ -278,45 +264,44 @@ where
             if fail {
                 label += " ✗";
             }
-            let color = if v > HEAT_MAX_N / 2.0 { WHITE } else { BLACK };
-            root.draw(&Text::new(
+            heat_cell(
+                &root,
+                (x, y, cw, ch),
+                v,
+                HEAT_MAX_N,
+                if fail { 2 } else { 0 },
                 label,
-                (x + cw / 2 - 16, y + ch / 2 - 7),
-                (font, 13).into_font().color(&color),
-            ))
-            .map_err(err)?;
+                cw / 2 - 16,
+                13,
+            )?;
         }
     }
     root.present().map_err(err)?;
     Ok(())
 }
 
+/// The heat map of a fault scan (drawn by [`draw`]).
+struct FaultMap<'a> {
+    grid: &'a FaultGrid,
+    cells: &'a [FaultCell],
+}
+
+impl Drawing for FaultMap<'_> {
+    fn draw<DB: DrawingBackend>(&self, root: DrawingArea<DB, Shift>) -> Result<(), CliError>
+    where
+        DB::ErrorType: 'static,
+    {
+        draw(root, self.grid, self.cells)
+    }
+}
+
 /// Writes `dir/faults.svg` and `dir/faults.png`.
 fn heat_map(grid: &FaultGrid, cells: &[FaultCell], dir: &Path) -> Result<(), CliError> {
-    crate::plot::ensure_font()?;
     let rows = grid.kinds.len() * grid.groups.len();
     let cols = grid.durations_s.len() * grid.payloads_kg.len() * grid.starts_s.len();
     let size = (
         (290 + 64 * cols).clamp(700, 4000) as u32,
         (170 + 30 * rows).clamp(300, 4000) as u32,
     );
-    let mut svg = String::new();
-    draw(
-        SVGBackend::with_string(&mut svg, size).into_drawing_area(),
-        grid,
-        cells,
-    )?;
-    io::write_atomic(&dir.join("faults.svg"), svg.as_bytes())?;
-    let png_path = dir.join("faults.png");
-    let tmp = dir.join(format!(".faults.tmp.{}.png", std::process::id()));
-    if let Err(e) = draw(
-        BitMapBackend::new(&tmp, size).into_drawing_area(),
-        grid,
-        cells,
-    ) {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(e);
-    }
-    std::fs::rename(&tmp, &png_path)
-        .map_err(|e| CliError::io(format!("writing {}", png_path.display()), e))
+    write_drawing(&FaultMap { grid, cells }, dir, "faults", size).map(drop)
 }

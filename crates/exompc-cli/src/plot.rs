@@ -494,25 +494,52 @@ where
     Ok(rects)
 }
 
-/// Writes `dir/stem.svg` and `dir/stem.png` (each through a temporary file renamed at the end).
-fn save(fig: &Figure, dir: &Path, stem: &str) -> Result<Vec<PathBuf>, CliError> {
+/// Something drawn alike on the SVG and the PNG backend ([`write_drawing`]): the figures of
+/// this module and the heat maps of `exompc envelope` and `exompc faults`.
+pub(crate) trait Drawing {
+    /// Draws it on `root`.
+    fn draw<DB: DrawingBackend>(&self, root: DrawingArea<DB, Shift>) -> Result<(), CliError>
+    where
+        DB::ErrorType: 'static;
+}
+
+impl Drawing for Figure {
+    fn draw<DB: DrawingBackend>(&self, root: DrawingArea<DB, Shift>) -> Result<(), CliError>
+    where
+        DB::ErrorType: 'static,
+    {
+        render(root, self).map(drop)
+    }
+}
+
+/// Writes `dir/stem.svg` and `dir/stem.png` of `drawing`, `size` pixels (each through a
+/// temporary file renamed at the end; a PNG that fails to draw leaves none behind); returns
+/// the PNG's path, then the SVG's.
+pub(crate) fn write_drawing(
+    drawing: &impl Drawing,
+    dir: &Path,
+    stem: &str,
+    size: (u32, u32),
+) -> Result<Vec<PathBuf>, CliError> {
+    ensure_font()?;
     let mut svg = String::new();
-    render(
-        SVGBackend::with_string(&mut svg, SIZE).into_drawing_area(),
-        fig,
-    )?;
+    drawing.draw(SVGBackend::with_string(&mut svg, size).into_drawing_area())?;
     let svg_path = dir.join(format!("{stem}.svg"));
     io::write_atomic(&svg_path, svg.as_bytes())?;
     let png_path = dir.join(format!("{stem}.png"));
     let tmp = dir.join(format!(".{stem}.tmp.{}.png", std::process::id()));
-    let drawn = render(BitMapBackend::new(&tmp, SIZE).into_drawing_area(), fig);
-    if let Err(e) = drawn {
+    if let Err(e) = drawing.draw(BitMapBackend::new(&tmp, size).into_drawing_area()) {
         let _ = std::fs::remove_file(&tmp);
         return Err(e);
     }
     std::fs::rename(&tmp, &png_path)
         .map_err(|e| CliError::io(format!("writing {}", png_path.display()), e))?;
     Ok(vec![png_path, svg_path])
+}
+
+/// Writes `dir/stem.svg` and `dir/stem.png` of a figure ([`write_drawing`], [`SIZE`]).
+fn save(fig: &Figure, dir: &Path, stem: &str) -> Result<Vec<PathBuf>, CliError> {
+    write_drawing(fig, dir, stem, SIZE)
 }
 
 /// A loaded run: its trace and (when present) its summary.
@@ -1079,7 +1106,48 @@ where
     Ok(())
 }
 
-fn heat_err(e: impl std::fmt::Display) -> CliError {
+/// One cell of a heat map: the rectangle `[(x, y), (x + w − 2, y + h − 2)]` filled with the
+/// colour of `v` on [`heat_scaled`]'s scale up to `max`; framed in black `frame` pixels wide
+/// (0: no frame); `label` written `text_dx` pixels right of the left edge, vertically centred,
+/// in `font_size`, white on the upper half of the scale.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn heat_cell<DB: DrawingBackend>(
+    root: &DrawingArea<DB, Shift>,
+    (x, y, w, h): (i32, i32, i32, i32),
+    v: f64,
+    max: f64,
+    frame: u32,
+    label: String,
+    text_dx: i32,
+    font_size: u32,
+) -> Result<(), CliError>
+where
+    DB::ErrorType: 'static,
+{
+    root.draw(&Rectangle::new(
+        [(x, y), (x + w - 2, y + h - 2)],
+        heat_scaled(v, max).filled(),
+    ))
+    .map_err(heat_err)?;
+    if frame > 0 {
+        root.draw(&Rectangle::new(
+            [(x + 1, y + 1), (x + w - 3, y + h - 3)],
+            BLACK.stroke_width(frame),
+        ))
+        .map_err(heat_err)?;
+    }
+    let color = if v > max / 2.0 { WHITE } else { BLACK };
+    root.draw(&Text::new(
+        label,
+        (x + text_dx, y + h / 2 - 7),
+        (FONT, font_size).into_font().color(&color),
+    ))
+    .map_err(heat_err)?;
+    Ok(())
+}
+
+/// The error of drawing a heat map.
+pub(crate) fn heat_err(e: impl std::fmt::Display) -> CliError {
     CliError::Runtime(format!("drawing the heat map: {e}"))
 }
 

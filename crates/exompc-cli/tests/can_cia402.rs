@@ -73,3 +73,55 @@ fn bad_cia402_keys_exit_2_naming_the_key() {
         assert!(stderr(&o).contains(want), "{to}: {}", stderr(&o));
     }
 }
+
+/// The CiA 402 robot opens the hardware transports as the AK robot does: an slcan port that
+/// cannot be opened is named (exit 1), and SocketCAN in a build without the feature is refused
+/// saying how to build it (exit 2); in a build with it, an interface that cannot be opened is
+/// named.
+#[test]
+fn cia402_drives_open_the_hardware_transports() {
+    let text = std::fs::read_to_string(example()).unwrap();
+    let virt = "[robot.bus]\ntransport = \"virtual\"";
+    assert!(text.contains(virt));
+    let run = |name: &str, bus: &str| {
+        let f = scratch(name);
+        std::fs::write(&f, text.replacen(virt, bus, 1)).unwrap();
+        exompc(&[
+            "run",
+            "--config",
+            f.to_str().unwrap(),
+            "--duration",
+            "1",
+            "--out",
+            fresh_dir("cia402-hw-out").to_str().unwrap(),
+        ])
+    };
+    let o = run(
+        "cia402-slcan.toml",
+        "[robot.bus]\ntransport = \"slcan\"\nport = \"/nonexistent/exompc-tty\"",
+    );
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(
+        e.contains("opening the slcan port /nonexistent/exompc-tty (robot.bus.port)"),
+        "{e}"
+    );
+    let o = run(
+        "cia402-socketcan.toml",
+        "[robot.bus]\ntransport = \"socketcan\"\ninterface = \"exo-no-can0\"",
+    );
+    let e = stderr(&o);
+    #[cfg(not(feature = "socketcan"))]
+    {
+        assert_eq!(o.status.code(), Some(2), "{e}");
+        assert!(
+            e.contains("robot.bus.transport") && e.contains("feature"),
+            "{e}"
+        );
+    }
+    #[cfg(feature = "socketcan")]
+    {
+        assert_ne!(o.status.code(), Some(0), "{e}");
+        assert!(e.contains("SocketCAN interface exo-no-can0"), "{e}");
+    }
+}
