@@ -1218,6 +1218,60 @@ fn the_filters_update_over_the_first_steps_of_estimated_forces() {
     }
 }
 
+/// Issue 28: while the strap forces follow their continuation (`EstimatedChannels::gait_omega`
+/// given) the MS-NMPC continues each scenario's `d̂` from the fault's first step, so the
+/// estimated forces do not move it: two controllers fed the same angles and velocities, one
+/// with the forces' estimates 10 N off, keep the same `d̂` over the fault's first steps. Over
+/// them the filters used to update on the estimated forces (a 200-ms NaN of both forces at
+/// 1 s, 3 kg: 12.5 N; continued from the first step 11.8 N, docs/RELIABILITY.md §2).
+#[test]
+fn estimated_forces_do_not_move_the_continued_disturbance() {
+    let s = scenario(ControllerKind::MSNMPC, 3.0, 10.0);
+    let build = || exompc::build_controller::<TwoDof, 2>(&s, ControllerKind::MSNMPC).unwrap();
+    let w = std::f64::consts::TAU * 0.9;
+    let m = |k: usize, off: f64| {
+        let t = k as f64 * 0.01;
+        Measurement {
+            t,
+            q: SVector::from([0.4 * (w * t).sin(), 0.3 * (1.0 - (w * t).cos())]),
+            qd: SVector::from([0.4 * w * (w * t).cos(), 0.3 * w * (w * t).sin()]),
+            force: SVector::from([5.0 * (w * t + 0.5).sin(), 4.0 * (w * t + 1.0).sin()])
+                .add_scalar(off),
+        }
+    };
+    let (mut a, mut b) = (build(), build());
+    let start = 200;
+    for k in 0..start {
+        a.step(&m(k, 0.0));
+        b.step(&m(k, 0.0));
+    }
+    let estimated = EstimatedChannels {
+        q: [false; 2],
+        qd: [false; 2],
+        force: [true; 2],
+        period: None,
+        gait_omega: Some(w),
+        resume: false,
+    };
+    let before = a.disturbance(0).unwrap();
+    for (step, k) in (start..start + 5).enumerate() {
+        a.step_estimated(&m(k, 0.0), &estimated);
+        b.step_estimated(&m(k, 10.0), &estimated);
+        for i in 0..3 {
+            let off = (a.disturbance(i).unwrap() - b.disturbance(i).unwrap()).amax();
+            assert_eq!(
+                off,
+                0.0,
+                "step {} of the fault, scenario {i}: {off} N·m",
+                step + 1
+            );
+        }
+    }
+    // Continued, not held.
+    let moved = (a.disturbance(0).unwrap() - before).amax();
+    assert!(moved > 1e-6, "d̂ held over the fault's first steps");
+}
+
 /// Issue 28, strap forces estimated before the gait period is known: while the guard
 /// continues them at the gait frequency (`EstimatedChannels::gait_omega`) the MS-NMPC
 /// continues each scenario's `d̂` at that frequency too, instead of holding it from the
@@ -1312,10 +1366,12 @@ fn the_disturbance_is_continued_with_the_forces() {
 }
 
 /// Issue 28, strap-force faults at 3 kg in the first gait period, cells of the fine and
-/// wider scans (docs/RELIABILITY.md §2a): a 200-ms NaN and a 200-ms stuck force at 1.5 s and
-/// a 200-ms dropout at 1 s stay ≤ 12 N and ≤ 1.05× clean with no trip. Measured on
-/// 2026-12-06 with `d̂` held after the first five steps (the forces continued): 31.9, 25.4 and
-/// 20.3 N (RMS 1.38-1.39×, 1.20×); with `d̂` continued: 8.9, 9.9 and 9.2 N (≤ 1.01×).
+/// wider scans (docs/RELIABILITY.md §2a): a 200-ms NaN and a 200-ms stuck force at 1.5 s, a
+/// 200-ms dropout and a 200-ms NaN at 1 s stay ≤ 12 N and ≤ 1.05× clean with no trip.
+/// Measured on 2026-12-06 with `d̂` held after the first five steps (the forces continued):
+/// 31.9, 25.4 and 20.3 N (RMS 1.38-1.39×, 1.20×) for the first three; with `d̂` continued
+/// after them: 8.9, 9.9, 9.2 and 12.5 N; continued from the fault's first step (measured on
+/// 2026-12-07): 11.8 N for the NaN at 1 s.
 #[test]
 fn force_faults_at_3_kg_in_the_first_gait_period_continue_the_disturbance() {
     force_faults(
@@ -1324,6 +1380,7 @@ fn force_faults_at_3_kg_in_the_first_gait_period_continue_the_disturbance() {
             (FaultKind::Nan, 1.5, 0.2, 12.0, 1.05),
             (FaultKind::Stuck, 1.5, 0.2, 12.0, 1.05),
             (FaultKind::Dropout, 1.0, 0.2, 12.0, 1.05),
+            (FaultKind::Nan, 1.0, 0.2, 12.0, 1.05),
         ],
     );
 }

@@ -341,12 +341,12 @@ pub struct MultiStageOptions {
 
 /// Steps of estimated strap forces over which the EKF banks still update with the measured
 /// rows of `y = [q, qd]` (`MultiStage::mark_estimated`) before `d̂` is replayed
-/// (`MultiStage::replay_disturbance`), continued with the forces at the gait frequency
-/// (`MultiStage::continue_disturbance`) or, without either, held: an estimate a
-/// few steps old is close to the force, a force rejected for a few steps (a gate's jolt, the
-/// ramp into a rail) is no gait to replay, and the filters keep following the model's error
-/// along the gait (at 3 kg it moves `d̂` by up to 0.7 N·m per step). Chosen by measurement
-/// (docs/RELIABILITY.md §2).
+/// (`MultiStage::replay_disturbance`) or, without a replay, held: an estimate a few steps old
+/// is close to the force, a force rejected for a few steps (a gate's jolt, the ramp into a
+/// rail) is no gait to replay, and the filters keep following the model's error along the gait
+/// (at 3 kg it moves `d̂` by up to 0.7 N·m per step). While the forces follow their
+/// continuation `d̂` is continued with them from the fault's first step instead
+/// (`MultiStage::continue_disturbance`). Chosen by measurement (docs/RELIABILITY.md §2).
 const REPLAY_AFTER_STEPS: u32 = 5;
 
 /// Spacing (s) of the slots of the `d̂` history ([`DisturbanceReplay`]); the replay reads
@@ -603,8 +603,8 @@ pub struct MultiStage<const N: usize, const NA: usize, const NY: usize> {
     was_estimating: bool,
     /// This step's strap forces are estimates, and the gait period in steps if known.
     forces_estimated: bool,
-    /// Consecutive steps with estimated strap forces (the filters update over the first
-    /// `REPLAY_AFTER_STEPS` of them, then the replay begins).
+    /// Consecutive steps with estimated strap forces (without a continuation of `d̂` the
+    /// filters update over the first `REPLAY_AFTER_STEPS` of them, then the replay begins).
     forces_estimated_for: u32,
     /// This step the banks update their joint states with the measured rows and hold `d̂`:
     /// set by `replay_disturbance` while the replay, or the continuation at the gait
@@ -1053,9 +1053,9 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     /// rows of `y = [q, qd]` (`update_rows`), and while a strap force (the filters' input) is
     /// estimated, with those over its first [`REPLAY_AFTER_STEPS`] steps only; after them an
     /// estimate drifting from the force would move `d̂`, so no row (the filters predict
-    /// without an update, `d̂` held), unless `replay_disturbance` carries `d̂` (the replay or
-    /// the continuation) and the measured rows update the joint states alone. The
-    /// probabilities are kept throughout.
+    /// without an update, `d̂` held), unless `replay_disturbance` carries `d̂` (the replay, or
+    /// the continuation from the fault's first step) and the measured rows update the joint
+    /// states alone. The probabilities are kept throughout.
     fn mark_estimated(&mut self, estimated: &EstimatedChannels<N>) {
         let force = estimated.any_force();
         self.forces_estimated = force;
@@ -1100,7 +1100,8 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     /// and predicted alone it drifted by 0.1-0.2 rad/s within a 200-ms fault at 3 kg. While
     /// the forces follow their continuation (`EstimatedChannels::gait_omega`; before the
     /// period is known, or fitted to measurements alone) `d̂ᵢ` is continued at the gait
-    /// frequency instead (`continue_disturbance`), and the replay continues from it. Without
+    /// frequency instead (`continue_disturbance`, from the fault's first step), and the
+    /// replay continues from it. Without
     /// either the filters predict only: with a held `d̂ᵢ`
     /// the measured rows would pull the joint states along the gait's disturbance instead
     /// (measured, docs/RELIABILITY.md §2).
@@ -1125,7 +1126,11 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
             }
             _ => {
                 let after = self.forces_estimated && self.forces_estimated_for > REPLAY_AFTER_STEPS;
-                if !(after && !self.went_blind && self.continue_disturbance()) {
+                // With the forces on their continuation `d̂ᵢ` is continued from the fault's
+                // first step: the filters' updates on the estimated forces moved it away from
+                // the gait (docs/RELIABILITY.md §2).
+                let continued = self.forces_estimated && self.gait_omega.is_some();
+                if !((after || continued) && !self.went_blind && self.continue_disturbance()) {
                     if after {
                         self.went_blind = true;
                     }
@@ -1180,11 +1185,14 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     /// While the strap forces follow their continuation at the gait frequency ω
     /// ([`EstimatedChannels::gait_omega`], for at most [`FORCE_FIT_S`](super::FORCE_FIT_S);
     /// with the gait period known only for a continuation fitted to measurements alone):
-    /// every bank's `d̂ᵢ` is continued at ω as well
+    /// every bank's `d̂ᵢ` is continued at ω as well, from the fault's first step
     /// (`a + Σ_{h=1,2} (b_h sin hωτ + c_h cos hωτ)` fitted to its last
-    /// [`EXTRAPOLATION_FIT_S`](super::EXTRAPOLATION_FIT_S) on the continuation's first step, started at the filters'
-    /// last update), and the banks hold it and update their joint states with the measured
-    /// rows, as during the replay. Held instead, `d̂ᵢ` stood still while at 3 kg it moves by
+    /// [`EXTRAPOLATION_FIT_S`](super::EXTRAPOLATION_FIT_S) on that step, started at the
+    /// filters' last update, the step before), and the banks hold it and update their joint
+    /// states with the measured rows, as during the replay. Begun after [`REPLAY_AFTER_STEPS`]
+    /// filter updates on the estimated forces, it started from a `d̂ᵢ` they had moved off the
+    /// gait (docs/RELIABILITY.md §2: a 200-ms NaN of both forces at 1 s, 3 kg, 12.5 N, from
+    /// the first step 11.8 N). Held instead, `d̂ᵢ` stood still while at 3 kg it moves by
     /// up to 0.7 N·m per step along the gait (docs/RELIABILITY.md §2); replayed one gait
     /// period back, it carried another gait early in the run (the human grows heavier,
     /// docs/MODEL.md §2: a 200-ms NaN of both forces at 2.25 s, 3 kg, 20.4 N, continued
