@@ -1,6 +1,7 @@
 //! The CiA 402 robot of `exompc run --config`: CANopen drives (`driver = "cia402"`) at every
 //! joint and a CANopen strap-force node (`driver = "canopen"`), on the virtual bus with the
-//! simulated leg behind virtual drives, or behind an slcan adapter.
+//! simulated leg behind virtual drives, or on hardware behind an slcan adapter or a SocketCAN
+//! interface (`crate::can::hardware_bus`).
 
 use crate::can::{hardware_bus, virtual_bus, AnyBus, AnyClock};
 use crate::error::CliError;

@@ -513,8 +513,8 @@ impl Drawing for Figure {
 }
 
 /// Writes `dir/stem.svg` and `dir/stem.png` of `drawing`, `size` pixels (each through a
-/// temporary file renamed at the end; a PNG that fails to draw leaves none behind); returns
-/// the PNG's path, then the SVG's.
+/// temporary file renamed at the end; the temporary PNG is removed when it fails to draw);
+/// returns the PNG's path, then the SVG's.
 pub(crate) fn write_drawing(
     drawing: &impl Drawing,
     dir: &Path,
@@ -1053,7 +1053,7 @@ pub(crate) fn heat_scaled(v: f64, max: f64) -> RGBColor {
 /// the bottom, `max` N (and beyond) at the top, six tick intervals, titled with the quantity
 /// and its unit.
 pub(crate) fn colour_bar<DB: DrawingBackend>(
-    root: &DrawingArea<DB, plotters::coord::Shift>,
+    root: &DrawingArea<DB, Shift>,
     (x, y): (i32, i32),
     height: i32,
     font: &str,

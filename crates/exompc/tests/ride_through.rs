@@ -1274,14 +1274,15 @@ fn estimated_forces_do_not_move_the_continued_disturbance() {
 
 /// Issue 28, strap forces estimated before the gait period is known: while the guard
 /// continues them at the gait frequency (`EstimatedChannels::gait_omega`) the MS-NMPC
-/// continues each scenario's `d̂` at that frequency too, instead of holding it from the
-/// sixth step. On a periodic gait at 3 kg (the model's error moving `d̂` along the gait), the
-/// continued `d̂` stays closer to that of the same controller with the forces measured than
-/// the held one does, over 0.25 s (0.71 against 3.02 N·m). Held after it, and then replayed
-/// once the period is known, `d̂` goes on from where it is (0.32 N·m per step at most;
-/// 4.04 N·m when the replay started from the filters' last update before the continuation).
-/// With the gait period known as well, `d̂` is continued the same way, not replayed one
-/// period back (within 0.3 N·m of the continuation without the period).
+/// continues each scenario's `d̂` at that frequency too (from the fault's first step), instead
+/// of holding it from the sixth step. On a periodic gait at 3 kg (the model's error moving `d̂`
+/// along the gait), the continued `d̂` stays closer to that of the same controller with the
+/// forces measured than the held one does, over 0.25 s (0.83 against 3.02 N·m; measured on
+/// 2026-12-07). Held after it, and then replayed once the period is known, `d̂` goes on from
+/// where it is (0.32 N·m per step at most; 4.04 N·m when the replay started from the filters'
+/// last update before the continuation). With the gait period known as well, `d̂` is
+/// continued the same way, not replayed one period back (within 0.3 N·m of the continuation
+/// without the period; the same to the last bit since both begin on the fault's first step).
 #[test]
 fn the_disturbance_is_continued_with_the_forces() {
     let s = scenario(ControllerKind::MSNMPC, 3.0, 10.0);
@@ -1335,9 +1336,10 @@ fn the_disturbance_is_continued_with_the_forces() {
         err_continued < 0.5 * err_held,
         "continued {err_continued:.3} N·m off, held {err_held:.3} N·m off"
     );
-    // With the period known the history records the gait one period back during the fault,
-    // so the continuation, fitted again on each step, differs slightly (0.11 N·m; replayed
-    // instead, 0.76 N·m from the continued `d̂`).
+    // With the period known the history records the gait one period back during the fault;
+    // the continuation, fitted to the history before the fault's first step, does not read it
+    // (0.11 N·m apart when it began on the sixth step; replayed instead, 0.76 N·m from the
+    // continued `d̂`).
     assert!(
         err_known <= 0.3,
         "the period known: {err_known:.3} N·m from the continued d̂"
@@ -1369,9 +1371,9 @@ fn the_disturbance_is_continued_with_the_forces() {
 /// wider scans (docs/RELIABILITY.md §2a): a 200-ms NaN and a 200-ms stuck force at 1.5 s, a
 /// 200-ms dropout and a 200-ms NaN at 1 s stay ≤ 12 N and ≤ 1.05× clean with no trip.
 /// Measured on 2026-12-06 with `d̂` held after the first five steps (the forces continued):
-/// 31.9, 25.4 and 20.3 N (RMS 1.38-1.39×, 1.20×) for the first three; with `d̂` continued
-/// after them: 8.9, 9.9, 9.2 and 12.5 N; continued from the fault's first step (measured on
-/// 2026-12-07): 11.8 N for the NaN at 1 s.
+/// 31.9, 25.4 and 20.3 N (RMS 1.38-1.39×, 1.20×) for the first three; measured on
+/// 2026-12-07 with `d̂` continued after them: 8.9, 8.9, 8.9 and 12.5 N; continued from the
+/// fault's first step: 8.9, 8.9, 9.7 and 11.8 N.
 #[test]
 fn force_faults_at_3_kg_in_the_first_gait_period_continue_the_disturbance() {
     force_faults(
@@ -1385,14 +1387,16 @@ fn force_faults_at_3_kg_in_the_first_gait_period_continue_the_disturbance() {
     );
 }
 
-/// Issue 28, the forces at 3 kg: over the first `REPLAY_AFTER_STEPS` steps of estimated
-/// strap forces the EKF banks still update with the measured angles and velocities, so `d̂`
-/// keeps following the model's error along the gait (held over those steps, the torque
-/// stalled at once while the leg moved on). Cells of the fine phase scan
-/// (docs/RELIABILITY.md §2a) within the one-group goal (12 N): measured on 2026-12-05 with
-/// `d̂` held over those steps: a 60-ms NaN at 4.75 s 16.5 N, a 200-ms 30-N spike at 3.5 s
-/// 27.5 N and at 4.5 s 30.7 N, a 200-ms stuck force at 5.5 s 16.1 N (RMS 1.03-1.17× clean);
-/// updated: 10.2, 8.9, 8.9, 10.4 N (RMS ≤ 1.01×).
+/// Issue 28, the forces at 3 kg: over a strap-force fault's first steps `d̂` keeps following
+/// the model's error along the gait (held over them, the torque stalled at once while the leg
+/// moved on): continued with the forces from the fault's first step (these cells, every
+/// encoder measured), or updated by the filters over the first `REPLAY_AFTER_STEPS` steps
+/// without a continuation. Cells of the fine phase scan (docs/RELIABILITY.md §2a) within the
+/// one-group goal (12 N): measured on 2026-12-05 with `d̂` held over those steps: a 60-ms NaN
+/// at 4.75 s 16.5 N, a 200-ms 30-N spike at 3.5 s 27.5 N and at 4.5 s 30.7 N, a 200-ms stuck
+/// force at 5.5 s 16.1 N (RMS 1.03-1.17× clean); updated: 10.2, 8.9, 8.9, 10.4 N (RMS ≤
+/// 1.01×); measured on 2026-12-07, continued from the first step: 8.9 N each, the clean run's
+/// own peak (RMS ≤ 1.02×).
 #[test]
 fn short_force_faults_beyond_the_scenario_payloads_stay_within_the_goal() {
     force_faults(

@@ -530,7 +530,8 @@ impl<const N: usize> DisturbanceReplay<N> {
     ) -> SVector<f64, N> {
         let p = self.period;
         if !self.offset[b][i].iter().all(|v| v.is_finite()) {
-            // After a continuation `current` is no longer the filters' last update: p + 1.
+            // After a continuation in this fault the replay goes on from `current` (no longer,
+            // or not only, the filters' last update): p + 1.
             let k = if !self.restarted && !self.continued && self.holds(p + since) {
                 p + since
             } else {
@@ -1101,8 +1102,8 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     /// the forces follow their continuation (`EstimatedChannels::gait_omega`; before the
     /// period is known, or fitted to measurements alone) `d̂ᵢ` is continued at the gait
     /// frequency instead (`continue_disturbance`, from the fault's first step), and the
-    /// replay continues from it. Without
-    /// either the filters predict only: with a held `d̂ᵢ`
+    /// replay continues from it. Without either the filters update over the fault's first
+    /// [`REPLAY_AFTER_STEPS`] steps, then predict only: with a held `d̂ᵢ`
     /// the measured rows would pull the joint states along the gait's disturbance instead
     /// (measured, docs/RELIABILITY.md §2).
     // Out of line: kept out of `step`'s stack frame (the Cortex-M7 image's stack peak).
@@ -1197,7 +1198,9 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
     /// period back, it carried another gait early in the run (the human grows heavier,
     /// docs/MODEL.md §2: a 200-ms NaN of both forces at 2.25 s, 3 kg, 20.4 N, continued
     /// 14.1 N, with the forces' blend 9.9 N). `false` without a continuation (no ω, or too short
-    /// a history): `d̂ᵢ` is then held.
+    /// a history): over the fault's first [`REPLAY_AFTER_STEPS`] steps the filters then update
+    /// `d̂ᵢ`, after them it is held (a continuation that can be fitted only from a later step
+    /// of the fault starts there).
     // Out of line, as `replay_disturbance`.
     #[inline(never)]
     fn continue_disturbance(&mut self) -> bool {
