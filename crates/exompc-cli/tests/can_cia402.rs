@@ -10,6 +10,23 @@ fn example() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/can-cia402-virtual.toml")
 }
 
+/// `exompc run` for 1 s on the example with `from` replaced by `to`, written to `name`.
+fn run_edited(name: &str, from: &str, to: &str) -> std::process::Output {
+    let text = std::fs::read_to_string(example()).unwrap();
+    assert!(text.contains(from), "{from}");
+    let f = scratch(name);
+    std::fs::write(&f, text.replacen(from, to, 1)).unwrap();
+    exompc(&[
+        "run",
+        "--config",
+        f.to_str().unwrap(),
+        "--duration",
+        "1",
+        "--out",
+        fresh_dir(&format!("{name}-out")).to_str().unwrap(),
+    ])
+}
+
 #[test]
 fn run_closes_the_loop_over_virtual_cia402_drives() {
     let out = fresh_dir("cia402-run");
@@ -39,7 +56,6 @@ fn run_closes_the_loop_over_virtual_cia402_drives() {
 
 #[test]
 fn bad_cia402_keys_exit_2_naming_the_key() {
-    let text = std::fs::read_to_string(example()).unwrap();
     for (from, to, want) in [
         (
             "node_id = 2",
@@ -57,18 +73,7 @@ fn bad_cia402_keys_exit_2_naming_the_key() {
             "robot.force_sensors[0].cob_id: 5 is out of range (allowed 385..=1407)",
         ),
     ] {
-        assert!(text.contains(from), "{from}");
-        let bad = scratch("bad-cia402.toml");
-        std::fs::write(&bad, text.replacen(from, to, 1)).unwrap();
-        let o = exompc(&[
-            "run",
-            "--config",
-            bad.to_str().unwrap(),
-            "--duration",
-            "1",
-            "--out",
-            fresh_dir("bad-cia402-out").to_str().unwrap(),
-        ]);
+        let o = run_edited("bad-cia402.toml", from, to);
         assert_eq!(o.status.code(), Some(2), "{to}: {}", stderr(&o));
         assert!(stderr(&o).contains(want), "{to}: {}", stderr(&o));
     }
@@ -81,22 +86,8 @@ fn bad_cia402_keys_exit_2_naming_the_key() {
 #[cfg(unix)]
 #[test]
 fn cia402_drives_open_the_hardware_transports() {
-    let text = std::fs::read_to_string(example()).unwrap();
     let virt = "[robot.bus]\ntransport = \"virtual\"";
-    assert!(text.contains(virt));
-    let run = |name: &str, bus: &str| {
-        let f = scratch(name);
-        std::fs::write(&f, text.replacen(virt, bus, 1)).unwrap();
-        exompc(&[
-            "run",
-            "--config",
-            f.to_str().unwrap(),
-            "--duration",
-            "1",
-            "--out",
-            fresh_dir("cia402-hw-out").to_str().unwrap(),
-        ])
-    };
+    let run = |name: &str, bus: &str| run_edited(name, virt, bus);
     let o = run(
         "cia402-slcan.toml",
         "[robot.bus]\ntransport = \"slcan\"\nport = \"/nonexistent/exompc-tty\"",

@@ -1130,8 +1130,9 @@ impl<const N: usize, const NA: usize, const NY: usize> MultiStage<N, NA, NY> {
                 // With the forces on their continuation `d̂ᵢ` is continued from the fault's
                 // first step: the filters' updates on the estimated forces moved it away from
                 // the gait (docs/RELIABILITY.md §2).
-                let continued = self.forces_estimated && self.gait_omega.is_some();
-                if !((after || continued) && !self.went_blind && self.continue_disturbance()) {
+                let forces_continued = self.forces_estimated && self.gait_omega.is_some();
+                if !((after || forces_continued) && !self.went_blind && self.continue_disturbance())
+                {
                     if after {
                         self.went_blind = true;
                     }

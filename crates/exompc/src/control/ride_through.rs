@@ -457,16 +457,16 @@ impl<const N: usize> ChannelGuard<N> {
         self
     }
 
-    /// The robot's motion of joint `i` as the straps feel it through the filter window,
-    /// `q̄_i + τ q̇̄_i`, with this step's angle `q` and the window's earlier angles from the
-    /// history; NaN without the strap model, or unless the angles of the window and of the
-    /// sample before it are measured (an estimate's step back to the measurement is no motion
-    /// of the robot).
     /// The strap model's `ks J` given by [`Self::with_straps`], if any.
     pub(crate) fn strap_stiffness_map(&self) -> Option<SMatrix<f64, N, N>> {
         self.straps.map(|(ks_j, _)| ks_j)
     }
 
+    /// The robot's motion of joint `i` as the straps feel it through the filter window,
+    /// `q̄_i + τ q̇̄_i`, with this step's angle `q` and the window's earlier angles from the
+    /// history; NaN without the strap model, or unless the angles of the window and of the
+    /// sample before it are measured (an estimate's step back to the measurement is no motion
+    /// of the robot).
     fn joint_motion(&self, q: f64, i: usize) -> f64 {
         let Some((_, tau)) = self.straps else {
             return f64::NAN;
