@@ -759,6 +759,9 @@ fn losing_every_sensor_for_a_second_is_ridden_through_on_the_replay() {
 /// value is believed, so the 0.5-rad offset is never believed: ≤ 70 N, no latch. At
 /// `sensor_timeout_s` the offset was believed at 2.0 s and the controller drove the knee to
 /// 8.9 rad/s before the monitors stopped it: 75.9 N (now 41.1 N; measured on 2026-12-06).
+/// The forces are not followed under their offset once an encoder is lost
+/// (`ChannelGuard::follow_offset`): followed through the encoders' loss, 74.4 N (measured on
+/// 2026-12-07).
 #[test]
 fn every_sensor_spiked_for_a_second_in_the_first_gait_period_stays_within_70_n() {
     let cell = (FaultKind::Spike, ChannelGroup::All, 1.5, 1.0);
@@ -2675,4 +2678,78 @@ fn force_faults_while_the_gait_changes_follow_the_forces_continuation() {
             (FaultKind::Nan, 2.5, 0.2, 12.0, 1.05),
         ],
     );
+}
+
+/// A 30-N spike of both strap forces for 200 ms while the person's force changes under it (a
+/// 5-N bump the gait before did not have; the guard alone, `ChannelGuard::follow_offset`):
+/// once the filter has ramped into the offset (three smooth samples after the window) the
+/// estimate follows the person's force step for step, under the offset it had from the
+/// continuation there, where the continuation and the replay forecast the gait before the
+/// fault; the force is accepted again within the filter window of the spike's end. On the
+/// continuation alone the estimate fell 2.5 N further behind the bump (its error at the
+/// first followed step, kept under the offset since).
+#[test]
+fn a_spiked_force_is_followed_under_its_offset() {
+    let bump = |k: usize| {
+        if (300..330).contains(&k) {
+            5.0 * (std::f64::consts::PI * (k - 300) as f64 / 30.0).sin()
+        } else {
+            0.0
+        }
+    };
+    let run = force_fault_run(
+        400,
+        |k, f| f.add_scalar_mut(bump(k)),
+        |k, f| {
+            if (300..320).contains(&k) {
+                f.add_scalar_mut(30.0);
+            }
+        },
+        |_| 1.0,
+        1000,
+    );
+    for (k, s) in run.iter().enumerate().take(325).skip(300) {
+        assert!(s.rep.estimated.force.iter().all(|&e| e), "step {k}");
+    }
+    // The window's ramp (300-304) and three smooth samples: followed from 307 on.
+    let step = |k: usize, f: &dyn Fn(&ForceSample) -> SVector<f64, 2>| f(&run[k]) - f(&run[k - 1]);
+    for k in 308..320 {
+        let off = (step(k, &|s| s.rep.m.force) - step(k, &|s| s.true_f)).amax();
+        assert!(
+            off <= 1e-9,
+            "step {k}: the estimate moved {off:.3} N off the force"
+        );
+    }
+    let err = (run[319].rep.m.force - run[319].true_f).amax();
+    assert!(err <= 2.6, "{err:.2} N off at the spike's end");
+    // Accepted again once the window holds no spiked sample.
+    let back = (320..400).find(|&k| !run[k].rep.estimated.force.iter().any(|&e| e));
+    assert_eq!(back, Some(325));
+}
+
+/// Issue 28, a 200-ms 30-N spike of both forces at 1 s, 3 kg (first gait period; the fine
+/// scan's cell, 10-s msnmpc run): followed under its offset (`ChannelGuard::follow_offset`)
+/// the peak true strap force stays within the 12-N goal. On the forces' continuation, fitted
+/// to a first second that is not yet periodic, the robot fell behind the leg within the fault
+/// and the controller's correction on the forces' return peaked at 12.7 N (measured on
+/// 2026-12-07; 8.9 N followed).
+#[test]
+fn a_force_spike_at_3_kg_in_the_first_gait_period_is_followed_under_its_offset() {
+    group_is_ridden_through(ChannelGroup::Forces, 1.0, &[(FaultKind::Spike, 3.0, 0.2)]);
+}
+
+/// Issue 28, a force is not followed under its offset after a history that was not clean:
+/// every sensor's 1-s spike at 3 s, 2 kg (a cell of the 1-s grid, 10-s msnmpc run). The
+/// forces' fault at the spike's end (the forces had been believed on smoothness alone, the
+/// encoders were lost until then) is a real step; followed, the shank's force was hidden
+/// under a 19-N offset and the peak rose from 17.7 to 28.9 N (measured on 2026-12-07). Once
+/// an encoder is lost a force is not followed either
+/// (`every_sensor_spiked_for_a_second_in_the_first_gait_period_stays_within_70_n`).
+#[test]
+fn a_force_after_a_history_that_was_not_clean_is_not_followed_under_an_offset() {
+    let fault = (FaultKind::Spike, ChannelGroup::All, 3.0, 1.0);
+    let s = cell_scenario(&Experiment::default(), 10.0, 2.0, Some(fault));
+    let (peak, _, rep, _) = run(&s);
+    assert!(peak <= 20.0, "peak {peak:.1} N");
+    assert_eq!(rep.latched_at, None, "{:?}", rep.events);
 }
