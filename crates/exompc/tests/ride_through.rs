@@ -2753,3 +2753,81 @@ fn a_force_after_a_history_that_was_not_clean_is_not_followed_under_an_offset() 
     assert!(peak <= 20.0, "peak {peak:.1} N");
     assert_eq!(rep.latched_at, None, "{:?}", rep.events);
 }
+
+/// A followed force whose offset ends in another fault (a 150-ms 30-N spike of both forces
+/// while the person's force has a 5-N bump, then NaN until step 500): the estimate goes on
+/// from its last followed value by the continuation's steps, then as the replay or the hold
+/// that start from it. Without the gait period it holds after the continuation
+/// (`FORCE_FIT_S`); with the period known it replays the gait from there, within its first
+/// period never stepping beyond the true force's largest step, and within 4.5 N of the force.
+/// Stepped by the hold's own steps (which start from the last estimate) it ran away along a
+/// straight line: 400 N off at step 500 (the review of 2026-12-07).
+#[test]
+fn a_followed_force_goes_on_from_its_last_value_when_its_offset_ends() {
+    let bump = |k: usize| {
+        if (300..330).contains(&k) {
+            5.0 * (std::f64::consts::PI * (k - 300) as f64 / 30.0).sin()
+        } else {
+            0.0
+        }
+    };
+    let run = |period: f64| {
+        force_fault_run(
+            500,
+            |k, f| f.add_scalar_mut(bump(k)),
+            |k, f| {
+                if (300..315).contains(&k) {
+                    f.add_scalar_mut(30.0);
+                } else if k >= 315 {
+                    *f = SVector::repeat(f64::NAN);
+                }
+            },
+            move |_| period,
+            1000,
+        )
+    };
+    let est = |r: &[ForceSample], k: usize| r[k].rep.m.force;
+    // Followed from the third smooth sample after the window's ramp (as in
+    // `a_spiked_force_is_followed_under_its_offset`).
+    let unknown = run(f64::NAN);
+    let followed = est(&unknown, 314) - est(&unknown, 313);
+    let true_step = unknown[314].true_f - unknown[313].true_f;
+    assert!((followed - true_step).amax() <= 1e-6, "not followed");
+    let held_from = 300 + (FORCE_FIT_S / 0.01).round() as usize;
+    for k in held_from..500 {
+        let moved = (est(&unknown, k) - est(&unknown, held_from)).amax();
+        assert!(moved <= 1e-9, "step {k}: the hold moved by {moved:.3} N");
+    }
+    let known = run(1.0);
+    let true_step = *largest_steps(known.iter().map(|s| s.true_f))
+        .last()
+        .unwrap();
+    for k in 301..400 {
+        let step = (est(&known, k) - est(&known, k - 1)).amax();
+        assert!(
+            step <= true_step + 1e-6,
+            "step {k}: {step:.3} N (the force's {true_step:.3})"
+        );
+        let err = (est(&known, k) - known[k].true_f).amax();
+        assert!(err <= 4.5, "step {k}: {err:.2} N off");
+    }
+}
+
+/// Issue 28, a followed force whose offset ends in a longer fault, in closed loop: a 100-ms
+/// 30-N spike of both forces at 1 s, 3 kg, then NaN for 0.6 s (first gait period; 4-s msnmpc
+/// run): the estimate holds after its continuation instead of running away, and the peak true
+/// strap force stays within the 1-s goal (70 N) with no latch. Measured on 2026-12-07: 16.9 N
+/// before forces were followed, 104.8 N with the estimate stepped by the hold's own steps
+/// (the monitors tripped), 12.4 N now.
+#[test]
+fn a_followed_force_that_goes_on_in_another_fault_does_not_run_away() {
+    let mut s = scenario(ControllerKind::MSNMPC, 3.0, 4.0);
+    let forces = [Channel::F1, Channel::F2];
+    s.faults.events = fault(FaultKind::Spike, &forces, 1.0, 0.1, 30.0);
+    s.faults
+        .events
+        .extend(fault(FaultKind::Nan, &forces, 1.1, 0.6, 0.0));
+    let (peak, _, rep, _) = run(&s);
+    assert!(peak <= 70.0, "peak {peak:.1} N");
+    assert_eq!(rep.latched_at, None, "{:?}", rep.events);
+}

@@ -299,15 +299,19 @@ pub struct ChannelGuard<const N: usize> {
 enum OffsetFollow {
     /// Not followed in the current fault yet; it may be.
     Ready,
-    /// Not followed in the current fault: the history before it was not clean, or an encoder
-    /// was lost within it.
+    /// Not followed in the current fault: the history before it was not clean, an encoder
+    /// was lost within it, or a gap in the data came within it.
     Barred,
     /// Followed: the estimate is the measurement plus `offset`; `regular` is the estimate it
-    /// replaced on this step.
-    Offset { offset: f32, regular: f32 },
+    /// replaced on this step, the forces' continuation when `continued`.
+    Offset {
+        offset: f32,
+        regular: f32,
+        continued: bool,
+    },
     /// The measurement stopped moving smoothly: the estimate goes on from its last value by
-    /// the steps of the estimate it replaces (`regular` on this step).
-    Continued { regular: f32 },
+    /// the steps of the estimate it replaces (`regular` and `continued` as above).
+    Continued { regular: f32, continued: bool },
 }
 
 /// Which channels of a measurement stand in for rejected ones and must not update a
@@ -328,6 +332,8 @@ pub struct EstimatedChannels<const N: usize> {
     /// what the forces carry. With the gait period known, only for a continuation fitted to
     /// measurements alone (no channel rejected and no force biased over the fit's history: one
     /// fitted across an earlier fault continues that fault); else the MS-NMPC replays `d̂`.
+    /// Also while such a force is followed under its offset instead (the continuation is its
+    /// estimate's reference then; measured so, docs/RELIABILITY.md §2).
     pub gait_omega: Option<f64>,
     /// An angle that stood in for a rejected one as a measurement (implied by its measured
     /// velocity, [`Repaired::q_from_velocity`]) is measured again, further than its gate from
@@ -637,6 +643,8 @@ impl<const N: usize> ChannelGuard<N> {
             // A channel rejected again is accepted as any other after a gap (unverified).
             self.accept_floor = [[0; N]; 2];
             self.stall_len = None;
+            // A force fault that goes on across the gap is not followed.
+            self.follow = [OffsetFollow::Barred; N];
             self.restart_counts();
         }
         self.last_t = m.t;
@@ -1051,7 +1059,7 @@ impl<const N: usize> ChannelGuard<N> {
                         _ => self.estimate(sig, j, &out, period),
                     };
                     let value = if sig == F {
-                        self.follow_offset(j, vals[F][j], value)
+                        self.follow_offset(j, vals[F][j], value, replayed)
                     } else {
                         value
                     };
@@ -1080,14 +1088,18 @@ impl<const N: usize> ChannelGuard<N> {
         // period is known, and are not continued again in this fault.
         let encoders = (0..N).all(|i| self.bad_for[Q][i] == 0 && self.bad_for[QD][i] == 0);
         if !encoders {
-            // A force followed under its offset goes the continuation's way (an encoder of a
-            // later joint was judged after it).
-            for j in (0..N).filter(|&j| self.bad_for[F][j] > 0) {
+            // A force followed under its offset is held on this step (an encoder of a later
+            // joint was judged after it), as in `follow_offset`.
+            for (j, o) in out[F].iter_mut().enumerate() {
+                if self.bad_for[F][j] == 0 {
+                    continue;
+                }
                 if matches!(
                     self.follow[j],
                     OffsetFollow::Offset { .. } | OffsetFollow::Continued { .. }
                 ) {
-                    self.fit_used[j] = true;
+                    *o = self.hold_followed(j);
+                    self.fit_used[j] = false;
                 }
                 self.follow[j] = OffsetFollow::Barred;
             }
@@ -1198,29 +1210,33 @@ impl<const N: usize> ChannelGuard<N> {
         (self.window - 1).max(1)
     }
 
-    /// The angle's slope and the velocity's change start anew: after a gap in the data, and
-    /// on a sample not kept in the history (they would reach back across it as if it were one
-    /// period).
     /// The estimate of rejected strap force `j`, `regular` the one [`Self::estimate`] gives
-    /// (continuation, replay or hold) and `v` this step's measurement: a force rejected after a
-    /// clean history (no channel rejected and no force bias over the span a continuation is
-    /// fitted to, up to [`EXTRAPOLATION_FIT_S`]), while every encoder is measured, whose
-    /// measurement moves smoothly (three smooth fresh samples, as for the acceptance on
-    /// smoothness alone) and on the first of them steps like `regular` (within one gate), is
+    /// (the continuation, the replay, `replayed`, or the hold) and `v` this step's
+    /// measurement: a force rejected after a clean history (no channel rejected and no force
+    /// bias over the span a continuation is fitted to: up to [`EXTRAPOLATION_FIT_S`], less
+    /// early in a run or after a gap in the data), while every encoder is measured, whose
+    /// measurement moves smoothly (three smooth fresh samples in a row, as for the acceptance
+    /// on smoothness alone) and on such a step steps like `regular` (within one gate), is
     /// followed under the offset it has from `regular` there: the estimate is `v` plus that
     /// offset. A spike is an offset, and under it the sensor still measures the person's
     /// force, which the continuation only forecasts (a 200-ms 30-N spike of both forces at
     /// 1 s, 3 kg: 12.7 N on the continuation, 8.9 N followed; docs/RELIABILITY.md §2). When
     /// the measurement stops moving smoothly (the offset ends) the estimate goes on from its
-    /// last value by `regular`'s steps, until the force is accepted again. Once an encoder is
-    /// lost in the fault the force is not followed (every sensor's 1-s spike at 3 s, 2 kg,
-    /// followed: 17.7 → 28.9 N), nor after a history that was not clean: there the fault may
-    /// be the return of a force believed on smoothness alone, a real step (hidden under an
-    /// offset of 19 N in the same cell). A real step of the person's force rejected as a jump
-    /// is hidden for as long as before, until its acceptance on smoothness
-    /// ([`FORCE_RESYNC_S`]), and its shape is followed meanwhile.
-    fn follow_offset(&mut self, j: usize, v: f64, regular: f64) -> f64 {
+    /// last value: by the steps of the continuation or of a replay that began before, and as
+    /// the replay or the hold that start from it (both take the last estimate as their
+    /// start), until the force is accepted again. Once an encoder is lost in the fault the
+    /// force is held on that step and then goes the way of a force off its continuation (the
+    /// replay from the held value, or the hold): followed through the encoders' loss, every
+    /// sensor's 1-s spike at 1.5 s, 3 kg, 74.4 N; nor is it followed after a history that
+    /// was not clean: there the fault may be the return of a force believed on smoothness
+    /// alone, a real step (every sensor's 1-s spike at 3 s, 2 kg: 17.7 → 28.9 N followed, the
+    /// shank's force hidden under a 19-N offset). A real step of the person's force rejected
+    /// as a jump is hidden until its acceptance on smoothness ([`FORCE_RESYNC_S`]), as on the
+    /// continuation, its shape followed meanwhile.
+    fn follow_offset(&mut self, j: usize, v: f64, regular: f64, replayed: bool) -> f64 {
         use OffsetFollow::{Barred, Continued, Offset, Ready};
+        let last = self.back(F, 1)[j];
+        let followed = matches!(self.follow[j], Offset { .. } | Continued { .. });
         if self.bad_for[F][j] == 1 {
             let span = TorqueExtrapolation::<N>::fit_steps(self.filled, self.dt);
             self.follow[j] = if (self.clean_steps as usize) < span {
@@ -1232,10 +1248,16 @@ impl<const N: usize> ChannelGuard<N> {
         // (A later joint's encoders are judged after this strap: `repair` bars it then.)
         if (0..N).any(|i| self.bad_for[Q][i] > 0 || self.bad_for[QD][i] > 0) {
             self.follow[j] = Barred;
+            if followed {
+                return self.hold_followed(j);
+            }
         }
         let smooth = self.smooth[F][j] >= 2 && v.is_finite();
-        let last = self.back(F, 1)[j];
         let gate = self.gates[F].max(ADAPTIVE_GATE_SIGMAS * self.res_ms[F][j].sqrt());
+        let continued = self.fit_used[j];
+        // The replay or the hold taking the last estimate as its start on this step (a replay
+        // begun on it, `replay`'s count at 1).
+        let anchored = !continued && (!replayed || self.replayed_for[F][j] == 1);
         let now = regular as f32;
         let (follow, value) = match self.follow[j] {
             Ready if smooth && ((v - self.raw[F][1][j]) - (regular - last)).abs() < gate => {
@@ -1243,6 +1265,7 @@ impl<const N: usize> ChannelGuard<N> {
                 let follow = Offset {
                     offset,
                     regular: now,
+                    continued,
                 };
                 (follow, v + f64::from(offset))
             }
@@ -1250,16 +1273,34 @@ impl<const N: usize> ChannelGuard<N> {
                 Offset {
                     offset,
                     regular: now,
+                    continued,
                 },
                 v + f64::from(offset),
             ),
             Offset {
-                regular: before, ..
+                regular: before,
+                continued: was,
+                ..
             }
-            | Continued { regular: before } => (
-                Continued { regular: now },
-                last + (f64::from(now) - f64::from(before)),
-            ),
+            | Continued {
+                regular: before,
+                continued: was,
+            } => {
+                let value = if anchored {
+                    regular
+                } else if was == continued {
+                    last + (f64::from(now) - f64::from(before))
+                } else {
+                    last
+                };
+                (
+                    Continued {
+                        regular: now,
+                        continued,
+                    },
+                    value,
+                )
+            }
             other => (other, regular),
         };
         self.follow[j] = follow;
@@ -1270,6 +1311,16 @@ impl<const N: usize> ChannelGuard<N> {
         }
     }
 
+    /// A followed strap force `j` whose follow ends with an encoder's loss: held at its last
+    /// estimate on this step, and a replay on the next starts from it.
+    fn hold_followed(&mut self, j: usize) -> f64 {
+        self.offset[F][j] = f64::NAN;
+        self.back(F, 1)[j]
+    }
+
+    /// The angle's slope and the velocity's change start anew: after a gap in the data, and
+    /// on a sample not kept in the history (they would reach back across it as if it were one
+    /// period).
     fn restart_counts(&mut self) {
         self.q_good_for = [0; N];
         self.qd_good_for = [0; N];
