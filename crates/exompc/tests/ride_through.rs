@@ -2686,26 +2686,29 @@ fn force_faults_while_the_gait_changes_follow_the_forces_continuation() {
     );
 }
 
+/// The person's own change of a strap force the gait before did not have (N): a 5-N bump
+/// over steps 300-330 of the test gait.
+fn person_bump(k: usize) -> f64 {
+    if (300..330).contains(&k) {
+        5.0 * (std::f64::consts::PI * (k - 300) as f64 / 30.0).sin()
+    } else {
+        0.0
+    }
+}
+
 /// A 30-N spike of both strap forces for 200 ms while the person's force changes under it (a
 /// 5-N bump the gait before did not have; the guard alone, `ChannelGuard::follow_offset`):
 /// once the filter has ramped into the offset (three smooth samples after the window) the
 /// estimate follows the person's force step for step, under the offset it had from the
 /// continuation there, where the continuation and the replay forecast the gait before the
-/// fault; the force is accepted again within the filter window of the spike's end. On the
-/// continuation alone the estimate fell 2.5 N further behind the bump (its error at the
-/// first followed step, kept under the offset since).
+/// fault; the force is accepted again within the filter window of the spike's end. Its error
+/// at the first followed step (2.5 N, the continuation's there) is kept under the offset, not
+/// grown as the bump goes on.
 #[test]
 fn a_spiked_force_is_followed_under_its_offset() {
-    let bump = |k: usize| {
-        if (300..330).contains(&k) {
-            5.0 * (std::f64::consts::PI * (k - 300) as f64 / 30.0).sin()
-        } else {
-            0.0
-        }
-    };
     let run = force_fault_run(
         400,
-        |k, f| f.add_scalar_mut(bump(k)),
+        |k, f| f.add_scalar_mut(person_bump(k)),
         |k, f| {
             if (300..320).contains(&k) {
                 f.add_scalar_mut(30.0);
@@ -2766,17 +2769,10 @@ fn a_force_after_a_history_that_was_not_clean_is_not_followed_under_an_offset() 
 /// straight line: 400 N off at step 500 (the review of 2026-12-07).
 #[test]
 fn a_followed_force_goes_on_from_its_last_value_when_its_offset_ends() {
-    let bump = |k: usize| {
-        if (300..330).contains(&k) {
-            5.0 * (std::f64::consts::PI * (k - 300) as f64 / 30.0).sin()
-        } else {
-            0.0
-        }
-    };
     let run = |period: f64| {
         force_fault_run(
             500,
-            |k, f| f.add_scalar_mut(bump(k)),
+            |k, f| f.add_scalar_mut(person_bump(k)),
             |k, f| {
                 if (300..315).contains(&k) {
                     f.add_scalar_mut(30.0);
