@@ -777,7 +777,7 @@ impl<const N: usize> ChannelGuard<N> {
                 // its estimate (`force_bias`, fading at [`FORCE_BIAS_RATE`]).
                 let vb = if sig == F { v + self.force_bias[j] } else { v };
                 let residual = if warm { (vb - estimate).abs() } else { 0.0 };
-                let gate = self.gates[sig].max(ADAPTIVE_GATE_SIGMAS * self.res_ms[sig][j].sqrt());
+                let gate = self.gate(sig, j);
                 let was_bad = self.bad_for[sig][j] > 0;
                 let smooth_now = in_range
                     && !repeated
@@ -1086,7 +1086,7 @@ impl<const N: usize> ChannelGuard<N> {
         // verdict is in (a strap's estimate came before the later joints' verdicts); once one
         // is lost, the continued forces replay the gait one period back, or hold before the
         // period is known, and are not continued again in this fault.
-        let encoders = (0..N).all(|i| self.bad_for[Q][i] == 0 && self.bad_for[QD][i] == 0);
+        let encoders = self.encoders_measured();
         if !encoders {
             // A force followed under its offset is held on this step (an encoder of a later
             // joint was judged after it), as in `follow_offset`.
@@ -1094,14 +1094,10 @@ impl<const N: usize> ChannelGuard<N> {
                 if self.bad_for[F][j] == 0 {
                     continue;
                 }
-                if matches!(
-                    self.follow[j],
-                    OffsetFollow::Offset { .. } | OffsetFollow::Continued { .. }
-                ) {
-                    *o = self.hold_followed(j);
+                if let Some(held) = self.bar_follow(j) {
+                    *o = held;
                     self.fit_used[j] = false;
                 }
-                self.follow[j] = OffsetFollow::Barred;
             }
         }
         if !encoders && self.fit_used.iter().any(|&u| u) {
@@ -1236,24 +1232,17 @@ impl<const N: usize> ChannelGuard<N> {
     fn follow_offset(&mut self, j: usize, v: f64, regular: f64, replayed: bool) -> f64 {
         use OffsetFollow::{Barred, Continued, Offset, Ready};
         let last = self.back(F, 1)[j];
-        let followed = matches!(self.follow[j], Offset { .. } | Continued { .. });
         if self.bad_for[F][j] == 1 {
-            let span = TorqueExtrapolation::<N>::fit_steps(self.filled, self.dt);
-            self.follow[j] = if (self.clean_steps as usize) < span {
-                Barred
-            } else {
-                Ready
-            };
+            self.follow[j] = if self.history_clean() { Ready } else { Barred };
         }
         // (A later joint's encoders are judged after this strap: `repair` bars it then.)
-        if (0..N).any(|i| self.bad_for[Q][i] > 0 || self.bad_for[QD][i] > 0) {
-            self.follow[j] = Barred;
-            if followed {
-                return self.hold_followed(j);
+        if !self.encoders_measured() {
+            if let Some(held) = self.bar_follow(j) {
+                return held;
             }
         }
         let smooth = self.smooth[F][j] >= 2 && v.is_finite();
-        let gate = self.gates[F].max(ADAPTIVE_GATE_SIGMAS * self.res_ms[F][j].sqrt());
+        let gate = self.gate(F, j);
         let continued = self.fit_used[j];
         // The replay or the hold taking the last estimate as its start on this step (a replay
         // begun on it, `replay`'s count at 1).
@@ -1311,11 +1300,37 @@ impl<const N: usize> ChannelGuard<N> {
         }
     }
 
-    /// A followed strap force `j` whose follow ends with an encoder's loss: held at its last
-    /// estimate on this step, and a replay on the next starts from it.
-    fn hold_followed(&mut self, j: usize) -> f64 {
-        self.offset[F][j] = f64::NAN;
-        self.back(F, 1)[j]
+    /// Strap `j` is not followed for the rest of its fault (an encoder lost): a force that was
+    /// followed is held at its last estimate on this step (returned), and a replay on the next
+    /// starts from it.
+    fn bar_follow(&mut self, j: usize) -> Option<f64> {
+        let followed = matches!(
+            self.follow[j],
+            OffsetFollow::Offset { .. } | OffsetFollow::Continued { .. }
+        );
+        self.follow[j] = OffsetFollow::Barred;
+        followed.then(|| {
+            self.offset[F][j] = f64::NAN;
+            self.back(F, 1)[j]
+        })
+    }
+
+    /// The gate of channel `sig` of joint `j`: its fixed gate, widened to
+    /// [`ADAPTIVE_GATE_SIGMAS`] times the RMS of its recent residuals when that is larger.
+    fn gate(&self, sig: usize, j: usize) -> f64 {
+        self.gates[sig].max(ADAPTIVE_GATE_SIGMAS * self.res_ms[sig][j].sqrt())
+    }
+
+    /// Every encoder channel (every joint's angle and velocity) accepted: on this step once
+    /// every joint's verdict is in.
+    fn encoders_measured(&self) -> bool {
+        (0..N).all(|i| self.bad_for[Q][i] == 0 && self.bad_for[QD][i] == 0)
+    }
+
+    /// The history holds measurements alone over the span a continuation is fitted to (no
+    /// channel rejected and no force bias: `clean_steps`).
+    fn history_clean(&self) -> bool {
+        self.clean_steps as usize >= TorqueExtrapolation::<N>::fit_steps(self.filled, self.dt)
     }
 
     /// The angle's slope and the velocity's change start anew: after a gap in the data, and
@@ -1502,8 +1517,7 @@ impl<const N: usize> ChannelGuard<N> {
                 }
             }
             self.force_fit_age = 0;
-            let span = TorqueExtrapolation::<N>::fit_steps(self.filled, self.dt);
-            self.fit_clean = self.clean_steps as usize >= span;
+            self.fit_clean = self.history_clean();
         }
         let fit = (*self.force_fit).as_ref()?;
         let age = self.force_fit_age;
